@@ -1,0 +1,141 @@
+"""Configuration: what one matching run needs (``MatchConfig``) and what a deployment reads from
+the environment (``Settings``).
+
+``MatchConfig`` is the single description of a run. The CLI builds it from flags, the API
+validates it from the ``params`` JSON of an upload, and the pipeline and the workers read it;
+there is no second copy of these options anywhere.
+"""
+
+from __future__ import annotations
+
+import itertools
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Regularizer(StrEnum):
+    """Smoothness term between 4-neighbours."""
+
+    TRUNCATED = "truncated"  # min(trunc, s|dp - dq|), times m across intensity edges (the paper)
+    LINEAR = "linear"  # s|dp - dq|, not edge-aware (the paper's "L R" ablation)
+    NONE = "none"  # data term only
+
+
+class Encoding(StrEnum):
+    """How a pixel's label becomes binary variables."""
+
+    ONE_HOT = "one-hot"
+    DOMAIN_WALL = "domain-wall"
+
+
+class Rectifier(StrEnum):
+    """Penalty weight that enforces a valid encoding."""
+
+    LOCAL = "local"  # one weight per pixel (chi_p / lambda_p), provably sufficient
+    GLOBAL = "global"  # one weight for the whole bundle (the max of the local ones)
+
+
+class LevelConfig(BaseModel):
+    """One pyramid level. Defaults are the paper's full-resolution level."""
+
+    model_config = ConfigDict(frozen=True)
+
+    downsample: int = Field(1, ge=1, description="Integer downsampling factor of this level")
+    candidates: int = Field(4, ge=2, le=64, description="Candidate disparities per pixel")
+    edge_threshold: float = Field(0.3, ge=0, description="|I(p)-I(q)| above which m applies")
+    slope: float = Field(0.0005, ge=0, description="s in min(trunc, s|dp-dq|)")
+    truncation: float = Field(300.0, ge=0, description="trunc in min(trunc, s|dp-dq|)")
+    edge_factor: float = Field(0.1, ge=0, description="m: smoothness weight across edges")
+
+
+def paper_levels() -> list[LevelConfig]:
+    """The authors' pyramid: 1/4, 1/2 and full resolution with 6, 4, 4 candidates."""
+    return [
+        LevelConfig(
+            downsample=4, candidates=6, edge_threshold=0.15, slope=0.0005, truncation=0.0015
+        ),
+        LevelConfig(
+            downsample=2, candidates=4, edge_threshold=0.15, slope=0.0003, truncation=0.0015
+        ),
+        LevelConfig(downsample=1, candidates=4, edge_threshold=0.3, slope=0.0005, truncation=300.0),
+    ]
+
+
+class MatchConfig(BaseModel):
+    """Everything that determines the disparity map of one stereo pair."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    levels: list[LevelConfig] = Field(default_factory=paper_levels, min_length=1)
+    max_disparity: int = Field(20, ge=1, le=1024, description="Largest disparity, full-res px")
+    bundle_height: int = Field(1, ge=1, le=64, description="Rows per QUBO bundle")
+    regularizer: Regularizer = Regularizer.TRUNCATED
+    encoding: Encoding = Encoding.ONE_HOT
+    rectifier: Rectifier = Rectifier.LOCAL
+    median: bool = True
+    median_size: int = Field(7, ge=1, le=31)
+    bilateral: bool = True
+    bilateral_diameter: int = Field(9, ge=1, le=31)
+    bilateral_sigma_color: float = Field(2.0, gt=0, description="In disparity pixels")
+    bilateral_sigma_space: float = Field(5.0, gt=0, description="In pixels")
+    solver: str = "exact"
+    seed: int = Field(0, ge=0, lt=2**32)
+    solver_params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("median_size")
+    @classmethod
+    def _odd(cls, value: int) -> int:
+        if value % 2 == 0:
+            raise ValueError("median_size must be odd")
+        return value
+
+    @model_validator(mode="after")
+    def _levels_coarse_to_fine(self) -> MatchConfig:
+        factors = [level.downsample for level in self.levels]
+        for coarse, fine in itertools.pairwise(factors):
+            if coarse != 2 * fine:
+                raise ValueError(
+                    f"levels must halve the downsampling factor each step, got {factors}"
+                )
+        return self
+
+
+class Settings(BaseSettings):
+    """Deployment settings, read from the environment (prefix ``QHSM_``).
+
+    Ocean's and Gurobi's own variables (``DWAVE_API_TOKEN``, ``GRB_LICENSE_FILE``, ...) are read by
+    those libraries; the ones we pass on explicitly are listed here without the prefix.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="QHSM_", env_file=None, extra="ignore")
+
+    redis_url: str | None = Field(
+        None,
+        description="Broker, results and job store; "
+        "unset: `qhsm serve` starts an embedded redis-server",
+    )
+    data_dir: Path = Field(Path("./data"), description="Uploads, results, embedding cache")
+    result_ttl_seconds: int = Field(7 * 24 * 3600, ge=60)
+    max_image_pixels: int = Field(4_000_000, ge=1)
+    rows_per_task: int = Field(8, ge=1, description="Bundles' rows grouped into one Celery task")
+    task_visibility_timeout: int = Field(6 * 3600, ge=60)
+    embedding_timeout: float = Field(300.0, gt=0, description="minorminer time limit, seconds")
+
+    dwave_api_token: SecretStr | None = Field(None, validation_alias="DWAVE_API_TOKEN")
+    dwave_solver: str | None = Field(None, validation_alias="DWAVE_SOLVER")
+    dwave_region: str | None = Field(None, validation_alias="DWAVE_API_REGION")
+    dwave_endpoint: str | None = Field(None, validation_alias="DWAVE_API_ENDPOINT")
+
+    grb_license_file: Path | None = Field(None, validation_alias="GRB_LICENSE_FILE")
+    grb_wls_access_id: SecretStr | None = Field(None, validation_alias="GRB_WLSACCESSID")
+    grb_wls_secret: SecretStr | None = Field(None, validation_alias="GRB_WLSSECRET")
+    grb_license_id: int | None = Field(None, validation_alias="GRB_LICENSEID")
+
+
+def get_settings() -> Settings:
+    """Read the settings from the environment now (cheap; no caching so tests can patch env)."""
+    return Settings()

@@ -1,0 +1,169 @@
+"""Image and disparity-map I/O. Everything crossing this module's boundary inward is float32.
+
+Intensity images become grayscale in [0, 1] with Rec. 709 luma weights, whatever their bit depth
+(8/16-bit PNG, PPM/PGM, JPEG, float PFM). Disparity maps are written as Middlebury PFM
+(float32), 16-bit PNG (disparity x 256, the KITTI convention) or ``.npy``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+#: Rec. 709 luma weights for (R, G, B).
+REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+#: 16-bit PNG disparity maps store disparity x this factor.
+PNG_DISPARITY_SCALE = 256.0
+IMAGE_SUFFIXES = {".png", ".ppm", ".pgm", ".pnm", ".jpg", ".jpeg", ".pfm", ".tif", ".tiff", ".bmp"}
+DISPARITY_SUFFIXES = (".pfm", ".png", ".npy")
+
+
+class ImageError(ValueError):
+    """An input image cannot be used; the message names the file and the problem."""
+
+
+def decode_image(data: bytes, name: str) -> np.ndarray:
+    """Decode image bytes to float32 grayscale in [0, 1]; ``name`` is only used in errors."""
+    if not data:
+        raise ImageError(f"{name}: the file is empty")
+    raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise ImageError(
+            f"{name}: not a readable image (supported: PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)"
+        )
+    return to_gray(raw, name)
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """Read an image file as float32 grayscale in [0, 1]."""
+    path = Path(path)
+    if not path.is_file():
+        raise ImageError(f"{path}: no such file")
+    return decode_image(path.read_bytes(), str(path))
+
+
+def to_gray(raw: np.ndarray, name: str = "image") -> np.ndarray:
+    """Convert an OpenCV-decoded array (BGR order, any depth) to float32 gray in [0, 1]."""
+    if raw.size == 0 or raw.shape[0] == 0 or raw.shape[1] == 0:
+        raise ImageError(f"{name}: the image has no pixels")
+    if raw.dtype == np.uint8:
+        scaled = raw.astype(np.float32) / 255.0
+    elif raw.dtype == np.uint16:
+        scaled = raw.astype(np.float32) / 65535.0
+    elif raw.dtype in (np.float32, np.float64):
+        scaled = np.nan_to_num(raw.astype(np.float32))
+        high = float(scaled.max()) if scaled.size else 0.0
+        if high > 1.0:  # float images in 0..255 (or larger): normalise by the range used
+            scaled = scaled / high
+        scaled = np.clip(scaled, 0.0, 1.0)
+    else:
+        raise ImageError(f"{name}: unsupported pixel type {raw.dtype}")
+    if scaled.ndim == 2:
+        return np.ascontiguousarray(scaled)
+    if scaled.ndim == 3 and scaled.shape[2] in (3, 4):
+        bgr = scaled[:, :, :3]
+        gray = bgr @ REC709[::-1]
+        return np.ascontiguousarray(gray, dtype=np.float32)
+    if scaled.ndim == 3 and scaled.shape[2] == 1:
+        return np.ascontiguousarray(scaled[:, :, 0])
+    raise ImageError(f"{name}: unsupported image layout {raw.shape}")
+
+
+def check_pair(left: np.ndarray, right: np.ndarray, names: tuple[str, str] = ("left", "right")):
+    """Raise ``ImageError`` unless the two views have the same size."""
+    if left.shape != right.shape:
+        raise ImageError(
+            f"{names[0]} is {left.shape[1]}x{left.shape[0]} but {names[1]} is "
+            f"{right.shape[1]}x{right.shape[0]}: a rectified stereo pair has two views of one size"
+        )
+
+
+def load_pair(left: str | Path, right: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a rectified stereo pair as two float32 gray images of the same size."""
+    left_image, right_image = load_image(left), load_image(right)
+    check_pair(left_image, right_image, (str(left), str(right)))
+    return left_image, right_image
+
+
+def load_mask(path: str | Path) -> np.ndarray:
+    """Read a mask (palette PNGs decoded through their palette); True where the value is > 0."""
+    raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if raw is None:
+        raise ImageError(f"{path}: not a readable mask image")
+    return raw > 0
+
+
+def load_disparity_values(path: str | Path) -> np.ndarray:
+    """Read raw disparity/ground-truth values as float32 without rescaling (scale applied later).
+
+    ``.npy`` and ``.pfm`` carry real disparities; integer images carry their stored values.
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".npy":
+        return np.load(path).astype(np.float32)
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise ImageError(f"{path}: not a readable disparity image")
+    if raw.ndim == 3:
+        raw = raw[:, :, 0]
+    values = raw.astype(np.float32)
+    return np.where(np.isfinite(values), values, 0.0).astype(np.float32)
+
+
+def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
+    """Encode a disparity map as ``pfm``, ``png`` (16-bit, x256) or ``npy`` bytes."""
+    fmt = fmt.lower().lstrip(".")
+    disparity = np.asarray(disparity, dtype=np.float32)
+    if fmt == "pfm":
+        ok, buf = cv2.imencode(".pfm", disparity)
+    elif fmt == "png":
+        scaled = np.clip(np.rint(disparity * PNG_DISPARITY_SCALE), 0, 65535).astype(np.uint16)
+        ok, buf = cv2.imencode(".png", scaled)
+    elif fmt == "npy":
+        import io
+
+        stream = io.BytesIO()
+        np.save(stream, disparity)
+        return stream.getvalue()
+    else:
+        raise ValueError(f"unknown disparity format {fmt!r}; use one of pfm, png, npy")
+    if not ok:
+        raise RuntimeError(f"OpenCV could not encode a {fmt} disparity map")
+    return buf.tobytes()
+
+
+def save_disparity(disparity: np.ndarray, path: str | Path) -> Path:
+    """Write a disparity map; the format follows the extension (.pfm, .png, .npy)."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in DISPARITY_SUFFIXES:
+        raise ValueError(f"{path}: unsupported output extension; use one of {DISPARITY_SUFFIXES}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(disparity_bytes(disparity, suffix))
+    return path
+
+
+def load_disparity(path: str | Path) -> np.ndarray:
+    """Read a disparity map written by :func:`save_disparity` (PNG is divided by 256)."""
+    path = Path(path)
+    values = load_disparity_values(path)
+    if path.suffix.lower() == ".png":
+        return values / PNG_DISPARITY_SCALE
+    return values
+
+
+def colorize(disparity: np.ndarray, max_disparity: float | None = None) -> np.ndarray:
+    """Colour-map a disparity map (near = warm) as an 8-bit BGR image for previews."""
+    top = float(max_disparity if max_disparity else max(float(np.max(disparity)), 1.0))
+    scaled = np.clip(np.asarray(disparity, dtype=np.float32) / top, 0.0, 1.0)
+    return cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+
+
+def preview_png(disparity: np.ndarray, max_disparity: float | None = None) -> bytes:
+    """PNG bytes of :func:`colorize`."""
+    ok, buf = cv2.imencode(".png", colorize(disparity, max_disparity))
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the preview")
+    return buf.tobytes()

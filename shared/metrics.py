@@ -1,0 +1,79 @@
+"""Middlebury-style evaluation: RMSE and bad-pixel percentage (|d - gt| > 1 px).
+
+Conventions (see the scenes' PROVENANCE.md): stored ground-truth values are disparity x scale;
+0 means unknown; a frame of ``border`` pixels is ignored; an optional mask (``all``, ``nonocc``,
+``disc``) restricts the evaluated pixels to its non-zero entries.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+BAD_PIXEL_THRESHOLD = 1.0
+
+
+@dataclass(frozen=True)
+class Scores:
+    rmse: float
+    bpp: float
+    pixels: int
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def evaluation_mask(
+    gt_values: np.ndarray, border: int = 0, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """Pixels that count: known ground truth, outside the border, inside the mask."""
+    keep = np.asarray(gt_values) > 0
+    if border > 0:
+        frame = np.zeros_like(keep)
+        frame[border:-border, border:-border] = True
+        keep &= frame
+    if mask is not None:
+        if mask.shape != keep.shape:
+            raise ValueError(f"mask is {mask.shape}, ground truth is {keep.shape}")
+        keep &= mask.astype(bool)
+    return keep
+
+
+def evaluate(
+    disparity: np.ndarray,
+    gt_values: np.ndarray,
+    scale: float = 1.0,
+    border: int = 0,
+    mask: np.ndarray | None = None,
+    threshold: float = BAD_PIXEL_THRESHOLD,
+) -> Scores:
+    """Scores of ``disparity`` against stored ground truth ``gt_values`` (disparity x scale)."""
+    disparity = np.asarray(disparity, dtype=np.float64)
+    if disparity.shape != gt_values.shape:
+        raise ValueError(
+            f"disparity is {disparity.shape[::-1]} (w x h), ground truth is {gt_values.shape[::-1]}"
+        )
+    keep = evaluation_mask(gt_values, border, mask)
+    count = int(keep.sum())
+    if count == 0:
+        raise ValueError("no pixel left to evaluate (check border, mask and scale)")
+    error = np.abs(disparity[keep] - gt_values[keep].astype(np.float64) / scale)
+    return Scores(
+        rmse=float(np.sqrt(np.mean(error**2))),
+        bpp=float(100.0 * np.mean(error > threshold)),
+        pixels=count,
+    )
+
+
+def error_map(
+    disparity: np.ndarray,
+    gt_values: np.ndarray,
+    scale: float = 1.0,
+    border: int = 0,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """|d - gt| in pixels where evaluated, NaN elsewhere (for error-map images)."""
+    keep = evaluation_mask(gt_values, border, mask)
+    error = np.abs(np.asarray(disparity, np.float32) - gt_values.astype(np.float32) / scale)
+    return np.where(keep, error, np.nan).astype(np.float32)

@@ -1,0 +1,82 @@
+"""``exact``: the global MAP of single-row bundles by min-sum dynamic programming (Viterbi).
+
+It reads the MRF costs directly, not the QUBO: a row is a chain, so the optimum over K^w
+labellings costs O(w K^2), and all rows of a block are solved at once (vectorised over rows and
+labels; the only Python loop runs over columns). For a generic BQM it falls back to dimod's
+brute-force ``ExactSolver``, which is only feasible for tiny problems.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import dimod
+import numpy as np
+
+from shared.energy import Costs
+from shared.solvers.base import Availability, SolverError, SolveResult, result_from_sampleset
+
+#: dimod.ExactSolver enumerates 2^n states; beyond this it is hopeless.
+BRUTE_FORCE_LIMIT = 24
+
+
+def solve_chains(costs: Costs) -> np.ndarray:
+    """Optimal labels (h, w) of every row of ``costs``, each row an independent chain.
+
+    Vertical edges are ignored, so this is the exact MAP only for single-row bundles; callers
+    must not use it for taller bundles (see :meth:`ExactSolver.check_bundle_height`).
+    """
+    unary, pair = costs.unary, costs.pair_h
+    height, width, labels = unary.shape
+    back = np.empty((height, max(width - 1, 0), labels), dtype=np.int16)
+    message = unary[:, 0].copy()
+    for col in range(1, width):
+        total = message[:, :, None] + pair[:, col - 1]  # (h, K_prev, K)
+        back[:, col - 1] = total.argmin(axis=1)
+        message = total.min(axis=1) + unary[:, col]
+    result = np.empty((height, width), dtype=np.int32)
+    result[:, -1] = message.argmin(axis=1)
+    rows = np.arange(height)
+    for col in range(width - 1, 0, -1):
+        result[:, col - 1] = back[rows, col - 1, result[:, col]]
+    return result
+
+
+class ExactSolver:
+    """Row-chain DP for the pipeline; dimod's brute force for small generic BQMs."""
+
+    name = "exact"
+    description = "Exact MAP of single-row bundles (dynamic programming on the MRF costs)"
+    offline = False
+    uses_qpu_time = False
+
+    def available(self) -> Availability:
+        return Availability(True, "always available (CPU)")
+
+    @staticmethod
+    def check_bundle_height(bundle_height: int) -> None:
+        if bundle_height != 1:
+            raise SolverError(
+                f"the exact solver is exact only for single-row bundles (bundle height 1), "
+                f"got bundle height {bundle_height}: use --bundle-height 1, or a QUBO solver "
+                "such as sa or gurobi for taller bundles"
+            )
+
+    def solve(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        *,
+        seed: int | None = None,
+        initial_state: np.ndarray | None = None,
+        **params: Any,
+    ) -> SolveResult:
+        if bqm.num_variables > BRUTE_FORCE_LIMIT:
+            raise SolverError(
+                f"exact solves a generic BQM by enumeration only up to {BRUTE_FORCE_LIMIT} "
+                f"variables (this one has {bqm.num_variables}); stereo rows go through the "
+                "row DP instead"
+            )
+        started = time.perf_counter()
+        sampleset = dimod.ExactSolver().sample(bqm).lowest()
+        return result_from_sampleset(sampleset, bqm, started)
