@@ -1,0 +1,153 @@
+"""The `qhsm` command as a user runs it (installed console script)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import cv2
+import numpy as np
+import pytest
+
+from shared.cli import main
+from shared.images import load_disparity
+from shared.metrics import evaluate
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory, scene):
+    folder = tmp_path_factory.mktemp("pair")
+    cv2.imwrite(str(folder / "left.png"), (scene.left * 255).round().astype(np.uint8))
+    cv2.imwrite(str(folder / "right.png"), (scene.right * 255).round().astype(np.uint8))
+    cv2.imwrite(str(folder / "gt.png"), (scene.disparity * 4).round().astype(np.uint16))
+    return folder
+
+
+def test_console_script_matches_and_reports_json(pair, tmp_path, scene):
+    exe = shutil.which("qhsm")
+    assert exe, "the qhsm console script is not installed (pip install -e .)"
+    out = tmp_path / "d.pfm"
+    completed = subprocess.run(
+        [
+            exe,
+            "match",
+            str(pair / "left.png"),
+            str(pair / "right.png"),
+            "-o",
+            str(out),
+            "--max-disparity",
+            "16",
+            "--json",
+            "--preview",
+            str(tmp_path / "p.png"),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    summary = json.loads(completed.stdout)
+    assert [level["downsample"] for level in summary["levels"]] == [4, 2, 1]
+    assert all(level["energy"] > 0 and level["seconds"] > 0 for level in summary["levels"])
+    assert evaluate(load_disparity(out), scene.disparity).bpp < 15
+    assert (tmp_path / "p.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("suffix", [".png", ".npy"])
+def test_output_format_follows_the_extension(pair, tmp_path, suffix):
+    out = tmp_path / f"d{suffix}"
+    assert (
+        main(
+            [
+                "match",
+                str(pair / "left.png"),
+                str(pair / "right.png"),
+                "-o",
+                str(out),
+                "--max-disparity",
+                "16",
+                "--no-bilateral",
+            ]
+        )
+        == 0
+    )
+    disparity = load_disparity(out)
+    assert disparity.shape == (96, 128) and disparity.max() > 8
+
+
+def test_eval_prints_rmse_and_bpp(pair, tmp_path, capsys):
+    out = tmp_path / "d.pfm"
+    main(
+        [
+            "match",
+            str(pair / "left.png"),
+            str(pair / "right.png"),
+            "-o",
+            str(out),
+            "--max-disparity",
+            "16",
+        ]
+    )
+    capsys.readouterr()
+    assert main(["eval", str(out), str(pair / "gt.png"), "--scale", "4", "--border", "2"]) == 0
+    scores = json.loads(capsys.readouterr().out)
+    assert set(scores) >= {"rmse", "bpp"} and scores["bpp"] < 15
+
+
+def test_user_errors_are_one_line_messages(pair, tmp_path, capsys):
+    assert (
+        main(
+            [
+                "match",
+                str(pair / "left.png"),
+                str(tmp_path / "none.png"),
+                "-o",
+                str(tmp_path / "d.pfm"),
+            ]
+        )
+        == 1
+    )
+    assert "none.png: no such file" in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "match",
+                str(pair / "left.png"),
+                str(pair / "right.png"),
+                "-o",
+                str(tmp_path / "d.pfm"),
+                "--solver",
+                "nope",
+            ]
+        )
+        == 1
+    )
+    assert "unknown solver 'nope'" in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "match",
+                str(pair / "left.png"),
+                str(pair / "right.png"),
+                "-o",
+                str(tmp_path / "d.pfm"),
+                "--bundle-height",
+                "2",
+            ]
+        )
+        == 1
+    )
+    assert "single-row bundles" in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "match",
+                str(pair / "left.png"),
+                str(pair / "right.png"),
+                "-o",
+                str(tmp_path / "d.jpg"),
+            ]
+        )
+        == 1
+    )
+    assert ".pfm, .png or .npy" in capsys.readouterr().err

@@ -1,0 +1,74 @@
+"""Cost arrays: the data term, the three regularisers and the energy of a labelling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shared.config import LevelConfig, Regularizer
+from shared.energy import level_costs, mrf_energy
+
+LEVEL = LevelConfig(
+    downsample=1, candidates=3, edge_threshold=0.15, slope=0.5, truncation=0.75, edge_factor=0.1
+)
+
+
+def _images():
+    left = np.array([[0.1, 0.2, 0.9, 0.4], [0.3, 0.3, 0.3, 0.8]], dtype=np.float32)
+    right = np.array([[0.5, 0.1, 0.2, 0.7], [0.2, 0.6, 0.3, 0.1]], dtype=np.float32)
+    candidates = np.broadcast_to(np.array([0, 1, 2], dtype=np.int32), (2, 4, 3)).copy()
+    return left, right, candidates
+
+
+def test_data_term_compares_left_x_with_right_x_minus_d():
+    left, right, candidates = _images()
+    costs = level_costs(left, right, candidates, LEVEL, Regularizer.TRUNCATED)
+    assert costs.unary[0, 3, 1] == pytest.approx((0.4 - 0.2) ** 2)  # x=3, d=1 -> right x=2
+    assert costs.unary[1, 2, 2] == pytest.approx((0.3 - 0.2) ** 2)  # x=2, d=2 -> right x=0
+    assert costs.unary[0, 0, 2] == pytest.approx((0.1 - 0.5) ** 2)  # x - d < 0: border pixel
+
+
+def test_truncated_regulariser_is_edge_aware():
+    left, right, candidates = _images()
+    costs = level_costs(left, right, candidates, LEVEL, Regularizer.TRUNCATED)
+    # (0,0)-(0,1): |0.1 - 0.2| = 0.1 <= thr: min(0.75, 0.5 |dp - dq|)
+    assert costs.pair_h[0, 0, 0, 1] == pytest.approx(0.5)
+    assert costs.pair_h[0, 0, 0, 2] == pytest.approx(0.75)
+    # (0,1)-(0,2): |0.2 - 0.9| > thr: times m = 0.1
+    assert costs.pair_h[0, 1, 0, 2] == pytest.approx(0.075)
+    # vertical (0,3)-(1,3): |0.4 - 0.8| > thr
+    assert costs.pair_v[0, 3, 2, 0] == pytest.approx(0.075)
+    assert np.all(costs.pair_h[..., [0, 1, 2], [0, 1, 2]] == 0)
+
+
+def test_linear_regulariser_ignores_edges_and_truncation():
+    left, right, candidates = _images()
+    costs = level_costs(left, right, candidates, LEVEL, Regularizer.LINEAR)
+    assert costs.pair_h[0, 1, 0, 2] == pytest.approx(1.0)
+
+
+def test_no_regulariser_leaves_only_the_data_term():
+    left, right, candidates = _images()
+    costs = level_costs(left, right, candidates, LEVEL, Regularizer.NONE)
+    assert not costs.pair_h.any() and not costs.pair_v.any()
+
+
+def test_energy_of_a_labelling_sums_every_term_once():
+    left, right, candidates = _images()
+    costs = level_costs(left, right, candidates, LEVEL, Regularizer.TRUNCATED)
+    labels = np.array([[0, 1, 2, 2], [1, 1, 0, 2]])
+    expected = sum(costs.unary[y, x, labels[y, x]] for y in range(2) for x in range(4))
+    expected += sum(
+        costs.pair_h[y, x, labels[y, x], labels[y, x + 1]] for y in range(2) for x in range(3)
+    )
+    expected += sum(costs.pair_v[0, x, labels[0, x], labels[1, x]] for x in range(4))
+    assert mrf_energy(costs, labels) == pytest.approx(expected)
+
+
+def test_costs_of_a_row_block_equal_the_block_of_the_level_costs():
+    left, right, candidates = _images()
+    full = level_costs(left, right, candidates, LEVEL, Regularizer.TRUNCATED)
+    block = level_costs(left[1:], right[1:], candidates[1:], LEVEL, Regularizer.TRUNCATED)
+    np.testing.assert_array_equal(block.unary, full.rows(1, 2).unary)
+    np.testing.assert_array_equal(block.pair_h, full.rows(1, 2).pair_h)
+    assert block.pair_v.shape[0] == 0

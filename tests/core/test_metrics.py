@@ -1,0 +1,48 @@
+"""Middlebury conventions: scale, unknown ground truth, border, masks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shared.metrics import error_map, evaluate
+
+
+def test_rmse_and_bad_pixels_use_the_ground_truth_scale():
+    gt_values = np.full((4, 4), 16.0 * 5)  # disparity 5 stored at scale 16
+    disparity = np.full((4, 4), 5.0)
+    disparity[0, 0] = 7.0  # one bad pixel, error 2
+    disparity[1, 1] = 5.5  # error 0.5: not bad
+    scores = evaluate(disparity, gt_values, scale=16)
+    assert scores.pixels == 16
+    assert scores.bpp == pytest.approx(100 / 16)
+    assert scores.rmse == pytest.approx(np.sqrt((4 + 0.25) / 16))
+
+
+def test_zero_ground_truth_border_and_mask_are_excluded():
+    gt_values = np.full((6, 6), 10.0)
+    gt_values[2, 2] = 0  # unknown
+    disparity = np.full((6, 6), 10.0)
+    disparity[0, :] = 0  # wrong, but in the border
+    disparity[2, 2] = 99  # wrong, but unknown
+    disparity[3, 3] = 0  # wrong, masked out
+    mask = np.ones((6, 6), bool)
+    mask[3, 3] = False
+    scores = evaluate(disparity, gt_values, scale=1, border=1, mask=mask)
+    assert scores.pixels == 16 - 2
+    assert scores.bpp == 0 and scores.rmse == 0
+
+
+def test_exactly_one_pixel_off_is_not_bad():
+    scores = evaluate(np.array([[2.0, 3.0]]), np.array([[1.0, 1.0]]))
+    assert scores.bpp == pytest.approx(50.0)
+
+
+def test_error_map_is_nan_outside_the_evaluated_pixels():
+    errors = error_map(np.full((3, 3), 2.0), np.array([[1, 0, 1], [1, 1, 1], [1, 1, 1.0]]))
+    assert np.isnan(errors[0, 1]) and errors[0, 0] == pytest.approx(1.0)
+
+
+def test_nothing_to_evaluate_is_an_error():
+    with pytest.raises(ValueError, match="no pixel left"):
+        evaluate(np.zeros((2, 2)), np.zeros((2, 2)))
