@@ -86,6 +86,7 @@ def _validation_message(error) -> str:
 def cmd_match(args: argparse.Namespace) -> int:
     from shared.images import load_pair, preview_png, save_disparity
     from shared.pipeline import run_pipeline
+    from shared.solve import ProcessPoolLevelSolver
     from shared.solvers import get_solver
 
     config = config_from_args(args)
@@ -101,7 +102,8 @@ def cmd_match(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"level {done}/{total} done", file=sys.stderr)
 
-    result = run_pipeline(left, right, config, progress=progress)
+    with ProcessPoolLevelSolver(args.processes) as solve_level:
+        result = run_pipeline(left, right, config, solve_level, progress=progress)
     save_disparity(result.disparity, args.output)
     if args.preview:
         Path(args.preview).write_bytes(preview_png(result.disparity, config.max_disparity))
@@ -164,6 +166,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")
     match.add_argument("--json", action="store_true", help="print a JSON summary")
+    match.add_argument(
+        "--processes",
+        type=int,
+        default=0,
+        help="local worker processes for the bundles (0: one per core)",
+    )
     match.set_defaults(handler=cmd_match)
 
     evaluate = commands.add_parser("eval", help="score a disparity map against ground truth")

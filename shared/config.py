@@ -13,7 +13,15 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, SecretStr, field_validator, model_validator
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    Field,
+    SecretStr,
+    field_validator,
+    model_validator,
+)
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -80,8 +88,8 @@ class MatchConfig(BaseModel):
     median_size: int = Field(7, ge=1, le=31)
     bilateral: bool = True
     bilateral_diameter: int = Field(9, ge=1, le=31)
-    bilateral_sigma_color: float = Field(2.0, gt=0, description="In disparity pixels")
-    bilateral_sigma_space: float = Field(5.0, gt=0, description="In pixels")
+    bilateral_sigma_color: float = Field(4.0, gt=0, description="In disparity pixels")
+    bilateral_sigma_space: float = Field(3.0, gt=0, description="In pixels")
     solver: str = "exact"
     seed: int = Field(0, ge=0, lt=2**32)
     solver_params: dict[str, Any] = Field(default_factory=dict)
@@ -115,8 +123,14 @@ class Settings(BaseSettings):
 
     redis_url: str | None = Field(
         None,
-        description="Broker, results and job store; "
+        validation_alias=AliasChoices("QHSM_REDIS_URL", "REDIS_URL", "redis_url"),
+        description="Broker, results and job store (QHSM_REDIS_URL or REDIS_URL); "
         "unset: `qhsm serve` starts an embedded redis-server",
+    )
+    key_prefix: str = Field(
+        "qhsm",
+        pattern=r"^[A-Za-z0-9_.-]+$",
+        description="Prefix of every Redis key the service writes (jobs, queues, results)",
     )
     data_dir: Path = Field(Path("./data"), description="Uploads, results, embedding cache")
     result_ttl_seconds: int = Field(7 * 24 * 3600, ge=60)
@@ -124,6 +138,29 @@ class Settings(BaseSettings):
     rows_per_task: int = Field(8, ge=1, description="Bundles' rows grouped into one Celery task")
     task_visibility_timeout: int = Field(6 * 3600, ge=60)
     embedding_timeout: float = Field(300.0, gt=0, description="minorminer time limit, seconds")
+    dataset_mirror: str | None = Field(
+        None,
+        description="Base URL replacing https://vision.middlebury.edu/ for `qhsm datasets fetch`",
+    )
+    control_queue: str = Field("control", description="Celery queue of the orchestration tasks")
+    task_retries: int = Field(5, ge=0, description="Retries after a transient solver error")
+    retry_backoff: float = Field(
+        2.0, gt=0, description="First retry delay after a transient error, seconds (doubles)"
+    )
+    retry_backoff_max: float = Field(300.0, gt=0, description="Longest retry delay, seconds")
+    max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
+    api_host: str = Field("127.0.0.1", description="`qhsm serve` / `qhsm api` bind address")
+    api_port: int = Field(8000, ge=0, le=65535, description="`qhsm serve` / `qhsm api` port")
+    api_url: str = Field("http://127.0.0.1:8000", description="Where `qhsm submit` sends jobs")
+    worker_concurrency: int | None = Field(
+        None, ge=1, description="Processes per `qhsm serve` CPU worker (default: CPU count)"
+    )
+    inspect_timeout: float = Field(
+        1.0, gt=0, description="Seconds to wait for workers to report their queues"
+    )
+    plugins: str = Field(
+        "", description="Comma-separated modules imported at start-up (register extra solvers)"
+    )
 
     dwave_api_token: SecretStr | None = Field(None, validation_alias="DWAVE_API_TOKEN")
     dwave_solver: str | None = Field(None, validation_alias="DWAVE_SOLVER")

@@ -8,8 +8,12 @@ QUBO and runs the row DP on the costs of the whole block at once.
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
+from multiprocessing import get_context
 
 import numpy as np
 
@@ -150,6 +154,7 @@ def assemble(inputs: LevelInputs, results: list[BundleResult]) -> LevelSolution:
     labels = np.full((height, width), -1, dtype=np.int32)
     covered = np.zeros(height, dtype=np.int32)
     timing: dict[str, float] = {}
+    results = sorted(results, key=lambda r: r.row_start)  # sums independent of arrival order
     for result in results:
         labels[result.row_start : result.row_stop] = result.labels
         covered[result.row_start : result.row_stop] += 1
@@ -175,3 +180,35 @@ def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSol
     """The in-process ``solve_level``: every bundle of the level, one after another."""
     rows = bundle_rows(inputs.shape[0], config.bundle_height)
     return assemble(inputs, solve_bundles(inputs, config, rows))
+
+
+class ProcessPoolLevelSolver:
+    """A ``solve_level`` that spreads a level's bundles over local worker processes.
+
+    Bundles are independent and seeded by position, so the result equals the sequential one.
+    The exact solver is vectorised over rows already and always runs in this process. Use as a
+    context manager so the pool lives across levels.
+    """
+
+    def __init__(self, processes: int | None = None) -> None:
+        self.processes = processes or os.cpu_count() or 1
+        self._pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> ProcessPoolLevelSolver:
+        if self.processes > 1:
+            self._pool = ProcessPoolExecutor(self.processes, mp_context=get_context("fork"))
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+    def __call__(self, inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
+        if self._pool is None or config.solver == "exact":
+            return solve_level_in_process(inputs, config)
+        rows = bundle_rows(inputs.shape[0], config.bundle_height)
+        chunks = [rows[i :: self.processes * 4] for i in range(self.processes * 4)]
+        solve = partial(solve_bundles, inputs, config)
+        results = [r for chunk in self._pool.map(solve, [c for c in chunks if c]) for r in chunk]
+        return assemble(inputs, results)

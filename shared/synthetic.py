@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 
 @dataclass(frozen=True)
@@ -37,7 +36,7 @@ class _Surface:
 
 def _texture(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
     """Band-limited random texture in [0.05, 0.95]: enough contrast to match, no aliasing."""
-    noise = ndimage.gaussian_filter(rng.random(shape), sigma=1.0)
+    noise = cv2.GaussianBlur(rng.random(shape), (0, 0), sigmaX=1.0, borderType=cv2.BORDER_REFLECT)
     noise -= noise.min()
     return (0.05 + 0.9 * noise / max(float(noise.max()), 1e-9)).astype(np.float32)
 
