@@ -2,8 +2,8 @@
 
 ``LevelInputs`` is everything needed to build any bundle of a level: the level's images and
 candidate array. From a block of rows the worker computes the costs, encodes each bundle with the
-configured codec, calls the solver adapter, decodes and repairs. The ``exact`` solver skips the
-QUBO and runs the row DP on the costs of the whole block at once.
+configured codec, calls the solver adapter, decodes and repairs. A ``RowSolver`` (the exact DP)
+skips the QUBO and works on the costs of the whole block at once.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from shared.config import LevelConfig, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, level_costs, mrf_energy
 from shared.solvers import get_solver
-from shared.solvers.exact import ExactSolver, solve_chains
+from shared.solvers.base import RowSolver
 
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
@@ -87,9 +87,9 @@ def solve_bundles(
     """Solve the given bundles (row ranges) of a level with ``config.solver``."""
     if not row_ranges:
         return []
-    if config.solver == "exact":
-        return _solve_exact(inputs, config, row_ranges)
     solver = get_solver(config.solver)
+    if isinstance(solver, RowSolver):
+        return _solve_on_costs(solver, inputs, config, row_ranges)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     warm = bool(config.solver_params.get("warm_start")) and inputs.initial_labels is not None
@@ -121,15 +121,14 @@ def solve_bundles(
     return results
 
 
-def _solve_exact(
-    inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
+def _solve_on_costs(
+    solver: RowSolver, inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
 ) -> list[BundleResult]:
-    """Row DP over the smallest block of rows covering ``row_ranges``, all rows at once."""
-    ExactSolver.check_bundle_height(config.bundle_height)
+    """A row solver on the smallest block of rows covering ``row_ranges``, all rows at once."""
     started = time.perf_counter()
     first, last = min(r[0] for r in row_ranges), max(r[1] for r in row_ranges)
     costs = inputs.costs(config, first, last)
-    labels = solve_chains(costs)
+    labels = solver.solve_rows(costs, config.bundle_height)
     share = (time.perf_counter() - started) / len(row_ranges)
     results = []
     for start, stop in row_ranges:
@@ -186,7 +185,7 @@ class ProcessPoolLevelSolver:
     """A ``solve_level`` that spreads a level's bundles over local worker processes.
 
     Bundles are independent and seeded by position, so the result equals the sequential one.
-    The exact solver is vectorised over rows already and always runs in this process. Use as a
+    Row solvers (the exact DP) are vectorised over rows already and run in this process. Use as a
     context manager so the pool lives across levels.
     """
 
@@ -205,7 +204,7 @@ class ProcessPoolLevelSolver:
             self._pool = None
 
     def __call__(self, inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
-        if self._pool is None or config.solver == "exact":
+        if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
             return solve_level_in_process(inputs, config)
         rows = bundle_rows(inputs.shape[0], config.bundle_height)
         chunks = [rows[i :: self.processes * 4] for i in range(self.processes * 4)]

@@ -11,6 +11,8 @@ from typing import Any, Protocol, runtime_checkable
 import dimod
 import numpy as np
 
+from shared.energy import Costs
+
 
 @dataclass(frozen=True)
 class Availability:
@@ -98,3 +100,14 @@ def result_from_sampleset(
         info=dict(info or {}),
         sampleset=sampleset,
     )
+
+
+@runtime_checkable
+class RowSolver(Protocol):
+    """A solver that works on the MRF costs of whole rows instead of a QUBO (the exact DP).
+
+    ``shared.solve`` hands such a solver all rows of a task at once, which is what lets it
+    vectorise over rows; it raises ``SolverError`` for bundle shapes it cannot solve.
+    """
+
+    def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray: ...

@@ -63,6 +63,11 @@ class ExactSolver:
                 "such as sa or gurobi for taller bundles"
             )
 
+    def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray:
+        """Exact labels of every row of ``costs`` (single-row bundles only)."""
+        self.check_bundle_height(bundle_height)
+        return solve_chains(costs)
+
     def solve(
         self,
         bqm: dimod.BinaryQuadraticModel,
