@@ -22,5 +22,7 @@ def bundle_seed(seed: int, level: int, row_start: int) -> int:
 
     In-process runs and distributed runs therefore give identical results for the same seed,
     whatever the grouping of bundles into tasks or their order.
+
+    Seeds are below 2**31: dwave-samplers rejects larger ones despite its message.
     """
-    return int(np.random.SeedSequence([seed, level, row_start]).generate_state(1)[0])
+    return int(np.random.SeedSequence([seed, level, row_start]).generate_state(1)[0] >> 1)

@@ -155,6 +155,73 @@ def cmd_solvers(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    from shared.bench import BenchOptions, parse_solver_params, run_bench, split_names
+
+    options = BenchOptions(
+        dataset=Path(args.dataset),
+        out=Path(args.out),
+        scenes=split_names(args.scenes),
+        solvers=split_names(args.solvers) or [],
+        experiments=split_names(args.experiments) or [],
+        ablation_solver=args.ablation_solver,
+        url=args.url,
+        bundle_height=args.bundle_height,
+        seed=args.seed,
+        solver_params=parse_solver_params(args.param),
+        processes=args.processes,
+        scale=args.scale,
+        border=args.border,
+        max_disparity=args.max_disparity,
+    )
+    run_bench(options, command=["qhsm", *sys.argv[1:]])
+    print(f"wrote {options.out / 'results.md'} and {options.out / 'results.json'}")
+    return 0
+
+
+def cmd_datasets_fetch(args: argparse.Namespace) -> int:
+    from shared.bench import split_names
+    from shared.config import get_settings
+    from shared.datasets import fetch
+
+    mirror = args.mirror or get_settings().dataset_mirror
+    try:
+        fetched = fetch(
+            args.name,
+            args.directory,
+            mirror=mirror,
+            scenes=split_names(args.scenes),
+            progress=lambda f: print(f"{f.status:<10} {f.sha256}  {f.path}"),
+        )
+    except ConnectionError as error:
+        raise CommandError(f"{error} (offline? use --mirror or QHSM_DATASET_MIRROR)") from None
+    unverified = sum(f.status == "unverified" for f in fetched)
+    if unverified:
+        print(
+            f"{unverified} file(s) have no known checksum: they are unverified (sha256 printed "
+            "above so you can record them)",
+            file=sys.stderr,
+        )
+    return 0
+
+
+def cmd_datasets_list(args: argparse.Namespace) -> int:
+    from shared.datasets import find_scenes
+
+    scenes = find_scenes(args.directory)
+    rows = [{"name": name, **scene.protocol()} for name, scene in scenes.items()]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+    else:
+        for row in rows:
+            print(
+                f"{row['name']:<12} {row['layout']:<24} scale {row['scale']:g}  border "
+                f"{row['border']}  max disparity {row['max_disparity']}  "
+                f"masks {','.join(row['masks']) or '-'}"
+            )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="qhsm", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -190,6 +257,54 @@ def build_parser() -> argparse.ArgumentParser:
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
     solvers.add_argument("--json", action="store_true")
     solvers.set_defaults(handler=cmd_solvers)
+
+    bench = commands.add_parser("bench", help="run the paper's experiments on a dataset folder")
+    bench.add_argument("dataset", help="folder of scene folders (or one scene folder)")
+    bench.add_argument("--scenes", help="comma-separated scene names (default: all found)")
+    bench.add_argument(
+        "--solvers",
+        default="exact,gurobi,sa,hybrid,qpu",
+        help="solver comparison: comma-separated registry names (unavailable ones are skipped)",
+    )
+    bench.add_argument(
+        "--experiments",
+        default="solvers,ablations,baselines",
+        help="comma-separated subset of solvers, ablations, baselines",
+    )
+    bench.add_argument("--ablation-solver", default="exact", help="solver of the ablations")
+    bench.add_argument("--url", help="run the pipeline through the service at this URL")
+    bench.add_argument("--out", default="out/bench", help="output folder")
+    bench.add_argument("--bundle-height", type=int, default=1, help="rows per QUBO bundle")
+    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="[SOLVER:]KEY=VALUE",
+        help="solver parameter (JSON value), e.g. --param sa:num_reads=10",
+    )
+    bench.add_argument(
+        "--processes", type=int, default=1, help="local processes for the bundles (default 1)"
+    )
+    bench.add_argument("--scale", type=float, help="override every scene's ground-truth scale")
+    bench.add_argument("--border", type=int, help="override every scene's ignored border (px)")
+    bench.add_argument("--max-disparity", type=int, help="override every scene's search range")
+    bench.set_defaults(handler=cmd_bench)
+
+    datasets = commands.add_parser("datasets", help="fetch or inspect stereo datasets")
+    dataset_commands = datasets.add_subparsers(dest="datasets_command", required=True)
+    fetch = dataset_commands.add_parser("fetch", help="download a Middlebury set (checksums)")
+    fetch.add_argument("name", help="middlebury2001 or middlebury2003")
+    fetch.add_argument("directory")
+    fetch.add_argument("--scenes", help="comma-separated subset of the set's scenes")
+    fetch.add_argument(
+        "--mirror", help="base URL replacing vision.middlebury.edu (also QHSM_DATASET_MIRROR)"
+    )
+    fetch.set_defaults(handler=cmd_datasets_fetch)
+    listing = dataset_commands.add_parser("list", help="show the scenes found and their protocol")
+    listing.add_argument("directory")
+    listing.add_argument("--json", action="store_true")
+    listing.set_defaults(handler=cmd_datasets_list)
 
     for entry in entry_points(group="qhsm.commands"):
         entry.load()(commands)

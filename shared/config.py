@@ -142,6 +142,11 @@ class Settings(BaseSettings):
         None,
         description="Base URL replacing https://vision.middlebury.edu/ for `qhsm datasets fetch`",
     )
+    solver_rows_per_task: dict[str, int] = Field(
+        default_factory=lambda: {"exact": 144},
+        description="Per-solver rows_per_task (JSON); the exact row DP is vectorised over rows, "
+        "so small tasks only add broker overhead",
+    )
     control_queue: str = Field("control", description="Celery queue of the orchestration tasks")
     task_retries: int = Field(5, ge=0, description="Retries after a transient solver error")
     retry_backoff: float = Field(
@@ -160,6 +165,32 @@ class Settings(BaseSettings):
     )
     plugins: str = Field(
         "", description="Comma-separated modules imported at start-up (register extra solvers)"
+    )
+
+    # users, API keys and QPU quotas (issue 5)
+    auth_enabled: bool = Field(
+        True, description="Require `Authorization: Bearer KEY` on /v1 (off: everyone is `local`)"
+    )
+    default_qpu_seconds: float = Field(
+        60.0, ge=0, description="QPU/hybrid budget of a new user without --qpu-seconds, seconds"
+    )
+    qpu_max_in_flight: int = Field(
+        2, ge=1, description="Lab-wide limit on QPU/hybrid problems being solved at once"
+    )
+    qpu_max_in_flight_per_user: int | None = Field(
+        None, ge=1, description="Per-user share of those slots (unset: no per-user limit)"
+    )
+    qpu_slot_ttl: float = Field(
+        900.0,
+        gt=0,
+        description="Seconds after which a QPU slot or budget reservation of a dead worker "
+        "expires (added to the bundle's estimate; must exceed the longest QPU/hybrid call)",
+    )
+    qpu_slot_wait: float = Field(
+        30.0, gt=0, description="Seconds a worker waits for a free QPU slot before retrying later"
+    )
+    api_key: SecretStr | None = Field(
+        None, description="The API key `qhsm submit` (and other clients) send (QHSM_API_KEY)"
     )
 
     dwave_api_token: SecretStr | None = Field(None, validation_alias="DWAVE_API_TOKEN")

@@ -11,6 +11,14 @@ from shared.solvers.base import Solver
 #: name -> "module:attribute" of a zero-argument factory (usually the adapter class).
 _FACTORIES: dict[str, str] = {
     "exact": "shared.solvers.exact:ExactSolver",
+    "sa": "shared.solvers.anneal:SimulatedAnnealingSolver",
+    "tabu": "shared.solvers.anneal:TabuSolver",
+    "steepest-descent": "shared.solvers.anneal:SteepestDescentSolver",
+    "gurobi": "shared.solvers.gurobi:GurobiSolver",
+    "qpu": "shared.solvers.dwave:QPUSolver",
+    "qpu-sim": "shared.solvers.dwave:SimulatedQPUSolver",
+    "hybrid": "shared.solvers.hybrid:LeapHybridSolver",
+    "hybrid-sim": "shared.solvers.hybrid:KerberosSolver",
 }
 _INSTANCES: dict[str, Solver] = {}
 

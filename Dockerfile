@@ -1,0 +1,24 @@
+# One image for every role; the role is the command (see docker-compose.yml):
+#   qhsm api --host 0.0.0.0                     the HTTP API
+#   celery -A workers worker -Q control,exact   a worker bound to some queues
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    QHSM_DATA_DIR=/data
+
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY shared ./shared
+COPY api ./api
+COPY workers ./workers
+RUN pip install . \
+    && useradd --create-home --uid 10001 qhsm \
+    && mkdir -p /data \
+    && chown qhsm /data
+
+USER qhsm
+VOLUME ["/data"]
+EXPOSE 8000
+CMD ["qhsm", "api", "--host", "0.0.0.0", "--port", "8000"]

@@ -1,0 +1,1 @@
+"""HTTP API (FastAPI): upload stereo pairs, poll jobs, download disparity maps."""

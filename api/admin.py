@@ -1,0 +1,204 @@
+"""``qhsm admin``: users, API keys and QPU budgets, straight in the service's Redis.
+
+    qhsm admin create-user NAME [--qpu-seconds N] [--admin]   prints the new key ONCE
+    qhsm admin list-users
+    qhsm admin rotate-key NAME                                 prints the new key ONCE
+    qhsm admin revoke NAME
+    qhsm admin set-quota NAME SECONDS                          ("unlimited" lifts the limit)
+    qhsm admin usage [NAME]
+
+It talks to Redis directly (QHSM_REDIS_URL / REDIS_URL or --redis-url), so it needs no API key:
+whoever can reach the service's Redis administers it anyway.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from shared.cli import CommandError
+
+#: Same value as ``api.users.DEFAULT_BUDGET`` (not imported: keeps `qhsm --help` light).
+DEFAULT_BUDGET = "default"
+
+
+def _store(args: argparse.Namespace):
+    import redis
+
+    from api.users import UserStore
+    from shared.config import get_settings
+    from workers.app import redis_url
+
+    settings = get_settings()
+    url = args.redis_url or redis_url(settings)
+    client = redis.Redis.from_url(url, socket_connect_timeout=2)
+    try:
+        client.ping()
+    except redis.RedisError:
+        raise CommandError(
+            f"cannot reach Redis at {_safe_url(url)}: set QHSM_REDIS_URL or pass --redis-url"
+        ) from None
+    return UserStore.from_settings(settings, client)
+
+
+def _safe_url(url: str) -> str:
+    """The URL without a password."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    parts = urlsplit(url)
+    if parts.password:
+        netloc = parts.netloc.replace(f":{parts.password}@", ":***@")
+        return urlunsplit(parts._replace(netloc=netloc))
+    return url
+
+
+def _call(action):
+    """Run a store action, turning ``UserError`` into a one-line CLI error."""
+    from api.users import UserError
+
+    try:
+        return action()
+    except UserError as error:
+        raise CommandError(str(error)) from None
+
+
+def _seconds(value: str) -> float | str | None:
+    if value == DEFAULT_BUDGET:  # argparse passes string defaults through ``type``
+        return value
+    if value.lower() in ("unlimited", "none", "inf"):
+        return None
+    try:
+        seconds = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected seconds or 'unlimited', got {value!r}"
+        ) from None
+    if seconds < 0:
+        raise argparse.ArgumentTypeError("seconds cannot be negative")
+    return seconds
+
+
+def _print_key(name: str, key: str) -> None:
+    print(key)
+    print(
+        f"(API key of {name}: shown once, store it now; send it as `Authorization: Bearer KEY`, "
+        "or set QHSM_API_KEY for `qhsm submit`)",
+        file=sys.stderr,
+    )
+
+
+def cmd_create_user(args: argparse.Namespace) -> int:
+    store = _store(args)
+    user, key = _call(
+        lambda: store.create_user(args.name, admin=args.admin, qpu_seconds=args.qpu_seconds)
+    )
+    _print_key(user.name, key)
+    return 0
+
+
+def cmd_list_users(args: argparse.Namespace) -> int:
+    store = _store(args)
+    rows = []
+    for user in store.list_users():
+        budget = store.ledger.status(user.name)
+        rows.append({**user.model_dump(mode="json"), **budget.as_dict()})
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    print(f"{'name':<20} {'admin':<5} {'state':<8} {'key id':<9} {'used s':>10} {'limit s':>10}")
+    for row in rows:
+        limit = "unlimited" if row["limit_seconds"] is None else f"{row['limit_seconds']:.3f}"
+        print(
+            f"{row['name']:<20} {'yes' if row['admin'] else 'no':<5} "
+            f"{'revoked' if row['revoked'] else 'active':<8} {row['key_id'] or '-':<9} "
+            f"{row['used_seconds']:>10.3f} {limit:>10}"
+        )
+    return 0
+
+
+def cmd_rotate_key(args: argparse.Namespace) -> int:
+    store = _store(args)
+    key = _call(lambda: store.rotate_key(args.name))
+    _print_key(args.name, key)
+    return 0
+
+
+def cmd_revoke(args: argparse.Namespace) -> int:
+    store = _store(args)
+    _call(lambda: store.revoke(args.name))
+    print(f"revoked the key of {args.name} (rotate-key issues a new one)")
+    return 0
+
+
+def cmd_set_quota(args: argparse.Namespace) -> int:
+    store = _store(args)
+    _call(lambda: store.require(args.name))
+    store.ledger.set_limit(args.name, args.seconds)
+    status = store.ledger.status(args.name)
+    limit = "unlimited" if status.limit is None else f"{status.limit:g} s"
+    print(f"{args.name}: QPU budget {limit}, used {status.used:.3f} s")
+    return 0
+
+
+def cmd_usage(args: argparse.Namespace) -> int:
+    store = _store(args)
+    if args.name:
+        _call(lambda: store.require(args.name))
+        names = [args.name]
+    else:
+        names = sorted({u.name for u in store.list_users()} | set(store.ledger.users()))
+    usage = [store.ledger.usage(name).as_dict() for name in names]
+    if args.json:
+        print(json.dumps(usage, indent=2))
+        return 0
+    for entry in usage:
+        limit = entry["limit_seconds"]
+        print(
+            f"{entry['user']}: used {entry['used_seconds']:.3f} s of "
+            f"{'unlimited' if limit is None else f'{limit:g} s'}"
+            f" ({entry['reserved_seconds']:.3f} s reserved)"
+        )
+        for job in entry["jobs"]:
+            print(f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems")
+    return 0
+
+
+def register(subparsers) -> None:
+    """Entry point of the ``qhsm.commands`` group: adds ``qhsm admin``."""
+    admin = subparsers.add_parser("admin", help="manage users, API keys and QPU budgets")
+    admin.add_argument("--redis-url", help="the service's Redis (default: QHSM_REDIS_URL)")
+    commands = admin.add_subparsers(dest="admin_command", required=True)
+
+    create = commands.add_parser("create-user", help="add a user; prints their key once")
+    create.add_argument("name")
+    create.add_argument(
+        "--qpu-seconds",
+        type=_seconds,
+        default=DEFAULT_BUDGET,
+        help="QPU/hybrid budget in seconds or 'unlimited' (default: QHSM_DEFAULT_QPU_SECONDS)",
+    )
+    create.add_argument("--admin", action="store_true", help="may see every job and all usage")
+    create.set_defaults(handler=cmd_create_user)
+
+    listing = commands.add_parser("list-users", help="users, key ids, budgets")
+    listing.add_argument("--json", action="store_true")
+    listing.set_defaults(handler=cmd_list_users)
+
+    rotate = commands.add_parser("rotate-key", help="replace a user's key; prints it once")
+    rotate.add_argument("name")
+    rotate.set_defaults(handler=cmd_rotate_key)
+
+    revoke = commands.add_parser("revoke", help="disable a user's key")
+    revoke.add_argument("name")
+    revoke.set_defaults(handler=cmd_revoke)
+
+    quota = commands.add_parser("set-quota", help="set a user's total QPU budget")
+    quota.add_argument("name")
+    quota.add_argument("seconds", type=_seconds, help="seconds, or 'unlimited'")
+    quota.set_defaults(handler=cmd_set_quota)
+
+    usage = commands.add_parser("usage", help="QPU time used, per user and job")
+    usage.add_argument("name", nargs="?")
+    usage.add_argument("--json", action="store_true")
+    usage.set_defaults(handler=cmd_usage)

@@ -1,0 +1,235 @@
+"""Service commands of ``qhsm`` (plugged in through the ``qhsm.commands`` entry point):
+
+qhsm serve    API + workers for every solver that runs here (+ an embedded Redis)
+qhsm demo     the same, then one job end to end on a sample scene, then stop
+qhsm api      the API alone (deployments run workers with ``celery -A workers worker``)
+qhsm submit   the client: upload a pair, show progress, download the disparity map
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from shared.cli import CommandError, add_match_options, config_from_args
+from shared.config import Settings, get_settings
+
+
+def register(commands: argparse._SubParsersAction) -> None:
+    serve = commands.add_parser("serve", help="run the API and workers (embedded Redis if unset)")
+    _stack_options(serve)
+    serve.set_defaults(handler=cmd_serve)
+
+    demo = commands.add_parser("demo", help="start the service, run one demo job, stop")
+    _stack_options(demo)
+    demo.add_argument("--solver", default="exact", help="solver of the demo job")
+    demo.add_argument(
+        "--scene",
+        choices=["auto", "tsukuba", "synthetic"],
+        default="auto",
+        help="auto: Middlebury Tsukuba when present, else a synthetic scene",
+    )
+    demo.add_argument("--keep-running", action="store_true", help="keep serving after the job")
+    demo.set_defaults(handler=cmd_demo)
+
+    api = commands.add_parser("api", help="run the HTTP API only (uvicorn)")
+    api.add_argument("--host", help="bind address (QHSM_API_HOST)")
+    api.add_argument("--port", type=int, help="port (QHSM_API_PORT)")
+    api.set_defaults(handler=cmd_api)
+
+    submit = commands.add_parser("submit", help="send a stereo pair to a running service")
+    submit.add_argument("left")
+    submit.add_argument("right")
+    add_match_options(submit)
+    submit.add_argument("--url", help="API address (QHSM_API_URL, default http://127.0.0.1:8000)")
+    submit.add_argument("--wait", action="store_true", help="show progress, then download")
+    submit.add_argument("-o", "--output", help="OUT.pfm, .png or .npy (implies --wait)")
+    submit.add_argument("--preview", help="also download a colour preview PNG here")
+    submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
+    submit.add_argument("--gt-scale", type=float, default=1.0, help="stored value per pixel")
+    submit.add_argument("--gt-border", type=int, default=0, help="ignored frame, pixels")
+    submit.add_argument("--json", action="store_true", help="print the final status as JSON")
+    submit.set_defaults(handler=cmd_submit)
+
+
+def _stack_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", help="API bind address (QHSM_API_HOST, default 127.0.0.1)")
+    parser.add_argument("--port", type=int, help="API port (QHSM_API_PORT, default 8000)")
+    parser.add_argument("--data-dir", type=Path, help="uploads, logs, Redis files (QHSM_DATA_DIR)")
+    parser.add_argument("--concurrency", type=int, help="CPU worker processes (default: CPUs)")
+
+
+def _settings(args: argparse.Namespace) -> Settings:
+    settings = get_settings()
+    changes = {}
+    if getattr(args, "host", None):
+        changes["api_host"] = args.host
+    if getattr(args, "port", None) is not None:
+        changes["api_port"] = args.port
+    if getattr(args, "data_dir", None):
+        changes["data_dir"] = args.data_dir
+    return settings.model_copy(update=changes)
+
+
+# --- serve / api / demo ----------------------------------------------------------------------
+
+
+def _uvicorn_server(settings: Settings, log_level: str = "info"):
+    """The API in this thread (uvicorn handles Ctrl-C and SIGTERM)."""
+    import uvicorn
+
+    from api.app import create_app
+
+    config = uvicorn.Config(
+        create_app(settings), host=settings.api_host, port=settings.api_port, log_level=log_level
+    )
+    return uvicorn.Server(config)
+
+
+def cmd_api(args: argparse.Namespace) -> int:
+    _uvicorn_server(_settings(args)).run()
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from api.serve import Stack
+
+    stack = Stack(_settings(args), concurrency=args.concurrency)
+    print("starting Redis and workers ...", file=sys.stderr)
+    try:
+        stack.start()
+        settings = stack.settings
+        print(stack.describe(), file=sys.stderr)
+        print(
+            f"API on http://{settings.api_host}:{settings.api_port} (docs: /docs); Ctrl-C stops",
+            file=sys.stderr,
+        )
+        _uvicorn_server(settings).run()
+    finally:
+        stack.stop()
+    return 0
+
+
+def _demo_scene(choice: str):
+    """(name, left PNG, right PNG, ground truth .npy bytes, gt scale, gt border, max disparity)."""
+    import cv2
+    import numpy as np
+
+    from shared.datasets import default_middlebury_dir, load_scene
+
+    folder = default_middlebury_dir() / "tsukuba"
+    if choice == "tsukuba" or (choice == "auto" and folder.is_dir()):
+        if not folder.is_dir():
+            raise CommandError(f"Tsukuba not found at {folder} (set QHSM_MIDDLEBURY_DIR)")
+        scene = load_scene(folder)
+        gt = scene.gt.read_bytes() if scene.gt else None
+        return "tsukuba", scene.left.read_bytes(), scene.right.read_bytes(), gt, 16.0, 18, 16
+    from shared.synthetic import make_scene
+
+    synthetic = make_scene(120, 160, max_disparity=16, seed=0)
+
+    def png(image) -> bytes:
+        return cv2.imencode(".png", np.rint(image * 255).astype(np.uint8))[1].tobytes()
+
+    from io import BytesIO
+
+    stream = BytesIO()
+    np.save(stream, synthetic.disparity)
+    return "synthetic", png(synthetic.left), png(synthetic.right), stream.getvalue(), 1.0, 0, 16
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from api.client import Client, progress_bar
+    from api.serve import ApiThread, Stack, free_port
+
+    settings = _settings(args)
+    if args.port is None:
+        settings = settings.model_copy(update={"api_port": free_port()})
+    name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
+    stack = Stack(settings, concurrency=args.concurrency)
+    api = None
+    print("starting Redis, workers and the API ...", file=sys.stderr)
+    try:
+        stack.start()
+        print(stack.describe(), file=sys.stderr)
+        api = ApiThread(stack.settings).start()
+        client = Client(api.url)
+        params = {"solver": args.solver, "max_disparity": max_disparity}
+        job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
+        print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
+        status = client.wait(job["id"], on_progress=progress_bar())
+        if status["state"] != "succeeded":
+            raise CommandError(f"the demo job {status['state']}: {status['error']}")
+        out = stack.settings.data_dir / "demo"
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "disparity.pfm").write_bytes(client.disparity(job["id"], "pfm"))
+        (out / "preview.png").write_bytes(client.preview(job["id"]))
+        seconds = sum(level["seconds"] for level in status["levels"])
+        metrics = status["metrics"] or {}
+        print(
+            f"done in {seconds:.2f} s over {len(status['levels'])} levels; "
+            f"RMSE {metrics.get('rmse', float('nan')):.2f} px, "
+            f"bad pixels {metrics.get('bpp', float('nan')):.1f} %"
+        )
+        print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
+        if args.keep_running:
+            print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
+            api.join()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if api is not None:
+            api.stop()
+        stack.stop()
+    return 0
+
+
+# --- submit ----------------------------------------------------------------------------------
+
+
+def cmd_submit(args: argparse.Namespace) -> int:
+    from api.client import Client, ClientError, progress_bar, write_result
+
+    config = config_from_args(args)
+    params = config.model_dump(mode="json", exclude_defaults=True)
+    url = args.url or get_settings().api_url
+    files = [Path(args.left), Path(args.right)]
+    if args.ground_truth:
+        files.append(Path(args.ground_truth))
+    for path in files:
+        if not path.is_file():
+            raise CommandError(f"{path}: no such file")
+    client = Client(url)
+    try:
+        job = client.submit(
+            files[0].read_bytes(),
+            files[1].read_bytes(),
+            params,
+            ground_truth=files[2].read_bytes() if args.ground_truth else None,
+            gt_scale=args.gt_scale,
+            gt_border=args.gt_border,
+            names=(files[0].name, files[1].name),
+        )
+        if not (args.wait or args.output):
+            print(f"{job['id']} {job['state']}  {url.rstrip('/')}{job['links']['self']}")
+            return 0
+        status = client.wait(job["id"], on_progress=None if args.json else progress_bar())
+        if status["state"] != "succeeded":
+            raise CommandError(f"job {job['id']} {status['state']}: {status['error']}")
+        output = Path(args.output or f"{job['id']}.pfm")
+        write_result(client, job["id"], output)
+        if args.preview:
+            Path(args.preview).write_bytes(client.preview(job["id"]))
+    except ClientError as error:
+        raise CommandError(str(error)) from None
+    finally:
+        client.close()
+    if args.json:
+        print(json.dumps({"output": str(output), **status}, indent=2))
+    else:
+        metrics = status.get("metrics")
+        scores = f"; RMSE {metrics['rmse']:.3f}, BPP {metrics['bpp']:.2f} %" if metrics else ""
+        print(f"wrote {output}{scores}")
+    return 0

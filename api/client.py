@@ -1,0 +1,136 @@
+"""A small HTTP client of the API (used by ``qhsm submit``, ``qhsm demo`` and the benchmark)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import httpx
+
+TERMINAL = {"succeeded", "failed", "cancelled"}
+
+
+class ClientError(RuntimeError):
+    """The API refused a request or cannot be reached; the message says why."""
+
+
+@dataclass
+class Client:
+    url: str
+    timeout: float = 60.0
+    http: httpx.Client = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.http = httpx.Client(base_url=self.url.rstrip("/"), timeout=self.timeout)
+
+    def close(self) -> None:
+        self.http.close()
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = self.http.request(method, path, **kwargs)
+        except httpx.TransportError as error:
+            raise ClientError(
+                f"cannot reach the qhsm API at {self.url} ({error}); is `qhsm serve` running?"
+            ) from None
+        if response.status_code >= 400:
+            try:
+                detail = response.json().get("detail", response.text)
+            except ValueError:
+                detail = response.text
+            raise ClientError(f"{method} {path}: {response.status_code}: {detail}")
+        return response
+
+    def submit(
+        self,
+        left: bytes,
+        right: bytes,
+        params: dict[str, Any] | None = None,
+        ground_truth: bytes | None = None,
+        gt_scale: float = 1.0,
+        gt_border: int = 0,
+        names: tuple[str, str] = ("left.png", "right.png"),
+    ) -> dict:
+        """POST /v1/jobs; returns ``{id, state, links}``."""
+        files = {"left": (names[0], left), "right": (names[1], right)}
+        data = {"params": json.dumps(params or {})}
+        if ground_truth is not None:
+            files["ground_truth"] = ("ground_truth", ground_truth)
+            data.update(gt_scale=str(gt_scale), gt_border=str(gt_border))
+        return self._request("POST", "/v1/jobs", files=files, data=data).json()
+
+    def status(self, job_id: str) -> dict:
+        return self._request("GET", f"/v1/jobs/{job_id}").json()
+
+    def wait(
+        self,
+        job_id: str,
+        on_progress: Callable[[dict], None] | None = None,
+        interval: float = 0.05,
+        max_interval: float = 1.0,
+    ) -> dict:
+        """Poll until the job ends (the interval grows from ``interval`` to ``max_interval``)."""
+        while True:
+            status = self.status(job_id)
+            if on_progress:
+                on_progress(status)
+            if status["state"] in TERMINAL:
+                return status
+            time.sleep(interval)
+            interval = min(interval * 1.5, max_interval)
+
+    def disparity(self, job_id: str, fmt: str = "pfm") -> bytes:
+        return self._request("GET", f"/v1/jobs/{job_id}/disparity", params={"format": fmt}).content
+
+    def preview(self, job_id: str) -> bytes:
+        return self._request("GET", f"/v1/jobs/{job_id}/preview.png").content
+
+    def cancel(self, job_id: str) -> dict:
+        return self._request("DELETE", f"/v1/jobs/{job_id}").json()
+
+
+def progress_bar(stream: IO[str] = sys.stderr, width: int = 30) -> Callable[[dict], None]:
+    """A one-line progress bar over levels and bundles for :meth:`Client.wait`."""
+
+    last = ""
+    interactive = stream.isatty()
+
+    def show(status: dict) -> None:
+        nonlocal last
+        progress = status["progress"]
+        levels = max(progress["levels"], 1)
+        level_done = progress["bundles_done"] / max(progress["bundles_total"], 1)
+        fraction = (max(progress["level"] - 1, 0) + level_done) / levels
+        if status["state"] == "succeeded":
+            fraction = 1.0
+        filled = round(fraction * width)
+        bar = "#" * filled + "." * (width - filled)
+        line = (
+            f"[{bar}] {status['state']:<9} level {progress['level']}/{progress['levels']} "
+            f"bundles {progress['bundles_done']}/{progress['bundles_total']}"
+        )
+        if line == last:
+            return
+        last = line
+        if interactive:
+            stream.write("\r" + line + ("\n" if status["state"] in TERMINAL else ""))
+        else:
+            stream.write(line + "\n")
+        stream.flush()
+
+    return show
+
+
+def write_result(client: Client, job_id: str, output: Path) -> Path:
+    """Download the disparity in the format ``output``'s extension names."""
+    fmt = output.suffix.lower().lstrip(".")
+    if fmt not in ("pfm", "png", "npy"):
+        raise ClientError(f"{output}: the output must end in .pfm, .png or .npy")
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_bytes(client.disparity(job_id, fmt))
+    return output

@@ -1,0 +1,80 @@
+"""FastAPI dependencies: the settings, the job store and the Celery client of this app."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+
+from celery import Celery
+from fastapi import Request
+
+from shared.config import Settings
+from shared.solvers import Availability, Solver, UnknownSolver, get_solver
+from workers.store import JobStore
+
+log = logging.getLogger(__name__)
+
+#: How long the answer of ``inspect active_queues`` is reused, seconds.
+QUEUE_CACHE_SECONDS = 5.0
+
+
+@dataclass
+class QueueInspector:
+    """Which workers consume which queue, from Celery's ``inspect active_queues`` (cached)."""
+
+    celery: Celery
+    timeout: float
+    _cache: tuple[float, dict[str, list[str]] | None] | None = None
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def consumers(self) -> dict[str, list[str]] | None:
+        """Queue name -> worker names; None when the broker cannot be asked."""
+        with self._lock:
+            if self._cache and time.monotonic() - self._cache[0] < QUEUE_CACHE_SECONDS:
+                return self._cache[1]
+            consumers: dict[str, list[str]] | None = {}
+            try:
+                replies = self.celery.control.inspect(timeout=self.timeout).active_queues()
+            except Exception as error:  # broker down: report "unknown", not a 500
+                log.warning("inspect active_queues failed: %s", error)
+                consumers = None
+            else:
+                for worker, queues in (replies or {}).items():  # None: no worker answered
+                    for queue in queues:
+                        consumers.setdefault(queue["name"], []).append(worker)
+            self._cache = (time.monotonic(), consumers)
+            return consumers
+
+    def forget(self) -> None:
+        with self._lock:
+            self._cache = None
+
+
+@dataclass
+class Services:
+    settings: Settings
+    store: JobStore
+    celery: Celery
+    queues: QueueInspector
+
+
+def services(request: Request) -> Services:
+    return request.app.state.services
+
+
+def load_solver(name: str) -> tuple[Solver | None, Availability]:
+    """The adapter and whether it runs here; an adapter that fails to load is unavailable.
+
+    Raises ``UnknownSolver`` for names that are not registered.
+    """
+    try:
+        solver = get_solver(name)
+    except UnknownSolver:
+        raise
+    except Exception as error:  # a broken optional dependency must not take the API down
+        log.exception("solver %s failed to load", name)
+        reason = f"its adapter failed to load here ({type(error).__name__})"
+        return None, Availability(False, reason)
+    return solver, solver.available()

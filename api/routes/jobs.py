@@ -1,0 +1,253 @@
+"""/v1/jobs: submit a stereo pair, poll it, download the disparity, cancel it, list jobs."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Request, UploadFile
+from fastapi import status as http
+from fastapi.responses import JSONResponse, Response
+
+from api.auth import Principal, can_see, current_principal
+from api.deps import Services, load_solver, services
+from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
+from api.uploads import (
+    UploadError,
+    decode_ground_truth,
+    decode_pair,
+    parse_config,
+    read_upload,
+)
+from shared.config import MatchConfig
+from shared.images import disparity_bytes, preview_png
+from shared.solvers import UnknownSolver
+from workers.app import START_JOB
+from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+ServicesDep = Annotated[Services, Depends(services)]
+PrincipalDep = Annotated[Principal, Depends(current_principal)]
+DISPARITY_MEDIA = {
+    "pfm": "image/x-portable-floatmap",
+    "png": "image/png",
+    "npy": "application/x-npy",
+}
+NOT_FOUND = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
+
+
+def links(job_id: str) -> Links:
+    base = f"/v1/jobs/{job_id}"
+    return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")
+
+
+def status_of(record: JobRecord, svc: Services) -> JobStatus:
+    chunks = svc.store.chunks(record.id)
+    progress = svc.store.progress(record, chunks)
+    return JobStatus(
+        id=record.id,
+        state=record.state,
+        solver=record.config.solver,
+        width=record.width,
+        height=record.height,
+        created_at=record.created_at,
+        started_at=record.started_at,
+        finished_at=record.finished_at,
+        progress=progress.model_dump(),
+        levels=record.levels,
+        usage=svc.store.usage(chunks),
+        metrics=record.metrics,
+        error=record.error,
+        config=record.config,
+        links=links(record.id),
+    )
+
+
+def find_job(job_id: str, svc: Services, principal: Principal) -> JobRecord:
+    record = svc.store.get(job_id)
+    if record is None or not can_see(principal, record):
+        raise HTTPException(
+            http.HTTP_404_NOT_FOUND,
+            f"no job {job_id!r}: it never existed or its results expired "
+            f"(results are kept {svc.settings.result_ttl_seconds} s)",
+        )
+    return record
+
+
+def check_solver(config: MatchConfig, svc: Services) -> None:
+    """The solver must exist, and run here or have a worker consuming its queue."""
+    try:
+        _, availability = load_solver(config.solver)
+    except UnknownSolver as error:
+        raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
+    if availability.ok:
+        return
+    consumers = svc.queues.consumers() or {}
+    if consumers.get(config.solver):
+        return
+    raise UploadError(
+        http.HTTP_422_UNPROCESSABLE_CONTENT,
+        f"solver {config.solver!r} is not available: {availability.reason}; and no worker "
+        f"consumes its queue (start one where it can run: "
+        f"celery -A workers worker -Q {config.solver})",
+    )
+
+
+@router.post(
+    "",
+    status_code=http.HTTP_202_ACCEPTED,
+    response_model=JobCreated,
+    responses={
+        400: {"description": "params is not JSON"},
+        413: {"description": "File or image too large"},
+        415: {"description": "Not a supported image format"},
+        422: {"description": "Invalid parameters, sizes, or solver"},
+    },
+)
+def create_job(
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    left: Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")],
+    right: Annotated[UploadFile, File(description="Right view, same size")],
+    params: Annotated[
+        str | None, Form(description='MatchConfig fields as JSON, e.g. {"solver": "sa"}')
+    ] = None,
+    ground_truth: Annotated[
+        UploadFile | None, File(description="Left disparity ground truth (PNG/PGM/PFM/npy)")
+    ] = None,
+    gt_scale: Annotated[float, Form(gt=0, description="Stored value per disparity pixel")] = 1.0,
+    gt_border: Annotated[int, Form(ge=0, description="Ignored frame, pixels")] = 0,
+):
+    """Queue a matching job; poll the ``Location`` it answers with."""
+    settings = svc.settings
+    config = parse_config(params)
+    check_solver(config, svc)
+    left_image, right_image = decode_pair(
+        read_upload(left, "left", settings), read_upload(right, "right", settings), settings
+    )
+    arrays = {"left": left_image, "right": right_image}
+    truth = None
+    if ground_truth is not None:
+        arrays["ground_truth"] = decode_ground_truth(
+            read_upload(ground_truth, "ground_truth", settings), left_image.shape
+        )
+        truth = GroundTruth(scale=gt_scale, border=gt_border)
+    record = JobRecord(
+        id=new_job_id(),
+        owner=principal.name,
+        config=config,
+        width=left_image.shape[1],
+        height=left_image.shape[0],
+        ground_truth=truth,
+        created_at=now(),
+    )
+    svc.store.create(record, arrays)
+    svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    body = JobCreated(id=record.id, state=record.state, links=links(record.id))
+    return JSONResponse(
+        body.model_dump(mode="json"),
+        status_code=http.HTTP_202_ACCEPTED,
+        headers={"Location": body.links.self},
+    )
+
+
+@router.get("", response_model=JobPage)
+def list_jobs(
+    request: Request,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    offset: Annotated[int, Query(ge=0)] = 0,
+    limit: Annotated[int, Query(ge=1, le=100)] = 20,
+):
+    """Jobs, newest first."""
+    records, total = svc.store.list(offset, limit)
+    items = [
+        JobSummary(
+            id=r.id,
+            state=r.state,
+            solver=r.config.solver,
+            width=r.width,
+            height=r.height,
+            created_at=r.created_at,
+            finished_at=r.finished_at,
+            links=links(r.id),
+        )
+        for r in records
+        if can_see(principal, r)
+    ]
+    following = offset + limit
+    next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None
+    return JobPage(items=items, total=total, offset=offset, limit=limit, next=next_url)
+
+
+@router.get("/{job_id}", response_model=JobStatus, responses=NOT_FOUND)
+def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """State, progress, per-level timing, solver usage, metrics and errors of a job."""
+    return status_of(find_job(job_id, svc, principal), svc)
+
+
+@router.delete(
+    "/{job_id}",
+    response_model=JobStatus,
+    responses={**NOT_FOUND, 409: {"description": "The job already finished"}},
+)
+def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """Cancel a queued or running job: bundles not solved yet are not solved."""
+    record = find_job(job_id, svc, principal)
+    moved = svc.store.transition(job_id, JobState.CANCELLED, ACTIVE)
+    if moved is None:
+        record = find_job(job_id, svc, principal)
+        if record.state is not JobState.CANCELLED:
+            raise HTTPException(
+                http.HTTP_409_CONFLICT,
+                f"job {job_id} already {record.state.value}; there is nothing to cancel",
+            )
+    else:
+        record = moved
+    return status_of(record, svc)
+
+
+def finished_result(job_id: str, svc: Services, principal: Principal):
+    record = find_job(job_id, svc, principal)
+    if record.state is not JobState.SUCCEEDED:
+        hint = (
+            f"poll GET /v1/jobs/{job_id} until its state is succeeded"
+            if record.state in ACTIVE
+            else "it has no result"
+        )
+        raise HTTPException(http.HTTP_409_CONFLICT, f"job {job_id} is {record.state.value}: {hint}")
+    disparity = svc.store.load_result(job_id)
+    if disparity is None:
+        raise HTTPException(http.HTTP_410_GONE, f"the result of job {job_id} has expired")
+    return record, disparity
+
+
+@router.get(
+    "/{job_id}/disparity",
+    responses={**NOT_FOUND, 409: {"description": "Not finished"}, 200: {"content": {}}},
+    response_class=Response,
+)
+def get_disparity(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    format: Literal["pfm", "png", "npy"] = "pfm",
+):
+    """Left-view disparity at full resolution: PFM (float32), 16-bit PNG (x256) or .npy."""
+    _, disparity = finished_result(job_id, svc, principal)
+    return Response(
+        disparity_bytes(disparity, format),
+        media_type=DISPARITY_MEDIA[format],
+        headers={"Content-Disposition": f'attachment; filename="{job_id}.{format}"'},
+    )
+
+
+@router.get(
+    "/{job_id}/preview.png",
+    responses={**NOT_FOUND, 409: {"description": "Not finished"}, 200: {"content": {}}},
+    response_class=Response,
+)
+def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """Colour-mapped disparity (near = warm) for a quick look."""
+    record, disparity = finished_result(job_id, svc, principal)
+    return Response(preview_png(disparity, record.config.max_disparity), media_type="image/png")

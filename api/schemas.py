@@ -1,0 +1,114 @@
+"""API schemas: what clients send and receive (separate from the storage records in
+``workers.store``, so the wire format can stay stable while storage changes)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, Field
+
+from shared.config import MatchConfig
+from workers.store import JobState
+
+
+class Links(BaseModel):
+    self: str
+    disparity: str
+    preview: str
+
+
+class JobCreated(BaseModel):
+    id: str
+    state: JobState
+    links: Links
+
+
+class Progress(BaseModel):
+    level: int = Field(description="1-based level being solved (0: not started)")
+    levels: int
+    bundles_done: int = Field(description="Bundles of the current level solved so far")
+    bundles_total: int
+
+
+class LevelTiming(BaseModel):
+    """One pyramid level (``shared.pipeline.LevelReport``); times in seconds."""
+
+    index: int
+    downsample: int
+    height: int
+    width: int
+    candidates: int
+    bundles: int
+    energy: float
+    repaired: int
+    seconds: float
+    solver_seconds: float
+    timing: dict[str, float] = Field(default_factory=dict)
+
+
+class Metrics(BaseModel):
+    rmse: float
+    bpp: float = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
+    pixels: int
+
+
+class JobStatus(BaseModel):
+    id: str
+    state: JobState
+    solver: str
+    width: int
+    height: int
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    progress: Progress
+    levels: list[LevelTiming]
+    usage: dict[str, float] = Field(
+        description="Solver time spent so far, seconds (solver_seconds, qpu_access_time, ...)"
+    )
+    metrics: Metrics | None = None
+    error: str | None = None
+    config: MatchConfig
+    links: Links
+
+
+class JobSummary(BaseModel):
+    id: str
+    state: JobState
+    solver: str
+    width: int
+    height: int
+    created_at: datetime
+    finished_at: datetime | None
+    links: Links
+
+
+class JobPage(BaseModel):
+    items: list[JobSummary]
+    total: int
+    offset: int
+    limit: int
+    next: str | None = Field(None, description="URL of the next page, if any")
+
+
+class SolverInfo(BaseModel):
+    name: str
+    description: str
+    available: bool = Field(description="Usable by a job: runnable here or a worker consumes it")
+    available_here: bool = Field(description="The solver can run in the API's environment")
+    reason: str
+    offline: bool
+    uses_qpu_time: bool
+    queue: str
+    workers: list[str] | None = Field(
+        description="Workers consuming the queue (None: the workers did not answer in time)"
+    )
+
+
+class Health(BaseModel):
+    status: str
+    redis: str | None = None
+
+
+class ErrorBody(BaseModel):
+    detail: str

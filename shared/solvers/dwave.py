@@ -1,0 +1,296 @@
+"""``qpu`` and ``qpu-sim``: a D-Wave base sampler in ``FixedEmbeddingComposite``, the Ocean way.
+
+The two differ only in the base sampler: ``DWaveSampler`` (token, solver, region and endpoint
+from :class:`shared.config.Settings`) or ``MockDWaveSampler`` on a Pegasus P16 graph, which runs
+steepest descent on the embedded problem offline. Everything else is shared: the embedding comes
+from :mod:`shared.solvers.embedding_cache` (found once per bundle structure), chain strength is
+uniform torque compensation with the paper's prefactor 1.414, chains are resolved by majority
+vote, and the sample set is resolved inside the call. D-Wave reports microseconds; we report
+seconds. The mock's timing is a fixed demonstration value and is marked ``simulated``.
+
+The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
+message we raise or log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from typing import Any
+
+import dimod
+import numpy as np
+
+from shared.config import get_settings
+from shared.solvers.base import (
+    Availability,
+    SolverError,
+    SolveResult,
+    SolverUnavailable,
+    TransientSolverError,
+    sample_array,
+)
+from shared.solvers.embedding_cache import EmbeddingCache, default_cache, graph_fingerprint
+
+log = logging.getLogger(__name__)
+
+#: The paper's chain-strength prefactor for uniform torque compensation.
+CHAIN_STRENGTH_PREFACTOR = 1.414
+DEFAULT_NUM_READS = 500
+#: Reverse anneal used for warm starts on the QPU: back to s = 0.45, pause, forward again (us).
+WARM_START_SCHEDULE = [[0.0, 1.0], [5.0, 0.45], [15.0, 0.45], [20.0, 1.0]]
+MOCK_TOPOLOGY = ("pegasus", [16])
+TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION)"
+
+
+def chain_strength(bqm: dimod.BinaryQuadraticModel) -> float:
+    """Uniform torque compensation with prefactor 1.414 (Ocean's default rule, paper's value)."""
+    from dwave.embedding.chain_strength import uniform_torque_compensation
+
+    return float(uniform_torque_compensation(bqm, prefactor=CHAIN_STRENGTH_PREFACTOR))
+
+
+def _seconds(timing: dict[str, Any]) -> dict[str, float]:
+    """D-Wave's microsecond timing fields in seconds."""
+    return {key: float(value) * 1e-6 for key, value in timing.items() if _is_number(value)}
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+class _EmbeddedQPU:
+    """The shared code path; subclasses supply the base sampler."""
+
+    name: str
+    description: str
+    offline: bool
+    uses_qpu_time: bool
+    simulated: bool
+
+    def __init__(self, cache: EmbeddingCache | None = None) -> None:
+        self._cache = cache
+        self._sampler = None
+        self._target: str | None = None
+        self._lock = threading.Lock()
+
+    @property
+    def cache(self) -> EmbeddingCache:
+        return self._cache if self._cache is not None else default_cache()
+
+    def _make_sampler(self):
+        raise NotImplementedError
+
+    def _secret(self) -> str | None:
+        return None
+
+    def _seed_sampler(self, sampler, seed: int | None) -> None:
+        """Make a simulated sampler reproducible per bundle (a real QPU takes no seed)."""
+
+    def sampler(self):
+        """The base sampler, built once (DWaveSampler fetches the solver's graph on creation)."""
+        with self._lock:
+            if self._sampler is None:
+                sampler = self._make_sampler()
+                topology = sampler.properties.get("topology", {})
+                shape = "x".join(map(str, topology.get("shape", [])))
+                self._target = (
+                    f"{topology.get('type', 'graph')}{shape}-{graph_fingerprint(sampler.edgelist)}"
+                )
+                self._sampler = sampler
+            return self._sampler
+
+    def solve(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        *,
+        seed: int | None = None,
+        initial_state: np.ndarray | None = None,
+        **params: Any,
+    ) -> SolveResult:
+        from dwave.embedding.chain_breaks import majority_vote
+        from dwave.system import FixedEmbeddingComposite
+
+        started = time.perf_counter()
+        try:
+            base = self.sampler()
+            embedding, source, key = self.cache.lookup(
+                bqm, base.edgelist, self._target, seed=0 if seed is None else seed % 2**31
+            )
+            strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
+            settings: dict[str, Any] = {"num_reads": DEFAULT_NUM_READS, **params}
+            if initial_state is not None:
+                state = np.asarray(initial_state, dtype=np.int8)
+                settings.update(
+                    initial_state=dict(enumerate(state.tolist())),
+                    anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
+                    reinitialize_state=True,
+                )
+            composite = FixedEmbeddingComposite(base, embedding)
+            # The mock's seed is sampler state, so simulated calls are serialised.
+            with self._lock if self.simulated else contextlib.nullcontext():
+                self._seed_sampler(base, seed)
+                sampleset = composite.sample(
+                    bqm,
+                    chain_strength=strength,
+                    chain_break_method=majority_vote,
+                    return_embedding=False,
+                    **settings,
+                )
+                sampleset.resolve()
+        except SolverError:
+            raise
+        except Exception as error:  # Ocean raises many types; translate them all
+            raise self._translate(error) from None
+        best = sampleset.first
+        sample = sample_array(best.sample, bqm.num_variables)
+        record = sampleset.record
+        breaks = np.asarray(record.chain_break_fraction, dtype=float)
+        weights = np.asarray(record.num_occurrences, dtype=float)
+        timing = _seconds(sampleset.info.get("timing", {}))
+        info = {
+            "chain_strength": strength,
+            "chain_break_fraction": float(best.chain_break_fraction),
+            "mean_chain_break_fraction": float(np.average(breaks, weights=weights)),
+            "num_reads": int(weights.sum()),
+            "embedding_cache": source,
+            "embedding_cache_hit": source != "computed",
+            "embedding_key": key,
+            "qubits": int(sum(len(chain) for chain in embedding.values())),
+            "longest_chain": int(max((len(c) for c in embedding.values()), default=0)),
+            "qpu_access_time": timing.get("qpu_access_time", 0.0),
+            "simulated": self.simulated,
+            "warm_start": initial_state is not None,
+        }
+        if self.simulated:
+            info["note"] = "offline MockDWaveSampler: timing is a fixed demonstration value"
+        return SolveResult(
+            sample=sample,
+            energy=float(bqm.energy(sample)),
+            wall_time=time.perf_counter() - started,
+            timing=timing,
+            info=info,
+        )
+
+    def _translate(self, error: Exception) -> SolverError:
+        """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
+        from dwave.cloud import exceptions as cloud
+        from dwave.cloud.api import exceptions as api
+
+        detail = self._scrub(f"{type(error).__name__}: {error}")
+        if isinstance(error, cloud.SolverAuthenticationError | api.ResourceAuthenticationError):
+            return SolverUnavailable(
+                f"{self.name}: D-Wave rejected the API token (authentication failed); check "
+                "DWAVE_API_TOKEN"
+            )
+        if isinstance(error, api.ResourceAccessForbiddenError):
+            return SolverUnavailable(
+                f"{self.name}: access to the D-Wave solver is forbidden for this token "
+                "(check the project and solver access of the account)"
+            )
+        if isinstance(error, cloud.SolverNotFoundError):
+            return SolverUnavailable(
+                f"{self.name}: no D-Wave solver matches the configuration "
+                f"(DWAVE_SOLVER / DWAVE_API_REGION): {detail}"
+            )
+        if isinstance(error, api.ResourceLimitsExceededError):
+            return TransientSolverError(
+                f"{self.name}: D-Wave rate limit reached (HTTP 429); retry later"
+            )
+        if isinstance(error, cloud.SolverOfflineError):
+            return TransientSolverError(f"{self.name}: the D-Wave solver is offline; retry later")
+        if isinstance(
+            error,
+            api.RequestTimeout
+            | cloud.PollingTimeout
+            | cloud.ProblemUploadError
+            | api.InternalServerError
+            | TimeoutError
+            | ConnectionError,
+        ) or _is_connection_error(error):
+            return TransientSolverError(
+                f"{self.name}: D-Wave did not answer in time or the connection failed "
+                f"({detail}); retry later"
+            )
+        if isinstance(error, cloud.ConfigFileError):
+            return SolverUnavailable(f"{self.name}: invalid D-Wave configuration: {detail}")
+        return SolverError(f"{self.name}: D-Wave sampling failed: {detail}")
+
+    def _scrub(self, text: str) -> str:
+        secret = self._secret()
+        return text.replace(secret, "***") if secret else text
+
+
+def _is_connection_error(error: Exception) -> bool:
+    import requests
+
+    return isinstance(error, requests.ConnectionError | requests.Timeout)
+
+
+class QPUSolver(_EmbeddedQPU):
+    """``qpu``: a D-Wave Advantage QPU through Leap (needs ``DWAVE_API_TOKEN``).
+
+    Parameters: ``num_reads`` (default 500), ``annealing_time`` (us), ``chain_strength``
+    (overrides torque compensation), ``anneal_schedule`` (for warm starts), and any other
+    ``DWaveSampler`` parameter.
+    """
+
+    name = "qpu"
+    description = "D-Wave QPU (Leap) with a cached fixed embedding"
+    offline = False
+    uses_qpu_time = True
+    simulated = False
+
+    def available(self) -> Availability:
+        if get_settings().dwave_api_token is None:
+            return Availability(False, f"no D-Wave API token: {TOKEN_HELP}")
+        return Availability(True, "DWAVE_API_TOKEN configured")
+
+    def _secret(self) -> str | None:
+        token = get_settings().dwave_api_token
+        return token.get_secret_value() if token is not None else None
+
+    def _make_sampler(self):
+        from dwave.system import DWaveSampler
+
+        settings = get_settings()
+        if settings.dwave_api_token is None:
+            raise SolverUnavailable(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
+        options: dict[str, Any] = {"token": settings.dwave_api_token.get_secret_value()}
+        if settings.dwave_solver:
+            options["solver"] = settings.dwave_solver
+        if settings.dwave_region:
+            options["region"] = settings.dwave_region
+        if settings.dwave_endpoint:
+            options["endpoint"] = settings.dwave_endpoint
+        return DWaveSampler(**options)
+
+
+class SimulatedQPUSolver(_EmbeddedQPU):
+    """``qpu-sim``: the ``qpu`` code path on ``MockDWaveSampler`` (Pegasus P16), offline.
+
+    The mock runs steepest descent per read on the embedded problem; ``annealing_time`` and
+    warm-start (reverse anneal) parameters are accepted but have no effect there.
+    """
+
+    name = "qpu-sim"
+    description = "Offline simulator of the qpu path (MockDWaveSampler, Pegasus P16)"
+    offline = True
+    uses_qpu_time = False
+    simulated = True
+
+    def available(self) -> Availability:
+        return Availability(True, "offline simulator (MockDWaveSampler, Pegasus P16)")
+
+    def _seed_sampler(self, sampler, seed: int | None) -> None:
+        sampler.substitute_kwargs["seed"] = None if seed is None else seed % 2**32
+
+    def _make_sampler(self):
+        from dwave.system.testing import MockDWaveSampler
+
+        topology_type, shape = MOCK_TOPOLOGY
+        return MockDWaveSampler(
+            topology_type=topology_type, topology_shape=shape, parameter_warnings=False
+        )

@@ -1,0 +1,210 @@
+"""Minor embeddings of bundle graphs onto a QPU graph, found once and reused.
+
+Finding an embedding is the slow part of using a QPU: minorminer needed 58 s for one
+full-resolution Tsukuba row (domain-wall, Pegasus P16) and found none in 300 s for the one-hot
+row. All bundles of a level have the same graph (same width, height and labels; only the biases
+differ), so the cache key is the *structure*: a hash of the sorted edge list and the variable
+count, plus a fingerprint of the target graph. Lookups go to an in-process dict first, then to a
+store that several processes share:
+
+* :class:`DirectoryStore` (default): one JSON file per key under ``Settings.data_dir/embeddings``;
+* ``workers.embedding_store.RedisEmbeddingStore`` in the service (``shared`` never imports redis).
+
+A store is anything with ``get(key) -> str | None`` and ``set(key, value: str) -> None``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import tempfile
+import threading
+import time
+from collections.abc import Hashable, Iterable
+from pathlib import Path
+from typing import Protocol
+
+import dimod
+import numpy as np
+
+from shared.config import get_settings
+from shared.solvers.base import SolverError
+
+log = logging.getLogger(__name__)
+
+Embedding = dict[int, list[int]]
+
+
+class EmbeddingStore(Protocol):
+    """Shared key-value storage for embeddings serialised as JSON text."""
+
+    def get(self, key: str) -> str | None: ...
+
+    def set(self, key: str, value: str) -> None: ...
+
+
+class DirectoryStore:
+    """One ``<key>.json`` file per embedding; writes are atomic (temp file + rename), so
+    concurrent writers of the same key are harmless (both embeddings are valid)."""
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+
+    def get(self, key: str) -> str | None:
+        path = self.directory / f"{key}.json"
+        try:
+            return path.read_text()
+        except FileNotFoundError:
+            return None
+
+    def set(self, key: str, value: str) -> None:
+        self.directory.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=self.directory, suffix=".tmp")
+        with os.fdopen(handle, "w") as stream:
+            stream.write(value)
+        os.replace(temporary, self.directory / f"{key}.json")
+
+
+def structure_edges(bqm: dimod.BinaryQuadraticModel) -> np.ndarray:
+    """Sorted (u < v) edge array (m, 2) of a BQM whose variables are integers."""
+    _, (rows, cols, _), _ = bqm.to_numpy_vectors(variable_order=range(bqm.num_variables))
+    edges = np.stack([np.minimum(rows, cols), np.maximum(rows, cols)], axis=1).astype(np.int64)
+    if edges.size == 0:
+        return edges.reshape(0, 2)
+    return edges[np.lexsort((edges[:, 1], edges[:, 0]))]
+
+
+def graph_fingerprint(edges: Iterable[tuple[Hashable, Hashable]]) -> str:
+    """A short hash of a target graph's edge list (its working qubits and couplers)."""
+    array = np.array(sorted(tuple(sorted(edge)) for edge in edges), dtype=np.int64)
+    return hashlib.sha256(array.tobytes()).hexdigest()[:16]
+
+
+def structure_key(bqm: dimod.BinaryQuadraticModel, target: str) -> str:
+    """Cache key of the BQM's graph on ``target`` (a target name plus its fingerprint)."""
+    digest = hashlib.sha256()
+    digest.update(np.int64(bqm.num_variables).tobytes())
+    digest.update(structure_edges(bqm).tobytes())
+    return f"{target}-{digest.hexdigest()[:32]}"
+
+
+def _encode(embedding: Embedding) -> str:
+    return json.dumps({str(v): [int(q) for q in chain] for v, chain in embedding.items()})
+
+
+def _decode(text: str) -> Embedding:
+    return {int(v): list(chain) for v, chain in json.loads(text).items()}
+
+
+class EmbeddingCache:
+    """In-process dict in front of a shared store; ``lookup`` reports where a hit came from."""
+
+    def __init__(self, store: EmbeddingStore | None = None) -> None:
+        self._store = store
+        self._memory: dict[str, Embedding] = {}
+        #: Structures that found no embedding in this process: fail fast instead of searching
+        #: again for every bundle of the level (not persisted: a longer timeout may succeed).
+        self._failures: dict[str, str] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def store(self) -> EmbeddingStore:
+        if self._store is None:
+            self._store = DirectoryStore(get_settings().data_dir / "embeddings")
+        return self._store
+
+    def lookup(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        target_edges: list[tuple[int, int]],
+        target: str,
+        timeout: float | None = None,
+        seed: int = 0,
+    ) -> tuple[Embedding, str, str]:
+        """(embedding, source, key); source is ``"memory"``, ``"store"`` or ``"computed"``."""
+        key = structure_key(bqm, target)
+        with self._lock:
+            if key in self._memory:
+                return self._memory[key], "memory", key
+            if key in self._failures:
+                raise SolverError(self._failures[key])
+        stored = self.store.get(key)
+        if stored is not None:
+            embedding = _decode(stored)
+            if _is_valid(embedding, bqm, target_edges):
+                with self._lock:
+                    self._memory[key] = embedding
+                return embedding, "store", key
+            log.warning("embedding %s in the store does not fit the target; recomputing", key)
+        timeout = get_settings().embedding_timeout if timeout is None else timeout
+        try:
+            embedding = find_embedding(bqm, target_edges, timeout, seed)
+        except SolverError as error:
+            with self._lock:
+                self._failures[key] = str(error)
+            raise
+        self.store.set(key, _encode(embedding))
+        with self._lock:
+            self._memory[key] = embedding
+        return embedding, "computed", key
+
+
+def _is_valid(embedding: Embedding, bqm, target_edges) -> bool:
+    from dwave.embedding import is_valid_embedding
+
+    if set(embedding) != set(bqm.variables):
+        return False
+    return is_valid_embedding(embedding, structure_edges(bqm).tolist(), target_edges)
+
+
+def find_embedding(
+    bqm: dimod.BinaryQuadraticModel,
+    target_edges: list[tuple[int, int]],
+    timeout: float,
+    seed: int = 0,
+) -> Embedding:
+    """minorminer's heuristic embedding, or a :class:`SolverError` that says what to change."""
+    import minorminer
+    import networkx as nx
+
+    source = nx.Graph()
+    source.add_nodes_from(range(bqm.num_variables))
+    source.add_edges_from(structure_edges(bqm).tolist())
+    started = time.perf_counter()
+    embedding = minorminer.find_embedding(source, target_edges, timeout=timeout, random_seed=seed)
+    seconds = time.perf_counter() - started
+    if len(embedding) != bqm.num_variables:
+        raise SolverError(
+            f"no minor embedding of this bundle ({bqm.num_variables} variables, "
+            f"{source.number_of_edges()} couplings) onto the QPU graph found within "
+            f"{timeout:.0f} s (QHSM_EMBEDDING_TIMEOUT): use --encoding domain-wall (fewer "
+            "variables and couplings than one-hot), a smaller bundle height, or a coarser level"
+        )
+    longest = max((len(chain) for chain in embedding.values()), default=0)
+    log.info(
+        "embedded %d variables in %.1f s (%d qubits, longest chain %d)",
+        bqm.num_variables,
+        seconds,
+        sum(len(chain) for chain in embedding.values()),
+        longest,
+    )
+    return {int(v): list(chain) for v, chain in embedding.items()}
+
+
+_default_cache: EmbeddingCache | None = None
+
+
+def default_cache() -> EmbeddingCache:
+    """The process-wide cache (directory store unless :func:`set_default_store` was called)."""
+    global _default_cache
+    if _default_cache is None:
+        _default_cache = EmbeddingCache()
+    return _default_cache
+
+
+def set_default_store(store: EmbeddingStore) -> None:
+    """Install a shared store (the service installs Redis at worker start-up)."""
+    global _default_cache
+    _default_cache = EmbeddingCache(store)

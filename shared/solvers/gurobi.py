@@ -1,0 +1,163 @@
+"""``gurobi``: the bundle's QUBO as a binary quadratic program, solved by Gurobi.
+
+The model is built with the matrix API (one ``addMVar`` and one ``setMObjective`` with a sparse
+Q), so there is no Python loop over terms. The licence comes from the environment: Gurobi reads
+``GRB_LICENSE_FILE`` itself; a WLS licence (``GRB_WLSACCESSID``, ``GRB_WLSSECRET``,
+``GRB_LICENSEID``) is passed to the environment from :class:`shared.config.Settings`. Without
+either, the pip package's size-limited licence applies: at most 200 variables once the model has
+a quadratic term, which is a few pixels of a stereo row.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import dimod
+import numpy as np
+
+from shared.config import Settings, get_settings
+from shared.solvers.base import (
+    Availability,
+    SolverError,
+    SolveResult,
+    SolverUnavailable,
+    TransientSolverError,
+    sample_array,
+)
+
+#: Largest model with quadratic terms the size-limited pip licence accepts.
+PIP_LICENCE_VARIABLES = 200
+#: Friendly parameter names -> Gurobi parameter names (raw Gurobi names are accepted too).
+PARAM_NAMES = {"time_limit": "TimeLimit", "mip_gap": "MIPGap", "threads": "Threads"}
+DEFAULT_PARAMS: dict[str, Any] = {"TimeLimit": 60.0, "Threads": 1}
+
+LICENCE_HELP = (
+    "configure a full licence: set GRB_LICENSE_FILE to a gurobi.lic file, or a Web License "
+    "Service licence with GRB_WLSACCESSID, GRB_WLSSECRET and GRB_LICENSEID"
+)
+
+
+def licence_kind(settings: Settings) -> str:
+    """``"wls"``, ``"file"`` or ``"pip"`` (the size-limited licence bundled with gurobipy)."""
+    if settings.grb_wls_access_id and settings.grb_wls_secret and settings.grb_license_id:
+        return "wls"
+    if settings.grb_license_file is not None:
+        return "file"
+    return "pip"
+
+
+def _environment(settings: Settings):
+    import gurobipy as gp
+
+    env = gp.Env(empty=True)
+    env.setParam("OutputFlag", 0)
+    if licence_kind(settings) == "wls":
+        env.setParam("WLSACCESSID", settings.grb_wls_access_id.get_secret_value())
+        env.setParam("WLSSECRET", settings.grb_wls_secret.get_secret_value())
+        env.setParam("LICENSEID", settings.grb_license_id)
+    env.start()
+    return env
+
+
+def _gurobi_params(params: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(DEFAULT_PARAMS)
+    for key, value in params.items():
+        merged[PARAM_NAMES.get(key, key)] = value
+    return merged
+
+
+class GurobiSolver:
+    """Binary quadratic program with Gurobi (MIQP); parameters ``time_limit`` (s, default 60),
+    ``mip_gap``, ``threads`` (default 1) or any raw Gurobi parameter name."""
+
+    name = "gurobi"
+    description = "Gurobi MIQP on the QUBO (exact up to MIPGap / TimeLimit)"
+    offline = False
+    uses_qpu_time = False
+
+    def available(self) -> Availability:
+        try:
+            import gurobipy  # noqa: F401
+        except ImportError:
+            return Availability(False, "gurobipy is not installed (pip install gurobipy)")
+        kind = licence_kind(get_settings())
+        if kind == "wls":
+            return Availability(True, "full licence (Gurobi Web License Service)")
+        if kind == "file":
+            return Availability(True, "full licence (GRB_LICENSE_FILE)")
+        return Availability(
+            True,
+            f"size-limited pip licence: at most {PIP_LICENCE_VARIABLES} variables with "
+            "quadratic terms (set GRB_LICENSE_FILE or GRB_WLSACCESSID/GRB_WLSSECRET/"
+            "GRB_LICENSEID for a full licence)",
+        )
+
+    def solve(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        *,
+        seed: int | None = None,
+        initial_state: np.ndarray | None = None,
+        **params: Any,
+    ) -> SolveResult:
+        import gurobipy as gp
+        import scipy.sparse as sp
+
+        started = time.perf_counter()
+        settings = get_settings()
+        binary = bqm.change_vartype(dimod.BINARY, inplace=False)
+        n = binary.num_variables
+        linear, (rows, cols, quadratic), offset = binary.to_numpy_vectors(variable_order=range(n))
+        q_matrix = sp.csr_matrix((quadratic, (rows, cols)), shape=(n, n))
+        try:
+            with _environment(settings) as env, gp.Model(env=env) as model:
+                for key, value in _gurobi_params(params).items():
+                    model.setParam(key, value)
+                if seed is not None:
+                    model.setParam("Seed", int(seed) % 2_000_000_000)
+                x = model.addMVar(n, vtype=gp.GRB.BINARY)
+                model.setMObjective(q_matrix, linear, float(offset), sense=gp.GRB.MINIMIZE)
+                if initial_state is not None:
+                    x.Start = np.asarray(initial_state, dtype=float)
+                model.optimize()
+                status = model.Status
+                if model.SolCount == 0:
+                    raise TransientSolverError(
+                        f"gurobi found no solution (status {status}); raise time_limit"
+                    )
+                values = np.rint(x.X).astype(np.int8)
+                info = {
+                    "status": "optimal" if status == gp.GRB.OPTIMAL else f"status {status}",
+                    "optimal": status == gp.GRB.OPTIMAL,
+                    "mip_gap": float(model.MIPGap),
+                    "bound": float(model.ObjBound),
+                    "licence": licence_kind(settings),
+                }
+                runtime = float(model.Runtime)
+        except gp.GurobiError as error:
+            raise _translate(error, n, bool(quadratic.size)) from None
+        sample = sample_array(dict(zip(range(n), values.tolist(), strict=True)), n)
+        return SolveResult(
+            sample=sample,
+            energy=float(bqm.energy(sample)),
+            wall_time=time.perf_counter() - started,
+            timing={"solver": runtime},
+            info=info,
+        )
+
+
+def _translate(error, num_variables: int, quadratic: bool) -> SolverError:
+    """Gurobi's errors as our typed errors, with what to do about them."""
+    import gurobipy as gp
+
+    if error.errno == gp.GRB.Error.SIZE_LIMIT_EXCEEDED:
+        return SolverError(
+            f"gurobi: this bundle has {num_variables} variables"
+            f"{' with quadratic terms' if quadratic else ''}, more than the size-limited pip "
+            f"licence allows (at most {PIP_LICENCE_VARIABLES} variables once the model has "
+            f"quadratic terms); use smaller bundles or images, or {LICENCE_HELP}"
+        )
+    if error.errno == gp.GRB.Error.NO_LICENSE:
+        return SolverUnavailable(f"gurobi: no valid licence ({error.message}); {LICENCE_HELP}")
+    return SolverError(f"gurobi failed (error {error.errno}): {error.message}")

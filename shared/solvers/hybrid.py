@@ -1,0 +1,152 @@
+"""``hybrid`` (Leap's hybrid BQM solver) and ``hybrid-sim`` (dwave-hybrid's Kerberos, offline).
+
+Kerberos races tabu search, simulated annealing and QPU-solved subproblems (energy-impact
+decomposition) and keeps the best; ``hybrid-sim`` gives it the offline ``MockDWaveSampler`` as
+its QPU, so it runs anywhere and its QPU timing is not real. It is a stand-in for the workflow
+shape, not for Leap's proprietary solver, and is always named as such.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import dimod
+import numpy as np
+
+from shared.config import get_settings
+from shared.solvers.base import (
+    Availability,
+    SolverError,
+    SolveResult,
+    SolverUnavailable,
+    result_from_sampleset,
+)
+from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver
+
+#: Kerberos settings sized for stereo bundles (its own defaults run 100 iterations of 10k sweeps).
+KERBEROS_DEFAULTS: dict[str, Any] = {
+    "max_iter": 10,
+    "convergence": 3,
+    "sa_reads": 1,
+    "sa_sweeps": 1000,
+    "tabu_timeout": 100,
+    "qpu_reads": 100,
+    "max_subproblem_size": 50,
+}
+
+
+def _initial_sampleset(bqm: dimod.BinaryQuadraticModel, initial_state: np.ndarray | None):
+    if initial_state is None:
+        return None
+    state = np.asarray(initial_state, dtype=np.int8).reshape(1, -1)
+    return dimod.SampleSet.from_samples_bqm((state, list(range(bqm.num_variables))), bqm)
+
+
+class LeapHybridSolver(QPUSolver):
+    """``hybrid``: ``LeapHybridSampler`` (needs ``DWAVE_API_TOKEN``); ``time_limit`` in seconds
+    (Leap's minimum for the problem size when unset). Warm starts are not supported by Leap's
+    BQM solver, so ``initial_state`` is ignored and reported as such."""
+
+    name = "hybrid"
+    description = "D-Wave Leap hybrid BQM solver (cloud)"
+    offline = False
+    uses_qpu_time = True
+    simulated = False
+
+    def _make_sampler(self):
+        from dwave.system import LeapHybridSampler
+
+        settings = get_settings()
+        if settings.dwave_api_token is None:
+            raise SolverUnavailable(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
+        options: dict[str, Any] = {"token": settings.dwave_api_token.get_secret_value()}
+        if settings.dwave_region:
+            options["region"] = settings.dwave_region
+        if settings.dwave_endpoint:
+            options["endpoint"] = settings.dwave_endpoint
+        return LeapHybridSampler(**options)
+
+    def solve(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        *,
+        seed: int | None = None,
+        initial_state: np.ndarray | None = None,
+        **params: Any,
+    ) -> SolveResult:
+        started = time.perf_counter()
+        try:
+            with self._lock:
+                if self._sampler is None:
+                    self._sampler = self._make_sampler()
+            sampleset = self._sampler.sample(bqm, **params)
+            sampleset.resolve()
+        except SolverError:
+            raise
+        except Exception as error:
+            raise self._translate(error) from None
+        timing = {
+            key: float(value) * 1e-6
+            for key, value in sampleset.info.items()
+            if key in ("qpu_access_time", "run_time", "charge_time")
+        }
+        info = {
+            "qpu_access_time": timing.get("qpu_access_time", 0.0),
+            "simulated": False,
+            "warm_start": False,
+            "warm_start_ignored": initial_state is not None,
+        }
+        return result_from_sampleset(sampleset, bqm, started, timing, info)
+
+
+class KerberosSolver:
+    """``hybrid-sim``: dwave-hybrid's Kerberos workflow with ``MockDWaveSampler`` as its QPU.
+
+    Parameters: those of ``hybrid.reference.kerberos.Kerberos`` (``max_iter``, ``max_time``,
+    ``convergence``, ``sa_sweeps``, ``tabu_timeout``, ``qpu_reads``, ``max_subproblem_size``);
+    defaults in :data:`KERBEROS_DEFAULTS`. ``initial_state`` becomes Kerberos' initial sample.
+    """
+
+    name = "hybrid-sim"
+    description = "Offline stand-in for hybrid: dwave-hybrid Kerberos with MockDWaveSampler"
+    offline = True
+    uses_qpu_time = False
+
+    def __init__(self) -> None:
+        self._qpu = None
+
+    def available(self) -> Availability:
+        return Availability(True, "offline simulator (dwave-hybrid Kerberos, MockDWaveSampler)")
+
+    def solve(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        *,
+        seed: int | None = None,
+        initial_state: np.ndarray | None = None,
+        **params: Any,
+    ) -> SolveResult:
+        from dwave.system.testing import MockDWaveSampler
+        from hybrid.reference.kerberos import KerberosSampler
+
+        if self._qpu is None:
+            topology_type, shape = MOCK_TOPOLOGY
+            self._qpu = MockDWaveSampler(
+                topology_type=topology_type, topology_shape=shape, parameter_warnings=False
+            )
+        settings = {**KERBEROS_DEFAULTS, **params}
+        started = time.perf_counter()
+        if seed is not None:
+            np.random.seed(seed % 2**32)  # dwave-hybrid's samplers draw from numpy's global RNG
+        try:
+            sampleset = KerberosSampler().sample(
+                bqm,
+                init_sample=_initial_sampleset(bqm, initial_state),
+                qpu_sampler=self._qpu,
+                **settings,
+            )
+        except (TypeError, ValueError) as error:
+            raise SolverError(f"hybrid-sim: invalid parameters: {error}") from None
+        info = {"simulated": True, "warm_start": initial_state is not None}
+        return result_from_sampleset(sampleset, bqm, started, {}, info)

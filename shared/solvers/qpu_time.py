@@ -1,0 +1,254 @@
+"""Estimates of metered D-Wave time, before anything is sent: per bundle and per job.
+
+The service reserves a bundle's estimate from its owner's budget before the bundle goes to the
+QPU (or the hybrid solver) and settles the reservation with the time the sample set reports, so
+the estimate only has to be a sensible upper-ish bound; the charge is always the reported time.
+
+QPU model (D-Wave, "Operation and Timing" > "Breakdown of QPU Access Time"; SAPI timing fields):
+
+    qpu_access_time = T_p + R * (T_a + T_r + T_d)
+
+``T_p`` programming time (typical programming time + programming thermalization), ``R`` reads,
+``T_a`` annealing time, ``T_r`` readout time (a piecewise-linear function of the number of
+qubits in log-log space) and ``T_d`` the per-sample delay (plus readout thermalization). The
+arithmetic is dwave-cloud-client's own ``StructuredSolver.estimate_qpu_access_time``; with a live
+solver its ``problem_timing_data`` property is used, offline the Advantage_system4.1 values of
+August 2022 below (as published by D-Wave and recorded in dwave-cloud-client's test data).
+
+The QPU model needs the number of *qubits*, known only after embedding. Before embedding we
+assume :data:`QUBITS_PER_VARIABLE` qubits per binary variable: on Pegasus a full-resolution
+domain-wall Tsukuba row (1152 variables) embedded in 1956 qubits (1.7 per variable), so 2 is a
+slight overestimate; readout time grows only logarithmically with the qubit count, so the error
+this factor makes is small.
+
+Hybrid model: Leap's hybrid BQM solver charges about its run time, which is the requested
+``time_limit`` or, when unset, the solver's minimum for the problem size (the
+``minimum_time_limit`` property: a piecewise-linear curve in the number of variables). Offline we
+use the curve Leap's ``hybrid_binary_quadratic_model_version2`` reports (3 s up to 1024
+variables, 10 s at 4096, 40 s at 10000, ...).
+
+All functions return seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+from shared.bundles import bundle_rows
+from shared.config import MatchConfig
+from shared.encodings import get_codec
+from shared.pyramid import level_shape
+
+#: Advantage_system4.1 ``problem_timing_data`` (August 2022), microseconds.
+ADVANTAGE_TIMING_DATA: dict[str, Any] = {
+    "version": "1.0.0",
+    "typical_programming_time": 14072.88,
+    "reverse_annealing_with_reinit_prog_time_delta": 0.0,
+    "reverse_annealing_without_reinit_prog_time_delta": 5.55,
+    "default_programming_thermalization": 1000.0,
+    "default_annealing_time": 20.0,
+    "readout_time_model": "pwl_log_log",
+    "readout_time_model_parameters": [
+        0.0,
+        0.7699665876947938,
+        1.7242758696010096,
+        2.711975459489206,
+        3.1639057672764026,
+        3.750276915153992,
+        1.539131714800995,
+        1.8726623164229292,
+        2.125631787097315,
+        2.332672340068556,
+        2.371606651233025,
+        2.3716219271760215,
+    ],
+    "qpu_delay_time_per_sample": 20.54,
+    "reverse_annealing_with_reinit_delay_time_delta": -4.5,
+    "reverse_annealing_without_reinit_delay_time_delta": -1.5,
+    "default_readout_thermalization": 0.0,
+    "decorrelation_max_nominal_anneal_time": 2000.0,
+    "decorrelation_time_range": [500.0, 10000.0],
+}
+
+#: ``minimum_time_limit`` of hybrid_binary_quadratic_model_version2: [variables, seconds] pairs.
+HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
+    [1, 3.0],
+    [1024, 3.0],
+    [4096, 10.0],
+    [10000, 40.0],
+    [30000, 200.0],
+    [100000, 600.0],
+    [1000000, 600.0],
+]
+
+#: Qubits per binary variable assumed before an embedding exists (see the module docstring).
+QUBITS_PER_VARIABLE = 2.0
+#: Working qubits of an Advantage (Pegasus P16) QPU: no embedding uses more.
+MAX_QUBITS = 5627
+#: Reads the QPU adapters use when ``num_reads`` is not given (shared/solvers/dwave.py).
+DEFAULT_NUM_READS = 500
+
+#: Solvers whose use is charged to a user's budget. The offline stand-ins are charged their
+#: simulated timing the same way, so the accounting can be exercised without a token.
+QPU_SOLVERS = frozenset({"qpu", "qpu-sim"})
+HYBRID_SOLVERS = frozenset({"hybrid", "hybrid-sim"})
+METERED_SOLVERS = QPU_SOLVERS | HYBRID_SOLVERS
+
+#: The QPU parameters the timing model reads (others do not change the access time).
+_QPU_TIMING_PARAMS = (
+    "annealing_time",
+    "anneal_schedule",
+    "initial_state",
+    "reinitialize_state",
+    "programming_thermalization",
+    "readout_thermalization",
+    "reduce_intersample_correlation",
+)
+
+
+def is_metered(solver_name: str) -> bool:
+    """Whether jobs on this solver spend (real or simulated) D-Wave time from a budget."""
+    return solver_name in METERED_SOLVERS
+
+
+def charged_seconds(timing: dict[str, float]) -> float:
+    """What one solve costs its owner: the hybrid ``charge_time`` when reported, else the
+    ``qpu_access_time`` (both already in seconds in a ``SolveResult``); 0 when neither."""
+    for key in ("charge_time", "qpu_access_time"):
+        value = timing.get(key)
+        if value is not None:
+            return max(0.0, float(value))
+    return 0.0
+
+
+@cache
+def _reference_solver(timing_key: str = "advantage"):
+    """A cloud-client solver object carrying only the offline timing data (no network)."""
+    from dwave.cloud.solver import StructuredSolver
+
+    data = {
+        "identity": {"name": "offline-timing-model"},
+        "status": "ONLINE",
+        "description": "Advantage_system4.1 timing data (offline estimates)",
+        "properties": {
+            "category": "qpu",
+            "supported_problem_types": ["ising", "qubo"],
+            "qubits": [0],
+            "couplers": [],
+            "num_qubits": 1,
+            "parameters": {"num_reads": ""},
+            "problem_timing_data": ADVANTAGE_TIMING_DATA,
+        },
+    }
+    return StructuredSolver(client=None, data=data)
+
+
+def qpu_access_seconds(num_qubits: int, params: dict[str, Any] | None = None, solver=None) -> float:
+    """Estimated QPU access time of one problem on ``num_qubits`` qubits with these sampler
+    parameters. ``solver`` is a live ``dwave.cloud`` solver (its own timing data); default:
+    the offline Advantage model."""
+    params = params or {}
+    solver = solver or _reference_solver()
+    options = {key: params[key] for key in _QPU_TIMING_PARAMS if params.get(key) is not None}
+    reads = int(params.get("num_reads") or DEFAULT_NUM_READS)
+    micros = solver.estimate_qpu_access_time(max(1, int(num_qubits)), num_reads=reads, **options)
+    return float(micros) * 1e-6
+
+
+def hybrid_charge_seconds(
+    num_variables: int,
+    params: dict[str, Any] | None = None,
+    minimum_time_limit: list[list[float]] | None = None,
+) -> float:
+    """Estimated charge of one hybrid BQM problem: ``time_limit`` if given, never below the
+    solver's minimum for ``num_variables`` (LeapHybridSampler.min_time_limit's interpolation)."""
+    params = params or {}
+    curve = np.asarray(minimum_time_limit or HYBRID_MINIMUM_TIME_LIMIT, dtype=float)
+    minimum = float(np.interp(num_variables, curve[:, 0], curve[:, 1]))
+    requested = params.get("time_limit")
+    return max(minimum, float(requested)) if requested is not None else minimum
+
+
+def bundle_seconds(
+    solver_name: str,
+    num_variables: int,
+    params: dict[str, Any] | None = None,
+    *,
+    num_qubits: int | None = None,
+    solver=None,
+) -> float:
+    """Estimated charge of one bundle of ``num_variables`` binary variables; 0 if unmetered.
+
+    ``num_qubits`` is the embedding's size when known; ``solver`` a live cloud solver whose
+    ``estimate_qpu_access_time`` and timing data then replace the offline model.
+    """
+    if solver_name in QPU_SOLVERS:
+        if num_qubits is None:
+            num_qubits = min(MAX_QUBITS, int(np.ceil(num_variables * QUBITS_PER_VARIABLE)))
+        return qpu_access_seconds(num_qubits, params, solver)
+    if solver_name in HYBRID_SOLVERS:
+        return hybrid_charge_seconds(num_variables, params)
+    return 0.0
+
+
+@dataclass(frozen=True)
+class LevelEstimate:
+    """One pyramid level: its bundles, their size and the estimated charge of all of them."""
+
+    index: int
+    shape: tuple[int, int]
+    bundles: int
+    variables_per_bundle: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class JobEstimate:
+    """The estimated metered time of a whole job (0 for unmetered solvers)."""
+
+    solver: str
+    seconds: float
+    bundles: int
+    levels: list[LevelEstimate] = field(default_factory=list)
+
+
+def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
+    """The QPU parameters a bundle is sent with: a warm-started bundle (``warm_start`` and a
+    coarser estimate) is a reverse anneal with the adapter's schedule, re-initialised per read."""
+    params = {key: value for key, value in solver_params.items() if key != "warm_start"}
+    if warm and solver_params.get("warm_start"):
+        from shared.solvers.dwave import WARM_START_SCHEDULE
+
+        params.setdefault("anneal_schedule", WARM_START_SCHEDULE)
+        params.setdefault("initial_state", [(0, 1)])  # only its presence matters to the model
+        params.setdefault("reinitialize_state", True)
+        params.pop("annealing_time", None)
+    return params
+
+
+def job_seconds(config: MatchConfig, shape: tuple[int, int]) -> JobEstimate:
+    """Estimate a job before accepting it, from the image ``shape`` (height, width), the
+    pyramid and the solver parameters only: nothing is built, embedded or solved.
+
+    Every bundle of a level is estimated at the size of the level's largest bundle.
+    """
+    codec = get_codec(config.encoding)
+    levels = []
+    for index, level in enumerate(config.levels):
+        height, width = level_shape(shape, level.downsample)
+        rows = bundle_rows(height, config.bundle_height)
+        tallest = max(stop - start for start, stop in rows)
+        variables = tallest * width * codec.variables_per_pixel(level.candidates)
+        params = sampler_params(config.solver_params, warm=index > 0)
+        each = bundle_seconds(config.solver, variables, params)
+        levels.append(LevelEstimate(index, (height, width), len(rows), variables, each * len(rows)))
+    return JobEstimate(
+        solver=config.solver,
+        seconds=float(sum(level.seconds for level in levels)),
+        bundles=sum(level.bundles for level in levels),
+        levels=levels,
+    )

@@ -1,0 +1,176 @@
+"""`qhsm bench` end to end on a tiny synthetic dataset laid out like Middlebury."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from shared import bench
+from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench
+from shared.cli import main
+from shared.pipeline import run_pipeline
+
+
+@pytest.fixture
+def bench_result(tiny_dataset: Path, tmp_path: Path) -> tuple[dict, Path, str]:
+    out = tmp_path / "out"
+    argv = ["bench", str(tiny_dataset), "--out", str(out), "--solvers", "exact,nosuch"]
+    assert main(argv) == 0
+    results = json.loads((out / "results.json").read_text())
+    return results, out, (out / "results.md").read_text()
+
+
+def test_bench_runs_every_experiment_on_every_scene(bench_result):
+    results, out, _ = bench_result
+    runs = results["runs"]
+    expected = {
+        ("solvers", "exact"),
+        ("solvers", "nosuch"),
+        *(("ablations", name) for name in bench.ABLATIONS),
+        ("baselines", "heidari"),
+        ("baselines", "sgbm"),
+    }
+    for scene in ("tsukuba", "cones"):
+        assert {(r["experiment"], r["variant"]) for r in runs if r["scene"] == scene} == expected
+    skipped = [r for r in runs if r["status"] != "ok"]
+    assert {r["variant"] for r in skipped} == {"nosuch"}
+    assert all("unknown solver" in r["reason"] for r in skipped)
+    for run in runs:
+        if run["status"] != "ok":
+            continue
+        assert 0 <= run["bpp"] <= 100 and run["rmse"] >= 0 and run["seconds"] > 0
+        assert run["rmse"] < 4  # a real disparity map, not noise (disparities go up to 8)
+        for key in ("preview", "disparity", "error_map"):
+            assert (out / run["files"][key]).is_file()
+        preview = cv2.imread(str(out / run["files"]["preview"]))
+        assert preview.shape[:2] == (32, 48)
+    assert results["scenes"]["tsukuba"] == {
+        "layout": "middlebury2001-tsukuba",
+        "scale": 16.0,
+        "border": 2,
+        "max_disparity": 8,
+        "masks": ["all", "disc", "nonocc"],
+    }
+
+
+def test_ablations_change_what_they_claim(bench_result):
+    results, _, _ = bench_result
+    configs = {
+        r["variant"]: r["config"]
+        for r in results["runs"]
+        if r["experiment"] == "ablations" and r["scene"] == "cones"
+    }
+    assert configs["no-regularizer"]["regularizer"] == "none"
+    assert configs["linear-regularizer"]["regularizer"] == "linear"
+    assert not configs["no-bilateral"]["bilateral"] and configs["no-bilateral"]["median"]
+    assert not configs["no-median-no-bilateral"]["median"]
+    assert configs["full"] == next(
+        r["config"]
+        for r in results["runs"]
+        if (r["experiment"], r["variant"], r["scene"]) == ("solvers", "exact", "cones")
+    )
+
+
+def test_table_and_json_carry_every_figure(bench_result):
+    results, _, table = bench_result
+    rows = {line for line in table.splitlines() if line.startswith("| ")}
+    fmt = bench._fmt
+    for run in results["runs"]:
+        row = next(r for r in rows if r.startswith(f"| {run['scene']} | {run['variant']} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        nonocc = run["masks"].get("nonocc", {})
+        assert cells[2:8] == [
+            fmt(run["rmse"]),
+            fmt(run["bpp"]),
+            fmt(nonocc.get("rmse")),
+            fmt(nonocc.get("bpp")),
+            fmt(run["masks"].get("disc", {}).get("bpp")),
+            fmt(run["seconds"]),
+        ]
+    for average in results["averages"]:
+        ok = [
+            r
+            for r in results["runs"]
+            if (r["experiment"], r["variant"]) == (average["experiment"], average["variant"])
+            and r["status"] == "ok"
+        ]
+        assert average["rmse"] == pytest.approx(np.mean([r["rmse"] for r in ok]))
+        assert average["seconds"] == pytest.approx(np.mean([r["seconds"] for r in ok]))
+        assert (
+            f"| **average** | {average['variant']} | {fmt(average['rmse'])} | "
+            f"{fmt(average['bpp'])} |" in table
+        )
+    # the paper's Gurobi figures sit beside the exact row of the scene named tsukuba only
+    exact = next(r for r in rows if r.startswith("| tsukuba | exact |"))
+    assert "| 1.53 | 12.93 |" in exact
+    assert "| n/a | n/a |" in next(r for r in rows if r.startswith("| cones | exact |"))
+
+
+def test_solver_params_are_routed_per_solver():
+    assert parse_solver_params(["sa:num_reads=5", "seed_like=3", "gurobi:mode=fast"]) == {
+        "sa": {"num_reads": 5},
+        "*": {"seed_like": 3},
+        "gurobi": {"mode": "fast"},
+    }
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        parse_solver_params(["oops"])
+
+
+def test_url_runs_go_through_the_registered_runner(tiny_dataset, tmp_path, monkeypatch):
+    calls = []
+
+    def fake_runner(left, right, config, url):
+        from shared.images import load_pair
+
+        calls.append((Path(left).name, config.solver, url))
+        result = run_pipeline(*load_pair(left, right), config)
+        return result.disparity, result.summary()["levels"]
+
+    class EntryPoint:
+        def load(self):
+            return fake_runner
+
+    monkeypatch.setattr(bench, "entry_points", lambda group, name: [EntryPoint()])
+    options = BenchOptions(
+        dataset=tiny_dataset,
+        out=tmp_path / "remote",
+        scenes=["cones"],
+        solvers=["exact"],
+        experiments=["solvers", "baselines"],
+        url="http://localhost:8000",
+    )
+    results = run_bench(options, log=lambda line: None)
+    assert calls == [("im2.png", "exact", "http://localhost:8000")]
+    by_variant = {r["variant"]: r for r in results["runs"]}
+    assert by_variant["exact"]["status"] == "ok" and len(by_variant["exact"]["levels"]) == 3
+    assert "ran locally" in by_variant["heidari"]["reason"]
+
+
+def test_url_without_a_runner_says_what_to_install(tiny_dataset, tmp_path, monkeypatch):
+    monkeypatch.setattr(bench, "entry_points", lambda group, name: [])
+    options = BenchOptions(dataset=tiny_dataset, out=tmp_path, url="http://localhost:8000")
+    with pytest.raises(bench.BenchError, match="needs the service package installed"):
+        run_bench(options, log=lambda line: None)
+
+
+def test_a_failing_run_is_recorded_and_the_bench_goes_on(tiny_dataset, tmp_path):
+    def broken(scene, left, right, config):
+        raise RuntimeError("solver exploded")
+
+    options = BenchOptions(dataset=tiny_dataset, out=tmp_path, scenes=["cones"], solvers=["exact"])
+    variant = bench.variants(options)[0]
+    scene = bench.select_scenes(options)[0]
+    run = bench.run_one(variant, scene, scene.load(), scene.ground_truth(), options, broken)
+    assert run.status == "failed" and "solver exploded" in run.reason
+    assert isinstance(RunOutput(np.zeros((1, 1)), 0.0).levels, list)
+
+
+def test_bench_rejects_unknown_scenes_and_experiments(tiny_dataset, tmp_path, capsys):
+    assert main(["bench", str(tiny_dataset), "--out", str(tmp_path), "--scenes", "venus"]) == 1
+    assert "scene venus not in" in capsys.readouterr().err
+    assert main(["bench", str(tiny_dataset), "--out", str(tmp_path), "--experiments", "x"]) == 1
+    assert "unknown experiment x" in capsys.readouterr().err

@@ -1,0 +1,100 @@
+"""Session fixtures: a real Redis, two real Celery workers (prefork) and an in-process API.
+
+Worker ``main`` consumes control + the CPU queues + the fakes; worker ``gurobi`` consumes only
+``gurobi`` and ``fake-routed``, so routing is observable. Everything lives under a unique key
+prefix in a dedicated Redis database and is deleted afterwards.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))  # the harness and the QHSM_PLUGINS test plugin
+
+import harness
+from fastapi.testclient import TestClient
+
+from api.app import create_app
+from api.serve import WorkerProcess, wait_for_workers
+from shared.config import Settings
+from workers.app import make_celery
+
+PLUGIN = "qhsm_test_plugin"
+ROWS_PER_TASK = 4
+SLOW_SECONDS = 0.25
+MAIN_QUEUES = ["control", "exact", "sa", "fake-slow", "fake-flaky", "fake-broken"]
+ROUTED_QUEUES = ["gurobi", "fake-routed"]
+
+
+@pytest.fixture(scope="session")
+def service_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("service")
+
+
+@pytest.fixture(scope="session")
+def redis_url(service_dir):
+    url, server = harness.find_redis(service_dir / "redis")
+    yield url
+    if server is not None:
+        server.stop()
+
+
+@pytest.fixture(scope="session")
+def settings(redis_url, service_dir) -> Settings:
+    prefix = harness.unique_prefix()
+    yield Settings(
+        redis_url=redis_url,
+        key_prefix=prefix,
+        data_dir=service_dir / "data",
+        plugins=PLUGIN,
+        rows_per_task=ROWS_PER_TASK,
+        solver_rows_per_task={},
+        retry_backoff=0.1,
+        inspect_timeout=0.5,
+    )
+    harness.drop_prefix(redis_url, prefix)
+
+
+@pytest.fixture(scope="session")
+def markers(service_dir) -> Path:
+    folder = service_dir / "markers"
+    folder.mkdir()
+    return folder
+
+
+@pytest.fixture(scope="session")
+def workers(settings, markers, service_dir):
+    """The two workers, started once per session (about 5 s)."""
+    from api.serve import worker_env
+
+    env = worker_env(settings, settings.redis_url, dwave=False)
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parent), env.get("PYTHONPATH", "")])
+    env["QHSM_RETRY_BACKOFF"] = str(settings.retry_backoff)
+    env["QHSM_TEST_SLOW_SECONDS"] = str(SLOW_SECONDS)
+    env["QHSM_TEST_MARKERS"] = str(markers)
+    logs = service_dir / "logs"
+    suffix = settings.key_prefix
+    started = {
+        "main": WorkerProcess(f"main-{suffix}", MAIN_QUEUES, 2, env, logs / "main.log").start(),
+        "routed": WorkerProcess(
+            f"routed-{suffix}", ROUTED_QUEUES, 1, env, logs / "routed.log"
+        ).start(),
+    }
+    try:
+        wait_for_workers(
+            make_celery(settings, with_tasks=False), [w.hostname for w in started.values()]
+        )
+        yield started
+    finally:
+        for worker in started.values():
+            worker.stop()
+
+
+@pytest.fixture(scope="session")
+def client(settings, workers):
+    with TestClient(create_app(settings), raise_server_exceptions=False) as test_client:
+        yield test_client

@@ -1,0 +1,81 @@
+"""Test harness of the service tests: a real Redis (the local one on 6379 when it answers, in a
+dedicated database with a unique key prefix; else an embedded redis-server) and helpers to talk
+to the API."""
+
+from __future__ import annotations
+
+import io
+import time
+import uuid
+from pathlib import Path
+
+import cv2
+import numpy as np
+import redis
+
+from api.serve import EmbeddedRedis
+
+LOCAL_REDIS = "redis://127.0.0.1:6379/13"
+TERMINAL = {"succeeded", "failed", "cancelled"}
+
+
+def find_redis(folder: Path) -> tuple[str, EmbeddedRedis | None]:
+    """The URL of a Redis for tests, and the embedded server if one had to be started."""
+    try:
+        if redis.Redis.from_url(LOCAL_REDIS, socket_connect_timeout=0.5).ping():
+            return LOCAL_REDIS, None
+    except redis.RedisError:
+        pass
+    server = EmbeddedRedis(folder).start()
+    return server.url, server
+
+
+def unique_prefix() -> str:
+    return f"qhsm-test-{uuid.uuid4().hex[:10]}"
+
+
+def drop_prefix(url: str, prefix: str) -> None:
+    client = redis.Redis.from_url(url)
+    keys = list(client.scan_iter(match=f"{prefix}:*", count=1000))
+    for start in range(0, len(keys), 500):
+        client.delete(*keys[start : start + 500])
+
+
+def png(image: np.ndarray) -> bytes:
+    return cv2.imencode(".png", np.rint(image * 255).astype(np.uint8))[1].tobytes()
+
+
+def npy(array: np.ndarray) -> bytes:
+    stream = io.BytesIO()
+    np.save(stream, array)
+    return stream.getvalue()
+
+
+def submit(client, left: bytes, right: bytes, params: dict | None = None, **files) -> str:
+    import json
+
+    data = {"params": json.dumps(params or {})}
+    for key in ("gt_scale", "gt_border"):
+        if key in files:
+            data[key] = str(files.pop(key))
+    parts = {"left": ("left.png", left), "right": ("right.png", right)}
+    parts.update({name: (f"{name}.bin", content) for name, content in files.items()})
+    response = client.post("/v1/jobs", files=parts, data=data)
+    assert response.status_code == 202, response.text
+    return response.json()["id"]
+
+
+def wait_for(client, job_id: str, timeout: float = 60.0, states=TERMINAL) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status = client.get(f"/v1/jobs/{job_id}").json()
+        if status["state"] in states:
+            return status
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} still {status['state']} after {timeout} s: {status}")
+
+
+def download(client, job_id: str) -> np.ndarray:
+    response = client.get(f"/v1/jobs/{job_id}/disparity", params={"format": "npy"})
+    assert response.status_code == 200, response.text
+    return np.load(io.BytesIO(response.content))

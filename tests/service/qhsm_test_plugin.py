@@ -1,0 +1,85 @@
+"""Fake solvers for the service tests, loaded by workers and the API through QHSM_PLUGINS.
+
+They return the all-zero sample, which every codec decodes by repair to the cheapest label
+given no valid neighbour: deterministic, so distributed and in-process runs can be compared.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from shared.solvers import Availability, SolverError, SolveResult, TransientSolverError, register
+
+
+class _Fake:
+    description = "test fake"
+    offline = True
+    uses_qpu_time = False
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def available(self) -> Availability:
+        return Availability(True, "test fake")
+
+    def solve(self, bqm, *, seed=None, initial_state=None, **params: Any) -> SolveResult:
+        started = time.perf_counter()
+        self.act(seed)
+        sample = np.zeros(bqm.num_variables, dtype=np.int8)
+        return SolveResult(
+            sample=sample,
+            energy=float(bqm.energy(sample)),
+            wall_time=time.perf_counter() - started,
+            timing={"fake_access_time": 0.001},
+        )
+
+    def act(self, seed: int | None) -> None:
+        pass
+
+
+class _Slow(_Fake):
+    """Sleeps per bundle; while solving, a file named after the process id marks it busy."""
+
+    def act(self, seed: int | None) -> None:
+        seconds = float(os.environ.get("QHSM_TEST_SLOW_SECONDS", "0"))
+        markers = os.environ.get("QHSM_TEST_MARKERS")
+        marker = Path(markers) / f"busy-{os.getpid()}" if markers else None
+        if marker:
+            marker.write_text(str(os.getpid()))
+        try:
+            time.sleep(seconds)
+        finally:
+            if marker:
+                marker.unlink(missing_ok=True)
+
+
+class _Flaky(_Fake):
+    """Fails once per bundle seed with a transient error, then succeeds."""
+
+    def act(self, seed: int | None) -> None:
+        marker = Path(os.environ["QHSM_TEST_MARKERS"]) / f"flaky-{seed}"
+        if not marker.exists():
+            marker.write_text("failed once")
+            raise TransientSolverError("fake-flaky: rate limited, try again later")
+
+
+class _Broken(_Fake):
+    def act(self, seed: int | None) -> None:
+        raise SolverError("fake-broken: the device is on fire; use another solver")
+
+
+class _Unavailable(_Fake):
+    def available(self) -> Availability:
+        return Availability(False, "fake-unavailable needs hardware this machine lacks")
+
+
+register("fake-slow", lambda: _Slow("fake-slow"))
+register("fake-flaky", lambda: _Flaky("fake-flaky"))
+register("fake-broken", lambda: _Broken("fake-broken"))
+register("fake-routed", lambda: _Fake("fake-routed"))
+register("fake-unavailable", lambda: _Unavailable("fake-unavailable"))

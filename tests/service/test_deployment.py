@@ -1,0 +1,83 @@
+"""Deployment files, checked without a Docker engine: the compose file parses, every service runs
+a real command on real queues, secrets reach only the workers that need them, and everything the
+Dockerfile copies exists."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+import yaml
+
+from shared.cli import build_parser
+from shared.config import Settings
+from shared.solvers import solver_names
+
+ROOT = Path(__file__).resolve().parents[2]
+SERVICES = {"redis", "api", "worker-cpu", "worker-gurobi", "worker-qpu", "worker-hybrid"}
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict:
+    return yaml.safe_load((ROOT / "docker-compose.yml").read_text())
+
+
+def option(command: list[str], flag: str) -> str:
+    return command[command.index(flag) + 1]
+
+
+def test_compose_declares_every_role(compose):
+    assert set(compose["services"]) == SERVICES
+    redis = compose["services"]["redis"]
+    assert "--appendonly" in redis["command"] and option(redis["command"], "--appendonly") == "yes"
+    volume = redis["volumes"][0].split(":")[0]
+    assert volume in compose["volumes"]
+
+
+def test_every_command_is_a_real_entry_point_on_real_queues(compose):
+    subcommands = build_parser()._subparsers._group_actions[0].choices
+    queues = set(solver_names()) | {Settings().control_queue}
+    consumed = set()
+    for name, service in compose["services"].items():
+        if name == "redis":
+            continue
+        command = service["command"]
+        if command[0] == "qhsm":
+            assert command[1] in subcommands, f"{name}: no `qhsm {command[1]}` command"
+            continue
+        assert command[:4] == ["celery", "-A", "workers", "worker"], name
+        service_queues = option(command, "-Q").split(",")
+        assert set(service_queues) <= queues, f"{name}: unknown queues"
+        consumed |= set(service_queues)
+        assert "container_name" not in service and "ports" not in service  # scalable
+    assert Settings().control_queue in consumed
+    assert {"exact", "sa", "gurobi", "qpu", "hybrid"} <= consumed
+    assert option(compose["services"]["worker-qpu"]["command"], "-c") == "1"
+
+
+def test_the_dwave_token_reaches_only_qpu_and_hybrid_workers(compose):
+    with_token = {
+        name
+        for name, service in compose["services"].items()
+        if "DWAVE_API_TOKEN" in (service.get("environment") or {})
+    }
+    assert with_token == {"worker-qpu", "worker-hybrid"}
+    text = (ROOT / "docker-compose.yml").read_text()
+    assert not re.search(r"DWAVE_API_TOKEN:[ \t]*[^\s#]", text), (
+        "a token value is written in the file"
+    )
+
+
+def test_dockerfile_copies_existing_files_and_runs_a_real_command():
+    lines = (ROOT / "Dockerfile").read_text().splitlines()
+    copies = [shlex.split(line)[1:-1] for line in lines if line.startswith("COPY ")]
+    assert copies
+    for sources in copies:
+        for source in sources:
+            assert (ROOT / source).exists(), f"Dockerfile copies missing {source}"
+    cmd = next(line for line in lines if line.startswith("CMD "))
+    assert '"qhsm", "api"' in cmd
+    ignored = (ROOT / ".dockerignore").read_text().split()
+    assert "data" in ignored and ".git" in ignored

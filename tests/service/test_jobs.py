@@ -1,0 +1,183 @@
+"""Jobs through HTTP + Celery + Redis with real workers: results, cancel, failures, routing,
+and a worker process killed mid-level."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import harness
+import numpy as np
+import pytest
+
+from shared.config import LevelConfig, MatchConfig
+from shared.images import decode_image
+from shared.pipeline import run_pipeline
+from shared.solvers import get_solver, solver_names
+from shared.synthetic import make_scene
+
+pytestmark = pytest.mark.service
+
+SMALL = {"height": 32, "width": 48, "max_disparity": 8}
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """A small synthetic pair as PNG bytes, its decoded views and its ground truth."""
+    scene = make_scene(**SMALL, seed=3)
+    left, right = harness.png(scene.left), harness.png(scene.right)
+    return left, right, decode_image(left, "left"), decode_image(right, "right"), scene.disparity
+
+
+def one_level(**extra) -> dict:
+    """A single full-resolution level: every bundle of the job is in one chord."""
+    return {
+        "levels": [LevelConfig(downsample=1, candidates=3).model_dump()],
+        "max_disparity": 8,
+        "median": False,
+        "bilateral": False,
+        **extra,
+    }
+
+
+def reference(pair, params: dict) -> np.ndarray:
+    _, _, left, right, _ = pair
+    return run_pipeline(left, right, MatchConfig.model_validate(params)).disparity
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"solver": "exact", "max_disparity": 8, "seed": 5},
+        {
+            "solver": "sa",
+            "max_disparity": 8,
+            "seed": 7,
+            "encoding": "domain-wall",
+            "solver_params": {"num_reads": 4, "num_sweeps": 100},
+        },
+    ],
+    ids=["exact", "sa"],
+)
+def test_result_identical_to_in_process_pipeline(client, pair, settings, params):
+    left, right, _, _, truth = pair
+    job_id = harness.submit(
+        client, left, right, params, ground_truth=harness.npy(truth), gt_scale=1.0, gt_border=2
+    )
+    status = harness.wait_for(client, job_id)
+    assert status["state"] == "succeeded", status["error"]
+    assert np.array_equal(harness.download(client, job_id), reference(pair, params))
+
+    assert status["progress"] == {"level": 3, "levels": 3, "bundles_done": 32, "bundles_total": 32}
+    assert [level["height"] for level in status["levels"]] == [8, 16, 32]
+    assert status["usage"]["solver_seconds"] > 0
+    assert 0 <= status["metrics"]["bpp"] <= 100 and status["metrics"]["pixels"] > 0
+    # the finest level was really fanned out: several tasks, each a few rows
+    from workers.store import JobStore
+
+    chunks = [c for c in JobStore.from_settings(settings).chunks(job_id) if c.level == 2]
+    assert len(chunks) == 32 // settings.rows_per_task
+    for fmt, magic in [("pfm", b"Pf"), ("png", b"\x89PNG")]:
+        response = client.get(f"/v1/jobs/{job_id}/disparity", params={"format": fmt})
+        assert response.status_code == 200 and response.content.startswith(magic)
+    preview = client.get(f"/v1/jobs/{job_id}/preview.png")
+    assert preview.status_code == 200 and preview.headers["content-type"] == "image/png"
+
+
+def test_cancel_stops_unsolved_bundles(client, pair):
+    left, right, *_ = pair
+    job_id = harness.submit(client, left, right, one_level(solver="fake-slow"))
+    running = wait_for_progress(client, job_id, at_least=1)
+    assert running["state"] == "running"
+
+    cancelled = client.delete(f"/v1/jobs/{job_id}")
+    assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    solved_at_cancel = cancelled.json()["progress"]["bundles_done"]
+    time.sleep(2 * 4 * 0.25 + 0.5)  # anything in flight (2 tasks x 4 bundles) has finished
+
+    final = client.get(f"/v1/jobs/{job_id}").json()
+    assert final["state"] == "cancelled"
+    in_flight = 2 * 4
+    assert final["progress"]["bundles_done"] <= solved_at_cancel + in_flight
+    assert final["progress"]["bundles_done"] < final["progress"]["bundles_total"] == 32
+    assert client.get(f"/v1/jobs/{job_id}/disparity").status_code == 409
+    assert client.delete(f"/v1/jobs/{job_id}").status_code == 200  # idempotent
+
+
+def test_permanent_solver_error_fails_the_job_with_its_message(client, pair):
+    left, right, *_ = pair
+    job_id = harness.submit(client, left, right, {"solver": "exact", "bundle_height": 2})
+    status = harness.wait_for(client, job_id)
+    assert status["state"] == "failed"
+    assert "single-row bundles" in status["error"] and "bundle height 2" in status["error"]
+    assert "Traceback" not in status["error"]
+
+    job_id = harness.submit(client, left, right, one_level(solver="fake-broken"))
+    status = harness.wait_for(client, job_id)
+    assert status["state"] == "failed"
+    assert "the device is on fire; use another solver" in status["error"]
+    assert client.get(f"/v1/jobs/{job_id}/disparity").status_code == 409
+
+
+def test_transient_solver_error_is_retried(client, pair):
+    left, right, *_ = pair
+    params = one_level(solver="fake-flaky", seed=11)
+    job_id = harness.submit(client, left, right, params)
+    status = harness.wait_for(client, job_id)
+    assert status["state"] == "succeeded", status["error"]
+    # the same answer as the fake that never fails (both return the all-zero sample)
+    steady = {**params, "solver": "fake-routed"}
+    assert np.array_equal(harness.download(client, job_id), reference(pair, steady))
+
+
+@pytest.mark.parametrize("solver", ["gurobi", "fake-routed"])
+def test_jobs_run_only_on_workers_consuming_their_queue(client, pair, settings, workers, solver):
+    if solver not in solver_names() or not get_solver(solver).available().ok:
+        pytest.skip(f"{solver} is not available here")
+    left, right, *_ = pair
+    params = {"solver": solver, "max_disparity": 8}
+    job_id = harness.submit(client, left, right, params)
+    status = harness.wait_for(client, job_id, timeout=120)
+    assert status["state"] == "succeeded", status["error"]
+    from workers.store import JobStore
+
+    solved_by = {chunk.worker for chunk in JobStore.from_settings(settings).chunks(job_id)}
+    assert solved_by == {workers["routed"].hostname}
+
+
+def test_job_survives_a_worker_process_killed_mid_level(client, pair, workers, markers):
+    left, right, *_ = pair
+    params = one_level(solver="fake-slow", seed=3)
+    job_id = harness.submit(client, left, right, params)
+    victim = busy_pool_process(markers, workers["main"].children())
+    os.kill(victim, signal.SIGKILL)
+
+    status = harness.wait_for(client, job_id, timeout=60)
+    assert status["state"] == "succeeded", status["error"]
+    assert status["progress"]["bundles_done"] == status["progress"]["bundles_total"] == 32
+    os.environ["QHSM_TEST_SLOW_SECONDS"] = "0"
+    assert np.array_equal(harness.download(client, job_id), reference(pair, params))
+    assert victim not in workers["main"].children()  # the pool replaced the dead process
+
+
+def wait_for_progress(client, job_id: str, at_least: int, timeout: float = 30.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status = client.get(f"/v1/jobs/{job_id}").json()
+        if status["progress"]["bundles_done"] >= at_least or status["state"] in harness.TERMINAL:
+            return status
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} made no progress in {timeout} s")
+
+
+def busy_pool_process(markers, children: list[int], timeout: float = 30.0) -> int:
+    """A pool process of the worker that is solving a bundle right now."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for marker in markers.glob("busy-*"):
+            pid = int(marker.name.removeprefix("busy-"))
+            if pid in children:
+                return pid
+        time.sleep(0.02)
+    raise AssertionError("no pool process started solving")

@@ -1,0 +1,32 @@
+"""An environment without D-Wave or Gurobi credentials for every solver test."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from shared.solvers import embedding_cache
+
+sys.path.insert(0, str(Path(__file__).parent))  # solver_helpers
+
+CREDENTIALS = (
+    "DWAVE_API_TOKEN",
+    "DWAVE_SOLVER",
+    "DWAVE_API_REGION",
+    "DWAVE_API_ENDPOINT",
+    "GRB_LICENSE_FILE",
+    "GRB_WLSACCESSID",
+    "GRB_WLSSECRET",
+    "GRB_LICENSEID",
+)
+
+
+@pytest.fixture(autouse=True)
+def clean_environment(monkeypatch, tmp_path):
+    """No tokens or licences, and a private data dir (embedding store) per test."""
+    for name in CREDENTIALS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("QHSM_DATA_DIR", str(tmp_path / "data"))
+    monkeypatch.setattr(embedding_cache, "_default_cache", None)

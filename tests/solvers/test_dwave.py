@@ -1,0 +1,179 @@
+"""The qpu code path on MockDWaveSampler, its embedding cache and its error translation."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import requests
+from dwave.cloud import exceptions as cloud
+from dwave.cloud.api import exceptions as api
+from solver_helpers import optimum, stereo_costs
+
+from shared.encodings import get_codec
+from shared.energy import mrf_energy
+from shared.solvers import (
+    SolverError,
+    SolverUnavailable,
+    TransientSolverError,
+    get_solver,
+)
+from shared.solvers.dwave import SimulatedQPUSolver
+from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
+
+MOCK_QPU_ACCESS_US = 8550.28  # MockDWaveSampler's fixed demonstration timing
+
+
+@pytest.fixture(scope="module")
+def mock_qpu():
+    """One MockDWaveSampler for the module (building the P16 graph takes ~0.5 s)."""
+    return SimulatedQPUSolver().sampler()
+
+
+def sim_solver(mock_qpu, cache: EmbeddingCache) -> SimulatedQPUSolver:
+    solver = SimulatedQPUSolver(cache=cache)
+    solver._sampler, solver._target = mock_qpu, "pegasus16-test"
+    return solver
+
+
+@pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])
+def test_qpu_sim_solves_a_small_row(encoding, mock_qpu, tmp_path):
+    costs = stereo_costs(1, 4)
+    codec = get_codec(encoding)
+    bqm = codec.encode(costs)
+    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
+    result = solver.solve(bqm, seed=4)
+    decoded = codec.decode(costs, result.sample)
+    assert mrf_energy(costs, decoded.labels) == pytest.approx(optimum(costs), rel=1e-9)
+    assert result.energy == pytest.approx(bqm.energy(result.sample))
+    assert result.info["simulated"] is True and result.info["num_reads"] == 500
+    assert 0.0 <= result.info["chain_break_fraction"] <= 1.0
+    assert result.info["qubits"] >= bqm.num_variables
+    # D-Wave's microseconds, reported in seconds
+    assert result.timing["qpu_access_time"] == pytest.approx(MOCK_QPU_ACCESS_US * 1e-6)
+    assert result.info["qpu_access_time"] == result.timing["qpu_access_time"]
+
+
+def test_chain_strength_is_uniform_torque_compensation_with_prefactor_1414(mock_qpu, tmp_path):
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 6))
+    result = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path))).solve(bqm, seed=0)
+    _, (_, _, quadratic), _ = bqm.to_numpy_vectors()
+    average_degree = 2 * bqm.num_interactions / bqm.num_variables
+    expected = 1.414 * np.sqrt(np.mean(quadratic**2)) * np.sqrt(average_degree)
+    assert result.info["chain_strength"] == pytest.approx(expected)
+
+
+def test_embedding_is_found_once_per_structure_and_persisted(mock_qpu, tmp_path):
+    store = DirectoryStore(tmp_path / "embeddings")
+    solver = sim_solver(mock_qpu, EmbeddingCache(store))
+    codec = get_codec("domain-wall")
+    first = solver.solve(codec.encode(stereo_costs(1, 6, seed=1)), seed=0, num_reads=10)
+    # Another row with other biases but the same structure: served from memory.
+    second = solver.solve(codec.encode(stereo_costs(1, 6, seed=2)), seed=0, num_reads=10)
+    assert first.info["embedding_cache"] == "computed"
+    assert first.info["embedding_cache_hit"] is False
+    assert second.info["embedding_cache"] == "memory"
+    assert second.info["embedding_key"] == first.info["embedding_key"]
+    # A fresh cache on the same directory (another worker): served from the store.
+    again = sim_solver(mock_qpu, EmbeddingCache(store)).solve(
+        codec.encode(stereo_costs(1, 6, seed=3)), seed=0, num_reads=10
+    )
+    assert again.info["embedding_cache"] == "store"
+    # A different structure (wider row) needs its own embedding.
+    wider = solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=10)
+    assert wider.info["embedding_cache"] == "computed"
+    assert len(list(Path(tmp_path / "embeddings").glob("*.json"))) == 2
+
+
+def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
+    """The default cache keeps embeddings under QHSM_DATA_DIR/embeddings across processes."""
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 5))
+    first = SimulatedQPUSolver().solve(bqm, seed=0, num_reads=10)
+    assert first.info["embedding_cache"] == "computed"
+    assert default_cache().store.directory == tmp_path / "data" / "embeddings"
+    script = (
+        "import json, sys; sys.path.insert(0, sys.argv[1]);"
+        "from solver_helpers import stereo_costs;"
+        "from shared.encodings import get_codec;"
+        "from shared.solvers import get_solver;"
+        "bqm = get_codec('domain-wall').encode(stereo_costs(1, 5, seed=9));"
+        "r = get_solver('qpu-sim').solve(bqm, seed=0, num_reads=10);"
+        "print(json.dumps([r.info['embedding_cache'], r.info['embedding_key']]))"
+    )
+    output = subprocess.run(
+        [sys.executable, "-c", script, str(Path(__file__).parent)],
+        env=os.environ.copy(),
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
+    source, key = json.loads(output.stdout.strip().splitlines()[-1])
+    assert source == "store" and key == first.info["embedding_key"]
+
+
+def test_no_embedding_is_a_clear_solver_error(tmp_path):
+    """A complete graph on 8 variables does not fit a 6-qubit path graph."""
+    from solver_helpers import random_bqm
+
+    bqm = random_bqm(8, seed=0)
+    bqm.add_quadratic_from({(u, v): 1.0 for u in range(8) for v in range(u + 1, 8)})
+    path = [(i, i + 1) for i in range(5)]
+    cache = EmbeddingCache(DirectoryStore(tmp_path))
+    with pytest.raises(SolverError, match=r"no minor embedding.*domain-wall"):
+        cache.lookup(bqm, path, "path6", timeout=1)
+    # The next bundle of the same structure fails at once instead of searching again.
+    started = time.perf_counter()
+    with pytest.raises(SolverError, match=r"no minor embedding"):
+        cache.lookup(bqm, path, "path6", timeout=1)
+    assert time.perf_counter() - started < 0.5
+    assert not list(tmp_path.glob("*.json"))
+
+
+@pytest.mark.parametrize(
+    ("error", "kind", "words"),
+    [
+        (cloud.SolverAuthenticationError(), SolverUnavailable, "DWAVE_API_TOKEN"),
+        (api.ResourceLimitsExceededError(error_code=429), TransientSolverError, "429"),
+        (cloud.SolverOfflineError(), TransientSolverError, "offline"),
+        (api.RequestTimeout(), TransientSolverError, "retry later"),
+        (cloud.PollingTimeout(), TransientSolverError, "retry later"),
+        (requests.ConnectionError("refused"), TransientSolverError, "connection failed"),
+        (cloud.SolverFailureError("bad h range"), SolverError, "sampling failed"),
+    ],
+)
+def test_dwave_errors_become_typed_errors(error, kind, words, mock_qpu, tmp_path, monkeypatch):
+    def fail(bqm, **kwargs):
+        raise error  # what the cloud client raises from DWaveSampler.sample / resolve
+
+    monkeypatch.setattr(mock_qpu, "sample", fail)
+    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
+    with pytest.raises(kind, match=words) as caught:
+        solver.solve(bqm, seed=0)
+    assert type(caught.value) is kind
+
+
+@pytest.mark.parametrize("name", ["qpu", "hybrid"])
+def test_cloud_solvers_without_token_say_what_to_configure(name):
+    solver = get_solver(name)
+    availability = solver.available()
+    assert not availability.ok and "set DWAVE_API_TOKEN" in availability.reason
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
+    with pytest.raises(SolverUnavailable, match="set DWAVE_API_TOKEN"):
+        solver.solve(bqm, seed=0)
+
+
+def test_hybrid_sim_solves_a_small_row():
+    costs = stereo_costs(1, 6)
+    codec = get_codec("domain-wall")
+    result = get_solver("hybrid-sim").solve(codec.encode(costs), seed=1, max_iter=3)
+    assert result.info["simulated"] is True
+    labels = codec.decode(costs, result.sample).labels
+    assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)

@@ -1,0 +1,124 @@
+"""The worker's metered solve: every bundle reserved, charged its reported time, stopped cleanly."""
+
+from __future__ import annotations
+
+import time
+
+import dimod
+import numpy as np
+import pytest
+
+from shared.config import MatchConfig
+from shared.pipeline import prepare_level
+from shared.solvers import SolveResult, qpu_time, registry
+from shared.synthetic import make_scene
+from workers.quota import (
+    QpuMeter,
+    QpuSemaphore,
+    QuotaExceeded,
+    QuotaLedger,
+    bundle_estimate,
+    solve_metered,
+)
+
+
+class FakeQPU:
+    """Stands in for qpu-sim: reports a different QPU access time for every call."""
+
+    name = "qpu-sim"
+    description = "fake"
+    offline = True
+    uses_qpu_time = False
+
+    def __init__(self) -> None:
+        self.calls = 0
+        self.seconds = lambda call: 0.001 * call  # the access time call number ``call`` reports
+
+    def available(self):
+        return registry.get_solver("exact").available()
+
+    def solve(self, bqm: dimod.BinaryQuadraticModel, *, seed=None, initial_state=None, **params):
+        self.calls += 1
+        sample = np.zeros(bqm.num_variables, dtype=np.int8)
+        return SolveResult(
+            sample=sample,
+            energy=float(bqm.energy(sample)),
+            wall_time=0.0,
+            timing={"qpu_access_time": self.seconds(self.calls)},
+        )
+
+
+@pytest.fixture
+def fake(monkeypatch) -> FakeQPU:
+    solver = FakeQPU()
+    monkeypatch.setitem(registry._INSTANCES, "qpu-sim", solver)
+    return solver
+
+
+@pytest.fixture
+def level():
+    scene = make_scene(16, 24, max_disparity=6, seed=0)
+    config = MatchConfig(
+        solver="qpu-sim",
+        encoding="domain-wall",
+        max_disparity=6,
+        solver_params={"num_reads": 10},
+    )
+    return prepare_level(scene.left, scene.right, config, 2), config  # full resolution
+
+
+@pytest.fixture
+def meter(redis_client, prefix) -> QpuMeter:
+    ledger = QuotaLedger(redis_client, prefix)
+    return QpuMeter(ledger, QpuSemaphore(redis_client, prefix, limit=1), slot_ttl=60, slot_wait=5)
+
+
+def test_each_bundle_is_charged_what_its_sample_set_reports(fake, level, meter):
+    inputs, config = level
+    meter.ledger.set_limit("ada", 10.0)
+    rows = [(0, 1), (1, 2), (2, 3), (3, 4)]
+    results = solve_metered(meter, "ada", "job", inputs, config, rows)
+    assert [r.row_start for r in results] == [0, 1, 2, 3]
+    reported = sum(qpu_time.charged_seconds(r.timing) for r in results)
+    usage = meter.ledger.job_usage("ada", "job")
+    assert usage.seconds == pytest.approx(reported) == pytest.approx(0.001 * (1 + 2 + 3 + 4))
+    assert usage.problems == 4
+    assert meter.ledger.status("ada").reserved == 0.0
+
+
+def test_estimate_of_a_bundle_is_the_model_for_its_size(level):
+    inputs, config = level
+    width, labels = inputs.shape[1], inputs.candidates.shape[2]
+    expected = qpu_time.bundle_seconds("qpu-sim", 2 * width * (labels - 1), {"num_reads": 10})
+    assert bundle_estimate(inputs, config, 0, 2) == expected
+
+
+def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
+    inputs, config = level
+    estimate = bundle_estimate(inputs, config, 0, 1)
+    fake.seconds = lambda call: estimate  # every bundle uses exactly its estimate
+    meter.ledger.set_limit("ada", 2.5 * estimate)
+    with pytest.raises(QuotaExceeded, match="QPU budget of user 'ada' exhausted"):
+        solve_metered(meter, "ada", "job", inputs, config, [(r, r + 1) for r in range(8)])
+    assert fake.calls == 2  # the third bundle was refused before it was sent
+    usage = meter.ledger.job_usage("ada", "job")
+    assert usage.problems == 2 and usage.seconds == pytest.approx(2 * estimate)
+
+
+def test_a_stopped_job_sends_no_more_bundles(fake, level, meter):
+    inputs, config = level
+    states = iter([True, True, False])
+    assert solve_metered(meter, "ada", "job", inputs, config, [(0, 1), (1, 2), (2, 3)],
+                         still_running=lambda: next(states)) is None  # fmt: skip
+    assert fake.calls == 2
+    assert meter.semaphore.in_flight() == 0
+
+
+def test_bundles_wait_for_a_free_lab_wide_slot(fake, level, meter, redis_client, prefix):
+    inputs, config = level
+    other = QpuSemaphore(redis_client, prefix, limit=1).try_acquire("bob", ttl=0.3)
+    assert other is not None  # bob's bundle holds the only slot; it expires after 0.3 s
+    started = time.monotonic()
+    solve_metered(meter, "ada", "job", inputs, config, [(0, 1)])
+    assert time.monotonic() - started >= 0.25
+    assert fake.calls == 1

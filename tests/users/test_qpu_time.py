@@ -1,0 +1,103 @@
+"""The QPU / hybrid time model: D-Wave's published formula and whole-job estimates."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.bundles import bundle_rows
+from shared.config import MatchConfig
+from shared.pyramid import level_shape
+from shared.solvers import qpu_time
+from shared.solvers.qpu_time import ADVANTAGE_TIMING_DATA as DATA
+
+
+def test_qpu_model_is_programming_plus_reads_times_sample_time():
+    """One qubit: log10(1) = 0, so the readout time is 10**(first readout parameter) us."""
+    readout = 10 ** DATA["readout_time_model_parameters"][6]
+    programming = DATA["typical_programming_time"] + DATA["default_programming_thermalization"]
+    per_read = DATA["default_annealing_time"] + readout + DATA["qpu_delay_time_per_sample"]
+    expected = (programming + 100 * per_read) * 1e-6
+    assert qpu_time.qpu_access_seconds(1, {"num_reads": 100}) == pytest.approx(expected)
+    longer = qpu_time.qpu_access_seconds(1, {"num_reads": 100, "annealing_time": 120.0})
+    assert longer - expected == pytest.approx(100 * 100.0 * 1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    qubits=st.integers(1, qpu_time.MAX_QUBITS - 1),
+    reads=st.integers(1, 2000),
+    more_qubits=st.integers(1, 1000),
+    more_reads=st.integers(1, 500),
+)
+def test_qpu_estimate_grows_with_qubits_and_reads(qubits, reads, more_qubits, more_reads):
+    base = qpu_time.qpu_access_seconds(qubits, {"num_reads": reads})
+    assert qpu_time.qpu_access_seconds(qubits + more_qubits, {"num_reads": reads}) >= base
+    assert qpu_time.qpu_access_seconds(qubits, {"num_reads": reads + more_reads}) > base
+
+
+def test_default_reads_match_the_qpu_adapter():
+    from shared.solvers import dwave
+
+    assert qpu_time.DEFAULT_NUM_READS == dwave.DEFAULT_NUM_READS
+    assert qpu_time.bundle_seconds("qpu", 100) == qpu_time.bundle_seconds(
+        "qpu", 100, {"num_reads": dwave.DEFAULT_NUM_READS}
+    )
+
+
+def test_a_live_solver_replaces_the_offline_model():
+    class LiveSolver:
+        def estimate_qpu_access_time(self, num_qubits, num_reads=1, **params):
+            return 1000.0 * num_qubits + num_reads
+
+    estimate = qpu_time.bundle_seconds(
+        "qpu", 10, {"num_reads": 7}, num_qubits=30, solver=LiveSolver()
+    )
+    assert estimate == pytest.approx((30_000 + 7) * 1e-6)
+
+
+def test_hybrid_charge_is_the_time_limit_never_below_the_minimum():
+    assert qpu_time.hybrid_charge_seconds(500) == 3.0
+    assert qpu_time.hybrid_charge_seconds(2560) == pytest.approx(6.5)  # halfway 1024..4096
+    assert qpu_time.hybrid_charge_seconds(500, {"time_limit": 20}) == 20.0
+    assert qpu_time.hybrid_charge_seconds(500, {"time_limit": 1}) == 3.0
+
+
+def test_charged_seconds_prefers_the_hybrid_charge_time():
+    assert qpu_time.charged_seconds({"qpu_access_time": 0.01}) == 0.01
+    assert qpu_time.charged_seconds({"qpu_access_time": 0.04, "charge_time": 3.0}) == 3.0
+    assert qpu_time.charged_seconds({"run_time": 5.0}) == 0.0
+
+
+@pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])
+def test_job_estimate_counts_every_bundle_of_every_level(encoding):
+    config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2,
+                         solver_params={"num_reads": 10})  # fmt: skip
+    estimate = qpu_time.job_seconds(config, (37, 50))
+    per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
+    assert len(estimate.levels) == len(config.levels)
+    for level, got in zip(config.levels, estimate.levels, strict=True):
+        height, width = level_shape((37, 50), level.downsample)
+        assert got.bundles == len(bundle_rows(height, 2))
+        assert got.variables_per_bundle == 2 * width * (level.candidates + per_pixel)
+        each = qpu_time.bundle_seconds("qpu-sim", got.variables_per_bundle, {"num_reads": 10})
+        assert got.seconds == pytest.approx(each * got.bundles)
+    assert estimate.bundles == sum(level.bundles for level in estimate.levels)
+    assert estimate.seconds == pytest.approx(sum(level.seconds for level in estimate.levels))
+
+
+def test_unmetered_solvers_cost_nothing():
+    assert qpu_time.job_seconds(MatchConfig(solver="sa"), (40, 60)).seconds == 0.0
+    assert not qpu_time.is_metered("exact") and qpu_time.is_metered("hybrid-sim")
+
+
+def test_warm_started_levels_are_estimated_as_reverse_anneals():
+    cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100})
+    warm = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": True})
+    cold_levels = qpu_time.job_seconds(cold, (60, 80)).levels
+    warm_levels = qpu_time.job_seconds(warm, (60, 80)).levels
+    assert warm_levels[0] == cold_levels[0]  # the coarsest level has nothing to start from
+    for cold_level, warm_level in zip(cold_levels[1:], warm_levels[1:], strict=True):
+        assert warm_level.seconds != cold_level.seconds
+        assert warm_level.seconds == pytest.approx(cold_level.seconds, rel=0.2)

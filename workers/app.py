@@ -1,0 +1,78 @@
+"""The Celery application: Redis broker and result backend, one queue per solver plus a control
+queue for orchestration. Long-task settings (acks_late, reject_on_worker_lost, prefetch 1, a
+visibility timeout above the longest task) make a killed worker's task run again elsewhere.
+
+Start a worker bound to the solvers a machine can run, e.g.::
+
+    celery -A workers worker -Q control,exact,sa -c 2
+    celery -A workers worker -Q qpu -c 1          # the only kind that needs DWAVE_API_TOKEN
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+
+from celery import Celery
+
+from shared.config import Settings, get_settings
+
+log = logging.getLogger(__name__)
+
+#: Task names (the API sends tasks by name so it never imports solver code).
+START_JOB = "qhsm.start_job"
+SOLVE_ROWS = "qhsm.solve_rows"
+LEVEL_DONE = "qhsm.level_done"
+
+DEFAULT_REDIS_URL = "redis://127.0.0.1:6379/0"
+
+
+def redis_url(settings: Settings) -> str:
+    """The configured Redis, or a local one on the default port."""
+    return settings.redis_url or DEFAULT_REDIS_URL
+
+
+def celery_config(settings: Settings) -> dict:
+    """Celery settings derived from ``Settings`` (every key namespaced by ``key_prefix``)."""
+    url = redis_url(settings)
+    prefix = f"{settings.key_prefix}:"
+    return {
+        "broker_url": url,
+        "result_backend": url,
+        "broker_transport_options": {
+            "visibility_timeout": settings.task_visibility_timeout,
+            "global_keyprefix": prefix,
+        },
+        "result_backend_transport_options": {"global_keyprefix": prefix},
+        "broker_connection_retry_on_startup": True,
+        "task_serializer": "json",
+        "result_serializer": "json",
+        "accept_content": ["json"],
+        # bundle results only feed their level's fan-in; job results live in the job store
+        "result_expires": settings.task_visibility_timeout + 3600,
+        "task_default_queue": settings.control_queue,
+        "task_acks_late": True,
+        "task_reject_on_worker_lost": True,
+        "worker_prefetch_multiplier": 1,
+        "worker_send_task_events": False,
+        "task_send_sent_event": False,
+    }
+
+
+def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> Celery:
+    """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
+    settings = settings or get_settings()
+    include = ["workers.tasks"] if with_tasks else []
+    celery = Celery("qhsm", include=include)
+    celery.conf.update(celery_config(settings))
+    return celery
+
+
+def load_plugins(settings: Settings) -> None:
+    """Import the modules named in ``Settings.plugins`` (they register extra solvers)."""
+    for name in filter(None, (part.strip() for part in settings.plugins.split(","))):
+        importlib.import_module(name)
+        log.info("loaded plugin %s", name)
+
+
+app = make_celery()

@@ -1,0 +1,46 @@
+"""Minor embeddings shared by every worker through Redis.
+
+Implements the small store protocol of :mod:`shared.solvers.embedding_cache` (``get``/``set`` of
+JSON text by structure key). The first worker that meets a bundle structure computes its
+embedding (up to a minute at full resolution) and every other worker, job and restart reuses it.
+Embeddings depend only on graph structure, so they are kept without expiry.
+"""
+
+from __future__ import annotations
+
+import redis
+
+from shared.config import Settings
+from shared.solvers.embedding_cache import set_default_store
+
+KEY_PREFIX = "qhsm:embedding:"
+
+
+class RedisEmbeddingStore:
+    """``get``/``set`` of embedding JSON under ``qhsm:embedding:<structure key>``."""
+
+    def __init__(self, client: redis.Redis, prefix: str = KEY_PREFIX) -> None:
+        self.client = client
+        self.prefix = prefix
+
+    @classmethod
+    def from_url(cls, url: str) -> RedisEmbeddingStore:
+        return cls(redis.Redis.from_url(url, decode_responses=True))
+
+    def get(self, key: str) -> str | None:
+        value = self.client.get(self.prefix + key)
+        if isinstance(value, bytes):
+            return value.decode()
+        return value
+
+    def set(self, key: str, value: str) -> None:
+        self.client.set(self.prefix + key, value)
+
+
+def install(settings: Settings) -> RedisEmbeddingStore:
+    """Make Redis this process's embedding store (called at worker start-up)."""
+    from workers.app import redis_url
+
+    store = RedisEmbeddingStore.from_url(redis_url(settings))
+    set_default_store(store)
+    return store

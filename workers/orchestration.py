@@ -1,0 +1,230 @@
+"""The service's ``solve_level``: a Celery chord per pyramid level, driven by fan-in callbacks.
+
+    start_job      (control)  load uploads, prepare_level(0), write inputs, launch chord 0
+    solve_rows     (solver)   load the level's inputs once per process, solve_bundles, labels back
+    level_done     (control)  assemble, finish_level, report; prepare the next level and launch
+                              its chord, or finish() (+ metrics) and store the result
+
+No task ever waits for another: each level's callback launches the next level. The level logic
+is ``shared.pipeline``'s and ``shared.solve``'s; this module only moves data between them.
+"""
+
+from __future__ import annotations
+
+import base64
+import logging
+import time
+from collections import OrderedDict
+from dataclasses import asdict
+
+import numpy as np
+from celery import Celery, chord
+
+from shared.bundles import bundle_rows
+from shared.config import MatchConfig, Settings
+from shared.metrics import evaluate
+from shared.pipeline import finish, finish_level, prepare_level, report
+from shared.solve import BundleResult, LevelInputs, assemble, solve_bundles
+from workers.app import LEVEL_DONE, SOLVE_ROWS
+from workers.store import ChunkReport, JobRecord, JobState, JobStore, now
+
+log = logging.getLogger(__name__)
+
+RowRanges = list[tuple[int, int]]
+#: Level inputs a worker process keeps (a few jobs' current levels).
+LEVEL_CACHE_SIZE = 4
+_level_cache: OrderedDict[tuple[str, int], tuple[LevelInputs, MatchConfig]] = OrderedDict()
+
+
+class JobGone(LookupError):
+    """The job record has expired or never existed."""
+
+
+def internal_error(job_id: str, what: str) -> str:
+    return (
+        f"internal error while {what}; the traceback is in the worker log (job {job_id}). "
+        "Resubmit the job; report it if it happens again"
+    )
+
+
+# --- chunks of bundles -----------------------------------------------------------------------
+
+
+def task_chunks(height: int, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
+    """The level's bundles grouped so each task covers about ``rows_per_task`` rows."""
+    bundles = bundle_rows(height, config.bundle_height)
+    per_task = max(1, rows_per_task // config.bundle_height)
+    return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
+
+
+def encode_bundle(result: BundleResult) -> dict:
+    """A bundle result as JSON: labels travel as base64 uint8 (candidate indices are < 256)."""
+    return {
+        "rows": [result.row_start, result.row_stop],
+        "labels": base64.b64encode(result.labels.astype(np.uint8).tobytes()).decode("ascii"),
+        "energy": result.energy,
+        "repaired": result.repaired,
+        "wall_time": result.wall_time,
+        "timing": {key: float(value) for key, value in result.timing.items()},
+    }
+
+
+def decode_bundle(data: dict, width: int) -> BundleResult:
+    start, stop = data["rows"]
+    labels = np.frombuffer(base64.b64decode(data["labels"]), dtype=np.uint8)
+    return BundleResult(
+        row_start=start,
+        row_stop=stop,
+        labels=labels.reshape(stop - start, width).astype(np.int32),
+        energy=data["energy"],
+        repaired=data["repaired"],
+        wall_time=data["wall_time"],
+        timing=data["timing"],
+    )
+
+
+# --- control queue ---------------------------------------------------------------------------
+
+
+def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
+    """Begin a queued job: its first level's chord."""
+    record = store.transition(job_id, JobState.RUNNING, {JobState.QUEUED}, started_at=now())
+    if record is None:
+        log.info("job %s: not queued any more (cancelled or gone); nothing to start", job_id)
+        return
+    left, right = store.load_upload(job_id, "left"), store.load_upload(job_id, "right")
+    launch_level(celery, store, record, prepare_level(left, right, record.config, 0))
+
+
+def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: LevelInputs) -> None:
+    """Write the level's inputs once and fan its bundles out on the solver's queue."""
+    settings = store.settings
+    config = record.config
+    store.save_level(record.id, inputs, started=time.time())
+    rows_per_task = settings.solver_rows_per_task.get(config.solver, settings.rows_per_task)
+    chunks = task_chunks(inputs.shape[0], config, rows_per_task)
+    total = sum(len(chunk) for chunk in chunks)
+
+    def advance(current: JobRecord) -> JobRecord | None:
+        if current.state is not JobState.RUNNING:
+            return None
+        return current.model_copy(update={"level": inputs.index + 1, "bundles_total": total})
+
+    updated = store.update(record.id, advance)
+    if updated is None or updated.state is not JobState.RUNNING:
+        store.drop_level(record.id, inputs.index)
+        return
+    header = [
+        celery.signature(SOLVE_ROWS, args=(record.id, inputs.index, chunk), queue=config.solver)
+        for chunk in chunks
+    ]
+    callback = celery.signature(
+        LEVEL_DONE, args=(record.id, inputs.index), queue=settings.control_queue
+    )
+    chord(header)(callback)
+
+
+def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str, index: int):
+    """Fan-in: assemble and filter the level, then launch the next one or finish the job."""
+    record = store.get(job_id)
+    if record is None or record.state is not JobState.RUNNING:
+        store.drop_level(job_id, index)
+        return
+    if any("bundles" not in result for result in results):
+        # tasks that fail the job or see it end return no bundles, and the state check above
+        # returns; a running job with unsolved bundles lost its level inputs (expired)
+        store.drop_level(job_id, index)
+        store.fail(
+            job_id,
+            f"some bundles of level {index + 1} were not solved because the level's inputs "
+            "expired while they waited in the queue; resubmit the job, or raise "
+            "QHSM_TASK_VISIBILITY_TIMEOUT if the queue is often this long",
+        )
+        return
+    config = record.config
+    inputs, started = store.load_level(job_id, index)
+    width = inputs.shape[1]
+    bundles = [decode_bundle(b, width) for result in results for b in result["bundles"]]
+    solution = assemble(inputs, bundles)
+    disparity = finish_level(inputs, solution, config)
+    level_report = asdict(report(inputs, solution, time.time() - started))
+    store.drop_level(job_id, index)
+
+    def add_report(current: JobRecord) -> JobRecord | None:
+        if current.state is not JobState.RUNNING:
+            return None
+        return current.model_copy(update={"levels": [*current.levels, level_report]})
+
+    record = store.update(job_id, add_report)
+    if record is None or record.state is not JobState.RUNNING:
+        return
+    left, right = store.load_upload(job_id, "left"), store.load_upload(job_id, "right")
+    if index + 1 < len(config.levels):
+        next_inputs = prepare_level(left, right, config, index + 1, disparity)
+        launch_level(celery, store, record, next_inputs)
+        return
+    result = finish(disparity, left.shape, config)
+    metrics, warning = None, None
+    if record.ground_truth is not None:
+        try:
+            scores = evaluate(
+                result,
+                store.load_upload(job_id, "ground_truth"),
+                scale=record.ground_truth.scale,
+                border=record.ground_truth.border,
+            )
+            metrics = scores.as_dict()
+        except ValueError as error:
+            warning = f"ground truth not evaluated: {error}"
+    store.save_result(job_id, result)
+    updates = {"metrics": metrics}
+    if warning:
+        updates["error"] = warning
+    store.transition(job_id, JobState.SUCCEEDED, {JobState.RUNNING}, **updates)
+
+
+# --- solver queues ---------------------------------------------------------------------------
+
+
+def level_for(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, MatchConfig]:
+    """The level's inputs and the job's config, read from Redis once per worker process."""
+    key = (job_id, index)
+    if key in _level_cache:
+        _level_cache.move_to_end(key)
+        return _level_cache[key]
+    record = store.get(job_id)
+    if record is None:
+        raise JobGone(job_id)
+    inputs, _ = store.load_level(job_id, index)
+    _level_cache[key] = (inputs, record.config)
+    while len(_level_cache) > LEVEL_CACHE_SIZE:
+        _level_cache.popitem(last=False)
+    return inputs, record.config
+
+
+def solve_chunk(
+    store: JobStore, job_id: str, index: int, row_ranges: RowRanges, worker: str
+) -> dict | None:
+    """Solve some bundles of a level; None when the job is no longer running (not solved)."""
+    if store.state(job_id) is not JobState.RUNNING:
+        return None
+    inputs, config = level_for(store, job_id, index)
+    results = solve_bundles(inputs, config, row_ranges)
+    timing: dict[str, float] = {}
+    for result in results:
+        for key, value in result.timing.items():
+            timing[key] = timing.get(key, 0.0) + float(value)
+    chunk = ChunkReport(
+        level=index,
+        bundles=len(results),
+        wall_time=float(sum(result.wall_time for result in results)),
+        timing=timing,
+        worker=worker,
+    )
+    store.record_chunk(job_id, row_ranges[0][0], chunk)
+    return {"bundles": [encode_bundle(result) for result in results]}
+
+
+def retry_delay(settings: Settings, retries: int) -> float:
+    """Exponential backoff after a transient solver error."""
+    return min(settings.retry_backoff * 2**retries, settings.retry_backoff_max)

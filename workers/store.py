@@ -1,0 +1,338 @@
+"""Job records, level inputs and results in Redis; uploads on disk under ``Settings.data_dir``.
+
+Keys (all under ``{key_prefix}:``):
+
+    job:{id}                 JSON ``JobRecord`` (expires ``result_ttl_seconds`` after the end)
+    jobs                     sorted set id -> creation time (newest-first listing)
+    job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
+    job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
+    job:{id}:result          .npy bytes of the full-resolution disparity
+
+Chunk reports are written with HSET, so a task that runs twice (a worker died after solving)
+is counted once. State changes go through :meth:`JobStore.transition`, an optimistic
+compare-and-set, so a cancel racing with the last fan-in resolves to exactly one final state.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import shutil
+import uuid
+from collections.abc import Callable, Iterable
+from datetime import UTC, datetime
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import redis
+from pydantic import BaseModel, Field
+
+from shared.config import LevelConfig, MatchConfig, Settings
+from shared.solve import LevelInputs
+
+JOB_ID = re.compile(r"^[0-9a-f]{32}$")
+#: Level inputs live this long at most (they are deleted as soon as the level is assembled).
+LEVEL_INPUTS_GRACE = 3600
+
+
+class JobState(StrEnum):
+    QUEUED = "queued"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+    @property
+    def terminal(self) -> bool:
+        return self in (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
+
+
+ACTIVE = frozenset({JobState.QUEUED, JobState.RUNNING})
+
+
+class GroundTruth(BaseModel):
+    """Evaluation protocol of an uploaded ground truth (stored values = disparity x scale)."""
+
+    scale: float = Field(1.0, gt=0)
+    border: int = Field(0, ge=0)
+
+
+class JobRecord(BaseModel):
+    """What the service knows about a job (storage model; API schemas are separate)."""
+
+    id: str
+    state: JobState = JobState.QUEUED
+    owner: str | None = None
+    config: MatchConfig
+    width: int
+    height: int
+    ground_truth: GroundTruth | None = None
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+    level: int = 0  # 1-based index of the level being solved; 0 before the first
+    bundles_total: int = 0  # bundles of that level
+    levels: list[dict[str, Any]] = Field(default_factory=list)  # shared.pipeline.LevelReport
+    metrics: dict[str, float] | None = None
+    error: str | None = None
+
+
+class ChunkReport(BaseModel):
+    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it."""
+
+    level: int
+    bundles: int
+    wall_time: float
+    timing: dict[str, float] = Field(default_factory=dict)
+    worker: str = ""
+
+
+class Progress(BaseModel):
+    level: int
+    levels: int
+    bundles_done: int
+    bundles_total: int
+
+
+class LevelInputsMissing(LookupError):
+    """The level's inputs are gone (job finished, cancelled or expired)."""
+
+
+def now() -> datetime:
+    return datetime.now(UTC)
+
+
+def new_job_id() -> str:
+    return uuid.uuid4().hex
+
+
+def _npy(array: np.ndarray) -> bytes:
+    stream = io.BytesIO()
+    np.save(stream, np.ascontiguousarray(array), allow_pickle=False)
+    return stream.getvalue()
+
+
+def _from_npy(data: bytes) -> np.ndarray:
+    return np.load(io.BytesIO(data), allow_pickle=False)
+
+
+class JobStore:
+    """Job records in Redis and job files in ``data_dir/jobs/{id}``."""
+
+    def __init__(self, client: redis.Redis, settings: Settings):
+        self.redis = client
+        self.settings = settings
+        self.prefix = settings.key_prefix
+        self.ttl = settings.result_ttl_seconds
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> JobStore:
+        from workers.app import redis_url
+
+        return cls(redis.Redis.from_url(redis_url(settings)), settings)
+
+    # keys and paths ---------------------------------------------------------------------------
+
+    def key(self, *parts: object) -> str:
+        return ":".join([self.prefix, *map(str, parts)])
+
+    def job_dir(self, job_id: str) -> Path:
+        """The job's folder inside the data directory (ids are validated, never user paths)."""
+        if not JOB_ID.match(job_id):
+            raise ValueError(f"malformed job id {job_id!r}")
+        return self.settings.data_dir.resolve() / "jobs" / job_id
+
+    def ping(self) -> bool:
+        return bool(self.redis.ping())
+
+    # records ----------------------------------------------------------------------------------
+
+    def create(self, record: JobRecord, arrays: dict[str, np.ndarray]) -> None:
+        """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record."""
+        folder = self.job_dir(record.id)
+        folder.mkdir(parents=True, exist_ok=False)
+        for name, array in arrays.items():
+            np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+        with self.redis.pipeline() as pipe:
+            pipe.set(self.key("job", record.id), record.model_dump_json())
+            pipe.zadd(self.key("jobs"), {record.id: record.created_at.timestamp()})
+            pipe.execute()
+
+    def load_upload(self, job_id: str, name: str) -> np.ndarray:
+        return np.load(self.job_dir(job_id) / f"{name}.npy", allow_pickle=False)
+
+    def get(self, job_id: str) -> JobRecord | None:
+        if not JOB_ID.match(job_id):
+            return None
+        raw = self.redis.get(self.key("job", job_id))
+        return None if raw is None else JobRecord.model_validate_json(raw)
+
+    def state(self, job_id: str) -> JobState | None:
+        record = self.get(job_id)
+        return None if record is None else record.state
+
+    def update(
+        self, job_id: str, change: Callable[[JobRecord], JobRecord | None]
+    ) -> JobRecord | None:
+        """Apply ``change`` atomically (optimistic locking); it returns None to leave it alone.
+
+        Returns the record as stored afterwards, or None when the job does not exist.
+        """
+        key = self.key("job", job_id)
+        with self.redis.pipeline() as pipe:
+            while True:
+                try:
+                    pipe.watch(key)
+                    raw = pipe.get(key)
+                    if raw is None:
+                        return None
+                    current = JobRecord.model_validate_json(raw)
+                    changed = change(current.model_copy(deep=True))
+                    if changed is None:
+                        pipe.unwatch()
+                        return current
+                    pipe.multi()
+                    pipe.set(key, changed.model_dump_json(), keepttl=True)
+                    if changed.state.terminal:
+                        pipe.expire(key, self.ttl)
+                    pipe.execute()
+                    if changed.state.terminal and not current.state.terminal:
+                        self._finished(job_id)
+                    return changed
+                except redis.WatchError:
+                    continue
+
+    def transition(
+        self,
+        job_id: str,
+        to: JobState,
+        allowed_from: Iterable[JobState],
+        **fields: Any,
+    ) -> JobRecord | None:
+        """Move to ``to`` if the current state is in ``allowed_from``; None if it was not."""
+        allowed = set(allowed_from)
+        moved = False
+
+        def change(record: JobRecord) -> JobRecord | None:
+            nonlocal moved
+            if record.state not in allowed:
+                return None
+            moved = True
+            updates = {"state": to, **fields}
+            if to.terminal:
+                updates.setdefault("finished_at", now())
+            return record.model_copy(update=updates)
+
+        record = self.update(job_id, change)
+        return record if moved else None
+
+    def fail(self, job_id: str, message: str) -> bool:
+        """Fail an active job with a message for the user; False if it had already ended."""
+        return self.transition(job_id, JobState.FAILED, ACTIVE, error=message) is not None
+
+    def _finished(self, job_id: str) -> None:
+        """A job reached a final state: drop what only running jobs need."""
+        for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
+            self.redis.delete(key)
+        shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
+
+    def list(self, offset: int = 0, limit: int = 20) -> tuple[list[JobRecord], int]:
+        """Jobs newest first, and how many there are; expired records are dropped on the way."""
+        index = self.key("jobs")
+        ids = [raw.decode() for raw in self.redis.zrevrange(index, offset, offset + limit - 1)]
+        raws = self.redis.mget([self.key("job", job_id) for job_id in ids]) if ids else []
+        records, expired = [], []
+        for job_id, raw in zip(ids, raws, strict=True):
+            if raw is None:
+                expired.append(job_id)
+            else:
+                records.append(JobRecord.model_validate_json(raw))
+        if expired:
+            self.redis.zrem(index, *expired)
+        return records, int(self.redis.zcard(index))
+
+    # progress and usage -----------------------------------------------------------------------
+
+    def record_chunk(self, job_id: str, first_row: int, chunk: ChunkReport) -> None:
+        """Idempotent (a task solved twice counts once); expires like the job's record."""
+        key = self.key("job", job_id, "chunks")
+        with self.redis.pipeline() as pipe:
+            pipe.hset(key, f"{chunk.level}:{first_row}", chunk.model_dump_json())
+            pipe.expire(key, self.ttl + self.settings.task_visibility_timeout)
+            pipe.execute()
+
+    def chunks(self, job_id: str) -> list[ChunkReport]:
+        raw = self.redis.hvals(self.key("job", job_id, "chunks"))
+        return [ChunkReport.model_validate_json(value) for value in raw]
+
+    def progress(self, record: JobRecord, chunks: list[ChunkReport] | None = None) -> Progress:
+        chunks = self.chunks(record.id) if chunks is None else chunks
+        current = record.level - 1
+        done = sum(chunk.bundles for chunk in chunks if chunk.level == current)
+        if record.state is JobState.SUCCEEDED:
+            done = record.bundles_total
+        return Progress(
+            level=record.level,
+            levels=len(record.config.levels),
+            bundles_done=min(done, record.bundles_total),
+            bundles_total=record.bundles_total,
+        )
+
+    @staticmethod
+    def usage(chunks: list[ChunkReport]) -> dict[str, float]:
+        """Solver time spent on the job so far, summed over solved chunks (seconds)."""
+        total: dict[str, float] = {"solver_seconds": 0.0}
+        for chunk in chunks:
+            total["solver_seconds"] += chunk.wall_time
+            for key, value in chunk.timing.items():
+                total[key] = total.get(key, 0.0) + value
+        return total
+
+    # level inputs -----------------------------------------------------------------------------
+
+    def save_level(self, job_id: str, inputs: LevelInputs, started: float) -> None:
+        """Write a level's inputs once; every worker of the level reads them (by reference)."""
+        fields = {
+            "level": inputs.level.model_dump_json().encode(),
+            "started": repr(started).encode(),
+            "left": _npy(inputs.left),
+            "right": _npy(inputs.right),
+            "candidates": _npy(inputs.candidates),
+        }
+        if inputs.initial_labels is not None:
+            fields["initial_labels"] = _npy(inputs.initial_labels)
+        key = self.key("job", job_id, "level", inputs.index)
+        with self.redis.pipeline() as pipe:
+            pipe.hset(key, mapping=fields)
+            pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
+            pipe.execute()
+
+    def load_level(self, job_id: str, index: int) -> tuple[LevelInputs, float]:
+        """The level's inputs and when the level was started (epoch seconds)."""
+        fields = self.redis.hgetall(self.key("job", job_id, "level", index))
+        if not fields:
+            raise LevelInputsMissing(f"job {job_id}: inputs of level {index} are gone")
+        initial = fields.get(b"initial_labels")
+        inputs = LevelInputs(
+            index=index,
+            level=LevelConfig.model_validate_json(fields[b"level"]),
+            left=_from_npy(fields[b"left"]),
+            right=_from_npy(fields[b"right"]),
+            candidates=_from_npy(fields[b"candidates"]),
+            initial_labels=None if initial is None else _from_npy(initial),
+        )
+        return inputs, float(fields[b"started"])
+
+    def drop_level(self, job_id: str, index: int) -> None:
+        self.redis.delete(self.key("job", job_id, "level", index))
+
+    # results ----------------------------------------------------------------------------------
+
+    def save_result(self, job_id: str, disparity: np.ndarray) -> None:
+        self.redis.set(self.key("job", job_id, "result"), _npy(disparity), ex=self.ttl)
+
+    def load_result(self, job_id: str) -> np.ndarray | None:
+        raw = self.redis.get(self.key("job", job_id, "result"))
+        return None if raw is None else _from_npy(raw)

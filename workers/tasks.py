@@ -1,0 +1,104 @@
+"""Celery tasks: thin wrappers that turn errors into job states (see ``orchestration``).
+
+Solver errors: ``TransientSolverError`` is retried with exponential backoff, up to
+``Settings.task_retries`` times; any other ``SolverError`` fails the job with the solver's
+message. Unexpected errors are logged with their traceback and fail the job with a short
+message; tasks never raise into the chord, so every level's fan-in runs.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+
+from celery import signals
+
+from shared.config import get_settings
+from shared.solvers import SolverError, TransientSolverError
+from workers import orchestration
+from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB, app, load_plugins
+from workers.store import JobStore, LevelInputsMissing
+
+log = logging.getLogger(__name__)
+
+settings = get_settings()
+load_plugins(settings)
+_store: JobStore | None = None
+
+
+def store() -> JobStore:
+    """This process's job store (created after the pool forks)."""
+    global _store
+    if _store is None:
+        _store = JobStore.from_settings(settings)
+    return _store
+
+
+def install_embedding_store() -> None:
+    """Share minor embeddings between workers through Redis when that module is present."""
+    try:
+        module = importlib.import_module("workers.embedding_store")
+    except ModuleNotFoundError as error:
+        if error.name != "workers.embedding_store":
+            raise
+        return
+    install = getattr(module, "install", None)
+    if callable(install):
+        install(settings)
+        log.info("embedding store installed")
+
+
+@signals.worker_process_init.connect
+def _init_process(**_: object) -> None:
+    global _store
+    _store = None
+    install_embedding_store()
+
+
+@app.task(name=START_JOB, bind=True, ignore_result=True)
+def start_job(self, job_id: str) -> None:
+    try:
+        orchestration.start_job(app, store(), job_id)
+    except Exception:
+        log.exception("job %s: start failed", job_id)
+        store().fail(job_id, orchestration.internal_error(job_id, "starting the job"))
+
+
+@app.task(name=LEVEL_DONE, bind=True, ignore_result=True)
+def level_done(self, results: list[dict], job_id: str, index: int) -> None:
+    try:
+        orchestration.level_done(app, store(), results, job_id, index)
+    except Exception:
+        log.exception("job %s: fan-in of level %d failed", job_id, index)
+        store().fail(job_id, orchestration.internal_error(job_id, f"assembling level {index + 1}"))
+
+
+@app.task(name=SOLVE_ROWS, bind=True)
+def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
+    ranges = [(int(start), int(stop)) for start, stop in row_ranges]
+    worker = self.request.hostname or ""
+    try:
+        result = orchestration.solve_chunk(store(), job_id, index, ranges, worker)
+    except TransientSolverError as error:
+        retries = self.request.retries
+        if retries < settings.task_retries:
+            delay = orchestration.retry_delay(settings, retries)
+            log.warning("job %s: transient solver error, retry in %.1f s: %s", job_id, delay, error)
+            raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
+        return _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+    except SolverError as error:
+        return _fail(job_id, str(error))
+    except (LevelInputsMissing, orchestration.JobGone):
+        return {"skipped": True}
+    except Exception:
+        log.exception("job %s: bundle task of level %d failed", job_id, index)
+        return _fail(job_id, orchestration.internal_error(job_id, f"solving level {index + 1}"))
+    return result if result is not None else {"skipped": True}
+
+
+def _fail(job_id: str, message: str) -> dict:
+    record = store().get(job_id)
+    solver = record.config.solver if record else "?"
+    full = f"solver {solver!r} failed: {message}"
+    store().fail(job_id, full)
+    return {"error": full}
