@@ -269,6 +269,7 @@ class Stack:
             )
         for name in DWAVE_SECRETS:  # the API process never needs the token
             os.environ.pop(name, None)
+        self.settings = settings.model_copy(update={"dwave_api_token": None})
         if wait:
             celery = make_celery(settings, with_tasks=False)
             wait_for_workers(celery, [worker.hostname for worker in self.workers])

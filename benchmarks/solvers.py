@@ -253,6 +253,14 @@ def main(argv: list[str] | None = None) -> int:
         metavar="SOLVER:KEY=VALUE",
         help="solver parameter, e.g. sa:num_reads=50 (JSON values)",
     )
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=["sa:preprocess=none"],
+        metavar="SOLVER:KEY=VALUE[,KEY=VALUE]",
+        help="also run SOLVER with these parameters as its own row "
+        "(default: sa:preprocess=none, plain annealing)",
+    )
     parser.add_argument("--no-gurobi-segments", action="store_true")
     parser.add_argument(
         "--embedding-timeout",
@@ -275,13 +283,25 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError:
             params[solver][key] = value
     wanted = args.solvers.split(",") if args.solvers else solver_names()
-    solvers = []
+    solvers: list[tuple[str, str, dict]] = []  # (label, registry name, parameters)
     for name in wanted:
         availability = get_solver(name).available()
         if not availability.ok:
             print(f"skipping {name}: {availability.reason}", file=sys.stderr)
         elif name not in NOT_ON_BUNDLES:
-            solvers.append(name)
+            solvers.append((name, name, params[name]))
+    for text in args.variant:
+        name, _, assignments = text.partition(":")
+        if name not in {label for label, _, _ in solvers}:
+            continue
+        extra = dict(params[name])
+        for assignment in assignments.split(","):
+            key, _, value = assignment.partition("=")
+            try:
+                extra[key] = json.loads(value)
+            except json.JSONDecodeError:
+                extra[key] = value
+        solvers.append((f"{name} ({assignments})", name, extra))
 
     started = time.perf_counter()
     config = MatchConfig()
@@ -309,15 +329,15 @@ def main(argv: list[str] | None = None) -> int:
                 if exact is not None:
                     references[(height, inputs.index, number)] = exact
                 seed = bundle_seed(config.seed, inputs.index, start)
-                for name in solvers:
+                for label, name, solver_params in solvers:
                     encodings = ENCODINGS if name in BOTH_ENCODINGS else ("domain-wall",)
                     for encoding in encodings:
                         energy, repaired, seconds, error, info = run_solver(
-                            name, encoding, costs, seed, params[name]
+                            name, encoding, costs, seed, solver_params
                         )
                         outcomes.append(
                             Outcome(
-                                name,
+                                label,
                                 encoding,
                                 height,
                                 inputs.index,

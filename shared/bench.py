@@ -409,7 +409,11 @@ def run_one(
     run.seconds, run.levels, run.info = output.seconds, output.levels, output.info
     if variant.method != "pipeline" and options.url is not None:
         run.reason = "ran locally (baselines are not service jobs)"
-    _score(run, output.disparity, scene, gt)
+    try:
+        _score(run, output.disparity, scene, gt)
+    except ValueError as error:  # e.g. a border or mask that leaves no pixel, a wrong size
+        run.status, run.reason = "failed", f"evaluation: {error}"
+        return run
     _write_images(run, output.disparity, scene, gt, options.out)
     return run
 

@@ -130,6 +130,9 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     if record is None or record.state is not JobState.RUNNING:
         store.drop_level(job_id, index)
         return
+    if len(record.levels) > index:  # redelivered after a worker died having done this
+        log.info("job %s: level %d already assembled; ignoring a repeated fan-in", job_id, index)
+        return
     if any("bundles" not in result for result in results):
         # tasks that fail the job or see it end return no bundles, and the state check above
         # returns; a running job with unsolved bundles lost its level inputs (expired)

@@ -155,15 +155,13 @@ class SimulatedAnnealingSolver(_Classical):
         }
         timing: dict[str, float] = {}
         if len(fixed) < bqm.num_variables:
-            rest = bqm.copy()
-            rest.fix_variables(fixed)
-            free = np.fromiter(rest.variables, dtype=np.int64, count=rest.num_variables)
+            rest, free = fix_variables(bqm, fixed)
             sampleset, used = _anneal(
                 rest, seed, None if initial is None else initial[free], settings
             )
             best = sampleset.record.sample[sampleset.record.energy.argmin()]
             order = np.fromiter(sampleset.variables, dtype=np.int64, count=len(free))
-            sample[order] = best
+            sample[free[order]] = best
             timing = _sampler_timing(sampleset)
             info.update(used, num_reads=len(sampleset))
         return SolveResult(
@@ -173,6 +171,45 @@ class SimulatedAnnealingSolver(_Classical):
             timing=timing,
             info=info,
         )
+
+
+def fix_variables(
+    bqm: dimod.BinaryQuadraticModel, fixed: dict[int, int]
+) -> tuple[dimod.BinaryQuadraticModel, np.ndarray]:
+    """The BQM on the free variables, relabelled 0..m-1, and their original numbers.
+
+    Vectorised equivalent of ``bqm.fix_variables`` (dimod's is quadratic in the number of
+    variables and took 0.9 s on a full-resolution row)."""
+    n = bqm.num_variables
+    linear, (rows, cols, quadratic), offset = bqm.binary.to_numpy_vectors(variable_order=range(n))
+    values = np.zeros(n)
+    is_fixed = np.zeros(n, dtype=bool)
+    if fixed:
+        keys = np.fromiter(fixed.keys(), dtype=np.int64, count=len(fixed))
+        values[keys] = np.fromiter(fixed.values(), dtype=float, count=len(fixed))
+        is_fixed[keys] = True
+    linear = linear.astype(float).copy()
+    offset = float(offset) + float(linear[is_fixed] @ values[is_fixed])
+    row_fixed, col_fixed = is_fixed[rows], is_fixed[cols]
+    both = row_fixed & col_fixed
+    offset += float(np.sum(quadratic[both] * values[rows[both]] * values[cols[both]]))
+    np.add.at(
+        linear, rows[col_fixed & ~row_fixed], (quadratic * values[cols])[col_fixed & ~row_fixed]
+    )
+    np.add.at(
+        linear, cols[row_fixed & ~col_fixed], (quadratic * values[rows])[row_fixed & ~col_fixed]
+    )
+    free = np.flatnonzero(~is_fixed)
+    number = np.full(n, -1, dtype=np.int64)
+    number[free] = np.arange(free.size)
+    keep = ~row_fixed & ~col_fixed
+    reduced = dimod.BinaryQuadraticModel.from_numpy_vectors(
+        linear[free],
+        (number[rows[keep]], number[cols[keep]], quadratic[keep]),
+        offset,
+        dimod.BINARY,
+    )
+    return reduced, free
 
 
 #: Exact reductions ``sa`` may apply before annealing.

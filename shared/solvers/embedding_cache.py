@@ -64,6 +64,7 @@ class DirectoryStore:
         handle, temporary = tempfile.mkstemp(dir=self.directory, suffix=".tmp")
         with os.fdopen(handle, "w") as stream:
             stream.write(value)
+        os.chmod(temporary, 0o644)  # mkstemp creates 0600; other workers may run as others
         os.replace(temporary, self.directory / f"{key}.json")
 
 

@@ -174,3 +174,17 @@ def test_bench_rejects_unknown_scenes_and_experiments(tiny_dataset, tmp_path, ca
     assert "scene venus not in" in capsys.readouterr().err
     assert main(["bench", str(tiny_dataset), "--out", str(tmp_path), "--experiments", "x"]) == 1
     assert "unknown experiment x" in capsys.readouterr().err
+
+
+def test_a_protocol_that_leaves_no_pixel_fails_the_run_not_the_bench(tiny_dataset, tmp_path):
+    options = BenchOptions(
+        dataset=tiny_dataset,
+        out=tmp_path,
+        scenes=["cones"],
+        experiments=["baselines"],
+        border=100,
+    )
+    results = run_bench(options, log=lambda line: None)
+    assert {r["status"] for r in results["runs"]} == {"failed"}
+    assert all("no pixel left" in r["reason"] for r in results["runs"])
+    assert "failed: evaluation" in (tmp_path / "results.md").read_text()

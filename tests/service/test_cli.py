@@ -1,0 +1,66 @@
+"""`qhsm submit` against a real HTTP server (uvicorn) and real workers; the embedded Redis."""
+
+from __future__ import annotations
+
+import harness
+import numpy as np
+import pytest
+import redis
+
+from api.serve import ApiThread, EmbeddedRedis, free_port
+from shared.cli import main
+from shared.config import MatchConfig
+from shared.images import load_pair
+from shared.pipeline import run_pipeline
+from shared.synthetic import make_scene
+
+pytestmark = pytest.mark.service
+
+
+@pytest.fixture(scope="module")
+def api_url(settings, workers):
+    api = ApiThread(settings.model_copy(update={"api_port": free_port()})).start()
+    yield api.url
+    api.stop()
+
+
+def test_submit_waits_and_downloads_the_in_process_result(api_url, tmp_path, capsys):
+    scene = make_scene(32, 48, max_disparity=8, seed=9)
+    left, right = tmp_path / "left.png", tmp_path / "right.png"
+    left.write_bytes(harness.png(scene.left))
+    right.write_bytes(harness.png(scene.right))
+    truth = tmp_path / "truth.npy"
+    np.save(truth, scene.disparity)
+    out = tmp_path / "out.npy"
+    argv = [
+        "submit", str(left), str(right), "--url", api_url, "--max-disparity", "8", "--seed", "4",
+        "-o", str(out), "--preview", str(tmp_path / "preview.png"), "--ground-truth", str(truth),
+    ]  # fmt: skip
+    assert main(argv) == 0
+    assert "RMSE" in capsys.readouterr().out
+    expected = run_pipeline(*load_pair(left, right), MatchConfig(max_disparity=8, seed=4))
+    assert np.array_equal(np.load(out), expected.disparity)
+    assert (tmp_path / "preview.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_submit_reports_refusals_and_unreachable_servers(api_url, tmp_path, capsys):
+    image = tmp_path / "image.png"
+    image.write_bytes(harness.png(make_scene(16, 16, max_disparity=4).left))
+    assert main(["submit", str(image), str(image), "--url", api_url, "--solver", "nope"]) == 1
+    assert "unknown solver 'nope'" in capsys.readouterr().err
+    closed = f"http://127.0.0.1:{free_port()}"
+    assert main(["submit", str(image), str(image), "--url", closed]) == 1
+    assert "is `qhsm serve` running?" in capsys.readouterr().err
+
+
+def test_embedded_redis_persists_to_its_folder(tmp_path):
+    server = EmbeddedRedis(tmp_path / "redis").start()
+    try:
+        client = redis.Redis.from_url(server.url)
+        client.set("key", "value")
+        assert client.get("key") == b"value"
+        assert (tmp_path / "redis").is_dir()
+    finally:
+        server.stop()
+    with pytest.raises(redis.ConnectionError):
+        redis.Redis.from_url(server.url, socket_connect_timeout=0.5).ping()
