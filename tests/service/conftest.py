@@ -98,3 +98,12 @@ def workers(settings, markers, service_dir):
 def client(settings, workers):
     with TestClient(create_app(settings), raise_server_exceptions=False) as test_client:
         yield test_client
+
+
+@pytest.fixture(scope="session")
+def pair_arrays():
+    """A small synthetic pair as float32 arrays."""
+    from shared.synthetic import make_scene
+
+    scene = make_scene(32, 48, max_disparity=8, seed=2)
+    return scene.left, scene.right

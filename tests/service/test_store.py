@@ -1,0 +1,89 @@
+"""The job store against a real Redis: state changes, idempotent progress, level inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shared.config import MatchConfig
+from shared.pipeline import prepare_level
+from workers import orchestration
+from workers.store import (
+    ChunkReport,
+    JobRecord,
+    JobState,
+    JobStore,
+    LevelInputsMissing,
+    new_job_id,
+    now,
+)
+
+
+@pytest.fixture
+def store(settings) -> JobStore:
+    return JobStore.from_settings(settings)
+
+
+def new_job(store: JobStore, state: JobState = JobState.QUEUED) -> JobRecord:
+    record = JobRecord(
+        id=new_job_id(), state=state, config=MatchConfig(), width=8, height=4, created_at=now()
+    )
+    image = np.zeros((4, 8), np.float32)
+    store.create(record, {"left": image, "right": image})
+    return record
+
+
+def test_a_finished_job_cannot_change_state_again(store):
+    record = new_job(store)
+    assert store.transition(record.id, JobState.CANCELLED, {JobState.QUEUED, JobState.RUNNING})
+    assert store.transition(record.id, JobState.SUCCEEDED, {JobState.RUNNING}) is None
+    assert not store.fail(record.id, "too late")
+    final = store.get(record.id)
+    assert final.state is JobState.CANCELLED and final.finished_at is not None
+    assert 0 < store.redis.ttl(store.key("job", record.id)) <= store.ttl
+    assert not store.job_dir(record.id).exists()  # uploads go when the job ends
+
+
+def test_a_chunk_reported_twice_counts_once(store):
+    record = new_job(store, JobState.RUNNING)
+    record = store.update(
+        record.id, lambda r: r.model_copy(update={"level": 1, "bundles_total": 4})
+    )
+    chunk = ChunkReport(level=0, bundles=2, wall_time=0.5, timing={"qpu_access_time": 0.01})
+    store.record_chunk(record.id, 0, chunk)
+    store.record_chunk(record.id, 0, chunk)  # the same task solved again after a worker died
+    store.record_chunk(record.id, 2, chunk)
+    assert store.progress(record).bundles_done == 4
+    assert store.usage(store.chunks(record.id)) == pytest.approx(
+        {"solver_seconds": 1.0, "qpu_access_time": 0.02}
+    )
+
+
+def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
+    record = new_job(store, JobState.RUNNING)
+    left, right = pair_arrays
+    config = MatchConfig(max_disparity=8)
+    coarse = prepare_level(left, right, config, 0)
+    fine = prepare_level(left, right, config, 1, np.full(coarse.shape, 2.0, np.float32))
+    store.save_level(record.id, fine, started=123.0)
+    loaded, started = store.load_level(record.id, 1)
+    assert started == 123.0 and loaded.level == fine.level
+    for name in ("left", "right", "candidates", "initial_labels"):
+        assert np.array_equal(getattr(loaded, name), getattr(fine, name))
+    store.drop_level(record.id, 1)
+    with pytest.raises(LevelInputsMissing):
+        store.load_level(record.id, 1)
+
+
+def test_a_repeated_fan_in_is_ignored(store):
+    record = new_job(store, JobState.RUNNING)
+    store.update(record.id, lambda r: r.model_copy(update={"levels": [{"index": 0}]}))
+    # level 0's inputs are gone; a redelivered callback must neither fail nor redo the job
+    orchestration.level_done(None, store, [{"bundles": []}], record.id, 0)
+    assert store.get(record.id).state is JobState.RUNNING
+
+
+def test_job_ids_never_become_paths(store):
+    with pytest.raises(ValueError):
+        store.job_dir("../../etc")
+    assert store.get("../../etc") is None
