@@ -13,7 +13,8 @@ with 2 warm worker processes: from the POST until the PFM download has arrived, 
 Part "sa" (target: >= 1.7x). The same Tsukuba job with ``sa`` (domain-wall, preset ``fast``,
 no roof-duality preprocessing) through the service with a worker of 1 process and of 2
 processes (interleaved, ``--sa-repeats`` each); wall time from POST to download, medians.
-Both parts need the machine's two cores: the 1-minute load average is reported at start and end.
+Both parts need the machine's two cores: the 1-minute load average is reported at start and end,
+and for sa the CPU the worker got (CPU seconds of the worker and its pool / wall seconds).
 Redis: QHSM_REDIS_URL when set, else an embedded redis-server in a temporary folder.
 """
 
@@ -53,7 +54,7 @@ SA = {
     "encoding": "domain-wall",
     # anneal every variable (no roof-duality fixing, which solves most Tsukuba rows outright):
     # the annealer's work is what the workers share
-    "solver_params": {"preset": "fast", "preprocess": "none"},
+    "solver_params": {"preset": "fast", "preprocess": "none", "num_reads": 4},
 }
 
 
@@ -80,7 +81,7 @@ def service(folder: Path, redis_url: str, processes: int, queues: list[str]):
         wait_for_workers(make_celery(settings, with_tasks=False), [worker.hostname])
         api = ApiThread(settings).start()
         client = Client(api.url)
-        yield client, settings
+        yield client, settings, worker
         client.close()
     finally:
         if api:
@@ -116,7 +117,7 @@ def part_exact(folder: Path, redis_url: str, scene, repeats: int) -> dict:
     config = MatchConfig.model_validate(EXACT)
     run_pipeline(left, right, config)  # warm up
     pipeline = [run_pipeline(left, right, config).seconds for _ in range(repeats)]
-    with service(folder / "exact", redis_url, 2, ["exact"]) as (client, settings):
+    with service(folder / "exact", redis_url, 2, ["exact"]) as (client, settings, _):
         raw = scene.left.read_bytes(), scene.right.read_bytes()
         run_job(client, *raw, EXACT)  # warm the workers' imports
         served = [run_job(client, *raw, EXACT)[0] for _ in range(repeats)]
@@ -133,23 +134,42 @@ def part_exact(folder: Path, redis_url: str, scene, repeats: int) -> dict:
     return result
 
 
+def worker_cpu(worker: WorkerProcess) -> float:
+    """CPU seconds (user + system) the worker and its pool processes have used so far."""
+    ticks = 0
+    for pid in [worker.pid, *worker.children()]:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        ticks += int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15)
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
 def part_sa(folder: Path, redis_url: str, scene, repeats: int) -> dict:
     raw = scene.left.read_bytes(), scene.right.read_bytes()
     times: dict[int, list[float]] = {1: [], 2: []}
+    cores: dict[int, list[float]] = {1: [], 2: []}
     bundles = 0
     for repeat in range(repeats):  # interleaved, so load from other users hits both alike
         for processes in (1, 2):
             where = folder / f"sa{processes}-{repeat}"
-            with service(where, redis_url, processes, ["sa"]) as (client, _):
+            with service(where, redis_url, processes, ["sa"]) as (client, _, worker):
+                cpu_before = worker_cpu(worker)
                 seconds, status = run_job(client, *raw, SA)
+                busy = (worker_cpu(worker) - cpu_before) / seconds
             times[processes].append(seconds)
+            cores[processes].append(busy)
             bundles = sum(level["bundles"] for level in status["levels"])
-            print(f"sa, {processes} process(es): {seconds:.1f} s", file=sys.stderr, flush=True)
+            print(
+                f"sa, {processes} process(es): {seconds:.1f} s, {busy:.2f} cores busy",
+                file=sys.stderr,
+                flush=True,
+            )
     one, two = statistics.median(times[1]), statistics.median(times[2])
     return {
         "one_process_s": one,
         "two_processes_s": two,
         "speedup": one / two,
+        "cores_busy_one": statistics.median(cores[1]),
+        "cores_busy_two": statistics.median(cores[2]),
         "bundles": bundles,
         "rows_per_task": Settings().rows_per_task,
         "repeats": repeats,

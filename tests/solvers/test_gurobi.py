@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import dimod
 import pytest
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, random_bqm, stereo_costs
 
 from shared.config import get_settings
 from shared.encodings import get_codec
@@ -43,3 +44,14 @@ def test_availability_reports_the_licence_kind(monkeypatch, tmp_path):
     assert "size-limited pip licence" in reason and "200 variables" in reason
     monkeypatch.setenv("GRB_LICENSE_FILE", str(tmp_path / "gurobi.lic"))
     assert solver.available().reason == "full licence (GRB_LICENSE_FILE)"
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_tiny_coefficients_are_not_lost_in_gurobi_tolerances(seed):
+    """MRF energies are small; unscaled, Gurobi calls a non-optimal state optimal here."""
+    bqm = random_bqm(14, seed)
+    bqm.scale(1e-8)
+    ground = dimod.ExactSolver().sample(bqm).first.energy
+    result = get_solver("gurobi").solve(bqm, seed=0)
+    assert result.energy == pytest.approx(ground, rel=1e-9, abs=1e-18)
+    assert result.info["bound"] == pytest.approx(ground, rel=1e-6)
