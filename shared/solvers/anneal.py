@@ -7,7 +7,8 @@ almost every sweep is a greedy descent. :func:`beta_range` uses the same rule (a
 which every spin flips with probability 1/2, a cold end with a small excitation rate) but ignores
 biases below a relative tolerance and takes the cold end from a low quantile of the per-spin
 smallest bias, which is robust to a few tiny ones. Measured on Tsukuba rows this turns 1-500%
-gaps into about 0.1-1% at equal cost (see docs/benchmarks.md).
+gaps into about 0.1-1% at equal cost. ``sa`` also fixes variables by roof duality before
+annealing (see :class:`SimulatedAnnealingSolver`); docs/benchmarks.md has the measurements.
 """
 
 from __future__ import annotations
@@ -269,13 +270,14 @@ def _anneal(
 class TabuSolver(_Classical):
     """``tabu``: dwave-samplers' TabuSampler (MST2 multistart tabu search).
 
-    Parameters: ``num_reads`` (default 1), ``timeout`` (milliseconds per read, default 100),
-    ``tenure``, ``num_restarts``. ``initial_state`` seeds every read.
+    Parameters: ``num_reads`` (default 4: a single read can cycle on tiny problems),
+    ``timeout`` (milliseconds per read, default 25), ``tenure``, ``num_restarts``.
+    ``initial_state`` seeds every read.
     """
 
     name = "tabu"
     description = "Tabu search (dwave-samplers), classical CPU"
-    defaults: ClassVar[dict[str, Any]] = {"num_reads": 1, "timeout": 100}
+    defaults: ClassVar[dict[str, Any]] = {"num_reads": 4, "timeout": 25}
 
     def solve(
         self,

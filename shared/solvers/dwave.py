@@ -116,9 +116,9 @@ class _EmbeddedQPU:
         started = time.perf_counter()
         try:
             base = self.sampler()
-            embedding, source, key = self.cache.lookup(
-                bqm, base.edgelist, self._target, seed=0 if seed is None else seed % 2**31
-            )
+            # Seed 0, not the bundle's: the embedding must depend on the structure only, so
+            # whichever worker computes it first, every run gets the same one.
+            embedding, source, key = self.cache.lookup(bqm, base.edgelist, self._target, seed=0)
             strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
             settings: dict[str, Any] = {"num_reads": DEFAULT_NUM_READS, **params}
             if initial_state is not None:
