@@ -31,7 +31,7 @@ def _store(args: argparse.Namespace):
     from workers.app import redis_url
 
     settings = get_settings()
-    url = args.redis_url or redis_url(settings)
+    url = args.redis_url or settings.redis_url or _embedded_url(settings) or redis_url(settings)
     client = redis.Redis.from_url(url, socket_connect_timeout=2)
     try:
         client.ping()
@@ -40,6 +40,16 @@ def _store(args: argparse.Namespace):
             f"cannot reach Redis at {_safe_url(url)}: set QHSM_REDIS_URL or pass --redis-url"
         ) from None
     return UserStore.from_settings(settings, client)
+
+
+def _embedded_url(settings) -> str | None:
+    """The URL of `qhsm serve`'s embedded Redis, when one runs with this data directory."""
+    from api.serve import EMBEDDED_URL_FILE
+
+    try:
+        return (settings.data_dir / EMBEDDED_URL_FILE).read_text().strip() or None
+    except OSError:
+        return None
 
 
 def _safe_url(url: str) -> str:

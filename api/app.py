@@ -6,12 +6,13 @@ from __future__ import annotations
 import logging
 import uuid
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from api.deps import QueueInspector, Services
-from api.routes import health, jobs, solvers
+from api.routes import health, jobs, solvers, usage
 from api.uploads import UploadError
+from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
 from workers.app import load_plugins, make_celery
 from workers.store import JobStore
@@ -36,9 +37,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         celery=celery,
         queues=QueueInspector(celery, settings.inspect_timeout),
     )
-    app.include_router(jobs.router)
-    app.include_router(solvers.router)
+    # every /v1 route needs an API key; /healthz, /readyz and /docs stay open
+    authenticated = [Depends(current_user)]
+    app.include_router(jobs.router, dependencies=authenticated)
+    app.include_router(solvers.router, dependencies=authenticated)
+    app.include_router(usage.router, dependencies=authenticated)
     app.include_router(health.router)
+    app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 
     @app.exception_handler(UploadError)
     async def upload_error(request: Request, error: UploadError) -> JSONResponse:

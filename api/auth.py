@@ -1,29 +1,19 @@
-"""Who is calling. For now every caller is anonymous; API keys and quotas (issue 5) replace
-``current_principal`` and ``can_see`` without touching the routes, which only depend on them."""
+"""Who is calling, and what they may see: the routes depend only on ``current_principal`` and
+``can_see``. Keys, users and the bearer-token check live in :mod:`api.users`."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-from fastapi import Request
-
+from api.users import User, admin_user, current_user
 from workers.store import JobRecord
 
-
-@dataclass(frozen=True)
-class Principal:
-    name: str
-    anonymous: bool = True
-
-
-ANONYMOUS = Principal("anonymous")
-
-
-def current_principal(request: Request) -> Principal:
-    """FastAPI dependency: the caller (always anonymous until API keys exist)."""
-    return ANONYMOUS
+#: The authenticated caller (a lab member; ``admin`` sees and cancels every job).
+Principal = User
+current_principal = current_user
 
 
 def can_see(principal: Principal, record: JobRecord) -> bool:
-    """Whether ``principal`` may read or cancel ``record``."""
-    return principal.anonymous or record.owner == principal.name
+    """Whether ``principal`` may read or cancel ``record``: its owner, or an admin."""
+    return principal.admin or record.owner == principal.name
+
+
+__all__ = ["Principal", "admin_user", "can_see", "current_principal", "current_user"]

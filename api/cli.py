@@ -51,6 +51,9 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument("--gt-scale", type=float, default=1.0, help="stored value per pixel")
     submit.add_argument("--gt-border", type=int, default=0, help="ignored frame, pixels")
     submit.add_argument("--json", action="store_true", help="print the final status as JSON")
+    submit.add_argument(
+        "--key", help="API key (QHSM_API_KEY; default: the local admin key of `qhsm serve`)"
+    )
     submit.set_defaults(handler=cmd_submit)
 
 
@@ -102,6 +105,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         stack.start()
         settings = stack.settings
         print(stack.describe(), file=sys.stderr)
+        _announce_key(settings)
         print(
             f"API on http://{settings.api_host}:{settings.api_port} (docs: /docs); Ctrl-C stops",
             file=sys.stderr,
@@ -110,6 +114,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
     finally:
         stack.stop()
     return 0
+
+
+def _announce_key(settings: Settings) -> str | None:
+    """Make sure the local admin exists (auth on) and say where its key is; the key itself is
+    printed only when it was just made."""
+    if not settings.auth_enabled:
+        print("authentication is off (QHSM_AUTH_ENABLED=false)", file=sys.stderr)
+        return None
+    from api.users import LOCAL_ADMIN, LOCAL_KEY_FILE, UserStore, ensure_local_admin
+
+    key, new = ensure_local_admin(UserStore.from_settings(settings), settings.data_dir)
+    where = settings.data_dir / LOCAL_KEY_FILE
+    if new:
+        print(f"new API key of {LOCAL_ADMIN} (admin): {key}", file=sys.stderr)
+    print(
+        f"{LOCAL_ADMIN}'s API key is in {where}; `qhsm submit` uses it unless --key or "
+        "QHSM_API_KEY is given; add lab members with `qhsm admin create-user NAME`",
+        file=sys.stderr,
+    )
+    return key
 
 
 def _demo_scene(choice: str):
@@ -155,7 +179,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         stack.start()
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
-        client = Client(api.url)
+        client = Client(api.url, key=_announce_key(stack.settings))
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
         print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
@@ -201,7 +225,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     for path in files:
         if not path.is_file():
             raise CommandError(f"{path}: no such file")
-    client = Client(url)
+    client = Client(url, key=args.key)
     try:
         job = client.submit(
             files[0].read_bytes(),

@@ -19,14 +19,33 @@ class ClientError(RuntimeError):
     """The API refused a request or cannot be reached; the message says why."""
 
 
+def default_key() -> str | None:
+    """``QHSM_API_KEY``, else the local admin key ``qhsm serve`` keeps in the data directory."""
+    from shared.config import get_settings
+
+    settings = get_settings()
+    if settings.api_key is not None:
+        return settings.api_key.get_secret_value()
+    from api.users import read_local_key
+
+    return read_local_key(settings.data_dir)
+
+
 @dataclass
 class Client:
+    """``key``: the API key sent as ``Authorization: Bearer``; default :func:`default_key`."""
+
     url: str
     timeout: float = 60.0
-    http: httpx.Client = field(init=False)
+    key: str | None = field(default=None, repr=False)
+    http: httpx.Client = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.http = httpx.Client(base_url=self.url.rstrip("/"), timeout=self.timeout)
+        key = self.key or default_key()
+        headers = {"Authorization": f"Bearer {key}"} if key else {}
+        self.http = httpx.Client(
+            base_url=self.url.rstrip("/"), timeout=self.timeout, headers=headers
+        )
 
     def close(self) -> None:
         self.http.close()
@@ -43,6 +62,8 @@ class Client:
                 detail = response.json().get("detail", response.text)
             except ValueError:
                 detail = response.text
+            if response.status_code == 401:
+                detail = f"{detail} (pass --key or set QHSM_API_KEY)"
             raise ClientError(f"{method} {path}: {response.status_code}: {detail}")
         return response
 
@@ -134,3 +155,26 @@ def write_result(client: Client, job_id: str, output: Path) -> Path:
     output.parent.mkdir(parents=True, exist_ok=True)
     output.write_bytes(client.disparity(job_id, fmt))
     return output
+
+
+def http_runner(left: Path, right: Path, config, url: str):
+    """Entry point ``qhsm.runners:http`` of ``qhsm bench --url``: one scene through the service
+    (key from QHSM_API_KEY); returns ``(disparity, levels)``."""
+    import io
+
+    import numpy as np
+
+    client = Client(url)
+    try:
+        params = config.model_dump(mode="json")
+        job = client.submit(
+            Path(left).read_bytes(), Path(right).read_bytes(), params,
+            names=(Path(left).name, Path(right).name),
+        )  # fmt: skip
+        status = client.wait(job["id"])
+        if status["state"] != "succeeded":
+            raise ClientError(f"job {job['id']} {status['state']}: {status['error']}")
+        disparity = np.load(io.BytesIO(client.disparity(job["id"], "npy")), allow_pickle=False)
+        return disparity, status["levels"]
+    finally:
+        client.close()

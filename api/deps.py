@@ -36,7 +36,13 @@ class QueueInspector:
                 return self._cache[1]
             consumers: dict[str, list[str]] | None = {}
             try:
-                replies = self.celery.control.inspect(timeout=self.timeout).active_queues()
+                # a connection of our own, closed here: a pooled one would keep a pending BRPOP
+                # that kombu's after-fork cleanup blocks on in any process forked later
+                with self.celery.connection_for_write() as connection:
+                    inspect = self.celery.control.inspect(
+                        timeout=self.timeout, connection=connection
+                    )
+                    replies = inspect.active_queues()
             except Exception as error:  # broker down: report "unknown", not a 500
                 log.warning("inspect active_queues failed: %s", error)
                 consumers = None

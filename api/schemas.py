@@ -54,6 +54,7 @@ class Metrics(BaseModel):
 
 class JobStatus(BaseModel):
     id: str
+    owner: str | None = Field(None, description="User who submitted the job")
     state: JobState
     solver: str
     width: int
@@ -74,6 +75,7 @@ class JobStatus(BaseModel):
 
 class JobSummary(BaseModel):
     id: str
+    owner: str | None = Field(None, description="User who submitted the job")
     state: JobState
     solver: str
     width: int

@@ -27,6 +27,8 @@ from shared.config import Settings
 
 log = logging.getLogger(__name__)
 
+#: File in the data directory holding the embedded Redis URL while `qhsm serve` runs.
+EMBEDDED_URL_FILE = "redis-url"
 #: Environment variables only QPU / hybrid workers may see.
 DWAVE_SECRETS = ("DWAVE_API_TOKEN", "DWAVE_API_REGION", "DWAVE_API_ENDPOINT", "DWAVE_SOLVER")
 
@@ -241,6 +243,8 @@ class Stack:
         if settings.redis_url is None:
             self.redis = EmbeddedRedis(settings.data_dir / "redis").start()
             settings = self.settings = settings.model_copy(update={"redis_url": self.redis.url})
+            # where `qhsm admin` finds the embedded Redis while it runs
+            (settings.data_dir / EMBEDDED_URL_FILE).write_text(self.redis.url + "\n")
         load_plugins(settings)
         cpu, dwave = [settings.control_queue], []
         for name in solver_names():
@@ -291,6 +295,7 @@ class Stack:
         if self.redis:
             self.redis.stop()
             self.redis = None
+            (self.settings.data_dir / EMBEDDED_URL_FILE).unlink(missing_ok=True)
 
     def __enter__(self) -> Stack:
         return self.start()

@@ -22,6 +22,7 @@ import hmac
 import re
 import secrets
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Annotated
 
 import redis
@@ -30,7 +31,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel
 
 from shared.config import Settings
-from workers.quota import QuotaLedger
+from workers.quota import LOCAL_USER, QuotaLedger
 
 KEY_TAG = "qhsm"
 KEY_ID_BYTES = 4
@@ -39,8 +40,6 @@ USER_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}$")
 _KEY = re.compile(rf"^{KEY_TAG}_([0-9a-f]{{{2 * KEY_ID_BYTES}}})_([A-Za-z0-9_-]{{20,}})$")
 #: ``create_user``'s budget argument meaning "the settings' default".
 DEFAULT_BUDGET = "default"
-#: The user every request acts as when ``Settings.auth_enabled`` is off.
-LOCAL_USER = "local"
 
 
 class UserError(ValueError):
@@ -222,6 +221,41 @@ class UserStore:
         if not hmac.compare_digest(stored.encode(), presented.encode()):
             return None
         return self._user(fields)
+
+
+# --- the local admin of `qhsm serve` ----------------------------------------------------------
+
+#: The admin `qhsm serve` / `qhsm demo` create so a fresh install works without setup.
+LOCAL_ADMIN = "local-admin"
+LOCAL_KEY_FILE = "api-key"
+
+
+def read_local_key(data_dir: Path) -> str | None:
+    """The local admin key `qhsm serve` left in ``data_dir``, if any."""
+    path = Path(data_dir) / LOCAL_KEY_FILE
+    try:
+        return path.read_text().strip() or None
+    except OSError:
+        return None
+
+
+def ensure_local_admin(store: UserStore, data_dir: Path) -> tuple[str, bool]:
+    """A working key of the local admin: the one in ``data_dir/api-key`` if it still
+    authenticates, else a new one (creating the user on first start), written there with mode
+    600. Returns (key, whether it is new)."""
+    key = read_local_key(data_dir)
+    if key and (user := store.authenticate(key)) is not None and user.name == LOCAL_ADMIN:
+        return key, False
+    if store.get(LOCAL_ADMIN) is None:
+        _, key = store.create_user(LOCAL_ADMIN, admin=True, qpu_seconds=None)
+    else:
+        key = store.rotate_key(LOCAL_ADMIN)
+    path = Path(data_dir) / LOCAL_KEY_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.touch(mode=0o600, exist_ok=True)
+    path.chmod(0o600)
+    path.write_text(key + "\n")
+    return key, True
 
 
 # --- FastAPI dependencies ----------------------------------------------------------------------

@@ -36,9 +36,20 @@ def command_seconds(scene, max_disparity: int, repeats: int) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(repeats):
             started = time.perf_counter()
-            subprocess.run([exe, "match", str(scene.left), str(scene.right), "-o",
-                            str(Path(tmp) / "d.pfm"), "--max-disparity", str(max_disparity)],
-                           check=True, capture_output=True)
+            subprocess.run(
+                [
+                    exe,
+                    "match",
+                    str(scene.left),
+                    str(scene.right),
+                    "-o",
+                    str(Path(tmp) / "d.pfm"),
+                    "--max-disparity",
+                    str(max_disparity),
+                ],
+                check=True,
+                capture_output=True,
+            )
             times.append(time.perf_counter() - started)
     return statistics.median(times)
 
@@ -50,8 +61,10 @@ def main() -> None:
     parser.add_argument("--scenes", default="tsukuba,venus,cones")
     args = parser.parse_args()
 
-    print("| scene | mask | max disp | RMSE | BPP (%) | paper Gurobi RMSE / BPP | "
-          "level times (ms, median) | `qhsm match` wall (s, median) |")
+    print(
+        "| scene | mask | max disp | RMSE | BPP (%) | paper Gurobi RMSE / BPP | "
+        "level times (ms, median) | `qhsm match` wall (s, median) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for name in args.scenes.split(","):
         scene = load_scene(args.data / name)
@@ -59,19 +72,24 @@ def main() -> None:
         max_disparity = MAX_DISPARITY.get(name, 20)
         config = MatchConfig(max_disparity=max_disparity)
         runs = [run_pipeline(left, right, config) for _ in range(args.repeats)]
-        level_ms = [statistics.median(run.levels[k].seconds for run in runs) * 1000
-                    for k in range(len(config.levels))]
+        level_ms = [
+            statistics.median(run.levels[k].seconds for run in runs) * 1000
+            for k in range(len(config.levels))
+        ]
         wall = command_seconds(scene, max_disparity, args.repeats)
         gt = scene.ground_truth()
         masks = ["all", "nonocc"] if scene.masks else ["all"]
         for mask_name in masks:
-            scores = evaluate(runs[0].disparity, gt, scene.scale, scene.border,
-                              scene.mask(mask_name))
+            scores = evaluate(
+                runs[0].disparity, gt, scene.scale, scene.border, scene.mask(mask_name)
+            )
             paper = PAPER_GUROBI.get(name) if mask_name == "all" else None
             paper_text = f"{paper[0]} / {paper[1]}" if paper else "n/a"
             times = " / ".join(f"{ms:.0f}" for ms in level_ms)
-            print(f"| {name} | {mask_name} | {max_disparity} | {scores.rmse:.3f} | "
-                  f"{scores.bpp:.2f} | {paper_text} | {times} | {wall:.2f} |")
+            print(
+                f"| {name} | {mask_name} | {max_disparity} | {scores.rmse:.3f} | "
+                f"{scores.bpp:.2f} | {paper_text} | {times} | {wall:.2f} |"
+            )
 
 
 if __name__ == "__main__":

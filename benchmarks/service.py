@@ -42,6 +42,7 @@ from api.serve import (
     wait_for_workers,
     worker_env,
 )
+from api.users import UserStore, ensure_local_admin
 from shared.config import MatchConfig, Settings, get_settings
 from shared.datasets import default_middlebury_dir, load_scene
 from shared.pipeline import run_pipeline
@@ -80,7 +81,8 @@ def service(folder: Path, redis_url: str, processes: int, queues: list[str]):
     try:
         wait_for_workers(make_celery(settings, with_tasks=False), [worker.hostname])
         api = ApiThread(settings).start()
-        client = Client(api.url)
+        key, _ = ensure_local_admin(UserStore.from_settings(settings), settings.data_dir)
+        client = Client(api.url, key=key)
         yield client, settings, worker
         client.close()
     finally:

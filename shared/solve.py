@@ -195,7 +195,10 @@ class ProcessPoolLevelSolver:
 
     def __enter__(self) -> ProcessPoolLevelSolver:
         if self.processes > 1:
-            self._pool = ProcessPoolExecutor(self.processes, mp_context=get_context("fork"))
+            # spawn, not fork: forking a process that already runs threads (OpenBLAS, OpenCV,
+            # an HTTP client) can deadlock the children. Solvers come from the registry's
+            # importable factories, so every child sees the same adapters.
+            self._pool = ProcessPoolExecutor(self.processes, mp_context=get_context("spawn"))
         return self
 
     def __exit__(self, *exc_info: object) -> None:

@@ -17,7 +17,7 @@ KEY_PREFIX = "qhsm:embedding:"
 
 
 class RedisEmbeddingStore:
-    """``get``/``set`` of embedding JSON under ``qhsm:embedding:<structure key>``."""
+    """``get``/``set`` of embedding JSON under ``{key_prefix}:embedding:<structure key>``."""
 
     def __init__(self, client: redis.Redis, prefix: str = KEY_PREFIX) -> None:
         self.client = client
@@ -41,6 +41,9 @@ def install(settings: Settings) -> RedisEmbeddingStore:
     """Make Redis this process's embedding store (called at worker start-up)."""
     from workers.app import redis_url
 
-    store = RedisEmbeddingStore.from_url(redis_url(settings))
+    store = RedisEmbeddingStore(
+        redis.Redis.from_url(redis_url(settings), decode_responses=True),
+        prefix=f"{settings.key_prefix}:embedding:",
+    )
     set_default_store(store)
     return store

@@ -15,6 +15,7 @@ import base64
 import logging
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import asdict
 
 import numpy as np
@@ -25,7 +26,9 @@ from shared.config import MatchConfig, Settings
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, prepare_level, report
 from shared.solve import BundleResult, LevelInputs, assemble, solve_bundles
+from shared.solvers.qpu_time import is_metered
 from workers.app import LEVEL_DONE, SOLVE_ROWS
+from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.store import ChunkReport, JobRecord, JobState, JobStore, now
 
 log = logging.getLogger(__name__)
@@ -51,9 +54,15 @@ def internal_error(job_id: str, what: str) -> str:
 
 
 def task_chunks(height: int, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
-    """The level's bundles grouped so each task covers about ``rows_per_task`` rows."""
+    """The level's bundles grouped so each task covers about ``rows_per_task`` rows.
+
+    Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
+    (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
+    """
     bundles = bundle_rows(height, config.bundle_height)
     per_task = max(1, rows_per_task // config.bundle_height)
+    if is_metered(config.solver):
+        per_task = 1
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
 
 
@@ -206,13 +215,36 @@ def level_for(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, Ma
 
 
 def solve_chunk(
-    store: JobStore, job_id: str, index: int, row_ranges: RowRanges, worker: str
+    store: JobStore,
+    job_id: str,
+    index: int,
+    row_ranges: RowRanges,
+    worker: str,
+    meter: Callable[[], QpuMeter] | None = None,
 ) -> dict | None:
-    """Solve some bundles of a level; None when the job is no longer running (not solved)."""
+    """Solve some bundles of a level; None when the job is no longer running (not solved).
+
+    Metered solvers go through ``meter()`` (lab-wide slot, budget reservation, settlement per
+    bundle); a job whose owner's budget runs out raises ``QuotaExceeded`` (a SolverError)."""
     if store.state(job_id) is not JobState.RUNNING:
         return None
     inputs, config = level_for(store, job_id, index)
-    results = solve_bundles(inputs, config, row_ranges)
+    if is_metered(config.solver) and meter is not None:
+        record = store.get(job_id)
+        owner = (record.owner if record else None) or LOCAL_USER
+        results = solve_metered(
+            meter(),
+            owner,
+            job_id,
+            inputs,
+            config,
+            row_ranges,
+            still_running=lambda: store.state(job_id) is JobState.RUNNING,
+        )
+        if results is None:
+            return None
+    else:
+        results = solve_bundles(inputs, config, row_ranges)
     timing: dict[str, float] = {}
     for result in results:
         for key, value in result.timing.items():

@@ -146,6 +146,10 @@ _COUNT = (
 )
 
 
+#: The user every request acts as (and owns jobs) while ``Settings.auth_enabled`` is off.
+LOCAL_USER = "local"
+
+
 # --- errors and records ------------------------------------------------------------------------
 
 
@@ -155,7 +159,7 @@ class QuotaExceeded(SolverError):
     def __init__(self, user: str, remaining: float, needed: float, what: str = "the next bundle"):
         self.user, self.remaining, self.needed = user, remaining, needed
         super().__init__(
-            f"QPU budget of user {user!r} exhausted: {max(remaining, 0.0):.3f} s remaining, "
+            f"not enough QPU budget left for user {user!r}: {max(remaining, 0.0):.3f} s remaining, "
             f"{needed:.3f} s estimated for {what}; ask an admin to raise it "
             "(qhsm admin set-quota) or use an unmetered solver"
         )

@@ -4,6 +4,7 @@ Keys (all under ``{key_prefix}:``):
 
     job:{id}                 JSON ``JobRecord`` (expires ``result_ttl_seconds`` after the end)
     jobs                     sorted set id -> creation time (newest-first listing)
+    jobs:owner:{user}        the same, one user's jobs
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:result          .npy bytes of the full-resolution disparity
@@ -158,6 +159,11 @@ class JobStore:
         with self.redis.pipeline() as pipe:
             pipe.set(self.key("job", record.id), record.model_dump_json())
             pipe.zadd(self.key("jobs"), {record.id: record.created_at.timestamp()})
+            if record.owner is not None:
+                pipe.zadd(
+                    self.key("jobs", "owner", record.owner),
+                    {record.id: record.created_at.timestamp()},
+                )
             pipe.execute()
 
     def load_upload(self, job_id: str, name: str) -> np.ndarray:
@@ -238,9 +244,12 @@ class JobStore:
             self.redis.delete(key)
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
 
-    def list(self, offset: int = 0, limit: int = 20) -> tuple[list[JobRecord], int]:
-        """Jobs newest first, and how many there are; expired records are dropped on the way."""
-        index = self.key("jobs")
+    def list(
+        self, offset: int = 0, limit: int = 20, owner: str | None = None
+    ) -> tuple[list[JobRecord], int]:
+        """Jobs newest first (only ``owner``'s when given), and how many there are; expired
+        records are dropped on the way."""
+        index = self.key("jobs") if owner is None else self.key("jobs", "owner", owner)
         ids = [raw.decode() for raw in self.redis.zrevrange(index, offset, offset + limit - 1)]
         raws = self.redis.mget([self.key("job", job_id) for job_id in ids]) if ids else []
         records, expired = [], []

@@ -17,6 +17,7 @@ from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
 from workers import orchestration
 from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB, app, load_plugins
+from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
 
 log = logging.getLogger(__name__)
@@ -24,6 +25,15 @@ log = logging.getLogger(__name__)
 settings = get_settings()
 load_plugins(settings)
 _store: JobStore | None = None
+_meter: QpuMeter | None = None
+
+
+def meter() -> QpuMeter:
+    """This process's QPU meter (budgets and lab-wide slots), created on first metered use."""
+    global _meter
+    if _meter is None:
+        _meter = QpuMeter.from_settings(settings, store().redis)
+    return _meter
 
 
 def store() -> JobStore:
@@ -50,8 +60,9 @@ def install_embedding_store() -> None:
 
 @signals.worker_process_init.connect
 def _init_process(**_: object) -> None:
-    global _store
+    global _store, _meter
     _store = None
+    _meter = None
     install_embedding_store()
 
 
@@ -78,7 +89,7 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     ranges = [(int(start), int(stop)) for start, stop in row_ranges]
     worker = self.request.hostname or ""
     try:
-        result = orchestration.solve_chunk(store(), job_id, index, ranges, worker)
+        result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
     except TransientSolverError as error:
         retries = self.request.retries
         if retries < settings.task_retries:
@@ -86,6 +97,10 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
             log.warning("job %s: transient solver error, retry in %.1f s: %s", job_id, delay, error)
             raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
         return _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+    except QuotaExceeded as error:
+        message = f"stopped: {error}; bundles not solved yet were not sent"
+        store().fail(job_id, message)
+        return {"error": message}
     except SolverError as error:
         return _fail(job_id, str(error))
     except (LevelInputsMissing, orchestration.JobGone):

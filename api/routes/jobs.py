@@ -18,16 +18,20 @@ from api.uploads import (
     parse_config,
     read_upload,
 )
+from api.users import UserStore, user_store
 from shared.config import MatchConfig
 from shared.images import disparity_bytes, preview_png
 from shared.solvers import UnknownSolver
+from shared.solvers.qpu_time import is_metered, job_seconds
 from workers.app import START_JOB
+from workers.quota import QuotaExceeded
 from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 ServicesDep = Annotated[Services, Depends(services)]
 PrincipalDep = Annotated[Principal, Depends(current_principal)]
+UsersDep = Annotated[UserStore, Depends(user_store)]
 DISPARITY_MEDIA = {
     "pfm": "image/x-portable-floatmap",
     "png": "image/png",
@@ -46,6 +50,7 @@ def status_of(record: JobRecord, svc: Services) -> JobStatus:
     progress = svc.store.progress(record, chunks)
     return JobStatus(
         id=record.id,
+        owner=record.owner,
         state=record.state,
         solver=record.config.solver,
         width=record.width,
@@ -93,6 +98,27 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     )
 
 
+def check_budget(
+    config: MatchConfig, shape: tuple[int, int], principal: Principal, users: UserStore
+) -> None:
+    """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
+    if not is_metered(config.solver):
+        return
+    try:
+        estimate = job_seconds(config, shape)
+    except (TypeError, ValueError, KeyError) as error:
+        raise UploadError(
+            http.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"params: cannot estimate the job's QPU time from solver_params ({error})",
+        ) from None
+    try:
+        users.ledger.check(
+            principal.name, estimate.seconds, f"this job ({estimate.bundles} bundles)"
+        )
+    except QuotaExceeded as error:
+        raise HTTPException(http.HTTP_403_FORBIDDEN, str(error)) from None
+
+
 @router.post(
     "",
     status_code=http.HTTP_202_ACCEPTED,
@@ -101,12 +127,14 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
         400: {"description": "params is not JSON"},
         413: {"description": "File or image too large"},
         415: {"description": "Not a supported image format"},
+        403: {"description": "QPU budget too small for the job's estimate"},
         422: {"description": "Invalid parameters, sizes, or solver"},
     },
 )
 def create_job(
     svc: ServicesDep,
     principal: PrincipalDep,
+    users: UsersDep,
     left: Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")],
     right: Annotated[UploadFile, File(description="Right view, same size")],
     params: Annotated[
@@ -125,6 +153,7 @@ def create_job(
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
+    check_budget(config, left_image.shape, principal, users)
     arrays = {"left": left_image, "right": right_image}
     truth = None
     if ground_truth is not None:
@@ -159,11 +188,13 @@ def list_jobs(
     offset: Annotated[int, Query(ge=0)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
 ):
-    """Jobs, newest first."""
-    records, total = svc.store.list(offset, limit)
+    """Your jobs, newest first (admins: everyone's)."""
+    owner = None if principal.admin else principal.name
+    records, total = svc.store.list(offset, limit, owner=owner)
     items = [
         JobSummary(
             id=r.id,
+            owner=r.owner,
             state=r.state,
             solver=r.config.solver,
             width=r.width,

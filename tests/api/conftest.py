@@ -34,18 +34,27 @@ def api_settings(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def api(api_settings):
-    with TestClient(create_app(api_settings), raise_server_exceptions=False) as client:
+def admin_headers(api_settings) -> dict[str, str]:
+    return {"Authorization": f"Bearer {harness.admin_key(api_settings)}"}
+
+
+@pytest.fixture(scope="session")
+def api(api_settings, admin_headers):
+    with TestClient(
+        create_app(api_settings), raise_server_exceptions=False, headers=admin_headers
+    ) as client:
         yield client
 
 
 @pytest.fixture(scope="session")
-def make_client(api_settings):
+def make_client(api_settings, admin_headers):
     """A client of an app with some settings changed (limits, Redis URL)."""
 
     def build(**changes) -> TestClient:
         return TestClient(
-            create_app(api_settings.model_copy(update=changes)), raise_server_exceptions=False
+            create_app(api_settings.model_copy(update=changes)),
+            raise_server_exceptions=False,
+            headers=admin_headers,
         )
 
     return build

@@ -106,37 +106,10 @@ def test_invalid_configurations_are_refused():
         MatchConfig(max_disparity=0)
 
 
-class _SteepestDescent:
-    """A tiny registered adapter, so the pool path is tested without the solver package."""
-
-    name = "test-descent"
-    description = "steepest descent (test adapter)"
-    offline = True
-    uses_qpu_time = False
-
-    def available(self):
-        from shared.solvers import Availability
-
-        return Availability(True)
-
-    def solve(self, bqm, *, seed=None, initial_state=None, **params):
-        import time
-
-        from dwave.samplers import SteepestDescentSolver
-
-        from shared.solvers.base import result_from_sampleset
-
-        started = time.perf_counter()
-        sampleset = SteepestDescentSolver().sample(bqm, num_reads=2, seed=seed)
-        return result_from_sampleset(sampleset, bqm, started)
-
-
 def test_process_pool_gives_the_sequential_result(scene):
     from shared.solve import ProcessPoolLevelSolver
-    from shared.solvers import register
 
-    register("test-descent", _SteepestDescent)
-    config = MatchConfig(max_disparity=16, solver="test-descent", encoding="domain-wall")
+    config = MatchConfig(max_disparity=16, solver="steepest-descent", encoding="domain-wall")
     small = scene.left[:32, :48], scene.right[:32, :48]
     sequential = run_pipeline(*small, config)
     with ProcessPoolLevelSolver(2) as pool:

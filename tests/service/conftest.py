@@ -95,8 +95,18 @@ def workers(settings, markers, service_dir):
 
 
 @pytest.fixture(scope="session")
-def client(settings, workers):
-    with TestClient(create_app(settings), raise_server_exceptions=False) as test_client:
+def admin_key(settings) -> str:
+    return harness.admin_key(settings)
+
+
+@pytest.fixture(scope="session")
+def client(settings, workers, admin_key):
+    """The API in process, authenticated as an admin (tests/service/test_users.py covers auth)."""
+    with TestClient(
+        create_app(settings),
+        raise_server_exceptions=False,
+        headers={"Authorization": f"Bearer {admin_key}"},
+    ) as test_client:
         yield test_client
 
 

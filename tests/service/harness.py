@@ -30,6 +30,16 @@ def find_redis(folder: Path) -> tuple[str, EmbeddedRedis | None]:
     return server.url, server
 
 
+def admin_key(settings) -> str:
+    """A new admin's API key (a unique user per call) in the service's Redis."""
+    from api.users import UserStore
+
+    _, key = UserStore.from_settings(settings).create_user(
+        f"test-admin-{uuid.uuid4().hex[:8]}", admin=True, qpu_seconds=None
+    )
+    return key
+
+
 def unique_prefix() -> str:
     return f"qhsm-test-{uuid.uuid4().hex[:10]}"
 

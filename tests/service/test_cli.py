@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import harness
 import numpy as np
 import pytest
@@ -18,10 +20,17 @@ pytestmark = pytest.mark.service
 
 
 @pytest.fixture(scope="module")
-def api_url(settings, workers):
+def api_url(settings, workers, admin_key):
+    """A real HTTP server; `qhsm submit` finds the key in QHSM_API_KEY."""
     api = ApiThread(settings.model_copy(update={"api_port": free_port()})).start()
+    saved = os.environ.get("QHSM_API_KEY")
+    os.environ["QHSM_API_KEY"] = admin_key
     yield api.url
     api.stop()
+    if saved is None:
+        os.environ.pop("QHSM_API_KEY", None)
+    else:
+        os.environ["QHSM_API_KEY"] = saved
 
 
 def test_submit_waits_and_downloads_the_in_process_result(api_url, tmp_path, capsys):
@@ -41,6 +50,26 @@ def test_submit_waits_and_downloads_the_in_process_result(api_url, tmp_path, cap
     expected = run_pipeline(*load_pair(left, right), MatchConfig(max_disparity=8, seed=4))
     assert np.array_equal(np.load(out), expected.disparity)
     assert (tmp_path / "preview.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_bench_http_runner_and_the_key_it_sends(api_url, tmp_path, capsys):
+    """`qhsm bench --url`'s runner (entry point qhsm.runners:http) sends QHSM_API_KEY; a wrong
+    key is refused with a hint."""
+    from importlib.metadata import entry_points
+
+    [runner] = entry_points(group="qhsm.runners", name="http")
+    scene = make_scene(16, 24, max_disparity=6, seed=2)
+    left, right = tmp_path / "left.png", tmp_path / "right.png"
+    left.write_bytes(harness.png(scene.left))
+    right.write_bytes(harness.png(scene.right))
+    config = MatchConfig(max_disparity=6, seed=1)
+    disparity, levels = runner.load()(left, right, config, api_url)
+    assert np.array_equal(disparity, run_pipeline(*load_pair(left, right), config).disparity)
+    assert len(levels) == 3
+    argv = ["submit", str(left), str(right), "--url", api_url, "--key", "qhsm_0_wrong"]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "401" in err and "QHSM_API_KEY" in err
 
 
 def test_submit_reports_refusals_and_unreachable_servers(api_url, tmp_path, capsys):

@@ -98,7 +98,7 @@ def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
     estimate = bundle_estimate(inputs, config, 0, 1)
     fake.seconds = lambda call: estimate  # every bundle uses exactly its estimate
     meter.ledger.set_limit("ada", 2.5 * estimate)
-    with pytest.raises(QuotaExceeded, match="QPU budget of user 'ada' exhausted"):
+    with pytest.raises(QuotaExceeded, match="not enough QPU budget left for user 'ada'"):
         solve_metered(meter, "ada", "job", inputs, config, [(r, r + 1) for r in range(8)])
     assert fake.calls == 2  # the third bundle was refused before it was sent
     usage = meter.ledger.job_usage("ada", "job")

@@ -1,0 +1,287 @@
+"""Users, keys and QPU quotas through the real service: HTTP + Celery workers + Redis.
+
+A dedicated worker consumes the ``qpu-sim`` queue with ``DWAVE_API_TOKEN`` set to a sentinel;
+qpu-sim's (simulated) timing is charged exactly like the real QPU's. At the end, the sentinel
+must appear in no response body, log line or Redis value.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import harness
+import pytest
+import redis
+
+from api.users import UserStore
+from shared.solvers import qpu_time
+from shared.synthetic import make_scene
+
+pytestmark = pytest.mark.service
+
+SENTINEL = "sentinel-dwave-token-7f3a9c"
+QPU_SLOTS = 2
+
+
+class Recorder(logging.Handler):
+    """Keeps every log line of this (API) process."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(self.format(record))
+
+
+@pytest.fixture(scope="module")
+def api_log():
+    recorder = Recorder()
+    root = logging.getLogger()
+    root.addHandler(recorder)
+    yield recorder
+    root.removeHandler(recorder)
+
+
+@pytest.fixture(scope="module")
+def bodies():
+    return []
+
+
+@pytest.fixture(scope="module")
+def users(settings) -> UserStore:
+    return UserStore.from_settings(settings)
+
+
+@pytest.fixture(scope="module")
+def qpu_worker(settings, service_dir):
+    """One worker for qpu-sim (and nothing else), two processes, the sentinel as its token."""
+    from api.serve import WorkerProcess, wait_for_workers, worker_env
+    from workers.app import make_celery
+
+    env = worker_env(settings, settings.redis_url, dwave=True)
+    env["DWAVE_API_TOKEN"] = SENTINEL
+    here = str(Path(__file__).parent)  # the test plugin named in QHSM_PLUGINS
+    env["PYTHONPATH"] = os.pathsep.join([here, env.get("PYTHONPATH", "")])
+    env["QHSM_QPU_MAX_IN_FLIGHT"] = str(QPU_SLOTS)
+    log = service_dir / "logs" / "qpu.log"
+    worker = WorkerProcess(f"qpu-{settings.key_prefix}", ["qpu-sim"], 2, env, log).start()
+    try:
+        wait_for_workers(make_celery(settings, with_tasks=False), [worker.hostname])
+        yield worker
+    finally:
+        worker.stop()
+
+
+@pytest.fixture(scope="module")
+def http(settings, workers, qpu_worker, bodies, api_log):
+    """An API client without a key of its own, recording every response body."""
+    from fastapi.testclient import TestClient
+
+    from api.app import create_app
+
+    def record(response) -> None:
+        response.read()
+        bodies.append(response.text)
+
+    with TestClient(create_app(settings), raise_server_exceptions=False) as client:
+        client.event_hooks = {"request": [], "response": [record]}
+        yield client
+
+
+def bearer(key: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {key}"}
+
+
+@pytest.fixture(scope="module")
+def pair():
+    scene = make_scene(16, 24, max_disparity=6, seed=1)
+    return harness.png(scene.left), harness.png(scene.right)
+
+
+QPU_PARAMS = {
+    "solver": "qpu-sim",
+    "encoding": "domain-wall",
+    "max_disparity": 6,
+    "median": False,
+    "bilateral": False,
+    "solver_params": {"num_reads": 5},
+}
+
+
+def job_estimate(shape=(16, 24)) -> qpu_time.JobEstimate:
+    from shared.config import MatchConfig
+
+    return qpu_time.job_seconds(MatchConfig.model_validate(QPU_PARAMS), shape)
+
+
+def submit(http, key, pair, params, expect=202):
+    import json
+
+    response = http.post(
+        "/v1/jobs",
+        files={"left": ("l.png", pair[0]), "right": ("r.png", pair[1])},
+        data={"params": json.dumps(params)},
+        headers=bearer(key),
+    )
+    assert response.status_code == expect, response.text
+    return response
+
+
+def wait(http, key, job_id, timeout=90.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        status = http.get(f"/v1/jobs/{job_id}", headers=bearer(key)).json()
+        if status["state"] in harness.TERMINAL:
+            return status
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not finish: {status}")
+
+
+def test_every_v1_route_needs_a_key_but_health_and_docs_do_not(http, users):
+    for method, path in [
+        ("GET", "/v1/jobs"),
+        ("POST", "/v1/jobs"),
+        ("GET", "/v1/jobs/0123456789abcdef0123456789abcdef"),
+        ("DELETE", "/v1/jobs/0123456789abcdef0123456789abcdef"),
+        ("GET", "/v1/solvers"),
+        ("GET", "/v1/usage"),
+    ]:
+        response = http.request(method, path)
+        assert response.status_code == 401, (method, path, response.text)
+        assert response.headers["WWW-Authenticate"].startswith("Bearer")
+        wrong = http.request(method, path, headers=bearer("qhsm_00000000_" + "x" * 43))
+        assert wrong.status_code == 401
+    for path in ("/healthz", "/readyz", "/docs", "/openapi.json"):
+        assert http.get(path).status_code == 200, path
+
+
+def test_another_users_job_is_404_and_admins_see_every_job(http, users, pair):
+    _, ada = users.create_user("ada-own")
+    _, bob = users.create_user("bob-own")
+    _, root = users.create_user("root-own", admin=True)
+    params = {"solver": "exact", "max_disparity": 6, "median": False, "bilateral": False}
+    job_id = submit(http, ada, pair, params).json()["id"]
+    assert wait(http, ada, job_id)["state"] == "succeeded"
+
+    for method, path in [
+        ("GET", f"/v1/jobs/{job_id}"),
+        ("GET", f"/v1/jobs/{job_id}/disparity"),
+        ("GET", f"/v1/jobs/{job_id}/preview.png"),
+        ("DELETE", f"/v1/jobs/{job_id}"),
+    ]:
+        assert http.request(method, path, headers=bearer(bob)).status_code == 404, path
+    assert job_id not in [
+        j["id"] for j in http.get("/v1/jobs", headers=bearer(bob)).json()["items"]
+    ]
+    assert job_id in [j["id"] for j in http.get("/v1/jobs", headers=bearer(ada)).json()["items"]]
+    everyone = http.get("/v1/jobs", params={"limit": 100}, headers=bearer(root)).json()
+    assert job_id in [j["id"] for j in everyone["items"]]
+    seen = http.get(f"/v1/jobs/{job_id}", headers=bearer(root))
+    assert seen.status_code == 200 and seen.json()["owner"] == "ada-own"
+    users.revoke("ada-own")
+    assert http.get(f"/v1/jobs/{job_id}", headers=bearer(ada)).status_code == 401
+
+
+def test_a_job_over_budget_is_refused_with_the_numbers(http, users, pair):
+    estimate = job_estimate()
+    _, key = users.create_user("poor", qpu_seconds=estimate.seconds / 2)
+    refused = submit(http, key, pair, QPU_PARAMS, expect=403)
+    detail = refused.json()["detail"]
+    assert "QPU budget" in detail and f"{estimate.seconds / 2:.3f} s remaining" in detail
+    assert f"{estimate.seconds:.3f} s" in detail
+    assert http.get("/v1/jobs", headers=bearer(key)).json()["items"] == []
+    # unmetered solvers need no budget
+    submit(http, key, pair, {"solver": "exact", "max_disparity": 6})
+
+
+def test_usage_charged_equals_the_sample_sets_qpu_access_time(http, users, pair):
+    _, key = users.create_user("meter", qpu_seconds=100)
+    job_id = submit(http, key, pair, QPU_PARAMS).json()["id"]
+    status = wait(http, key, job_id)
+    assert status["state"] == "succeeded", status["error"]
+    reported = status["usage"]["qpu_access_time"]  # summed from the bundles' sample sets
+    assert reported > 0
+    usage = http.get("/v1/usage", headers=bearer(key)).json()
+    [mine] = usage["users"]
+    [job] = mine["jobs"]
+    assert job["id"] == job_id
+    assert job["qpu_seconds"] == pytest.approx(reported, rel=1e-9)
+    assert job["problems"] == job_estimate().bundles
+    assert mine["used_seconds"] == pytest.approx(reported) and mine["reserved_seconds"] == 0
+    assert mine["remaining_seconds"] == pytest.approx(100 - reported)
+
+
+def test_twenty_concurrent_jobs_cannot_overspend_beyond_the_bundles_in_flight(
+    http, users, pair, settings
+):
+    estimate = job_estimate()
+    budget = 1.5 * estimate.seconds
+    _, key = users.create_user("greedy", qpu_seconds=budget)
+    ids = [submit(http, key, pair, QPU_PARAMS).json()["id"] for _ in range(20)]
+    finals = [wait(http, key, job_id, timeout=120) for job_id in ids]
+    # a failed job's bundles already sent still finish (and are charged): wait for them
+    slots = redis.Redis.from_url(settings.redis_url)
+    deadline = time.monotonic() + 30
+    while True:
+        usage = http.get("/v1/usage", headers=bearer(key)).json()["users"][0]
+        idle = slots.zcard(f"{settings.key_prefix}:qpu:slots") == 0
+        if (idle and usage["reserved_seconds"] == 0) or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+
+    # every bundle was reserved at its estimate before it was sent; only bundles in flight
+    # when the budget ran out can exceed it, each by at most (actual - estimate)
+    per_bundle = [level.seconds / level.bundles for level in estimate.levels]
+    actuals = [
+        f["usage"]["qpu_access_time"] / max(1, sum(level["bundles"] for level in f["levels"]))
+        for f in finals
+        if f["state"] == "succeeded"
+    ]
+    excess = max([0.0, *(a - min(per_bundle) for a in actuals)])
+    assert usage["used_seconds"] <= budget + QPU_SLOTS * excess + 1e-9
+    assert usage["used_seconds"] > budget / 2  # the budget really was spent down
+    assert usage["reserved_seconds"] == 0
+
+    states = [f["state"] for f in finals]
+    assert "failed" in states
+    for final in finals:
+        if final["state"] == "failed":
+            assert final["error"].startswith("stopped: not enough QPU budget left for user "
+                                             "'greedy'"), final["error"]  # fmt: skip
+    problems = sum(job["problems"] for job in usage["jobs"])
+    assert problems < 20 * estimate.bundles  # the failed jobs' remaining bundles were not sent
+    assert slots.zcard(f"{settings.key_prefix}:qpu:slots") == 0  # no slot leaked
+
+
+def test_the_token_never_leaves_the_qpu_worker(
+    http, users, pair, bodies, api_log, settings, qpu_worker
+):
+    _, key = users.create_user("leaky", qpu_seconds=100)
+    failing = dict(QPU_PARAMS, solver_params={"num_reads": 5, "no_such_parameter": 1})
+    job_id = submit(http, key, pair, failing).json()["id"]
+    status = wait(http, key, job_id)
+    assert status["state"] == "failed"
+    http.get("/v1/usage", headers=bearer(key))
+    http.get("/v1/solvers", headers=bearer(key))
+
+    assert bodies and not any(SENTINEL in body for body in bodies)
+    assert not any(SENTINEL in line for line in api_log.lines)
+    logs = Path(qpu_worker.log_file).parent
+    for log_file in logs.glob("*.log"):
+        assert SENTINEL not in log_file.read_text(errors="replace"), log_file
+    client = redis.Redis.from_url(settings.redis_url)
+    for key_name in client.scan_iter(count=1000):
+        assert SENTINEL.encode() not in key_name
+        kind = client.type(key_name).decode()
+        values = {
+            "string": lambda k: [client.get(k) or b""],
+            "hash": lambda k: [b"%s=%s" % kv for kv in client.hgetall(k).items()],
+            "set": lambda k: list(client.smembers(k)),
+            "zset": lambda k: [m for m, _ in client.zrange(k, 0, -1, withscores=True)],
+            "list": lambda k: client.lrange(k, 0, -1),
+        }.get(kind, lambda k: [])(key_name)
+        assert not any(SENTINEL.encode() in value for value in values), key_name
