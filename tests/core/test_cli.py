@@ -95,59 +95,14 @@ def test_eval_prints_rmse_and_bpp(pair, tmp_path, capsys):
 
 
 def test_user_errors_are_one_line_messages(pair, tmp_path, capsys):
-    assert (
-        main(
-            [
-                "match",
-                str(pair / "left.png"),
-                str(tmp_path / "none.png"),
-                "-o",
-                str(tmp_path / "d.pfm"),
-            ]
-        )
-        == 1
-    )
-    assert "none.png: no such file" in capsys.readouterr().err
-    assert (
-        main(
-            [
-                "match",
-                str(pair / "left.png"),
-                str(pair / "right.png"),
-                "-o",
-                str(tmp_path / "d.pfm"),
-                "--solver",
-                "nope",
-            ]
-        )
-        == 1
-    )
-    assert "unknown solver 'nope'" in capsys.readouterr().err
-    assert (
-        main(
-            [
-                "match",
-                str(pair / "left.png"),
-                str(pair / "right.png"),
-                "-o",
-                str(tmp_path / "d.pfm"),
-                "--bundle-height",
-                "2",
-            ]
-        )
-        == 1
-    )
-    assert "single-row bundles" in capsys.readouterr().err
-    assert (
-        main(
-            [
-                "match",
-                str(pair / "left.png"),
-                str(pair / "right.png"),
-                "-o",
-                str(tmp_path / "d.jpg"),
-            ]
-        )
-        == 1
-    )
-    assert ".pfm, .png or .npy" in capsys.readouterr().err
+    left, right, out = str(pair / "left.png"), str(pair / "right.png"), str(tmp_path / "d.pfm")
+    cases = [
+        ([left, str(tmp_path / "none.png"), "-o", out], "none.png: no such file"),
+        ([left, right, "-o", out, "--solver", "nope"], "unknown solver 'nope'"),
+        ([left, right, "-o", out, "--bundle-height", "2"], "single-row bundles"),
+        ([left, right, "-o", str(tmp_path / "d.jpg")], ".pfm, .png or .npy"),
+    ]
+    for arguments, message in cases:
+        assert main(["match", *arguments]) == 1
+        error = capsys.readouterr().err
+        assert message in error and error.count("\n") == 1, error

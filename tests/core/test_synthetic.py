@@ -25,7 +25,7 @@ def test_left_pixels_reappear_in_the_right_view_at_their_disparity():
 def test_scenes_are_reproducible_and_in_range():
     a, b = make_scene(seed=5), make_scene(seed=5)
     np.testing.assert_array_equal(a.left, b.left)
-    assert a.left.dtype == np.float32 and 0 <= a.left.min() and a.left.max() <= 1
-    assert 1 <= a.disparity.min() and a.disparity.max() <= 12
+    assert a.left.dtype == np.float32 and a.left.min() >= 0 and a.left.max() <= 1
+    assert a.disparity.min() >= 1 and a.disparity.max() <= 12
     slanted = make_scene(slanted=True, layers=0)
     assert np.all(np.diff(slanted.disparity, axis=1) > 0)  # disparity grows along x
