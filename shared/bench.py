@@ -155,6 +155,7 @@ class BenchOptions:
     ablation_solver: str = "exact"
     url: str | None = None
     bundle_height: int = 1
+    encoding: str = "one-hot"
     seed: int = 0
     solver_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     processes: int = 1
@@ -213,6 +214,7 @@ def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> Match
         solver=variant.solver,
         max_disparity=scene.max_disparity,
         bundle_height=options.bundle_height,
+        encoding=options.encoding,
         seed=options.seed,
         solver_params={
             **options.solver_params.get("*", {}),
@@ -470,6 +472,7 @@ def run_bench(
             "experiments": options.experiments,
             "ablation_solver": options.ablation_solver,
             "bundle_height": options.bundle_height,
+            "encoding": options.encoding,
             "seed": options.seed,
             "solver_params": options.solver_params,
             "processes": options.processes,

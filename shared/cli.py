@@ -167,6 +167,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         ablation_solver=args.ablation_solver,
         url=args.url,
         bundle_height=args.bundle_height,
+        encoding=args.encoding,
         seed=args.seed,
         solver_params=parse_solver_params(args.param),
         processes=args.processes,
@@ -275,6 +276,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--url", help="run the pipeline through the service at this URL")
     bench.add_argument("--out", default="out/bench", help="output folder")
     bench.add_argument("--bundle-height", type=int, default=1, help="rows per QUBO bundle")
+    bench.add_argument(
+        "--encoding",
+        choices=[e.value for e in Encoding],
+        default=Encoding.ONE_HOT.value,
+        help="label encoding of the QUBO solvers",
+    )
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument(
         "--param",
