@@ -52,7 +52,9 @@ class Metrics(BaseModel):
     pixels: int
 
 
-class JobStatus(BaseModel):
+class JobSummary(BaseModel):
+    """What a job list shows; :class:`JobStatus` adds the details."""
+
     id: str
     owner: str | None = Field(None, description="User who submitted the job")
     state: JobState
@@ -60,8 +62,27 @@ class JobStatus(BaseModel):
     width: int
     height: int
     created_at: datetime
-    started_at: datetime | None
     finished_at: datetime | None
+    links: Links
+
+    @classmethod
+    def fields_of(cls, record, links: Links) -> dict:
+        """The summary fields of a job record (``workers.store.JobRecord``)."""
+        return {
+            "id": record.id,
+            "owner": record.owner,
+            "state": record.state,
+            "solver": record.config.solver,
+            "width": record.width,
+            "height": record.height,
+            "created_at": record.created_at,
+            "finished_at": record.finished_at,
+            "links": links,
+        }
+
+
+class JobStatus(JobSummary):
+    started_at: datetime | None
     progress: Progress
     levels: list[LevelTiming]
     usage: dict[str, float] = Field(
@@ -70,19 +91,6 @@ class JobStatus(BaseModel):
     metrics: Metrics | None = None
     error: str | None = None
     config: MatchConfig
-    links: Links
-
-
-class JobSummary(BaseModel):
-    id: str
-    owner: str | None = Field(None, description="User who submitted the job")
-    state: JobState
-    solver: str
-    width: int
-    height: int
-    created_at: datetime
-    finished_at: datetime | None
-    links: Links
 
 
 class JobPage(BaseModel):

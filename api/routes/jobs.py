@@ -49,22 +49,14 @@ def status_of(record: JobRecord, svc: Services) -> JobStatus:
     chunks = svc.store.chunks(record.id)
     progress = svc.store.progress(record, chunks)
     return JobStatus(
-        id=record.id,
-        owner=record.owner,
-        state=record.state,
-        solver=record.config.solver,
-        width=record.width,
-        height=record.height,
-        created_at=record.created_at,
+        **JobSummary.fields_of(record, links(record.id)),
         started_at=record.started_at,
-        finished_at=record.finished_at,
         progress=progress.model_dump(),
         levels=record.levels,
         usage=svc.store.usage(chunks),
         metrics=record.metrics,
         error=record.error,
         config=record.config,
-        links=links(record.id),
     )
 
 
@@ -192,19 +184,7 @@ def list_jobs(
     owner = None if principal.admin else principal.name
     records, total = svc.store.list(offset, limit, owner=owner)
     items = [
-        JobSummary(
-            id=r.id,
-            owner=r.owner,
-            state=r.state,
-            solver=r.config.solver,
-            width=r.width,
-            height=r.height,
-            created_at=r.created_at,
-            finished_at=r.finished_at,
-            links=links(r.id),
-        )
-        for r in records
-        if can_see(principal, r)
+        JobSummary(**JobSummary.fields_of(r, links(r.id))) for r in records if can_see(principal, r)
     ]
     following = offset + limit
     next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None

@@ -93,6 +93,24 @@ def _sampler_timing(sampleset: dimod.SampleSet) -> dict[str, float]:
     }
 
 
+def _sample(
+    name: str,
+    sampler: dimod.Sampler,
+    bqm: dimod.BinaryQuadraticModel,
+    seed: int | None,
+    settings: dict[str, Any],
+    warm_start: bool,
+) -> SolveResult:
+    """Run a dwave-samplers sampler; bad parameters become a ``SolverError`` naming the solver."""
+    started = time.perf_counter()
+    try:
+        sampleset = sampler.sample(bqm, seed=seed, **settings)
+    except (TypeError, ValueError) as error:
+        raise SolverError(f"{name}: invalid parameters: {error}") from None
+    info = {"num_reads": len(sampleset), "warm_start": warm_start}
+    return result_from_sampleset(sampleset, bqm, started, _sampler_timing(sampleset), info)
+
+
 class _Classical:
     offline = False
     uses_qpu_time = False
@@ -293,13 +311,7 @@ class TabuSolver(_Classical):
         initial = _initial_states(initial_state, bqm)
         if initial is not None:
             settings.update(initial_states=initial, initial_states_generator="tile")
-        started = time.perf_counter()
-        try:
-            sampleset = TabuSampler().sample(bqm, seed=seed, **settings)
-        except (TypeError, ValueError) as error:
-            raise SolverError(f"tabu: invalid parameters: {error}") from None
-        info = {"num_reads": len(sampleset), "warm_start": initial is not None}
-        return result_from_sampleset(sampleset, bqm, started, _sampler_timing(sampleset), info)
+        return _sample(self.name, TabuSampler(), bqm, seed, settings, initial is not None)
 
 
 class SteepestDescentSolver(_Classical):
@@ -325,10 +337,4 @@ class SteepestDescentSolver(_Classical):
         initial = _initial_states(initial_state, bqm)
         if initial is not None:
             settings.update(initial_states=initial, num_reads=1)
-        started = time.perf_counter()
-        try:
-            sampleset = Descent().sample(bqm, seed=seed, **settings)
-        except (TypeError, ValueError) as error:
-            raise SolverError(f"steepest-descent: invalid parameters: {error}") from None
-        info = {"num_reads": len(sampleset), "warm_start": initial is not None}
-        return result_from_sampleset(sampleset, bqm, started, _sampler_timing(sampleset), info)
+        return _sample(self.name, Descent(), bqm, seed, settings, initial is not None)
