@@ -1,11 +1,13 @@
-"""``max_disparity: auto``: the disparity range estimated from sparse feature matches.
+"""``max_disparity: auto``: the disparity range estimated from a quick dense match.
 
-ORB features of both views are matched (Hamming distance, Lowe's ratio test, rows within 1 px,
-as a rectified pair requires). The horizontal offsets x_L - x_R of the surviving matches sample
-the scene's disparities; the nearest surfaces are often poorly textured or partly occluded, so
-the estimate is a high percentile of the positive offsets widened by a relative and an absolute
-margin. Too wide a range costs time and a little accuracy; too narrow a range loses the
-nearest objects, so the margins err on the wide side.
+Both views are shrunk to about :data:`TARGET_WIDTH` pixels and matched densely by the same
+AD-census cost the accurate preset uses, over a generous range (:data:`SEARCH_SHARE` of the
+width), winner takes all, in both directions. Only disparities that pass the left-right check and
+are unambiguous (the best cost clearly below the best one more than a pixel away) are kept: these
+sample the scene's true disparities, including small or weakly textured foreground objects that
+sparse feature matches miss. The estimate is a high percentile of them widened by a relative and
+an absolute margin. Too wide a range costs time and a little accuracy; too narrow a range loses
+the nearest objects, so the margins err on the wide side.
 """
 
 from __future__ import annotations
@@ -16,16 +18,17 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
+from shared.data_terms import ad_census_volume
 from shared.images import to_gray
 
-FEATURES = 3000
-RATIO = 0.8
-ROW_TOLERANCE = 1.0
+TARGET_WIDTH = 256
+SEARCH_SHARE = 0.4
+UNIQUENESS = 0.95
 PERCENTILE = 99.0
-RELATIVE_MARGIN = 1.2
+RELATIVE_MARGIN = 1.25
 ABSOLUTE_MARGIN = 4.0
-#: Fewer matches than this and the estimate falls back to a share of the image width.
-MIN_MATCHES = 20
+#: Fewer confirmed pixels than this share and the estimate falls back to a share of the width.
+MIN_CONFIRMED = 0.01
 FALLBACK_WIDTH_SHARE = 0.25
 LIMIT = 1024
 
@@ -36,55 +39,62 @@ class RangeEstimate:
 
     max_disparity: int
     source: str  # "given", "auto" or "auto-fallback"
-    matches: int = 0
+    confirmed: float = 0.0  # share of pixels whose quick match passed both checks
     note: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
-def _as_uint8(view: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(to_gray(view) * 255.0), 0, 255).astype(np.uint8)
-
-
-def match_offsets(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Horizontal offsets x_L - x_R (px) of ORB matches that pass the ratio and row tests."""
-    orb = cv2.ORB_create(nfeatures=FEATURES, fastThreshold=5)
-    keys_left, desc_left = orb.detectAndCompute(_as_uint8(left), None)
-    keys_right, desc_right = orb.detectAndCompute(_as_uint8(right), None)
-    if desc_left is None or desc_right is None or len(keys_right) < 2:
-        return np.zeros(0, dtype=np.float32)
-    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc_left, desc_right, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < RATIO * p[1].distance]
-    if not good:
-        return np.zeros(0, dtype=np.float32)
-    points_left = np.array([keys_left[m.queryIdx].pt for m in good], dtype=np.float32)
-    points_right = np.array([keys_right[m.trainIdx].pt for m in good], dtype=np.float32)
-    same_row = np.abs(points_left[:, 1] - points_right[:, 1]) <= ROW_TOLERANCE
-    return (points_left[same_row, 0] - points_right[same_row, 0]).astype(np.float32)
+def confirmed_disparities(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Positive disparities (full-resolution px) of the pixels whose quick dense match is
+    unambiguous and left-right consistent, with the shrink factor and the pixels examined."""
+    left, right = to_gray(left), to_gray(right)
+    height, width = left.shape
+    factor = max(1, math.ceil(width / TARGET_WIDTH))
+    if factor > 1:
+        size = (max(1, round(width / factor)), max(1, round(height / factor)))
+        left = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
+        right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
+    rows, columns = left.shape
+    search = max(1, int(SEARCH_SHARE * columns))
+    volume = ad_census_volume(left, right, search, 0, rows)
+    mirrored = ad_census_volume(right[:, ::-1], left[:, ::-1], search, 0, rows)
+    disparity = volume.argmin(axis=0)
+    right_disparity = mirrored.argmin(axis=0)[:, ::-1]
+    best = volume.min(axis=0)
+    near = np.abs(np.arange(search + 1)[:, None, None] - disparity[None]) <= 1
+    runner_up = np.where(near, np.inf, volume).min(axis=0)
+    target = np.arange(columns)[None, :] - disparity
+    back = right_disparity[np.arange(rows)[:, None], np.clip(target, 0, columns - 1)]
+    confirmed = (
+        (disparity > 0)
+        & (target >= 0)
+        & (np.abs(back - disparity) <= 1)
+        & (best < UNIQUENESS * runner_up)
+    )
+    return disparity[confirmed] * factor, factor, rows * columns
 
 
 def estimate_max_disparity(left: np.ndarray, right: np.ndarray) -> RangeEstimate:
     """The maximum disparity of a rectified pair, estimated without any ground truth."""
     width = left.shape[1]
     ceiling = max(1, min(LIMIT, width - 1))
-    offsets = match_offsets(left, right)
-    positive = offsets[offsets > 0]
-    if positive.size < MIN_MATCHES:
+    values, _, examined = confirmed_disparities(left, right)
+    share = values.size / max(examined, 1)
+    if share < MIN_CONFIRMED:
         guess = max(1, min(ceiling, math.ceil(FALLBACK_WIDTH_SHARE * width)))
         return RangeEstimate(
             guess,
             "auto-fallback",
-            int(positive.size),
-            f"only {positive.size} feature matches; assumed a quarter of the width. Give "
-            "--max-disparity if you know the range",
+            share,
+            f"only {100 * share:.1f} % of the pixels matched reliably (are the views swapped, "
+            "or not rectified?); assumed a quarter of the width. Give --max-disparity if you "
+            "know the range",
         )
-    note = ""
-    if np.median(offsets) < 0:
-        note = "most matches have negative disparity: are the left and right views swapped?"
-    high = float(np.percentile(positive, PERCENTILE))
+    high = float(np.percentile(values, PERCENTILE))
     value = math.ceil(RELATIVE_MARGIN * high + ABSOLUTE_MARGIN)
-    return RangeEstimate(max(1, min(ceiling, value)), "auto", int(positive.size), note)
+    return RangeEstimate(max(1, min(ceiling, value)), "auto", share)
 
 
 def resolve_max_disparity(

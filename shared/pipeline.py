@@ -85,6 +85,14 @@ def match_views(
     return as_pair_of_same_kind(left, right)
 
 
+def plan_run(
+    left: np.ndarray, right: np.ndarray, config: MatchConfig
+) -> tuple[RangeEstimate, list[LevelPlan]]:
+    """The run's disparity range (given or estimated) and its levels, from the match views."""
+    estimate = resolve_max_disparity(left, right, config.max_disparity)
+    return estimate, pyramid.plan(config, estimate.max_disparity)
+
+
 def level_views(
     left: np.ndarray, right: np.ndarray, config: MatchConfig, plan: LevelPlan
 ) -> tuple[np.ndarray, np.ndarray, int]:
@@ -219,8 +227,7 @@ def run_pipeline(
     disparity in full-resolution pixels."""
     started = time.perf_counter()
     left, right = match_views(left, right, config)
-    estimate = resolve_max_disparity(left, right, config.max_disparity)
-    plans = pyramid.plan(config, estimate.max_disparity)
+    estimate, plans = plan_run(left, right, config)
     reports: list[LevelReport] = []
     level_map: np.ndarray | None = None
     volumes: list[np.ndarray] | None = None
