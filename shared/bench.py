@@ -60,7 +60,7 @@ from shared.config import (
     paper_levels,
 )
 from shared.datasets import Scene, find_scenes
-from shared.images import preview_png, save_disparity
+from shared.images import preview_png, save_disparity, to_gray
 from shared.metrics import error_map, evaluate
 from shared.solvers import SolverUnavailable
 
@@ -431,10 +431,10 @@ def run_one(
                 if cache is not None:
                     cache[key] = (variant.key, output)
         elif variant.method == "heidari":
-            result = heidari(left, right, scene.max_disparity)
+            result = heidari(to_gray(left), to_gray(right), scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
         else:
-            result = sgbm(left, right, scene.max_disparity)
+            result = sgbm(to_gray(left), to_gray(right), scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
     except SolverUnavailable as error:  # found out only when solving (e.g. licence size)
         run.status, run.reason = "skipped", str(error)
