@@ -46,7 +46,7 @@ class LevelReport:
     downsample: int
     bin_width: int
     views: int
-    height: int
+    height: int  # of one view (the level has ``views`` times as many rows)
     width: int
     candidates: int
     bundles: int
@@ -198,7 +198,7 @@ def _full_volume(
 
 
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:
-    height, width = inputs.shape
+    height, width = inputs.view_height, inputs.shape[1]
     return LevelReport(
         index=inputs.index,
         downsample=inputs.plan.downsample,

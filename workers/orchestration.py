@@ -105,18 +105,8 @@ def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
         log.info("job %s: not queued any more (cancelled or gone); nothing to start", job_id)
         return
     left, right = job_views(store, record)
-    plans = job_plans(record)
-    record = store.update(
-        job_id,
-        lambda current: (
-            current.model_copy(update={"levels_total": len(plans)})
-            if current.state is JobState.RUNNING
-            else None
-        ),
-    )
-    if record is None:
-        return
-    launch_level(celery, store, record, prepare_level(left, right, record.config, plans[0]))
+    first = job_plans(record)[0]
+    launch_level(celery, store, record, prepare_level(left, right, record.config, first))
 
 
 def job_views(store: JobStore, record: JobRecord) -> tuple[np.ndarray, np.ndarray]:

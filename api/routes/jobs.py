@@ -23,6 +23,7 @@ from shared.config import MatchConfig
 from shared.disparity_range import resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
+from shared.pyramid import plan
 from shared.solvers import UnknownSolver
 from shared.solvers.qpu_time import is_metered, job_seconds
 from workers.app import START_JOB
@@ -173,6 +174,7 @@ def create_job(
         ground_truth=truth,
         created_at=now(),
         disparity_range=disparity_range.as_dict(),
+        levels_total=len(plan(config, disparity_range.max_disparity)),
     )
     svc.store.create(record, arrays)
     svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)

@@ -79,7 +79,7 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
     views = 2 if preset == "accurate" else 1  # the right view's bundles too
     plans = plan(config, 20)
-    assert len(estimate.levels) == len(plans) == (3 if preset == "paper" else 4)
+    assert len(estimate.levels) == len(plans) == 3  # paper: 1/4, 1/2, 1; bins of 4, 2, 1 px
     for level, got in zip(plans, estimate.levels, strict=True):
         height, width = level_shape((37, 50), level.downsample)
         assert got.bundles == views * len(bundle_rows(height, 2))
