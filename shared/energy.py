@@ -72,12 +72,13 @@ def smoothness(
     """R(|delta|) times the edge weight; ``intensity_step`` broadcasts against ``delta``."""
     if regularizer is Regularizer.NONE:
         return np.zeros(delta.shape, dtype=np.float64)
-    penalty = level.slope * np.abs(delta).astype(np.float64)
+    penalty = np.abs(delta).astype(np.float64)
+    penalty *= level.slope
     if regularizer is Regularizer.LINEAR:
         return penalty
     np.minimum(penalty, level.truncation, out=penalty)
-    weight = np.where(intensity_step > level.edge_threshold, level.edge_factor, 1.0)
-    return penalty * weight
+    penalty *= np.where(intensity_step > level.edge_threshold, level.edge_factor, 1.0)
+    return penalty
 
 
 def mrf_costs(
@@ -86,19 +87,26 @@ def mrf_costs(
     guide: np.ndarray,
     level: LevelConfig,
     regularizer: Regularizer,
+    vertical: bool = True,
 ) -> Costs:
     """The cost arrays of a block of rows from its unary term and its gray ``guide`` image
-    (whose steps decide where the smoothness weight drops to m)."""
+    (whose steps decide where the smoothness weight drops to m). Without ``vertical`` the
+    vertical edges are left at zero: single-row bundles never read them."""
     candidates = np.asarray(candidates, dtype=np.int32)
     step_h = np.abs(guide[:, 1:] - guide[:, :-1])[:, :, None, None]
-    step_v = np.abs(guide[1:, :] - guide[:-1, :])[:, :, None, None]
     delta_h = candidates[:, :-1, :, None] - candidates[:, 1:, None, :]
-    delta_v = candidates[:-1, :, :, None] - candidates[1:, :, None, :]
+    if vertical:
+        step_v = np.abs(guide[1:, :] - guide[:-1, :])[:, :, None, None]
+        delta_v = candidates[:-1, :, :, None] - candidates[1:, :, None, :]
+        pair_v = smoothness(delta_v, step_v, level, regularizer)
+    else:
+        height, width, labels = candidates.shape
+        pair_v = np.zeros((max(height - 1, 0), width, labels, labels))
     return Costs(
         candidates=candidates,
         unary=unary,
         pair_h=smoothness(delta_h, step_h, level, regularizer),
-        pair_v=smoothness(delta_v, step_v, level, regularizer),
+        pair_v=pair_v,
     )
 
 

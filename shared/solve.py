@@ -30,9 +30,10 @@ from shared.solvers.base import RowSolver
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
 
-#: Rows a row solver takes at once: large enough to vectorise, small enough that the cost
-#: arrays of a 2000-px-wide image with 8 candidates stay near 100 MB.
-ROW_BLOCK = 32
+#: A row solver takes as many rows at once as keep one block's pairwise cost arrays (float64,
+#: horizontal and vertical, K x K per pixel) within this: large enough to vectorise, small
+#: enough that memory is bounded by the block, not by the image.
+COST_BLOCK_BYTES = 64 * 2**20
 
 
 @dataclass
@@ -127,7 +128,16 @@ class LevelInputs:
                 unary = squared_difference(guide, to_gray(right[first:last]), candidates)
             else:
                 unary = gather(self._bin_costs(view, first, last), candidates)
-            blocks.append(mrf_costs(unary, candidates, guide, self.level, config.regularizer))
+            blocks.append(
+                mrf_costs(
+                    unary,
+                    candidates,
+                    guide,
+                    self.level,
+                    config.regularizer,
+                    vertical=config.bundle_height > 1,
+                )
+            )
         return Costs.stack(blocks)
 
 
@@ -200,10 +210,12 @@ def solve_bundles(
 def _solve_on_costs(
     solver: RowSolver, inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
 ) -> list[BundleResult]:
-    """A row solver on blocks of about :data:`ROW_BLOCK` consecutive bundles' rows at once
-    (vectorised over rows, memory bounded by the block, not by the image)."""
+    """A row solver on blocks of consecutive bundles' rows at once (vectorised over rows, memory
+    bounded by :data:`COST_BLOCK_BYTES`, not by the image)."""
+    width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
+    rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
     results = []
-    for block in _blocks(sorted(row_ranges), ROW_BLOCK):
+    for block in _blocks(sorted(row_ranges), rows, inputs.view_height):
         started = time.perf_counter()
         first, last = block[0][0], block[-1][1]
         costs = inputs.costs(config, first, last)
@@ -225,12 +237,20 @@ def _solve_on_costs(
     return results
 
 
-def _blocks(row_ranges: list[tuple[int, int]], rows: int) -> list[list[tuple[int, int]]]:
-    """Consecutive, contiguous row ranges grouped into blocks of at most ``rows`` rows (a gap
-    between ranges starts a new block)."""
+def _blocks(
+    row_ranges: list[tuple[int, int]], rows: int, view_height: int
+) -> list[list[tuple[int, int]]]:
+    """Consecutive, contiguous row ranges grouped into blocks of at most ``rows`` rows of one
+    view (a gap between ranges, or the seam between views, starts a new block)."""
     blocks: list[list[tuple[int, int]]] = []
     for start, stop in row_ranges:
-        if blocks and blocks[-1][-1][1] == start and stop - blocks[-1][0][0] <= rows:
+        first = blocks[-1][0][0] if blocks else 0
+        if (
+            blocks
+            and blocks[-1][-1][1] == start
+            and stop - first <= rows
+            and start // view_height == first // view_height
+        ):
             blocks[-1].append((start, stop))
         else:
             blocks.append([(start, stop)])
