@@ -45,6 +45,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)
     app.include_router(users.router)
+    app.include_router(users.me_router)
     app.include_router(health.router)
     web.mount(app)
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)

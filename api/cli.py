@@ -105,15 +105,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
         stack.start()
         settings = stack.settings
         print(stack.describe(), file=sys.stderr)
-        _announce_key(settings)
-        print(
-            f"API on http://{settings.api_host}:{settings.api_port} (docs: /docs); Ctrl-C stops",
-            file=sys.stderr,
-        )
+        key = _announce_key(settings)
+        url = f"http://{settings.api_host}:{settings.api_port}"
+        print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
+        print(f"web page: {sign_in_url(url, settings.api_host, key)}", file=sys.stderr)
         _uvicorn_server(settings).run()
     finally:
         stack.stop()
     return 0
+
+
+def sign_in_url(url: str, host: str, key: str | None) -> str:
+    """The web page's address; on a loopback address it signs the local admin in: the key is
+    in the fragment, which browsers never send, so it stays out of every server log."""
+    import ipaddress
+
+    try:
+        local = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        local = False
+    return f"{url}/#key={key}" if key and local else f"{url}/"
 
 
 def _announce_key(settings: Settings) -> str | None:

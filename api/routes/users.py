@@ -11,9 +11,18 @@ from fastapi import APIRouter, Depends, HTTPException
 from fastapi import status as http
 from pydantic import BaseModel, Field
 
-from api.users import DEFAULT_BUDGET, User, UserError, UserStore, admin_user, user_store
+from api.users import (
+    DEFAULT_BUDGET,
+    User,
+    UserError,
+    UserStore,
+    admin_user,
+    current_user,
+    user_store,
+)
 
 router = APIRouter(prefix="/v1/users", tags=["users"], dependencies=[Depends(admin_user)])
+me_router = APIRouter(prefix="/v1", tags=["users"])
 
 StoreDep = Annotated[UserStore, Depends(user_store)]
 
@@ -56,6 +65,12 @@ def existing(store: UserStore, name: str) -> User:
         return store.require(name)
     except UserError as error:
         raise HTTPException(http.HTTP_404_NOT_FOUND, str(error)) from None
+
+
+@me_router.get("/me", response_model=User)
+def me(caller: Annotated[User, Depends(current_user)]):
+    """Who the key belongs to and whether they are an admin (the web page's sign-in check)."""
+    return caller
 
 
 @router.get("", response_model=list[UserInfo])

@@ -24,6 +24,8 @@ ServicesDep = Annotated[Services, Depends(services)]
 PrincipalDep = Annotated[Principal, Depends(current_principal)]
 #: Errors at or above this many pixels get the top colour of the error map.
 ERROR_MAP_MAX = 4 * BAD_PIXEL_THRESHOLD
+#: Colour (BGR) of the pixels the error map does not evaluate.
+NOT_EVALUATED = (128, 128, 128)
 PNG = {200: {"content": {"image/png": {}}}}
 
 
@@ -69,11 +71,11 @@ def errors_of(job_id: str, svc: Services, principal: Principal) -> np.ndarray:
     responses={**NOT_FOUND, 409: {"description": "Not finished"}, **PNG},
 )
 def get_error_map(job_id: str, svc: ServicesDep, principal: PrincipalDep):
-    """|disparity - ground truth| colour-mapped from 0 to ``X-Scale-Max`` px; black: not
+    """|disparity - ground truth| colour-mapped from 0 to ``X-Scale-Max`` px; grey: not
     evaluated (unknown ground truth or the border)."""
     errors = errors_of(job_id, svc, principal)
     image = colorize(np.nan_to_num(errors, nan=0.0), ERROR_MAP_MAX)
-    image[np.isnan(errors)] = 0
+    image[np.isnan(errors)] = NOT_EVALUATED
     return png(image, ERROR_MAP_MAX)
 
 
