@@ -338,7 +338,7 @@ function setUpDropZones() {
       if (file) {
         if (thumb.src) URL.revokeObjectURL(thumb.src);
         thumb.src = URL.createObjectURL(file);
-        thumb.alt = `${zone.dataset.input} view: ${file.name}`;
+        thumb.alt = `chosen ${zone.dataset.input} file: ${file.name}`;
       }
     };
     input.addEventListener("change", show);
@@ -685,17 +685,28 @@ async function start() {
   $("#solver").addEventListener("change", describeSolver);
   $("#create-user-form").addEventListener("submit", createUser);
   $("#jobs-more").addEventListener("click", () => { state.jobsLimit = Math.min(100, state.jobsLimit + 20); refreshJobs(); });
-  window.addEventListener("hashchange", render);
+  window.addEventListener("hashchange", () => (fragmentKey() ? signInFromFragment() : render()));
+  await signInFromFragment();
+}
 
-  // `qhsm serve` prints /#key=...: the fragment never reaches the server; drop it from the bar.
+/** The key of a `#key=...` address (what `qhsm serve` prints), if this is one. */
+function fragmentKey() {
   const fragment = location.hash.match(/^#key=(.+)$/);
-  let candidate = fragment ? decodeURIComponent(fragment[1]) : key();
-  if (fragment) history.replaceState(null, "", `${location.pathname}#/jobs`);
+  return fragment ? decodeURIComponent(fragment[1]) : null;
+}
+
+/** Sign in with the fragment's key, else the tab's stored one. The fragment never reaches the
+ * server (browsers do not send it) and is dropped from the address bar at once. */
+async function signInFromFragment() {
+  const fromFragment = fragmentKey();
+  if (fromFragment) history.replaceState(null, "", `${location.pathname}#/jobs`);
+  const candidate = fromFragment || key();
   if (candidate) {
     try {
       await signIn(candidate);
     } catch (error) {
       sessionStorage.removeItem(KEY_STORAGE);
+      state.me = null;
       $("#signin-error").textContent = error.message;
     }
   }
