@@ -222,6 +222,8 @@ async function loadSubmitChoices() {
     }
     preset.dataset.default = chosen;
     preset.disabled = !presets.length;
+    const top = config.max_disparity?.default;
+    $("#max-disparity").placeholder = top === undefined || top === "auto" ? "auto" : `default: ${top}`;
     const encoding = $("#encoding");
     encoding.append(el("option", { value: "" }, "default (from preset)"));
     for (const name of enumOf(schemas, "Encoding")) encoding.append(el("option", { value: name }, name));
@@ -369,6 +371,7 @@ function progressOf(job) {
 }
 
 function progressBar(job) {
+  if (job.state === "failed" || job.state === "cancelled") return el("span", { class: "muted" }, "—");
   const { fraction, text } = progressOf(job);
   const bar = el("span", { class: "bar-fill" });
   bar.style.width = `${Math.round(fraction * 100)}%`;
@@ -430,10 +433,10 @@ function colourBar(bar, label) {
     el("figcaption", {}, label));
 }
 
-async function resultImages(job) {
+async function resultImages(job, { withLeft = true } = {}) {
   const base = `/v1/jobs/${job.id}`;
   const [left, disparity, bar] = await Promise.all([
-    authImage(`${base}/left.png`, "Left view").catch(() => null),
+    withLeft ? authImage(`${base}/left.png`, "Left view").catch(() => null) : null,
     authImage(`${base}/preview.png`, "Disparity"),
     authImage(`${base}/colorbar.png?map=disparity`, "Disparity colour scale"),
   ]);
@@ -553,7 +556,7 @@ async function showCompare(a, b) {
     return el("div", { class: "column" },
       el("h2", {}, el("a", { href: `#/job/${job.id}` }, `${job.solver} · ${job.id.slice(0, 8)}`)),
       metricsBlock(job),
-      job.state === "succeeded" ? await resultImages(job) : el("p", {}, `state: ${job.state}`),
+      job.state === "succeeded" ? await resultImages(job, { withLeft: false }) : el("p", {}, `state: ${job.state}`),
       keyValues([["time", seconds(seconds_)], ["solver time", seconds(job.usage.solver_seconds)],
         ["final energy", fmt(job.levels.at(-1)?.energy, 5)]]));
   }));
@@ -646,6 +649,7 @@ async function createUser(event) {
   event.preventDefault();
   const form = event.currentTarget;
   clearErrors(form);
+  $("#issued-key").hidden = true;
   const payload = { name: $("#new-user-name").value.trim(), admin: $("#new-user-admin").checked };
   const budget = $("#new-user-budget").value.trim();
   if (budget) payload.qpu_seconds = Number(budget);

@@ -68,6 +68,7 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
 ):
     sign_in(page, server)
     page.get_by_role("link", name="Submit", exact=True).click()
+    expect(page.get_by_label("Solver")).to_contain_text("exact")
     screenshots(page, "submit")
     job_id = submit_pair(page, pair_files, "exact", ground_truth=True)
     disparity = page.get_by_alt_text("Disparity", exact=True)
@@ -89,6 +90,29 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     png = cv2.imread(download.value.path(), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint16
     np.testing.assert_allclose(png / 256.0, result, atol=1 / 256)
+
+
+def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_files, screenshots):
+    with server.client() as api:
+        exact = [job for job in api.get("/v1/jobs").json()["items"] if job["solver"] == "exact"]
+    sign_in(page, server)
+    page.get_by_role("link", name="Submit", exact=True).click()
+    page.get_by_text("Advanced solver parameters").click()
+    page.get_by_label("Advanced parameters (JSON)").fill('{"num_reads": 4, "num_sweeps": 100}')
+    sa = submit_pair(page, pair_files, "sa", ground_truth=True)
+    expect(page.get_by_alt_text("Disparity", exact=True)).to_be_visible(timeout=RESULT_TIMEOUT)
+    expect(page.locator("pre.params")).to_contain_text('"num_sweeps": 100')
+    page.get_by_label("Compare with").select_option(exact[0]["id"])
+    page.get_by_role("button", name="Compare").click()
+    page.wait_for_url(f"**/#/compare/{sa}/{exact[0]['id']}")
+    columns = page.locator(".compare .column")
+    expect(columns).to_have_count(2)
+    expect(columns.nth(0).get_by_role("heading")).to_contain_text("sa")
+    expect(columns.nth(1).get_by_role("heading")).to_contain_text("exact")
+    for column in (columns.nth(0), columns.nth(1)):
+        expect(column.get_by_alt_text("Disparity", exact=True)).to_be_visible()
+        expect(column.get_by_label("metrics")).to_contain_text("RMSE")
+    screenshots(page, "compare")
 
 
 def test_api_validation_errors_show_next_to_their_field(page: Page, server, pair_files):
@@ -151,7 +175,7 @@ def test_another_users_job_is_neither_listed_nor_reachable(page: Page, server, p
     # bob's own job is listed for him and, with its owner, for the admin
     job_id = submit_pair(page, pair_files, "exact")
     page.get_by_role("link", name="Jobs", exact=True).click()
-    expect(page.locator("tbody tr")).to_have_count(1)
+    expect(page.locator("#jobs-table tbody tr")).to_have_count(1)
     expect(page.locator(f'tr[data-job="{job_id}"]')).to_be_visible()
     sign_in(page, server)
     expect(page.locator(f'tr[data-job="{job_id}"] .owner-col')).to_have_text("web-bob")
