@@ -190,7 +190,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         stack.start()
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
-        client = Client(api.url, key=_announce_key(stack.settings))
+        key = _announce_key(stack.settings)
+        client = Client(api.url, key=key)
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
         print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
@@ -211,6 +212,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
         if args.keep_running:
             print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
+            page = sign_in_url(api.url, stack.settings.api_host, key)
+            print(f"web page: {page}", file=sys.stderr)
             api.join()
     except KeyboardInterrupt:
         pass

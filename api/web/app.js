@@ -153,6 +153,7 @@ function stopPolling() {
 function poll(fn) {
   stopPolling();
   state.timer = setTimeout(async () => {
+    if (document.hidden) { poll(fn); return; } // a background tab waits; it catches up when shown
     try { await fn(); } catch (error) { if (error.status !== 401) console.warn(error); }
   }, POLL_MS);
 }
@@ -225,7 +226,7 @@ async function loadSubmitChoices() {
     const top = config.max_disparity?.default;
     $("#max-disparity").placeholder = top === undefined || top === "auto" ? "auto" : `default: ${top}`;
     const encoding = $("#encoding");
-    encoding.append(el("option", { value: "" }, "default (from preset)"));
+    encoding.append(el("option", { value: "" }, presets.length ? "default (from preset)" : "default"));
     for (const name of enumOf(schemas, "Encoding")) encoding.append(el("option", { value: name }, name));
   }
   const solvers = await json("/v1/solvers");
@@ -552,12 +553,13 @@ async function showCompare(a, b) {
   const view = $("#view-compare");
   const jobs = await Promise.all([a, b].map((id) => json(`/v1/jobs/${id}`)));
   const columns = await Promise.all(jobs.map(async (job) => {
-    const seconds_ = job.levels.reduce((sum, level) => sum + level.seconds, 0);
+    const wall = job.started_at && job.finished_at
+      ? (Date.parse(job.finished_at) - Date.parse(job.started_at)) / 1000 : null;
     return el("div", { class: "column" },
       el("h2", {}, el("a", { href: `#/job/${job.id}` }, `${job.solver} · ${job.id.slice(0, 8)}`)),
       metricsBlock(job),
       job.state === "succeeded" ? await resultImages(job, { withLeft: false }) : el("p", {}, `state: ${job.state}`),
-      keyValues([["time", seconds(seconds_)], ["solver time", seconds(job.usage.solver_seconds)],
+      keyValues([["wall time", seconds(wall)], ["solver time", seconds(job.usage.solver_seconds)],
         ["final energy", fmt(job.levels.at(-1)?.energy, 5)]]));
   }));
   view.replaceChildren(el("h1", {}, "Compare"), el("div", { class: "compare" }, columns));

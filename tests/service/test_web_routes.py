@@ -124,3 +124,15 @@ def test_the_page_is_served_with_a_self_only_policy(client):
     for asset in ("/web/app.js", "/web/style.css"):
         assert client.get(asset).status_code == 200
     assert not re.search(r'(src|href)="(https?:)?//', page.text)  # nothing from elsewhere
+
+
+@pytest.mark.parametrize(
+    ("host", "signs_in"),
+    [("127.0.0.1", True), ("localhost", True), ("::1", True), ("0.0.0.0", False), ("lab", False)],
+)
+def test_serve_puts_the_key_in_the_address_only_on_loopback(host, signs_in):
+    from api.cli import sign_in_url
+
+    url = sign_in_url(f"http://{host}:8000", host, "qhsm_k")
+    assert url == (f"http://{host}:8000/#key=qhsm_k" if signs_in else f"http://{host}:8000/")
+    assert sign_in_url("http://127.0.0.1:8000", "127.0.0.1", None) == "http://127.0.0.1:8000/"

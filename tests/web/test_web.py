@@ -115,6 +115,24 @@ def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_file
     screenshots(page, "compare")
 
 
+def test_an_image_dropped_on_its_box_is_taken(page: Page, server, pair_files):
+    sign_in(page, server)
+    page.get_by_role("link", name="Submit", exact=True).click()
+    data = list(pair_files["left"].read_bytes())
+    transfer = page.evaluate_handle(
+        """(bytes) => {
+            const transfer = new DataTransfer();
+            const file = new File([new Uint8Array(bytes)], "dropped.png", {type: "image/png"});
+            transfer.items.add(file);
+            return transfer;
+        }""",
+        data,
+    )
+    page.locator('.drop[data-input="left"]').dispatch_event("drop", {"dataTransfer": transfer})
+    expect(page.get_by_alt_text("chosen left file: dropped.png")).to_be_visible()
+    assert page.get_by_label("Left image").evaluate("input => input.files[0].name") == "dropped.png"
+
+
 def test_api_validation_errors_show_next_to_their_field(page: Page, server, pair_files):
     sign_in(page, server)
     page.get_by_role("link", name="Submit", exact=True).click()
@@ -237,13 +255,25 @@ def test_the_page_needs_nothing_but_its_own_server(page: Page, server):
     assert "default-src 'self'" in response.headers["content-security-policy"]
 
 
-@pytest.mark.parametrize("view", ["jobs", "submit", "usage", "users"])
+@pytest.mark.parametrize("view", ["jobs", "job", "submit", "usage", "users"])
 def test_phone_width_has_no_sideways_scrolling(page: Page, server, view, screenshots):
     page.set_viewport_size({"width": 390, "height": 844})
     sign_in(page, server)
-    page.goto(f"{server.url}/#/{view}")
+    address = view
+    if view == "job":
+        with server.client() as api:
+            jobs = api.get("/v1/jobs").json()["items"]
+        address = "job/" + next(job["id"] for job in jobs if job["state"] == "succeeded")
+    page.goto(f"{server.url}/#/{address}")
     expect(page.locator(f"#view-{view}")).to_be_visible()
-    page.wait_for_timeout(300)
+    ready = {
+        "jobs": page.locator("#jobs-table tbody tr").first,
+        "job": page.get_by_alt_text("Disparity", exact=True),
+        "submit": page.locator("#solver option").first,
+        "usage": page.locator(".usage-card").first,
+        "users": page.locator("#users-table tbody tr").first,
+    }[view]
+    expect(ready).to_be_attached()
     width = page.evaluate("document.documentElement.scrollWidth")
     assert width <= 390, f"{view}: the page is {width} px wide on a 390 px screen"
     screenshots(page, f"phone-{view}")
