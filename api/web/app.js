@@ -569,6 +569,7 @@ async function showCompare(a, b) {
 
 function budgetBar(entry) {
   const limit = entry.limit_seconds;
+  if (limit === null) return null; // unlimited: nothing to fill
   const used = el("span", { class: "bar-fill" });
   const reserved = el("span", { class: "bar-fill reserved" });
   if (limit) {

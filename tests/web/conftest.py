@@ -40,6 +40,18 @@ class Server:
     sign_in_url: str
     admin_key: str
     log: Path
+    data_dir: Path
+
+    def ledger(self):
+        """The QPU ledger in the server's embedded Redis (to charge time without a QPU)."""
+        import redis
+
+        from api.serve import EMBEDDED_URL_FILE
+        from shared.config import Settings
+        from workers.quota import QuotaLedger
+
+        url = (self.data_dir / EMBEDDED_URL_FILE).read_text().strip()
+        return QuotaLedger(redis.Redis.from_url(url), Settings.model_fields["key_prefix"].default)
 
     def client(self, key: str | None = None) -> httpx.Client:
         return httpx.Client(
@@ -87,7 +99,7 @@ def server(tmp_path_factory) -> Server:
     try:
         sign_in_url = _wait_for_sign_in_url(process, log, port)
         key = (folder / "data" / "api-key").read_text().strip()
-        yield Server(f"http://127.0.0.1:{port}", sign_in_url, key, log)
+        yield Server(f"http://127.0.0.1:{port}", sign_in_url, key, log, folder / "data")
     finally:
         process.send_signal(signal.SIGINT)
         try:

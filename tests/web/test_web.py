@@ -220,9 +220,12 @@ def test_admin_creates_a_user_sets_a_quota_and_sees_usage(page: Page, server, sc
     page.get_by_role("button", name="Create user").click()
     expect(page.locator('.field-error[data-field="name"]')).to_contain_text("exists already")
     screenshots(page, "users")
+    ledger = server.ledger()  # a QPU job's charge, as a QPU worker settles it
+    ledger.settle(ledger.reserve("web-carol", "c" * 32, 2.0, ttl=60), 1.5, problems=3)
     page.get_by_role("link", name="Usage", exact=True).click()
     card = page.locator('.usage-card[data-user="web-carol"]')
-    expect(card).to_contain_text("12.5 s")
+    expect(card.locator("dd")).to_have_text(["1.5 s", "0 ms", "11 s", "12.5 s"])
+    expect(card.locator("tbody td")).to_have_text(["cccccccc", "1.5 s", "3"])
     screenshots(page, "usage")
     page.get_by_role("link", name="Users", exact=True).click()
     page.locator('tr[data-user="web-carol"]').get_by_role("button", name="Revoke").click()
