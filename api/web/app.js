@@ -253,6 +253,7 @@ function clearErrors(form) {
 }
 
 function showFieldError(form, field, message) {
+  if (!/^[a-z_]+$/.test(field)) field = "form"; // names come from the API: keep selectors safe
   const slot = form.querySelector(`.field-error[data-field="${field}"]`) ||
     form.querySelector('.field-error[data-field="form"]');
   slot.textContent = slot.textContent ? `${slot.textContent} ${message}` : message;
