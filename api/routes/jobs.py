@@ -23,7 +23,10 @@ from api.uploads import (
 )
 from api.users import UserStore, user_store
 from shared.config import MatchConfig
+from shared.disparity_range import resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
+from shared.pipeline import match_views
+from shared.pyramid import plan
 from shared.solvers import UnknownSolver
 from shared.solvers.qpu_time import is_metered, job_seconds
 from workers.app import START_JOB
@@ -49,7 +52,7 @@ SCALE_HEADER = "X-Scale-Max"
 
 def display_max(record: JobRecord, disparity: np.ndarray) -> float:
     """The disparity the preview's top colour stands for: the job's range, else the map's max."""
-    top = record.config.max_disparity
+    top = record.disparity_range["max_disparity"] if record.disparity_range else None
     if isinstance(top, int | float) and top > 0:
         return float(top)
     return max(float(np.max(disparity)), 1.0)
@@ -82,6 +85,7 @@ def status_of(record: JobRecord, svc: Services) -> JobStatus:
         metrics=record.metrics,
         error=record.error,
         config=record.config,
+        disparity_range=record.disparity_range,
     )
 
 
@@ -116,13 +120,17 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
 
 
 def check_budget(
-    config: MatchConfig, shape: tuple[int, int], principal: Principal, users: UserStore
+    config: MatchConfig,
+    shape: tuple[int, int],
+    max_disparity: int,
+    principal: Principal,
+    users: UserStore,
 ) -> None:
     """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
     if not is_metered(config.solver):
         return
     try:
-        estimate = job_seconds(config, shape)
+        estimate = job_seconds(config, shape, max_disparity)
     except (TypeError, ValueError, KeyError) as error:
         raise UploadError(
             http.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -170,12 +178,16 @@ def create_job(
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
-    check_budget(config, left_image.shape, principal, users)
+    # the range decides the levels, hence the job's size: resolved once, here, for good
+    disparity_range = resolve_max_disparity(
+        *match_views(left_image, right_image, config), config.max_disparity
+    )
+    check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users)
     arrays = {"left": left_image, "right": right_image}
     truth = None
     if ground_truth is not None:
         arrays["ground_truth"] = decode_ground_truth(
-            read_upload(ground_truth, "ground_truth", settings), left_image.shape
+            read_upload(ground_truth, "ground_truth", settings), left_image.shape[:2]
         )
         truth = GroundTruth(scale=gt_scale, border=gt_border)
     record = JobRecord(
@@ -186,6 +198,8 @@ def create_job(
         height=left_image.shape[0],
         ground_truth=truth,
         created_at=now(),
+        disparity_range=disparity_range.as_dict(),
+        levels_total=len(plan(config, disparity_range.max_disparity)),
     )
     svc.store.create(record, arrays)
     keep_views(svc, record.id, arrays)

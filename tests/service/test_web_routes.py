@@ -136,3 +136,19 @@ def test_serve_puts_the_key_in_the_address_only_on_loopback(host, signs_in):
     url = sign_in_url(f"http://{host}:8000", host, "qhsm_k")
     assert url == (f"http://{host}:8000/#key=qhsm_k" if signs_in else f"http://{host}:8000/")
     assert sign_in_url("http://127.0.0.1:8000", "127.0.0.1", None) == "http://127.0.0.1:8000/"
+
+
+def test_a_colour_pair_keeps_its_colour_and_takes_a_ground_truth(client):
+    from shared.synthetic import make_scene
+
+    scene = make_scene(32, 48, max_disparity=8, seed=3)
+    tint = np.array([0.6, 0.8, 1.0], dtype=np.float32)  # BGR: a colour view, not a gray one
+    left, right = (harness.png(view[:, :, None] * tint) for view in (scene.left, scene.right))
+    job_id = harness.submit(
+        client, left, right, {"solver": "exact"}, ground_truth=harness.npy(scene.disparity)
+    )
+    assert harness.wait_for(client, job_id)["state"] == "succeeded"
+    view = client.get(f"/v1/jobs/{job_id}/left.png").content
+    colour = cv2.imdecode(np.frombuffer(view, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert colour.shape == (32, 48, 3) and not np.array_equal(colour[..., 0], colour[..., 2])
+    assert client.get(f"/v1/jobs/{job_id}/error.png").status_code == 200
