@@ -423,6 +423,12 @@ async function refreshJobs() {
 
 // --- one job ---------------------------------------------------------------------------------
 
+function rangeText(range) {
+  if (!range) return "—";
+  const how = { given: "given", auto: "estimated from the views", "auto-fallback": "fallback" }[range.source] ?? range.source;
+  return `0–${range.max_disparity} px (${how})${range.note ? `: ${range.note}` : ""}`;
+}
+
 function keyValues(entries) {
   return el("dl", { class: "kv" }, entries.flatMap(([name, value]) => [el("dt", {}, name), el("dd", {}, value)]));
 }
@@ -480,7 +486,7 @@ function levelsTable(job) {
     return name.includes("time") ? seconds(value) : fmt(value);
   };
   const row = (level) => el("tr", {},
-    el("td", {}, `${level.index + 1} (1/${level.downsample})`),
+    el("td", {}, level.downsample > 1 ? `${level.index + 1} (1/${level.downsample})` : level.index + 1),
     el("td", {}, `${level.width}×${level.height}`),
     el("td", {}, level.candidates),
     el("td", {}, level.bundles),
@@ -528,6 +534,7 @@ async function showJob(id) {
       el("h1", {}, `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),
       active ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel") : null),
     keyValues([["id", job.id], ["solver", job.solver], ["size", `${job.width}×${job.height}`],
+      ["disparity range", rangeText(job.disparity_range)],
       ["user", job.owner ?? "—"], ["submitted", `${new Date(job.created_at).toLocaleString()} (${age(job.created_at)})`],
       ["finished", job.finished_at ? new Date(job.finished_at).toLocaleString() : "—"]]),
   ];
