@@ -9,8 +9,9 @@ import uuid
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 
+from api import web
 from api.deps import QueueInspector, Services
-from api.routes import health, jobs, solvers, usage
+from api.routes import health, jobs, solvers, usage, users, views
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
@@ -37,12 +38,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         celery=celery,
         queues=QueueInspector(celery, settings.inspect_timeout),
     )
-    # every /v1 route needs an API key; /healthz, /readyz and /docs stay open
+    # every /v1 route needs an API key; /healthz, /readyz, /docs and the web page stay open
     authenticated = [Depends(current_user)]
     app.include_router(jobs.router, dependencies=authenticated)
+    app.include_router(views.router, dependencies=authenticated)
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)
+    app.include_router(users.router)
+    app.include_router(users.me_router)
     app.include_router(health.router)
+    web.mount(app)
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 
     @app.exception_handler(UploadError)

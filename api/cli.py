@@ -105,15 +105,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
         stack.start()
         settings = stack.settings
         print(stack.describe(), file=sys.stderr)
-        _announce_key(settings)
-        print(
-            f"API on http://{settings.api_host}:{settings.api_port} (docs: /docs); Ctrl-C stops",
-            file=sys.stderr,
-        )
+        key = _announce_key(settings)
+        url = f"http://{settings.api_host}:{settings.api_port}"
+        print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
+        print(f"web page: {sign_in_url(url, settings.api_host, key)}", file=sys.stderr)
         _uvicorn_server(settings).run()
     finally:
         stack.stop()
     return 0
+
+
+def sign_in_url(url: str, host: str, key: str | None) -> str:
+    """The web page's address; on a loopback address it signs the local admin in: the key is
+    in the fragment, which browsers never send, so it stays out of every server log."""
+    import ipaddress
+
+    try:
+        local = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        local = False
+    return f"{url}/#key={key}" if key and local else f"{url}/"
 
 
 def _announce_key(settings: Settings) -> str | None:
@@ -179,7 +190,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         stack.start()
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
-        client = Client(api.url, key=_announce_key(stack.settings))
+        key = _announce_key(stack.settings)
+        client = Client(api.url, key=key)
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
         print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
@@ -200,6 +212,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
         if args.keep_running:
             print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
+            page = sign_in_url(api.url, stack.settings.api_host, key)
+            print(f"web page: {page}", file=sys.stderr)
             api.join()
     except KeyboardInterrupt:
         pass

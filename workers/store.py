@@ -8,6 +8,8 @@ Keys (all under ``{key_prefix}:``):
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:result          .npy bytes of the full-resolution disparity
+    job:{id}:view:{name}     what the web page shows next to the result: the left view (PNG) and
+                             the ground truth (.npy); they outlive the uploads like the result
 
 Chunk reports are written with HSET, so a task that runs twice (a worker died after solving)
 is counted once. State changes go through :meth:`JobStore.transition`, an optimistic
@@ -246,6 +248,8 @@ class JobStore:
         """A job reached a final state: drop what only running jobs need."""
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
+        for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
+            self.redis.expire(key, self.ttl)
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
 
     def list(
@@ -350,3 +354,13 @@ class JobStore:
     def load_result(self, job_id: str) -> np.ndarray | None:
         raw = self.redis.get(self.key("job", job_id, "result"))
         return None if raw is None else _from_npy(raw)
+
+    # views ------------------------------------------------------------------------------------
+
+    def save_view(self, job_id: str, name: str, data: bytes) -> None:
+        """Keep ``data`` for the job's web view; it expires with the result once the job ends."""
+        ttl = self.ttl + self.settings.task_visibility_timeout
+        self.redis.set(self.key("job", job_id, "view", name), data, ex=ttl)
+
+    def load_view(self, job_id: str, name: str) -> bytes | None:
+        return self.redis.get(self.key("job", job_id, "view", name))
