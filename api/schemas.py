@@ -58,9 +58,11 @@ class DisparityRange(BaseModel):
 
 
 class Metrics(BaseModel):
-    rmse: float
-    bpp: float = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
-    pixels: int
+    """Scores against the uploaded ground truth; null where a score is not a finite number."""
+
+    rmse: float | None
+    bpp: float | None = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
+    pixels: int | None
 
 
 class JobSummary(BaseModel):

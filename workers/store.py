@@ -17,6 +17,8 @@ compare-and-set, so a cancel racing with the last fan-in resolves to exactly one
 from __future__ import annotations
 
 import io
+import logging
+import math
 import re
 import shutil
 import uuid
@@ -28,11 +30,13 @@ from typing import Any
 
 import numpy as np
 import redis
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from shared.config import MatchConfig, Settings
 from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs
+
+log = logging.getLogger(__name__)
 
 JOB_ID = re.compile(r"^[0-9a-f]{32}$")
 #: Level inputs live this long at most (they are deleted as soon as the level is assembled).
@@ -62,7 +66,14 @@ class GroundTruth(BaseModel):
 
 
 class JobRecord(BaseModel):
-    """What the service knows about a job (storage model; API schemas are separate)."""
+    """What the service knows about a job (storage model; API schemas are separate).
+
+    Any float survives the JSON round trip (``Infinity``/``NaN`` are written as such, not as
+    ``null``), so a stored record always loads again; metrics that are not finite are stored as
+    null, since no client can read them.
+    """
+
+    model_config = ConfigDict(ser_json_inf_nan="constants")
 
     id: str
     state: JobState = JobState.QUEUED
@@ -80,8 +91,25 @@ class JobRecord(BaseModel):
     #: ``shared.disparity_range.RangeEstimate`` as a dict: the range the job runs with
     disparity_range: dict[str, Any] | None = None
     levels: list[dict[str, Any]] = Field(default_factory=list)  # shared.pipeline.LevelReport
-    metrics: dict[str, float] | None = None
+    metrics: dict[str, float | None] | None = None
     error: str | None = None
+
+    @field_validator("metrics")
+    @classmethod
+    def _finite_metrics(cls, value: dict[str, float | None] | None):
+        if value is None:
+            return None
+        return {k: v if v is None or math.isfinite(v) else None for k, v in value.items()}
+
+
+def load_record(raw: bytes | str, job_id: str) -> JobRecord | None:
+    """The stored record, or None (logged) when it no longer validates: one broken record must
+    not make the job listings or the workers fail."""
+    try:
+        return JobRecord.model_validate_json(raw)
+    except ValidationError as error:
+        log.error("job %s: stored record does not load, skipped: %s", job_id, error)
+        return None
 
 
 class ChunkReport(BaseModel):
@@ -177,7 +205,7 @@ class JobStore:
         if not JOB_ID.match(job_id):
             return None
         raw = self.redis.get(self.key("job", job_id))
-        return None if raw is None else JobRecord.model_validate_json(raw)
+        return None if raw is None else load_record(raw, job_id)
 
     def state(self, job_id: str) -> JobState | None:
         record = self.get(job_id)
@@ -196,9 +224,10 @@ class JobStore:
                 try:
                     pipe.watch(key)
                     raw = pipe.get(key)
-                    if raw is None:
+                    current = None if raw is None else load_record(raw, job_id)
+                    if current is None:
+                        pipe.unwatch()
                         return None
-                    current = JobRecord.model_validate_json(raw)
                     changed = change(current.model_copy(deep=True))
                     if changed is None:
                         pipe.unwatch()
@@ -260,8 +289,8 @@ class JobStore:
         for job_id, raw in zip(ids, raws, strict=True):
             if raw is None:
                 expired.append(job_id)
-            else:
-                records.append(JobRecord.model_validate_json(raw))
+            elif (record := load_record(raw, job_id)) is not None:
+                records.append(record)
         if expired:
             self.redis.zrem(index, *expired)
         return records, int(self.redis.zcard(index))
