@@ -179,7 +179,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
         stack.start()
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
-        client = Client(api.url, key=_announce_key(stack.settings))
+        client = Client(
+            api.url, key=_announce_key(stack.settings), key_source="the demo's local admin"
+        )
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
         print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
@@ -225,7 +227,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     for path in files:
         if not path.is_file():
             raise CommandError(f"{path}: no such file")
-    client = Client(url, key=args.key)
+    client = Client(url, key=args.key, key_source="the --key option")
     try:
         job = client.submit(
             files[0].read_bytes(),
