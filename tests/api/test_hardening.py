@@ -9,6 +9,7 @@ import http.client
 import io
 import json
 import logging
+import shutil
 import struct
 import time
 import tracemalloc
@@ -136,6 +137,7 @@ def test_a_decompression_bomb_is_refused_from_its_header_fast_and_without_memory
         b"PF\n60000 60000\n-1.0\n" + bytes(64),  # PFM
         b"P5\n60000 60000\n255\n" + bytes(64),  # PGM
     ],
+    ids=["png", "pfm", "pgm"],
 )
 def test_a_header_claiming_a_huge_image_is_413(api, upload):
     assert len(upload) < 100
@@ -169,6 +171,7 @@ def npy_header(shape: tuple[int, ...], descr: str = "<f4") -> bytes:
         (b"\x93NUMPY\x01\x00\x10\x00{'descr': oops}\n", 415, "not a readable .npy"),
         (b"\x93NUMPY\x03\x00" + bytes(16), 415, "not a readable .npy"),
     ],
+    ids=["huge", "truncated", "object", "malformed", "version-3"],
 )
 def test_npy_ground_truth_header_is_checked_before_allocating(api, upload, code, message):
     response = post(api, ground_truth=upload)
@@ -187,6 +190,7 @@ def test_a_fortran_order_npy_ground_truth_is_read_correctly(api):
 @pytest.mark.parametrize(
     "params",
     ["[" * 100_000 + "]" * 100_000, '{"solver_params": ' + '{"a": ' * 50_000 + "1" + "}" * 50_001],
+    ids=["lists", "objects"],
 )
 def test_deeply_nested_params_are_422(api, params):
     response = post(api, params=params)
@@ -390,14 +394,44 @@ def test_qhsm_submit_with_a_wrong_key_names_the_option(live_api, tmp_path, capsy
 # --- 15. /docs works offline ------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("page", ["/docs", "/redoc"])
-def test_docs_pages_load_nothing_from_another_host(api, page):
+@pytest.mark.parametrize("path", ["/docs", "/redoc"])
+def test_docs_pages_load_nothing_from_another_host(api, path):
     import re
 
-    html = api.get(page).text
+    html = api.get(path).text
     urls = re.findall(r"""(?:src|href|url)\s*[=:]\s*['"]([^'"]+)['"]""", html)
     assert urls, html
     for url in urls:
-        assert url.startswith("/"), f"{page} loads {url}"
+        assert url.startswith("/"), f"{path} loads {url}"
         assert api.get(url).status_code == 200, url
     assert "http://" not in html and "https://" not in html
+
+
+CHROMIUM = shutil.which("chromium")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (apt-get install chromium)")
+def test_swagger_ui_renders_with_the_internet_blocked(live_api):
+    from playwright.sync_api import sync_playwright
+
+    outside: list[str] = []
+
+    def only_local(route):
+        if route.request.url.startswith(live_api.url):
+            route.continue_()
+        else:
+            outside.append(route.request.url)
+            route.abort()
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM)
+        try:
+            page = browser.new_page()
+            page.route("**/*", only_local)
+            page.goto(f"{live_api.url}/docs")
+            page.wait_for_selector(".opblock", timeout=15_000)
+            operations = page.locator(".opblock-summary-path").all_inner_texts()
+        finally:
+            browser.close()
+    assert "/v1/jobs/{job_id}/disparity" in [text.replace("\u200b", "") for text in operations]
+    assert outside == []
