@@ -20,6 +20,7 @@ from shared.config import Settings, get_settings
 def register(commands: argparse._SubParsersAction) -> None:
     serve = commands.add_parser("serve", help="run the API and workers (embedded Redis if unset)")
     _stack_options(serve)
+    _log_level_option(serve)
     serve.set_defaults(handler=cmd_serve)
 
     demo = commands.add_parser("demo", help="start the service, run one demo job, stop")
@@ -37,6 +38,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     api = commands.add_parser("api", help="run the HTTP API only (uvicorn)")
     api.add_argument("--host", help="bind address (QHSM_API_HOST)")
     api.add_argument("--port", type=int, help="port (QHSM_API_PORT)")
+    _log_level_option(api)
     api.set_defaults(handler=cmd_api)
 
     submit = commands.add_parser("submit", help="send a stereo pair to a running service")
@@ -55,6 +57,15 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--key", help="API key (QHSM_API_KEY; default: the local admin key of `qhsm serve`)"
     )
     submit.set_defaults(handler=cmd_submit)
+
+
+def _log_level_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--log-level",
+        choices=["debug", "info", "warning", "error"],
+        default="info",
+        help="API log level; debug also shows every poll of a job's status and health check",
+    )
 
 
 def _stack_options(parser: argparse.ArgumentParser) -> None:
@@ -92,7 +103,7 @@ def _uvicorn_server(settings: Settings, log_level: str = "info"):
 
 
 def cmd_api(args: argparse.Namespace) -> int:
-    _uvicorn_server(_settings(args)).run()
+    _uvicorn_server(_settings(args), args.log_level).run()
     return 0
 
 
@@ -110,7 +121,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             f"API on http://{settings.api_host}:{settings.api_port} (docs: /docs); Ctrl-C stops",
             file=sys.stderr,
         )
-        _uvicorn_server(settings).run()
+        _uvicorn_server(settings, args.log_level).run()
     finally:
         stack.stop()
     return 0

@@ -15,6 +15,7 @@ import time
 import tracemalloc
 import zlib
 
+import cv2
 import harness
 import httpx
 import numpy as np
@@ -144,6 +145,26 @@ def test_a_header_claiming_a_huge_image_is_413(api, upload):
     response = post(api, left=upload, right=upload)
     assert response.status_code == 413
     assert "60000x60000" in response.json()["detail"]
+
+
+@pytest.mark.parametrize("suffix", [".png", ".ppm", ".pgm", ".jpg", ".tif", ".bmp", ".pfm"])
+@pytest.mark.parametrize("depth", ["8-bit", "16-bit or float"])
+def test_every_supported_format_passes_the_header_check(api, suffix, depth):
+    """The size check reads the header of every format the README lists (none is refused)."""
+    gray = SCENE.left
+    if suffix == ".pfm":
+        image = gray.astype(np.float32)
+    elif depth == "8-bit" or suffix in (".jpg", ".bmp"):
+        image = np.rint(gray * 255).astype(np.uint8)
+    else:
+        image = np.rint(gray * 65535).astype(np.uint16)
+    if suffix in (".ppm", ".pfm", ".jpg", ".bmp", ".tif"):
+        image = np.dstack([image] * 3)
+    ok, encoded = cv2.imencode(suffix, image)
+    assert ok
+    data = encoded.tobytes()
+    response = post(api, left=data, right=data, params={"max_disparity": 6})
+    assert response.status_code == 202, response.text
 
 
 def test_a_ground_truth_image_is_measured_before_decoding(api):
