@@ -41,11 +41,11 @@ class LevelTiming(BaseModel):
     width: int
     candidates: int
     bundles: int
-    energy: float
+    energy: float | None = Field(description="MRF energy of the level (null if not finite)")
     repaired: int
     seconds: float
     solver_seconds: float
-    timing: dict[str, float] = Field(default_factory=dict)
+    timing: dict[str, float | None] = Field(default_factory=dict)
 
 
 class DisparityRange(BaseModel):

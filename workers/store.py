@@ -69,8 +69,8 @@ class JobRecord(BaseModel):
     """What the service knows about a job (storage model; API schemas are separate).
 
     Any float survives the JSON round trip (``Infinity``/``NaN`` are written as such, not as
-    ``null``), so a stored record always loads again; metrics that are not finite are stored as
-    null, since no client can read them.
+    ``null``), so a stored record always loads again; in metrics and level reports, which
+    clients read, numbers that are not finite are stored as null.
     """
 
     model_config = ConfigDict(ser_json_inf_nan="constants")
@@ -94,12 +94,22 @@ class JobRecord(BaseModel):
     metrics: dict[str, float | None] | None = None
     error: str | None = None
 
-    @field_validator("metrics")
+    @field_validator("metrics", "levels")
     @classmethod
-    def _finite_metrics(cls, value: dict[str, float | None] | None):
-        if value is None:
-            return None
-        return {k: v if v is None or math.isfinite(v) else None for k, v in value.items()}
+    def _finite_or_null(cls, value: Any) -> Any:
+        return finite_or_null(value)
+
+
+def finite_or_null(value: Any) -> Any:
+    """``value`` with every float that is not finite (in nested dicts and lists) made None: what
+    clients read must be valid JSON, which has no Infinity or NaN."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [finite_or_null(item) for item in value]
+    return value
 
 
 def load_record(raw: bytes | str, job_id: str) -> JobRecord | None:
@@ -113,13 +123,23 @@ def load_record(raw: bytes | str, job_id: str) -> JobRecord | None:
 
 
 class ChunkReport(BaseModel):
-    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it."""
+    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it.
+
+    Timing entries that are not finite numbers are dropped (they would poison the job's usage).
+    """
+
+    model_config = ConfigDict(ser_json_inf_nan="constants")
 
     level: int
     bundles: int
     wall_time: float
     timing: dict[str, float] = Field(default_factory=dict)
     worker: str = ""
+
+    @field_validator("timing")
+    @classmethod
+    def _finite_timing(cls, value: dict[str, float]) -> dict[str, float]:
+        return {key: seconds for key, seconds in value.items() if math.isfinite(seconds)}
 
 
 class Progress(BaseModel):

@@ -23,7 +23,7 @@ import pytest
 from api_helpers import LEFT, SCENE, post
 
 from api.client import Client, ClientError
-from workers.store import ACTIVE, JobState
+from workers.store import ACTIVE, ChunkReport, JobState
 
 MiB = 2**20
 
@@ -83,16 +83,31 @@ def test_a_record_that_no_longer_loads_is_skipped_and_logged_never_a_500(api, ca
 
 def test_non_finite_metrics_are_stored_as_null_and_the_job_still_loads(api):
     job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    level = {"index": 0, "downsample": 1, "height": 24, "width": 32, "candidates": 4}
+    level |= {"bundles": 24, "energy": float("inf"), "repaired": 0, "seconds": 0.1}
+    level |= {"solver_seconds": 0.05, "timing": {"qpu_access_time": float("nan")}}
     moved = svc(api).store.transition(
         job_id,
         JobState.SUCCEEDED,
         ACTIVE,
         metrics={"rmse": float("inf"), "bpp": float("nan"), "pixels": 768.0},
+        levels=[level],
     )
     assert moved is not None
     response = api.get(f"/v1/jobs/{job_id}")
     assert response.status_code == 200, response.text
     assert response.json()["metrics"] == {"rmse": None, "bpp": None, "pixels": 768}
+    assert response.json()["levels"][0]["energy"] is None
+
+
+def test_a_non_finite_solver_timing_does_not_break_the_job_status(api):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    timing = {"qpu_access_time": float("inf"), "sampling_time": 0.5}
+    report = ChunkReport(level=0, bundles=8, wall_time=0.2, timing=timing)
+    svc(api).store.record_chunk(job_id, 0, report)
+    response = api.get(f"/v1/jobs/{job_id}")
+    assert response.status_code == 200, response.text
+    assert response.json()["usage"] == {"solver_seconds": 0.2, "sampling_time": 0.5}
     assert job_id in [i["id"] for i in api.get("/v1/jobs", params={"limit": 100}).json()["items"]]
 
 
