@@ -11,12 +11,13 @@ when it reuses it).
 
 from __future__ import annotations
 
+import inspect
 import json
 import logging
 import uuid
 from typing import Any
 
-from fastapi import HTTPException, status
+from fastapi import HTTPException, Request, status
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -82,7 +83,8 @@ class RequestGuard:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        if scope["path"].startswith("/v1"):
+        path = scope["path"].removeprefix(scope.get("root_path", ""))
+        if path == "/v1" or path.startswith("/v1/"):
             store = user_store_of(scope["app"])
             try:
                 user = await run_in_threadpool(
@@ -123,9 +125,22 @@ class RequestGuard:
             await send_json(send, too_large.status_code, {"detail": too_large.detail})
 
 
+def _registered_handler(app: Any, error: Exception) -> Any:
+    """The app's exception handler for ``error``'s class (nearest in its MRO), if any: errors
+    raised outside the routes (in :class:`RequestGuard`) get the answers the routes' get."""
+    handlers = getattr(app, "exception_handlers", {})
+    for kind in type(error).__mro__:
+        if kind is Exception:
+            return None
+        if kind in handlers:
+            return handlers[kind]
+    return None
+
+
 class ErrorBoundary:
-    """Any exception that escapes the routes: logged with an incident id, answered as a JSON
-    500 that names the incident, never re-raised (so the connection stays usable)."""
+    """Any exception that escapes the routes: answered by the app's handler for its class when
+    there is one, else logged with an incident id and answered as a JSON 500 that names the
+    incident; never re-raised (so the connection stays usable)."""
 
     def __init__(self, app: ASGIApp):
         self.app = app
@@ -143,7 +158,14 @@ class ErrorBoundary:
 
         try:
             await self.app(scope, receive, tracking_send)
-        except Exception:
+        except Exception as error:
+            handler = None if started else _registered_handler(scope["app"], error)
+            if handler is not None:  # e.g. a Redis outage raised while authenticating
+                response = handler(Request(scope, receive), error)
+                if inspect.isawaitable(response):
+                    response = await response
+                await response(scope, receive, send)
+                return
             incident = uuid.uuid4().hex[:12]
             log.exception("incident %s: %s %s failed", incident, scope["method"], scope["path"])
             if started:  # half a response is out: only closing the connection can end it
