@@ -101,9 +101,10 @@ class RequestGuard:
             await send_json(send, too_large.status_code, {"detail": too_large.detail})
             return
         received = 0
-        started = False
 
         async def counting_receive() -> Message:
+            """The body as it comes, cut off at the limit (the HTTPException raised here is
+            answered by FastAPI's handler, or by :class:`ErrorBoundary`)."""
             nonlocal received
             message = await receive()
             if message["type"] == "http.request":
@@ -112,17 +113,7 @@ class RequestGuard:
                     raise BodyTooLarge(self.limit)
             return message
 
-        async def tracking_send(message: Message) -> None:
-            nonlocal started
-            started = started or message["type"] == "http.response.start"
-            await send(message)
-
-        try:
-            await self.app(scope, counting_receive, tracking_send)
-        except BodyTooLarge as too_large:
-            if started:
-                raise
-            await send_json(send, too_large.status_code, {"detail": too_large.detail})
+        await self.app(scope, counting_receive, send)
 
 
 def _registered_handler(app: Any, error: Exception) -> Any:
