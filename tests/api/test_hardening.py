@@ -63,6 +63,19 @@ def test_params_numbers_must_be_finite(api, params):
     assert "numbers must be finite" in response.json()["detail"]
 
 
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_configs_refuse_non_finite_numbers_whatever_their_source(value):
+    """The CLI and the bench build configs without JSON: the model itself refuses them too."""
+    from pydantic import ValidationError
+
+    from shared.config import LevelConfig, MatchConfig
+
+    with pytest.raises(ValidationError, match="finite number"):
+        LevelConfig(slope=value)
+    with pytest.raises(ValidationError, match="finite number"):
+        MatchConfig(lr_tolerance=value)
+
+
 def test_a_record_that_no_longer_loads_is_skipped_and_logged_never_a_500(api, caplog):
     job_id = post(api, params={"max_disparity": 6}).json()["id"]
     store = svc(api).store
