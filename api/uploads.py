@@ -244,6 +244,7 @@ def parse_config(params: str | None) -> MatchConfig:
         ) from None
     except ValidationError as error:
         problems = "; ".join(
-            f"{'.'.join(map(str, e['loc'])) or 'params'}: {e['msg']}" for e in error.errors()
+            f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"]
+            for e in error.errors()
         )
         raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {problems}") from None

@@ -21,6 +21,8 @@ import httpx
 import numpy as np
 import pytest
 from api_helpers import LEFT, SCENE, post
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from api.client import Client, ClientError
 from workers.store import ACTIVE, ChunkReport, JobState
@@ -122,6 +124,47 @@ def test_a_non_finite_solver_timing_does_not_break_the_job_status(api):
     assert response.status_code == 200, response.text
     assert response.json()["usage"] == {"solver_seconds": 0.2, "sampling_time": 0.5}
     assert job_id in [i["id"] for i in api.get("/v1/jobs", params={"limit": 100}).json()["items"]]
+
+
+LEVEL = st.fixed_dictionaries(
+    {},
+    optional={
+        "downsample": st.sampled_from([1, 2, 4, 64]),
+        "candidates": st.integers(2, 64),
+        "slope": st.floats(0, 1e300),
+        "truncation": st.floats(0, 1e300),
+        "edge_factor": st.floats(0, 1e300),
+    },
+)
+CONFIG_PARAMS = st.fixed_dictionaries(
+    {},
+    optional={
+        "preset": st.sampled_from(["accurate", "paper"]),
+        "levels": st.lists(LEVEL, min_size=1, max_size=4),
+        "pyramid": st.sampled_from(["image", "bins"]),
+        "max_disparity": st.one_of(st.just("auto"), st.integers(1, 10**5)),
+        "max_coarse_bins": st.integers(2, 64),
+        "bundle_height": st.integers(1, 64),
+        "bilateral_sigma_color": st.floats(1e-300, 1e300),
+        "solver": st.sampled_from(["exact", "sa", "qpu-sim", "hybrid-sim", "gurobi"]),
+        "solver_params": st.dictionaries(
+            st.sampled_from(["num_reads", "num_sweeps", "time_limit"]),
+            st.one_of(st.integers(-10, 10**12), st.floats(allow_nan=False), st.text(max_size=3)),
+        ),
+    },
+)
+
+
+@settings(
+    max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(params=CONFIG_PARAMS, shape=st.sampled_from([(24, 32), (1, 1), (1, 40), (40, 1)]))
+def test_config_shaped_params_on_a_real_pair_never_cause_a_server_error(api, params, shape):
+    """Well-formed params at the edges of their ranges, on tiny and degenerate images: a 202 or
+    a 4xx that says why, never a 500."""
+    view = harness.png(np.random.default_rng(0).random(shape).astype(np.float32))
+    response = post(api, left=view, right=view, params=params)
+    assert response.status_code < 500, (params, shape, response.text)
 
 
 # --- 3. decompression bombs -------------------------------------------------------------------
