@@ -91,14 +91,12 @@ class RequestGuard:
                     authenticate_header, store, _header(scope, b"authorization")
                 )
             except HTTPException as refused:
-                detail = {"detail": refused.detail}
-                await send_json(send, refused.status_code, detail, refused.headers)
+                await self.refuse(scope, send, refused)
                 return
             scope[USER_SCOPE_KEY] = user
         length = _header(scope, b"content-length")
         if length is not None and length.strip().isdigit() and int(length) > self.limit:
-            too_large = BodyTooLarge(self.limit)
-            await send_json(send, too_large.status_code, {"detail": too_large.detail})
+            await self.refuse(scope, send, BodyTooLarge(self.limit))
             return
         received = 0
 
@@ -114,6 +112,16 @@ class RequestGuard:
             return message
 
         await self.app(scope, counting_receive, send)
+
+    @staticmethod
+    async def refuse(scope: Scope, send: Send, refused: HTTPException) -> None:
+        """Answer without reading the body; with one coming, close the connection afterwards
+        (else the server would have to drain the unread body to reuse it)."""
+        headers = dict(refused.headers or {})
+        has_body = _header(scope, b"transfer-encoding") or _header(scope, b"content-length")
+        if has_body and has_body.strip() != "0":
+            headers["connection"] = "close"
+        await send_json(send, refused.status_code, {"detail": refused.detail}, headers)
 
 
 def _registered_handler(app: Any, error: Exception) -> Any:
