@@ -43,6 +43,13 @@ DISPARITY_MEDIA = {
     "png": "image/png",
     "npy": "application/x-npy",
 }
+#: A ground truth's scale: stored value per disparity pixel. Outside this range the scaled
+#: errors lose all precision or overflow (an infinite RMSE).
+GT_SCALE_RANGE = (1e-3, 1e6)
+#: Widest ignored frame, pixels (above any image side the pixel limit allows evaluating).
+MAX_GT_BORDER = 10_000
+#: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
+MAX_OFFSET = 10**9
 NOT_FOUND = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
 
 
@@ -168,8 +175,18 @@ def create_job(
     ground_truth: Annotated[
         UploadFile | None, File(description="Left disparity ground truth (PNG/PGM/PFM/npy)")
     ] = None,
-    gt_scale: Annotated[float, Form(gt=0, description="Stored value per disparity pixel")] = 1.0,
-    gt_border: Annotated[int, Form(ge=0, description="Ignored frame, pixels")] = 0,
+    gt_scale: Annotated[
+        float,
+        Form(
+            ge=GT_SCALE_RANGE[0],
+            le=GT_SCALE_RANGE[1],
+            allow_inf_nan=False,
+            description="Stored value per disparity pixel (e.g. 1, 4, 16, 256)",
+        ),
+    ] = 1.0,
+    gt_border: Annotated[
+        int, Form(ge=0, le=MAX_GT_BORDER, description="Ignored frame, pixels")
+    ] = 0,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     settings = svc.settings
@@ -217,7 +234,7 @@ def list_jobs(
     request: Request,
     svc: ServicesDep,
     principal: PrincipalDep,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
 ):
     """Your jobs, newest first (admins: everyone's)."""
