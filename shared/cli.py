@@ -56,6 +56,7 @@ SWITCHES = {
     "bilateral": "bilateral filter of the final map (paper)",
     "lr_check": "match the right view too and check left against right (accurate)",
     "weighted_median": "colour-weighted median of the final map (accurate)",
+    "warm_start": "start bundles from the coarser estimate (default: the solver's choice)",
     "subpixel": "parabola fit of the final cost: lower RMSE on slants, more 1-px errors",
 }
 

@@ -125,6 +125,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
         "bilateral": False,
         "lr_check": True,
         "weighted_median": True,
+        "warm_start": None,
     },
     Preset.PAPER: {
         "levels": paper_levels,
@@ -135,6 +136,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
         "bilateral": True,
         "lr_check": False,
         "weighted_median": False,
+        "warm_start": False,
     },
 }
 
@@ -183,6 +185,12 @@ class MatchConfig(BaseModel):
     )
     weighted_median_radius: int = Field(9, ge=1, le=64)
     weighted_median_sigma: float = Field(25.5, gt=0, description="On the 0..255 colour scale")
+    warm_start: bool | None = Field(
+        description="Start every bundle from the best guess at hand (the coarser level's "
+        "estimate; on the coarsest level the data term's minimum): None = the solver's default "
+        "(on for the classical annealers and local searches, off for QPU and cloud solvers) "
+        "(from preset)"
+    )
     subpixel: bool = Field(
         False, description="Parabola fit on the final cost (bin pyramid): lower RMSE on slants"
     )

@@ -25,7 +25,7 @@ from shared.energy import Costs, mrf_costs, mrf_energy
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver
+from shared.solvers.base import RowSolver, uses_warm_start
 
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
@@ -85,6 +85,13 @@ class LevelInputs:
             if first < last:
                 parts.append((view, first - view * height, last - view * height))
         return parts
+
+    def starting_labels(self, costs: Costs, start: int, stop: int) -> np.ndarray:
+        """A warm start for rows [start, stop): the coarser level's estimate, or on the coarsest
+        level the data term's winner-takes-all (``costs`` are those rows' costs)."""
+        if self.initial_labels is not None:
+            return self.initial_labels[start:stop]
+        return costs.unary.argmin(axis=2).astype(np.int32)
 
     def bundle_rows(self, bundle_height: int) -> list[tuple[int, int]]:
         """The level's bundles as row ranges: each view tiled on its own, so that no bundle
@@ -178,13 +185,13 @@ def solve_bundles(
         return _solve_on_costs(solver, inputs, config, row_ranges)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
-    warm = bool(config.solver_params.get("warm_start")) and inputs.initial_labels is not None
+    warm = uses_warm_start(config)
     results = []
     for start, stop in row_ranges:
         costs = inputs.costs(config, start, stop)
         bqm = codec.encode(costs, config.rectifier)
         initial = (
-            codec.encode_labels(inputs.initial_labels[start:stop], costs.num_labels)
+            codec.encode_labels(inputs.starting_labels(costs, start, stop), costs.num_labels)
             if warm
             else None
         )

@@ -41,6 +41,7 @@ import redis
 
 from shared.config import Settings
 from shared.solvers import SolverError, TransientSolverError
+from shared.solvers.base import uses_warm_start
 
 # --- Lua scripts -------------------------------------------------------------------------------
 
@@ -508,7 +509,7 @@ def bundle_estimate(inputs, config, start: int, stop: int) -> float:
 
     width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
     variables = (stop - start) * width * get_codec(config.encoding).variables_per_pixel(labels)
-    params = sampler_params(config.solver_params, warm=inputs.initial_labels is not None)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
     live = live_timing_solver(config.solver) if config.solver in QPU_SOLVERS else None
     return bundle_seconds(config.solver, variables, params, solver=live)
 

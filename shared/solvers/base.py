@@ -11,6 +11,7 @@ from typing import Any, Protocol, runtime_checkable
 import dimod
 import numpy as np
 
+from shared.config import MatchConfig
 from shared.energy import Costs
 
 
@@ -61,6 +62,10 @@ class Solver(Protocol):
     offline: bool
     #: True where the solver spends metered D-Wave time (needs the token and a quota).
     uses_qpu_time: bool
+    #: Whether bundles start from the best guess at hand unless the config says otherwise
+    #: (``MatchConfig.warm_start``): classical local searches refine one far more cheaply than
+    #: they find a minimum from scratch; QPU and cloud solvers start cold unless asked.
+    warm_start_default: bool = False
 
     def available(self) -> Availability: ...
 
@@ -111,3 +116,15 @@ class RowSolver(Protocol):
     """
 
     def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray: ...
+
+
+def uses_warm_start(config: MatchConfig) -> bool:
+    """Whether ``config``'s bundles are warm-started: ``solver_params["warm_start"]`` (kept for
+    old clients) or ``MatchConfig.warm_start`` when given, else the solver's default."""
+    if "warm_start" in config.solver_params:
+        return bool(config.solver_params["warm_start"])
+    if config.warm_start is not None:
+        return config.warm_start
+    from shared.solvers.registry import get_solver
+
+    return bool(getattr(get_solver(config.solver), "warm_start_default", False))

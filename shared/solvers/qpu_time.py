@@ -42,6 +42,7 @@ from shared.bundles import bundle_rows
 from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.pyramid import level_shape, plan
+from shared.solvers.base import uses_warm_start
 
 #: Advantage_system4.1 ``problem_timing_data`` (August 2022), microseconds.
 ADVANTAGE_TIMING_DATA: dict[str, Any] = {
@@ -220,7 +221,7 @@ def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
     """The QPU parameters a bundle is sent with: a warm-started bundle (``warm_start`` and a
     coarser estimate) is a reverse anneal with the adapter's schedule, re-initialised per read."""
     params = {key: value for key, value in solver_params.items() if key != "warm_start"}
-    if warm and solver_params.get("warm_start"):
+    if warm:
         from shared.solvers.dwave import WARM_START_SCHEDULE
 
         params.setdefault("anneal_schedule", WARM_START_SCHEDULE)
@@ -240,6 +241,7 @@ def job_seconds(config: MatchConfig, shape: tuple[int, int], max_disparity: int)
     """
     codec = get_codec(config.encoding)
     views = 2 if config.lr_check else 1
+    warm = uses_warm_start(config)
     levels = []
     for level in plan(config, max_disparity):
         height, width = level_shape(shape, level.downsample)
@@ -247,7 +249,7 @@ def job_seconds(config: MatchConfig, shape: tuple[int, int], max_disparity: int)
         bundles = views * len(rows)
         tallest = max(stop - start for start, stop in rows)
         variables = tallest * width * codec.variables_per_pixel(level.candidates)
-        params = sampler_params(config.solver_params, warm=level.index > 0)
+        params = sampler_params(config.solver_params, warm=warm)
         each = bundle_seconds(config.solver, variables, params)
         levels.append(
             LevelEstimate(level.index, (height, width), bundles, variables, each * bundles)
