@@ -59,6 +59,13 @@ def celery_config(settings: Settings) -> dict:
     }
 
 
+def task_time_limits(settings: Settings, solver: str) -> dict[str, float]:
+    """Celery options bounding one solver task: the soft limit raises in the task (the job
+    fails with a message), the hard one kills a process stuck in native code."""
+    soft = settings.solver_time_limits.get(solver, settings.task_soft_time_limit)
+    return {"soft_time_limit": soft, "time_limit": soft + settings.task_time_limit_grace}
+
+
 def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> Celery:
     """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
     settings = settings or get_settings()

@@ -8,6 +8,7 @@ Keys (all under ``{key_prefix}:``):
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:result          .npy bytes of the full-resolution disparity
+    job:{id}:tasks           set of the ids of the job's solver tasks running now
 
 Chunk reports are written with HSET, so a task that runs twice (a worker died after solving)
 is counted once. State changes go through :meth:`JobStore.transition`, an optimistic
@@ -17,6 +18,7 @@ compare-and-set, so a cancel racing with the last fan-in resolves to exactly one
 from __future__ import annotations
 
 import io
+import json
 import re
 import shutil
 import uuid
@@ -262,6 +264,16 @@ class JobStore:
             self.redis.zrem(index, *expired)
         return records, int(self.redis.zcard(index))
 
+    def active_jobs(self, owner: str, batch: int = 500) -> int:
+        """How many of ``owner``'s jobs are queued or running (the per-user cap counts them)."""
+        index = self.key("jobs", "owner", owner)
+        count, start = 0, 0
+        while ids := self.redis.zrevrange(index, start, start + batch - 1):
+            raws = self.redis.mget([self.key("job", raw.decode()) for raw in ids])
+            count += sum(json.loads(raw).get("state") in ACTIVE for raw in filter(None, raws))
+            start += batch
+        return count
+
     # progress and usage -----------------------------------------------------------------------
 
     def record_chunk(self, job_id: str, first_row: int, chunk: ChunkReport) -> None:
@@ -298,6 +310,22 @@ class JobStore:
             for key, value in chunk.timing.items():
                 total[key] = total.get(key, 0.0) + value
         return total
+
+    # running solver tasks (what a cancel terminates) ------------------------------------------
+
+    def task_started(self, job_id: str, task_id: str) -> None:
+        key = self.key("job", job_id, "tasks")
+        with self.redis.pipeline() as pipe:
+            pipe.sadd(key, task_id)
+            pipe.expire(key, self.settings.task_visibility_timeout)
+            pipe.execute()
+
+    def task_ended(self, job_id: str, task_id: str) -> None:
+        self.redis.srem(self.key("job", job_id, "tasks"), task_id)
+
+    def running_tasks(self, job_id: str) -> list[str]:
+        """Ids of the job's solver tasks that started and have not ended (or were killed)."""
+        return sorted(raw.decode() for raw in self.redis.smembers(self.key("job", job_id, "tasks")))
 
     # level inputs -----------------------------------------------------------------------------
 

@@ -11,12 +11,20 @@ from __future__ import annotations
 import importlib
 import logging
 
-from celery import signals
+from celery import Task, signals
+from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
 from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
 from workers import orchestration
-from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB, app, load_plugins
+from workers.app import (
+    LEVEL_DONE,
+    SOLVE_ROWS,
+    START_JOB,
+    app,
+    load_plugins,
+    task_time_limits,
+)
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
 
@@ -84,12 +92,27 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
         store().fail(job_id, orchestration.internal_error(job_id, f"assembling level {index + 1}"))
 
 
-@app.task(name=SOLVE_ROWS, bind=True)
+class SolverTask(Task):
+    """A solver task; a hard time limit (the pool process was killed) fails its job."""
+
+    def on_failure(self, exc, task_id, args, kwargs, einfo) -> None:
+        if isinstance(exc, TimeLimitExceeded) and args:
+            job_id, index = args[0], args[1]
+            store().task_ended(job_id, task_id)
+            _fail(job_id, time_limit_message(job_id, index, hard=True))
+
+
+@app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
 def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
     ranges = [(int(start), int(stop)) for start, stop in row_ranges]
     worker = self.request.hostname or ""
+    task_id = self.request.id
+    if task_id:
+        store().task_started(job_id, task_id)
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
+    except SoftTimeLimitExceeded:
+        return _fail(job_id, time_limit_message(job_id, index, hard=False))
     except TransientSolverError as error:
         retries = self.request.retries
         if retries < settings.task_retries:
@@ -108,7 +131,24 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     except Exception:
         log.exception("job %s: bundle task of level %d failed", job_id, index)
         return _fail(job_id, orchestration.internal_error(job_id, f"solving level {index + 1}"))
+    finally:
+        if task_id:
+            store().task_ended(job_id, task_id)
     return result if result is not None else {"skipped": True}
+
+
+def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:
+    """What a user reads when one of the job's solver tasks ran out of time."""
+    record = store().get(job_id)
+    solver = record.config.solver if record else "?"
+    limits = task_time_limits(settings, solver)
+    limit = limits["time_limit" if hard else "soft_time_limit"]
+    how = "was stopped" if hard else "ran out of time"
+    return (
+        f"a task of level {index + 1} {how} after the time limit of {limit:g} s per task "
+        "(QHSM_TASK_SOFT_TIME_LIMIT, per solver QHSM_SOLVER_TIME_LIMITS); use fewer reads or "
+        "sweeps, a smaller image, or ask the operator to raise the limit"
+    )
 
 
 def _fail(job_id: str, message: str) -> dict:

@@ -21,7 +21,7 @@ from api.uploads import (
 from api.users import UserStore, user_store
 from shared.config import MatchConfig
 from shared.images import disparity_bytes, preview_png
-from shared.solvers import UnknownSolver
+from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
 from shared.solvers.qpu_time import is_metered, job_seconds
 from workers.app import START_JOB
 from workers.quota import QuotaExceeded
@@ -90,6 +90,30 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     )
 
 
+def bounded_params(config: MatchConfig) -> MatchConfig:
+    """422 unless every solver parameter is inside the solver's schema (the registry's)."""
+    try:
+        params = check_params(config.solver, config.solver_params)
+    except InvalidSolverParams as error:
+        raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
+    return config.model_copy(update={"solver_params": params})
+
+
+def check_active_jobs(principal: Principal, svc: Services) -> None:
+    """429 when the user already has ``Settings.max_active_jobs_per_user`` jobs in flight."""
+    cap = svc.settings.max_active_jobs_per_user
+    if cap is None:
+        return
+    active = svc.store.active_jobs(principal.name)
+    if active >= cap:
+        raise HTTPException(
+            http.HTTP_429_TOO_MANY_REQUESTS,
+            f"user {principal.name!r} already has {active} jobs queued or running, the limit "
+            f"per user (QHSM_MAX_ACTIVE_JOBS_PER_USER={cap}); wait for one to finish or cancel "
+            "one (DELETE /v1/jobs/{id}), then submit again",
+        )
+
+
 def check_budget(
     config: MatchConfig, shape: tuple[int, int], principal: Principal, users: UserStore
 ) -> None:
@@ -120,7 +144,11 @@ def check_budget(
         413: {"description": "File or image too large"},
         415: {"description": "Not a supported image format"},
         403: {"description": "QPU budget too small for the job's estimate"},
-        422: {"description": "Invalid parameters, sizes, or solver"},
+        429: {"description": "Too many of the user's jobs are queued or running"},
+        422: {
+            "description": "Invalid parameters (solver_params outside their range), sizes, or "
+            "solver"
+        },
     },
 )
 def create_job(
@@ -140,8 +168,10 @@ def create_job(
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     settings = svc.settings
+    check_active_jobs(principal, svc)
     config = parse_config(params)
     check_solver(config, svc)
+    config = bounded_params(config)
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
@@ -203,7 +233,8 @@ def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     responses={**NOT_FOUND, 409: {"description": "The job already finished"}},
 )
 def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
-    """Cancel a queued or running job: bundles not solved yet are not solved."""
+    """Cancel a queued or running job: its running solver tasks are terminated and bundles
+    not solved yet are not solved."""
     record = find_job(job_id, svc, principal)
     moved = svc.store.transition(job_id, JobState.CANCELLED, ACTIVE)
     if moved is None:
@@ -215,7 +246,19 @@ def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
             )
     else:
         record = moved
+    stop_tasks(record, svc)
     return status_of(record, svc)
+
+
+def stop_tasks(record: JobRecord, svc: Services) -> None:
+    """Revoke the cancelled job's running solver tasks and terminate the processes running
+    them (SIGKILL: a solver in native code ignores anything softer; metered solvers get
+    SIGTERM so their QPU slot and budget reservation are released on the way out)."""
+    running = svc.store.running_tasks(record.id)
+    if not running:
+        return
+    signal = "SIGTERM" if is_metered(record.config.solver) else "SIGKILL"
+    svc.celery.control.revoke(running, terminate=True, signal=signal)
 
 
 def finished_result(job_id: str, svc: Services, principal: Principal):
