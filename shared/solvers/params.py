@@ -83,7 +83,14 @@ SchedulePoint = tuple[Annotated[float, Ge(0), Le(2000)], Annotated[float, Ge(0),
 
 
 class QPUParams(SolverParams):
-    """``qpu`` and ``qpu-sim``: D-Wave's sampler (ranges of Advantage systems)."""
+    """``qpu`` and ``qpu-sim``: D-Wave's sampler (ranges of Advantage systems).
+
+    The parameters that set the work done are bounded here; any other ``DWaveSampler``
+    parameter (``answer_mode``, ``flux_biases``, ...) is passed on and checked by the sampler
+    itself (the QPU's SAPI server, or the offline mock), which refuses unknown ones.
+    """
+
+    model_config = ConfigDict(extra="allow")
 
     num_reads: int = Field(500, ge=1, le=10_000)
     annealing_time: float | None = Field(None, ge=0.5, le=2000, description="Microseconds")
