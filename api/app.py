@@ -10,7 +10,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from api.deps import QueueInspector, Services
-from api.routes import health, jobs, solvers, usage
+from api.routes import health, jobs, metrics, solvers, usage
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
@@ -43,6 +43,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)
     app.include_router(health.router)
+    app.include_router(metrics.router)  # admin key checked by the route
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 
     @app.exception_handler(UploadError)

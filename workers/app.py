@@ -54,8 +54,9 @@ def celery_config(settings: Settings) -> dict:
         "task_acks_late": True,
         "task_reject_on_worker_lost": True,
         "worker_prefetch_multiplier": 1,
-        "worker_send_task_events": False,
-        "task_send_sent_event": False,
+        # task events for Flower and `celery events` (docker compose --profile monitoring)
+        "worker_send_task_events": True,
+        "task_send_sent_event": True,
     }
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import time
 
 from celery import Task, signals
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
@@ -27,6 +28,7 @@ from workers.app import (
 )
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
+from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +36,7 @@ settings = get_settings()
 load_plugins(settings)
 _store: JobStore | None = None
 _meter: QpuMeter | None = None
+_telemetry: Telemetry | None = None
 
 
 def meter() -> QpuMeter:
@@ -42,6 +45,14 @@ def meter() -> QpuMeter:
     if _meter is None:
         _meter = QpuMeter.from_settings(settings, store().redis)
     return _meter
+
+
+def telemetry() -> Telemetry:
+    """This process's metrics writer (``workers.telemetry``), sharing the store's connection."""
+    global _telemetry
+    if _telemetry is None:
+        _telemetry = Telemetry(store().redis, settings.key_prefix)
+    return _telemetry
 
 
 def store() -> JobStore:
@@ -68,9 +79,10 @@ def install_embedding_store() -> None:
 
 @signals.worker_process_init.connect
 def _init_process(**_: object) -> None:
-    global _store, _meter
+    global _store, _meter, _telemetry
     _store = None
     _meter = None
+    _telemetry = None
     install_embedding_store()
 
 
@@ -109,8 +121,12 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     task_id = self.request.id
     if task_id:
         store().task_started(job_id, task_id)
+    started = time.perf_counter()
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
+        if result is not None:
+            queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
+            telemetry().task_done(queue, time.perf_counter() - started, len(result["bundles"]))
     except SoftTimeLimitExceeded:
         return _fail(job_id, time_limit_message(job_id, index, hard=False))
     except TransientSolverError as error:
