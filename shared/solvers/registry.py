@@ -34,6 +34,11 @@ _PARAMS: dict[str, type[schemas.SolverParams]] = {
     "hybrid": schemas.LeapHybridParams,
     "hybrid-sim": schemas.KerberosParams,
 }
+#: Solvers that sample the QUBO heuristically: domain-wall rows are far easier for them
+#: (README, "Solvers"; docs/benchmarks.md). The exact ones keep the paper's one-hot.
+_DOMAIN_WALL_SOLVERS = frozenset(
+    {"sa", "tabu", "steepest-descent", "qpu", "qpu-sim", "hybrid", "hybrid-sim"}
+)
 _INSTANCES: dict[str, Solver] = {}
 
 
@@ -80,3 +85,8 @@ def params_schema(name: str) -> type[schemas.SolverParams]:
 def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
     """``params`` checked against the solver's schema (``InvalidSolverParams`` says why not)."""
     return schemas.check(params_schema(name), name, params)
+
+
+def recommended_encoding(name: str) -> str:
+    """The label encoding to use with ``name`` when none is asked for (``qhsm bench``)."""
+    return "domain-wall" if name in _DOMAIN_WALL_SOLVERS else "one-hot"
