@@ -5,7 +5,8 @@ job's ``solver_params`` against it at submit, so a parameter that would run for 
 allocate hundreds of gigabytes (``num_sweeps=1e8``, ``num_reads=1e9``) is a 422 that states the
 allowed range, never a stalled worker. The bounds are generous for real use: the largest preset
 of each solver (``sa``'s ``paper``: 500 reads x 1000 sweeps) is well inside them. Time spent is
-bounded separately by the solver tasks' time limits (``Settings.task_soft_time_limit``).
+bounded separately by the solver tasks' time limits (``Settings.task_soft_time_limit``); a
+per-bundle time parameter is capped at 600 s so that a bundle fits in the default limit.
 
 The models are pure pydantic (no Ocean or Gurobi import), so importing them is cheap.
 """
@@ -73,7 +74,7 @@ class DescentParams(SolverParams):
 class GurobiParams(SolverParams):
     """``gurobi``: the QUBO as a MIQP."""
 
-    time_limit: float = Field(60.0, gt=0, le=3600, description="Seconds per bundle")
+    time_limit: float = Field(60.0, gt=0, le=600, description="Seconds per bundle")
     mip_gap: float = Field(0.0, ge=0, le=1)
     threads: int = Field(1, ge=1, le=64)
 
@@ -105,14 +106,14 @@ class QPUParams(SolverParams):
 class LeapHybridParams(SolverParams):
     """``hybrid``: Leap's hybrid BQM solver."""
 
-    time_limit: float | None = Field(None, ge=3, le=3600, description="Seconds")
+    time_limit: float | None = Field(None, ge=3, le=600, description="Seconds")
 
 
 class KerberosParams(SolverParams):
     """``hybrid-sim``: dwave-hybrid's Kerberos with the mock QPU."""
 
     max_iter: int = Field(10, ge=1, le=1000)
-    max_time: float | None = Field(None, gt=0, le=3600, description="Seconds")
+    max_time: float | None = Field(None, gt=0, le=600, description="Seconds")
     convergence: int = Field(3, ge=1, le=1000)
     sa_reads: int = Field(1, ge=1, le=100)
     sa_sweeps: int = Field(1000, ge=1, le=100_000)

@@ -43,8 +43,8 @@ def test_adapter_defaults_and_presets_are_inside_their_schemas():
         ("sa", {"num_reads": 1e9}, "num_reads (int, 1..1000)"),
         ("tabu", {"timeout": 10**9}, "timeout (int, 1..60000)"),
         ("qpu-sim", {"num_reads": 0}, "num_reads (int, 1..10000)"),
-        ("hybrid-sim", {"max_time": float("inf")}, "max_time (float, 0..3600)"),
-        ("gurobi", {"TimeLimit": 1e9}, "time_limit (float, 0..3600)"),
+        ("hybrid-sim", {"max_time": float("inf")}, "max_time (float, 0..600)"),
+        ("gurobi", {"TimeLimit": 1e9}, "time_limit (float, 0..600)"),
         ("exact", {"num_reads": 1}, "Allowed parameters: warm_start (bool)"),
     ],
 )
