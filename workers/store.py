@@ -5,6 +5,7 @@ Keys (all under ``{key_prefix}:``):
     job:{id}                 JSON ``JobRecord`` (expires ``result_ttl_seconds`` after the end)
     jobs                     sorted set id -> creation time (newest-first listing)
     jobs:owner:{user}        the same, one user's jobs
+    jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:result          .npy bytes of the full-resolution disparity
@@ -161,6 +162,7 @@ class JobStore:
         with self.redis.pipeline() as pipe:
             pipe.set(self.key("job", record.id), record.model_dump_json())
             pipe.zadd(self.key("jobs"), {record.id: record.created_at.timestamp()})
+            pipe.hset(self.key("jobs", "active"), record.id, record.owner or "")
             if record.owner is not None:
                 pipe.zadd(
                     self.key("jobs", "owner", record.owner),
@@ -242,6 +244,7 @@ class JobStore:
 
     def _finished(self, job_id: str) -> None:
         """A job reached a final state: drop what only running jobs need."""
+        self.redis.hdel(self.key("jobs", "active"), job_id)
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
@@ -264,15 +267,26 @@ class JobStore:
             self.redis.zrem(index, *expired)
         return records, int(self.redis.zcard(index))
 
-    def active_jobs(self, owner: str, batch: int = 500) -> int:
-        """How many of ``owner``'s jobs are queued or running (the per-user cap counts them)."""
-        index = self.key("jobs", "owner", owner)
-        count, start = 0, 0
-        while ids := self.redis.zrevrange(index, start, start + batch - 1):
-            raws = self.redis.mget([self.key("job", raw.decode()) for raw in ids])
-            count += sum(json.loads(raw).get("state") in ACTIVE for raw in filter(None, raws))
-            start += batch
-        return count
+    def active_jobs(self, owner: str) -> int:
+        """How many of ``owner``'s jobs are queued or running (the per-user cap counts them).
+
+        Reads the small ``jobs:active`` index, not the owner's history; entries whose record
+        is gone or already final (a crash between the two writes) are dropped on the way."""
+        index = self.key("jobs", "active")
+        ids = [
+            job.decode() for job, who in self.redis.hgetall(index).items() if who.decode() == owner
+        ]
+        if not ids:
+            return 0
+        raws = self.redis.mget([self.key("job", job_id) for job_id in ids])
+        stale = [
+            job_id
+            for job_id, raw in zip(ids, raws, strict=True)
+            if raw is None or json.loads(raw).get("state") not in ACTIVE
+        ]
+        if stale:
+            self.redis.hdel(index, *stale)
+        return len(ids) - len(stale)
 
     # progress and usage -----------------------------------------------------------------------
 

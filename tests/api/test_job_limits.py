@@ -66,3 +66,22 @@ def test_a_user_with_too_many_jobs_in_flight_gets_429(api_settings):
 
         assert client.delete(f"/v1/jobs/{first.json()['id']}", headers=mine).status_code == 200
         assert submit(client, {"solver": "exact"}, mine).status_code == 202
+
+
+def test_the_cap_counts_only_jobs_still_in_flight(api_settings):
+    """A finished job leaves the count at once; a record that vanished is dropped from it."""
+    from workers.store import JobState, JobStore
+
+    store = JobStore.from_settings(api_settings)
+    users = UserStore.from_settings(api_settings)
+    name = f"counted-{uuid.uuid4().hex[:6]}"
+    _, key = users.create_user(name)
+    headers = {"Authorization": f"Bearer {key}"}
+    with TestClient(create_app(api_settings), raise_server_exceptions=False) as client:
+        ids = [submit(client, {"solver": "exact"}, headers).json()["id"] for _ in range(3)]
+    assert store.active_jobs(name) == 3
+    store.transition(ids[0], JobState.FAILED, {JobState.QUEUED}, error="test")
+    assert store.active_jobs(name) == 2
+    store.redis.delete(store.key("job", ids[1]))
+    assert store.active_jobs(name) == 1
+    assert store.redis.hlen(store.key("jobs", "active")) >= 1
