@@ -67,6 +67,17 @@ def task_time_limits(settings: Settings, solver: str) -> dict[str, float]:
     return {"soft_time_limit": soft, "time_limit": soft + settings.task_time_limit_grace}
 
 
+def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
+    """Revoke tasks and kill the pool processes running them, so a cancelled or failed job
+    frees its workers at once. SIGKILL: a solver in native code ignores anything softer;
+    metered solvers get SIGTERM so their QPU slot and budget reservation are released."""
+    from shared.solvers.qpu_time import is_metered
+
+    if task_ids:
+        signal = "SIGTERM" if is_metered(solver) else "SIGKILL"
+        celery.control.revoke(task_ids, terminate=True, signal=signal)
+
+
 def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> Celery:
     """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
     settings = settings or get_settings()

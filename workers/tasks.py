@@ -25,6 +25,7 @@ from workers.app import (
     app,
     load_plugins,
     task_time_limits,
+    terminate_tasks,
 )
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
@@ -128,25 +129,28 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
             queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
             telemetry().task_done(queue, time.perf_counter() - started, len(result["bundles"]))
     except SoftTimeLimitExceeded:
-        return _fail(job_id, time_limit_message(job_id, index, hard=False))
+        return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
     except TransientSolverError as error:
         retries = self.request.retries
         if retries < settings.task_retries:
             delay = orchestration.retry_delay(settings, retries)
             log.warning("job %s: transient solver error, retry in %.1f s: %s", job_id, delay, error)
             raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
-        return _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+        return _fail(
+            job_id, f"{error} (still failing after {retries} retries; try again later)", task_id
+        )
     except QuotaExceeded as error:
         message = f"stopped: {error}; bundles not solved yet were not sent"
         store().fail(job_id, message)
         return {"error": message}
     except SolverError as error:
-        return _fail(job_id, str(error))
+        return _fail(job_id, str(error), task_id)
     except (LevelInputsMissing, orchestration.JobGone):
         return {"skipped": True}
     except Exception:
         log.exception("job %s: bundle task of level %d failed", job_id, index)
-        return _fail(job_id, orchestration.internal_error(job_id, f"solving level {index + 1}"))
+        message = orchestration.internal_error(job_id, f"solving level {index + 1}")
+        return _fail(job_id, message, task_id)
     finally:
         if task_id:
             store().task_ended(job_id, task_id)
@@ -167,9 +171,13 @@ def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:
     )
 
 
-def _fail(job_id: str, message: str) -> dict:
+def _fail(job_id: str, message: str, task_id: str | None = None) -> dict:
+    """Fail the job; its other running solver tasks are stopped (they would only waste
+    workers: their results are no longer wanted)."""
     record = store().get(job_id)
     solver = record.config.solver if record else "?"
     full = f"solver {solver!r} failed: {message}"
-    store().fail(job_id, full)
+    if store().fail(job_id, full):
+        others = [other for other in store().running_tasks(job_id) if other != task_id]
+        terminate_tasks(app, others, solver)
     return {"error": full}

@@ -23,7 +23,7 @@ from shared.config import MatchConfig
 from shared.images import disparity_bytes, preview_png
 from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
 from shared.solvers.qpu_time import is_metered, job_seconds
-from workers.app import START_JOB
+from workers.app import START_JOB, terminate_tasks
 from workers.quota import QuotaExceeded
 from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 
@@ -251,14 +251,8 @@ def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
 
 
 def stop_tasks(record: JobRecord, svc: Services) -> None:
-    """Revoke the cancelled job's running solver tasks and terminate the processes running
-    them (SIGKILL: a solver in native code ignores anything softer; metered solvers get
-    SIGTERM so their QPU slot and budget reservation are released on the way out)."""
-    running = svc.store.running_tasks(record.id)
-    if not running:
-        return
-    signal = "SIGTERM" if is_metered(record.config.solver) else "SIGKILL"
-    svc.celery.control.revoke(running, terminate=True, signal=signal)
+    """Revoke the cancelled job's running solver tasks and kill the processes running them."""
+    terminate_tasks(svc.celery, svc.store.running_tasks(record.id), record.config.solver)
 
 
 def finished_result(job_id: str, svc: Services, principal: Principal):

@@ -18,7 +18,20 @@ from types import UnionType
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 from annotated_types import Ge, Gt, Le
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+#: Most sweeps (reads x sweeps) ``sa`` may run on one bundle: 4x the paper's setting, about a
+#: minute on a full-resolution domain-wall row without fixing (1e5 sweeps/s at 336 variables).
+MAX_SA_SWEEPS = 2_000_000
+#: Most seconds a time parameter may give one bundle.
+MAX_BUNDLE_SECONDS = 600
 
 
 class SolverParams(BaseModel):
@@ -55,6 +68,21 @@ class AnnealParams(SolverParams):
             raise ValueError("beta_range must be two inverse temperatures in (0, 1e12)")
         return value
 
+    @model_validator(mode="after")
+    def _bounded_work(self) -> AnnealParams:
+        from shared.solvers.anneal import SA_PRESETS  # a preset sets what is not given here
+
+        preset = SA_PRESETS[self.preset]
+        given = self.model_fields_set
+        reads = self.num_reads if "num_reads" in given else preset["num_reads"]
+        sweeps = self.num_sweeps if "num_sweeps" in given else preset["num_sweeps"]
+        if reads * sweeps > MAX_SA_SWEEPS:
+            raise ValueError(
+                f"num_reads x num_sweeps = {reads * sweeps} is above {MAX_SA_SWEEPS} sweeps per "
+                "bundle (4x the paper's 500 x 1000); lower one of them"
+            )
+        return self
+
 
 class TabuParams(SolverParams):
     """``tabu``: dwave-samplers' tabu search."""
@@ -63,6 +91,16 @@ class TabuParams(SolverParams):
     timeout: int = Field(25, ge=1, le=60_000, description="Milliseconds per read")
     tenure: int | None = Field(None, ge=0, le=10_000)
     num_restarts: int | None = Field(None, ge=0, le=1_000_000)
+
+    @model_validator(mode="after")
+    def _bounded_time(self) -> TabuParams:
+        total = self.num_reads * self.timeout
+        if total > MAX_BUNDLE_SECONDS * 1000:
+            raise ValueError(
+                f"num_reads x timeout = {total} ms is above {MAX_BUNDLE_SECONDS} s per bundle; "
+                "lower one of them"
+            )
+        return self
 
 
 class DescentParams(SolverParams):
@@ -74,7 +112,7 @@ class DescentParams(SolverParams):
 class GurobiParams(SolverParams):
     """``gurobi``: the QUBO as a MIQP."""
 
-    time_limit: float = Field(60.0, gt=0, le=600, description="Seconds per bundle")
+    time_limit: float = Field(60.0, gt=0, le=MAX_BUNDLE_SECONDS, description="Seconds per bundle")
     mip_gap: float = Field(0.0, ge=0, le=1)
     threads: int = Field(1, ge=1, le=64)
 
@@ -106,14 +144,14 @@ class QPUParams(SolverParams):
 class LeapHybridParams(SolverParams):
     """``hybrid``: Leap's hybrid BQM solver."""
 
-    time_limit: float | None = Field(None, ge=3, le=600, description="Seconds")
+    time_limit: float | None = Field(None, ge=3, le=MAX_BUNDLE_SECONDS, description="Seconds")
 
 
 class KerberosParams(SolverParams):
     """``hybrid-sim``: dwave-hybrid's Kerberos with the mock QPU."""
 
     max_iter: int = Field(10, ge=1, le=1000)
-    max_time: float | None = Field(None, gt=0, le=600, description="Seconds")
+    max_time: float | None = Field(None, gt=0, le=MAX_BUNDLE_SECONDS, description="Seconds")
     convergence: int = Field(3, ge=1, le=1000)
     sa_reads: int = Field(1, ge=1, le=100)
     sa_sweeps: int = Field(1000, ge=1, le=100_000)
@@ -178,4 +216,4 @@ def _message(error: dict[str, Any]) -> str:
     shown = f" (got {value!r})" if isinstance(value, int | float | str) else ""
     if isinstance(value, float) and not math.isfinite(value):
         shown = f" (got {value})"
-    return f"{error['msg']}{shown}"
+    return f"{error['msg'].removeprefix('Value error, ')}{shown}"

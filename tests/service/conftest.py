@@ -38,6 +38,7 @@ MAIN_QUEUES = [
     "fake-broken",
     "fake-sleepy",
     "fake-hung",
+    "fake-split",
 ]
 ROUTED_QUEUES = ["gurobi", "fake-routed"]
 

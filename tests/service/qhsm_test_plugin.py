@@ -92,6 +92,22 @@ class _Hung(_Fake):
                 continue
 
 
+class _Split(_Fake):
+    """The first bundle ever sleeps (a busy marker names its process); every later one fails
+    after a second: a job that fails while another of its tasks still runs."""
+
+    def act(self, seed: int | None) -> None:
+        markers = Path(os.environ["QHSM_TEST_MARKERS"])
+        first = markers / "split-first"
+        try:
+            first.touch(exist_ok=False)
+        except FileExistsError:
+            time.sleep(1)
+            raise SolverError("fake-split: this bundle fails") from None
+        (markers / f"split-busy-{os.getpid()}").write_text("sleeping")
+        time.sleep(600)
+
+
 class _Unavailable(_Fake):
     def available(self) -> Availability:
         return Availability(False, "fake-unavailable needs hardware this machine lacks")
@@ -103,4 +119,5 @@ register("fake-broken", lambda: _Broken("fake-broken"))
 register("fake-routed", lambda: _Fake("fake-routed"))
 register("fake-sleepy", lambda: _Sleepy("fake-sleepy"))
 register("fake-hung", lambda: _Hung("fake-hung"))
+register("fake-split", lambda: _Split("fake-split"))
 register("fake-unavailable", lambda: _Unavailable("fake-unavailable"))

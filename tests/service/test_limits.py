@@ -34,11 +34,10 @@ def one_level(solver: str, **extra) -> dict:
     }
 
 
-#: In range, but minutes per bundle: the most a user may ask of sa (native code, no fixing).
+#: The most a user may ask of sa (native code, no fixing): about 20 s per bundle here, so a task
+#: of 4 bundles keeps its process busy for over a minute.
 HEAVY_SA = one_level(
-    "sa",
-    encoding="domain-wall",
-    solver_params={"num_reads": 1000, "num_sweeps": 100_000, "preprocess": "none"},
+    "sa", solver_params={"num_reads": 20, "num_sweeps": 100_000, "preprocess": "none"}
 )
 
 
@@ -98,6 +97,16 @@ def test_cancel_terminates_the_running_tasks_of_the_job(client, pair, workers, s
     assert harness.wait_for(client, small, timeout=30)["state"] == "succeeded"
     assert time.monotonic() - started < 30
     assert client.get(f"/v1/jobs/{heavy}").json()["state"] == "cancelled"
+
+
+def test_a_failing_task_stops_the_other_running_tasks_of_its_job(client, pair, workers, markers):
+    job_id = harness.submit(client, *pair, one_level("fake-split"))
+    status = harness.wait_for(client, job_id, timeout=30)
+    assert status["state"] == "failed" and "fake-split: this bundle fails" in status["error"]
+    [busy] = markers.glob("split-busy-*")  # the task that sleeps 600 s ...
+    pid = int(busy.name.removeprefix("split-busy-"))
+    # ... is killed with its process instead of holding a worker for 10 minutes
+    wait_until(lambda: pid not in workers["main"].children(), 10, "sleeping task killed")
 
 
 def test_orchestration_runs_while_every_solver_process_is_busy(client, pair, store):

@@ -40,11 +40,17 @@ def test_adapter_defaults_and_presets_are_inside_their_schemas():
     [
         # the two reproductions of the issue: a stalled worker and a 261 GiB allocation
         ("sa", {"num_reads": 10, "num_sweeps": 100_000_000}, "num_sweeps (int, 1..100000)"),
+        ("sa", {"num_reads": 10, "num_sweeps": 100_000_000}, "less than or equal to 100000"),
         ("sa", {"num_reads": 1e9}, "num_reads (int, 1..1000)"),
         ("tabu", {"timeout": 10**9}, "timeout (int, 1..60000)"),
+        # the work of a bundle is bounded too, presets included
+        ("sa", {"num_reads": 1000, "num_sweeps": 100_000}, "num_reads x num_sweeps = 100000000"),
+        ("sa", {"preset": "paper", "num_sweeps": 100_000}, "num_reads x num_sweeps = 50000000"),
+        ("tabu", {"num_reads": 1000, "timeout": 60_000}, "is above 600 s per bundle"),
         ("qpu-sim", {"num_reads": 0}, "num_reads (int, 1..10000)"),
         ("hybrid-sim", {"max_time": float("inf")}, "max_time (float, 0..600)"),
         ("gurobi", {"TimeLimit": 1e9}, "time_limit (float, 0..600)"),
+        ("gurobi", {"time_limit": 1e9}, "less than or equal to 600"),
         ("exact", {"num_reads": 1}, "Allowed parameters: warm_start (bool)"),
     ],
 )
