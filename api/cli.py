@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-from shared.cli import CommandError, add_match_options, config_from_args
+from shared.cli import CommandError, add_match_options, config_from_args, match_params
 from shared.config import Settings, get_settings
 
 
@@ -244,8 +244,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_submit(args: argparse.Namespace) -> int:
     from api.client import Client, ClientError, progress_bar, write_result
 
-    config = config_from_args(args)
-    params = config.model_dump(mode="json", exclude_defaults=True)
+    config_from_args(args)  # refuse bad options before uploading anything
+    params = match_params(args)
     url = args.url or get_settings().api_url
     files = [Path(args.left), Path(args.right)]
     if args.ground_truth:

@@ -20,7 +20,10 @@ from api.uploads import (
 )
 from api.users import UserStore, user_store
 from shared.config import MatchConfig
+from shared.disparity_range import resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
+from shared.pipeline import match_views
+from shared.pyramid import plan
 from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
 from shared.solvers.qpu_time import is_metered, job_seconds
 from workers.app import START_JOB, terminate_tasks
@@ -57,6 +60,7 @@ def status_of(record: JobRecord, svc: Services) -> JobStatus:
         metrics=record.metrics,
         error=record.error,
         config=record.config,
+        disparity_range=record.disparity_range,
     )
 
 
@@ -115,13 +119,17 @@ def check_active_jobs(principal: Principal, svc: Services) -> None:
 
 
 def check_budget(
-    config: MatchConfig, shape: tuple[int, int], principal: Principal, users: UserStore
+    config: MatchConfig,
+    shape: tuple[int, int],
+    max_disparity: int,
+    principal: Principal,
+    users: UserStore,
 ) -> None:
     """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
     if not is_metered(config.solver):
         return
     try:
-        estimate = job_seconds(config, shape)
+        estimate = job_seconds(config, shape, max_disparity)
     except (TypeError, ValueError, KeyError) as error:
         raise UploadError(
             http.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -175,7 +183,11 @@ def create_job(
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
-    check_budget(config, left_image.shape, principal, users)
+    # the range decides the levels, hence the job's size: resolved once, here, for good
+    disparity_range = resolve_max_disparity(
+        *match_views(left_image, right_image, config), config.max_disparity
+    )
+    check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users)
     arrays = {"left": left_image, "right": right_image}
     truth = None
     if ground_truth is not None:
@@ -191,6 +203,8 @@ def create_job(
         height=left_image.shape[0],
         ground_truth=truth,
         created_at=now(),
+        disparity_range=disparity_range.as_dict(),
+        levels_total=len(plan(config, disparity_range.max_disparity)),
     )
     svc.store.create(record, arrays)
     svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
@@ -298,4 +312,5 @@ def get_disparity(
 def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     """Colour-mapped disparity (near = warm) for a quick look."""
     record, disparity = finished_result(job_id, svc, principal)
-    return Response(preview_png(disparity, record.config.max_disparity), media_type="image/png")
+    top = record.disparity_range["max_disparity"] if record.disparity_range else None
+    return Response(preview_png(disparity, top), media_type="image/png")

@@ -41,7 +41,7 @@ import numpy as np
 from shared.bundles import bundle_rows
 from shared.config import MatchConfig
 from shared.encodings import get_codec
-from shared.pyramid import level_shape
+from shared.pyramid import level_shape, plan
 
 #: Advantage_system4.1 ``problem_timing_data`` (August 2022), microseconds.
 ADVANTAGE_TIMING_DATA: dict[str, Any] = {
@@ -230,22 +230,28 @@ def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
     return params
 
 
-def job_seconds(config: MatchConfig, shape: tuple[int, int]) -> JobEstimate:
-    """Estimate a job before accepting it, from the image ``shape`` (height, width), the
-    pyramid and the solver parameters only: nothing is built, embedded or solved.
+def job_seconds(config: MatchConfig, shape: tuple[int, int], max_disparity: int) -> JobEstimate:
+    """Estimate a job before accepting it, from the image ``shape`` (height, width), its
+    resolved ``max_disparity``, the pyramid and the solver parameters only: nothing is built,
+    embedded or solved.
 
-    Every bundle of a level is estimated at the size of the level's largest bundle.
+    Every bundle of a level is estimated at the size of the level's largest bundle; with the
+    left-right check every level has the right view's bundles too.
     """
     codec = get_codec(config.encoding)
+    views = 2 if config.lr_check else 1
     levels = []
-    for index, level in enumerate(config.levels):
+    for level in plan(config, max_disparity):
         height, width = level_shape(shape, level.downsample)
         rows = bundle_rows(height, config.bundle_height)
+        bundles = views * len(rows)
         tallest = max(stop - start for start, stop in rows)
         variables = tallest * width * codec.variables_per_pixel(level.candidates)
-        params = sampler_params(config.solver_params, warm=index > 0)
+        params = sampler_params(config.solver_params, warm=level.index > 0)
         each = bundle_seconds(config.solver, variables, params)
-        levels.append(LevelEstimate(index, (height, width), len(rows), variables, each * len(rows)))
+        levels.append(
+            LevelEstimate(level.index, (height, width), bundles, variables, each * bundles)
+        )
     return JobEstimate(
         solver=config.solver,
         seconds=float(sum(level.seconds for level in levels)),

@@ -35,7 +35,7 @@ _PARAMS: dict[str, type[schemas.SolverParams]] = {
     "hybrid-sim": schemas.KerberosParams,
 }
 #: Solvers that sample the QUBO heuristically: domain-wall rows are far easier for them
-#: (README, "Solvers"; docs/benchmarks.md). The exact ones keep the paper's one-hot.
+#: (README, "Solvers"; docs/benchmarks.md). The exact ones have no preference.
 _DOMAIN_WALL_SOLVERS = frozenset(
     {"sa", "tabu", "steepest-descent", "qpu", "qpu-sim", "hybrid", "hybrid-sim"}
 )
@@ -87,6 +87,7 @@ def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
     return schemas.check(params_schema(name), name, params)
 
 
-def recommended_encoding(name: str) -> str:
-    """The label encoding to use with ``name`` when none is asked for (``qhsm bench``)."""
-    return "domain-wall" if name in _DOMAIN_WALL_SOLVERS else "one-hot"
+def recommended_encoding(name: str) -> str | None:
+    """The label encoding to use with ``name`` when none is asked for (``qhsm bench``); None:
+    no preference (the preset decides)."""
+    return "domain-wall" if name in _DOMAIN_WALL_SOLVERS else None

@@ -105,7 +105,14 @@ def test_queued_job_lifecycle_and_listing(api):
         ids.append(response.json()["id"])
 
     status = api.get(f"/v1/jobs/{ids[0]}").json()
-    assert status["state"] == "queued" and status["progress"]["levels"] == 3
+    # max 6 px: the bin pyramid has one level (7 bins of 1 px)
+    assert status["state"] == "queued" and status["progress"]["levels"] == 1
+    assert status["disparity_range"] == {
+        "max_disparity": 6,
+        "source": "given",
+        "confirmed": 0.0,
+        "note": "",
+    }
     assert (
         status["width"] == 32 and status["height"] == 24 and status["config"]["max_disparity"] == 6
     )

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from shared.bundles import bundle_rows
 from shared.config import MatchConfig
-from shared.pyramid import level_shape
+from shared.pyramid import level_shape, plan
 from shared.solvers import qpu_time
 from shared.solvers.qpu_time import ADVANTAGE_TIMING_DATA as DATA
 
@@ -70,16 +70,19 @@ def test_charged_seconds_prefers_the_hybrid_charge_time():
     assert qpu_time.charged_seconds({"run_time": 5.0}) == 0.0
 
 
+@pytest.mark.parametrize("preset", ["accurate", "paper"])
 @pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])
-def test_job_estimate_counts_every_bundle_of_every_level(encoding):
-    config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2,
+def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
+    config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
                          solver_params={"num_reads": 10})  # fmt: skip
-    estimate = qpu_time.job_seconds(config, (37, 50))
+    estimate = qpu_time.job_seconds(config, (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
-    assert len(estimate.levels) == len(config.levels)
-    for level, got in zip(config.levels, estimate.levels, strict=True):
+    views = 2 if preset == "accurate" else 1  # the right view's bundles too
+    plans = plan(config, 20)
+    assert len(estimate.levels) == len(plans) == 3  # paper: 1/4, 1/2, 1; bins of 4, 2, 1 px
+    for level, got in zip(plans, estimate.levels, strict=True):
         height, width = level_shape((37, 50), level.downsample)
-        assert got.bundles == len(bundle_rows(height, 2))
+        assert got.bundles == views * len(bundle_rows(height, 2))
         assert got.variables_per_bundle == 2 * width * (level.candidates + per_pixel)
         each = qpu_time.bundle_seconds("qpu-sim", got.variables_per_bundle, {"num_reads": 10})
         assert got.seconds == pytest.approx(each * got.bundles)
@@ -88,15 +91,15 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding):
 
 
 def test_unmetered_solvers_cost_nothing():
-    assert qpu_time.job_seconds(MatchConfig(solver="sa"), (40, 60)).seconds == 0.0
+    assert qpu_time.job_seconds(MatchConfig(solver="sa"), (40, 60), 16).seconds == 0.0
     assert not qpu_time.is_metered("exact") and qpu_time.is_metered("hybrid-sim")
 
 
 def test_warm_started_levels_are_estimated_as_reverse_anneals():
     cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100})
     warm = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": True})
-    cold_levels = qpu_time.job_seconds(cold, (60, 80)).levels
-    warm_levels = qpu_time.job_seconds(warm, (60, 80)).levels
+    cold_levels = qpu_time.job_seconds(cold, (60, 80), 16).levels
+    warm_levels = qpu_time.job_seconds(warm, (60, 80), 16).levels
     assert warm_levels[0] == cold_levels[0]  # the coarsest level has nothing to start from
     for cold_level, warm_level in zip(cold_levels[1:], warm_levels[1:], strict=True):
         assert warm_level.seconds != cold_level.seconds
