@@ -8,7 +8,6 @@ import time
 
 import harness
 import pytest
-from conftest import TIME_LIMIT
 
 from shared.config import LevelConfig
 from shared.synthetic import make_scene
@@ -25,6 +24,7 @@ def pair():
 
 def one_level(solver: str, **extra) -> dict:
     return {
+        "preset": "paper",
         "levels": [LevelConfig(downsample=1, candidates=8).model_dump()],
         "max_disparity": 8,
         "median": False,
@@ -63,22 +63,26 @@ def store(settings) -> JobStore:
     return JobStore.from_settings(settings)
 
 
-def test_soft_time_limit_fails_the_job_with_a_message(client, pair):
+def test_soft_time_limit_fails_the_job_with_a_message(client, pair, settings):
+    limit = settings.solver_time_limits["fake-sleepy"]
     started = time.monotonic()
     job_id = harness.submit(client, *pair, one_level("fake-sleepy"))
     status = harness.wait_for(client, job_id, timeout=30)
     assert status["state"] == "failed"
-    assert f"ran out of time after the time limit of {TIME_LIMIT:g} s per task" in status["error"]
+    assert f"ran out of time after the time limit of {limit:g} s per task" in status["error"]
     assert "QHSM_SOLVER_TIME_LIMITS" in status["error"]
     assert time.monotonic() - started < 15  # the fake would sleep 600 s
 
 
-def test_hard_time_limit_kills_a_task_that_ignores_the_soft_one(client, pair, workers, store):
+def test_hard_time_limit_kills_a_task_that_ignores_the_soft_one(
+    client, pair, workers, store, settings
+):
+    hard = settings.solver_time_limits["fake-hung"] + settings.task_time_limit_grace
     before = set(workers["main"].children())
     job_id = harness.submit(client, *pair, one_level("fake-hung"))
     status = harness.wait_for(client, job_id, timeout=30)
     assert status["state"] == "failed"
-    assert f"was stopped after the time limit of {TIME_LIMIT + 1:g} s" in status["error"]
+    assert f"was stopped after the time limit of {hard:g} s" in status["error"]
     # the stuck pool process was killed and replaced
     wait_until(lambda: before - set(workers["main"].children()), 10, "a pool process replaced")
 

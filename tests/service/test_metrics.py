@@ -35,7 +35,11 @@ def value(samples, name: str, **labels) -> float:
 def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
     scene = make_scene(16, 24, max_disparity=4, seed=8)
     left, right = harness.png(scene.left), harness.png(scene.right)
-    level = {"levels": [LevelConfig(downsample=1, candidates=4).model_dump()], "max_disparity": 4}
+    level = {
+        "preset": "paper",
+        "levels": [LevelConfig(downsample=1, candidates=4).model_dump()],
+        "max_disparity": 4,
+    }
     before = scrape(client)
 
     done = harness.submit(client, left, right, {**level, "solver": "exact"})
