@@ -118,8 +118,15 @@ def test_orchestration_runs_while_every_solver_process_is_busy(client, pair, sto
     try:
         small = harness.submit(client, *pair, one_level("exact"))
         # start_job ran and launched the first level although no solver process is free
-        status = harness.wait_for(client, small, timeout=10, states={"running"})
-        assert status["progress"]["level"] == 1 and status["progress"]["bundles_total"] == 32
+        status = wait_until(
+            lambda: (
+                (job := client.get(f"/v1/jobs/{small}").json())["progress"]["bundles_total"] and job
+            ),
+            10,
+            "the small job's first level launched",
+        )
+        assert status["state"] == "running" and status["progress"]["level"] == 1
+        assert status["progress"]["bundles_total"] == 32
     finally:
         client.delete(f"/v1/jobs/{heavy}")
     assert harness.wait_for(client, small, timeout=30)["state"] == "succeeded"

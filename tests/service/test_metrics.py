@@ -3,6 +3,7 @@ state, bundles and task times per solver, queue depths, QPU seconds per user, wa
 
 from __future__ import annotations
 
+import time
 import uuid
 
 import harness
@@ -53,7 +54,11 @@ def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
     ledger.settle(ledger.reserve(user, "job", 1.0, ttl=60), 0.25)
     Telemetry.from_settings(settings).resent(3)
 
-    after = scrape(client)
+    chunks = 16 // settings.rows_per_task
+    deadline = time.monotonic() + 10  # the chord is sent just after the job turns running
+    while (after := scrape(client)) and value(after, "qhsm_queue_depth", queue="tabu") < chunks:
+        assert time.monotonic() < deadline, "the tabu tasks never reached their queue"
+        time.sleep(0.1)
     assert value(after, "qhsm_jobs", state="succeeded") >= 1 + value(
         before, "qhsm_jobs", state="succeeded"
     )
@@ -67,7 +72,7 @@ def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
     )
     assert tasks == 16 // settings.rows_per_task
     assert value(after, "qhsm_task_seconds_sum", solver="exact") > 0
-    assert value(after, "qhsm_queue_depth", queue="tabu") == 16 // settings.rows_per_task
+    assert value(after, "qhsm_queue_depth", queue="tabu") == chunks
     assert (("qhsm_queue_depth", (("queue", settings.control_queue),))) in after
     assert value(after, "qhsm_qpu_seconds_used_total", user=user) == pytest.approx(0.25)
     resends = value(after, "qhsm_watchdog_resends_total") - value(
