@@ -295,9 +295,9 @@ class Settings(BaseSettings):
     )
     max_active_jobs_per_user: int | None = Field(
         8,
-        ge=1,
+        ge=0,
         description="Jobs one user may have queued or running at once; more is a 429 "
-        "(unset: no limit)",
+        "(0 or None: no limit)",
     )
     task_soft_time_limit: float = Field(
         900.0,

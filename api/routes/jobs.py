@@ -138,7 +138,7 @@ def bounded_params(config: MatchConfig) -> MatchConfig:
 def check_active_jobs(principal: Principal, svc: Services) -> None:
     """429 when the user already has ``Settings.max_active_jobs_per_user`` jobs in flight."""
     cap = svc.settings.max_active_jobs_per_user
-    if cap is None:
+    if not cap:  # 0 or None: no limit
         return
     active = svc.store.active_jobs(principal.name)
     if active >= cap:

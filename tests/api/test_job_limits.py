@@ -66,6 +66,9 @@ def test_a_user_with_too_many_jobs_in_flight_gets_429(api_settings):
 
         assert client.delete(f"/v1/jobs/{first.json()['id']}", headers=mine).status_code == 200
         assert submit(client, {"solver": "exact"}, mine).status_code == 202
+    unlimited = api_settings.model_copy(update={"max_active_jobs_per_user": 0})
+    with TestClient(create_app(unlimited), raise_server_exceptions=False) as client:
+        assert submit(client, {"solver": "exact"}, mine).status_code == 202  # 0: no limit
 
 
 def test_the_cap_counts_only_jobs_still_in_flight(api_settings):
