@@ -1,6 +1,7 @@
 # One image for every role; the role is the command (see docker-compose.yml):
 #   qhsm api --host 0.0.0.0                     the HTTP API
-#   celery -A workers worker -Q control,exact   a worker bound to some queues
+#   celery -A workers worker -Q exact,sa        a worker bound to some queues
+#   celery -A workers flower                    Flower (the compose profile "monitoring")
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -13,7 +14,7 @@ COPY pyproject.toml README.md ./
 COPY shared ./shared
 COPY api ./api
 COPY workers ./workers
-RUN pip install . \
+RUN pip install ".[monitoring]" \
     && useradd --create-home --uid 10001 qhsm \
     && mkdir -p /data \
     && chown qhsm /data

@@ -181,7 +181,7 @@ def register(subparsers) -> None:
     commands = admin.add_subparsers(dest="admin_command", required=True)
 
     create = commands.add_parser("create-user", help="add a user; prints their key once")
-    create.add_argument("name")
+    create.add_argument("name", help="user name: letters, digits, '_', '.', '@' or '-'")
     create.add_argument(
         "--qpu-seconds",
         type=_seconds,
@@ -196,19 +196,19 @@ def register(subparsers) -> None:
     listing.set_defaults(handler=cmd_list_users)
 
     rotate = commands.add_parser("rotate-key", help="replace a user's key; prints it once")
-    rotate.add_argument("name")
+    rotate.add_argument("name", help="user whose key is replaced")
     rotate.set_defaults(handler=cmd_rotate_key)
 
     revoke = commands.add_parser("revoke", help="disable a user's key")
-    revoke.add_argument("name")
+    revoke.add_argument("name", help="user whose key is disabled")
     revoke.set_defaults(handler=cmd_revoke)
 
     quota = commands.add_parser("set-quota", help="set a user's total QPU budget")
-    quota.add_argument("name")
+    quota.add_argument("name", help="user whose budget is set")
     quota.add_argument("seconds", type=_seconds, help="seconds, or 'unlimited'")
     quota.set_defaults(handler=cmd_set_quota)
 
     usage = commands.add_parser("usage", help="QPU time used, per user and job")
-    usage.add_argument("name", nargs="?")
+    usage.add_argument("name", nargs="?", help="one user (default: every user)")
     usage.add_argument("--json", action="store_true")
     usage.set_defaults(handler=cmd_usage)

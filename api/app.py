@@ -12,7 +12,7 @@ from api import web
 from api.access_log import quiet_polls
 from api.deps import QueueInspector, Services
 from api.middleware import ErrorBoundary, RequestGuard
-from api.routes import health, jobs, solvers, usage, users, views
+from api.routes import health, jobs, metrics, solvers, usage, users, views
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
@@ -46,6 +46,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(users.router)
     app.include_router(users.me_router)
     app.include_router(health.router)
+    app.include_router(metrics.router)  # admin key checked by the route
     web.mount(app)
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 

@@ -24,7 +24,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     serve.set_defaults(handler=cmd_serve)
 
     demo = commands.add_parser("demo", help="start the service, run one demo job, stop")
-    _stack_options(demo)
+    _stack_options(demo, port_help="API port (default: a free port, printed at start)")
     demo.add_argument("--solver", default="exact", help="solver of the demo job")
     demo.add_argument(
         "--scene",
@@ -42,17 +42,28 @@ def register(commands: argparse._SubParsersAction) -> None:
     api.set_defaults(handler=cmd_api)
 
     submit = commands.add_parser("submit", help="send a stereo pair to a running service")
-    submit.add_argument("left")
-    submit.add_argument("right")
+    submit.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
+    submit.add_argument("right", help="right view, same size, rectified")
     add_match_options(submit)
-    submit.add_argument("--url", help="API address (QHSM_API_URL, default http://127.0.0.1:8000)")
-    submit.add_argument("--wait", action="store_true", help="show progress, then download")
+    submit.add_argument(
+        "--url", help=f"API address (QHSM_API_URL; default: {get_settings().api_url})"
+    )
+    submit.add_argument(
+        "--wait",
+        action="store_true",
+        help="show progress (stderr), then download to -o, else to JOB_ID.pfm here",
+    )
     submit.add_argument("-o", "--output", help="OUT.pfm, .png or .npy (implies --wait)")
     submit.add_argument("--preview", help="also download a colour preview PNG here")
     submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
     submit.add_argument("--gt-scale", type=float, default=1.0, help="stored value per pixel")
     submit.add_argument("--gt-border", type=int, default=0, help="ignored frame, pixels")
-    submit.add_argument("--json", action="store_true", help="print the final status as JSON")
+    submit.add_argument(
+        "--json",
+        action="store_true",
+        help="print the job (or, waiting, its final status) as JSON on stdout; progress still "
+        "goes to stderr",
+    )
     submit.add_argument(
         "--key", help="API key (QHSM_API_KEY; default: the local admin key of `qhsm serve`)"
     )
@@ -68,11 +79,28 @@ def _log_level_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _stack_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--host", help="API bind address (QHSM_API_HOST, default 127.0.0.1)")
-    parser.add_argument("--port", type=int, help="API port (QHSM_API_PORT, default 8000)")
-    parser.add_argument("--data-dir", type=Path, help="uploads, logs, Redis files (QHSM_DATA_DIR)")
-    parser.add_argument("--concurrency", type=int, help="CPU worker processes (default: CPUs)")
+def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None) -> None:
+    """Options of serve and demo; the defaults shown are the settings' (environment included)."""
+    settings = get_settings()
+    parser.add_argument(
+        "--host", help=f"API bind address (QHSM_API_HOST; default: {settings.api_host})"
+    )
+    parser.add_argument(
+        "--port",
+        type=int,
+        help=port_help or f"API port (QHSM_API_PORT; default: {settings.api_port})",
+    )
+    parser.add_argument(
+        "--data-dir",
+        type=Path,
+        help=f"uploads, logs, Redis files (QHSM_DATA_DIR; default: {settings.data_dir})",
+    )
+    parser.add_argument(
+        "--concurrency",
+        type=int,
+        help="CPU worker processes (QHSM_WORKER_CONCURRENCY; default: "
+        f"{settings.worker_concurrency or 'one per CPU'})",
+    )
 
 
 def _settings(args: argparse.Namespace) -> Settings:
@@ -262,12 +290,16 @@ def cmd_submit(args: argparse.Namespace) -> int:
             names=(files[0].name, files[1].name),
         )
         if not (args.wait or args.output):
-            print(f"{job['id']} {job['state']}  {url.rstrip('/')}{job['links']['self']}")
+            if args.json:
+                print(json.dumps({**job, "url": f"{url.rstrip('/')}{job['links']['self']}"}))
+            else:
+                print(f"{job['id']} {job['state']}  {url.rstrip('/')}{job['links']['self']}")
             return 0
-        status = client.wait(job["id"], on_progress=None if args.json else progress_bar())
+        print(f"job {job['id']} {job['state']}", file=sys.stderr)
+        status = client.wait(job["id"], on_progress=progress_bar())  # stderr, in every mode
         if status["state"] != "succeeded":
             raise CommandError(f"job {job['id']} {status['state']}: {status['error']}")
-        output = Path(args.output or f"{job['id']}.pfm")
+        output = Path(args.output or f"{job['id']}.pfm").resolve()
         write_result(client, job["id"], output)
         if args.preview:
             Path(args.preview).write_bytes(client.preview(job["id"]))
@@ -275,10 +307,13 @@ def cmd_submit(args: argparse.Namespace) -> int:
         raise CommandError(str(error)) from None
     finally:
         client.close()
+    metrics = status.get("metrics")
+    scores = f"; RMSE {metrics['rmse']:.3f}, BPP {metrics['bpp']:.2f} %" if metrics else ""
+    where = "" if args.output else " (no -o given: named after the job, in this directory)"
+    line = f"wrote {output}{where}{scores}"
     if args.json:
+        print(line, file=sys.stderr)
         print(json.dumps({"output": str(output), **status}, indent=2))
     else:
-        metrics = status.get("metrics")
-        scores = f"; RMSE {metrics['rmse']:.3f}, BPP {metrics['bpp']:.2f} %" if metrics else ""
-        print(f"wrote {output}{scores}")
+        print(line)
     return 0

@@ -136,9 +136,11 @@ class Client:
         return self._request("DELETE", f"/v1/jobs/{job_id}").json()
 
 
-def progress_bar(stream: IO[str] = sys.stderr, width: int = 30) -> Callable[[dict], None]:
-    """A one-line progress bar over levels and bundles for :meth:`Client.wait`."""
+def progress_bar(stream: IO[str] | None = None, width: int = 30) -> Callable[[dict], None]:
+    """A one-line progress bar over levels and bundles for :meth:`Client.wait` (default: on
+    the ``sys.stderr`` of the call, so stdout stays free for ``--json``)."""
 
+    stream = stream or sys.stderr
     last = ""
     interactive = stream.isatty()
 

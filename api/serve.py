@@ -223,9 +223,10 @@ def wait_for_workers(celery, hostnames: list[str], timeout: float = 60.0) -> Non
 class Stack:
     """Redis (embedded unless configured) plus workers for every solver that runs here.
 
-    One CPU worker consumes the control queue and every locally available solver that does
-    not spend QPU time; QPU/hybrid solvers get their own single-process worker, the only
-    process that keeps the D-Wave token in its environment.
+    A control worker consumes only the control queue (orchestration never waits behind solver
+    work); one CPU worker consumes every locally available solver that does not spend QPU
+    time; QPU/hybrid solvers get their own single-process worker, the only process that keeps
+    the D-Wave token in its environment.
     """
 
     settings: Settings
@@ -246,7 +247,7 @@ class Stack:
             # where `qhsm admin` finds the embedded Redis while it runs
             (settings.data_dir / EMBEDDED_URL_FILE).write_text(self.redis.url + "\n")
         load_plugins(settings)
-        cpu, dwave = [settings.control_queue], []
+        cpu, dwave = [], []
         for name in solver_names():
             try:
                 solver = get_solver(name)
@@ -261,6 +262,15 @@ class Stack:
         url = settings.redis_url
         tag = os.getpid()
         cpu_env = worker_env(settings, url, dwave=False)
+        self.workers.append(  # orchestration never waits behind solver work
+            WorkerProcess(
+                f"control-{tag}",
+                [settings.control_queue],
+                settings.control_concurrency,
+                cpu_env,
+                logs / "worker-control.log",
+            ).start()
+        )
         self.workers.append(
             WorkerProcess(f"cpu-{tag}", cpu, count, cpu_env, logs / "worker-cpu.log").start()
         )

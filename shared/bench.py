@@ -183,10 +183,10 @@ class BenchOptions:
     ablation_solver: str = "exact"
     url: str | None = None
     bundle_height: int = 1
-    encoding: str | None = None  # None: the preset's
+    encoding: str | None = None  # None: the solver's recommended one, else the preset's
     seed: int = 0
     solver_params: dict[str, dict[str, Any]] = field(default_factory=dict)
-    processes: int = 1
+    processes: int = 0
     scale: float | None = None
     border: int | None = None
     max_disparity: int | None = None
@@ -241,6 +241,14 @@ def variants(options: BenchOptions) -> list[Variant]:
     return chosen
 
 
+def encoding_for(solver: str, options: BenchOptions) -> str | None:
+    """The asked-for encoding, else the solver's recommended one (the registry's: domain-wall
+    for the annealers), else None: the run's preset decides."""
+    from shared.solvers.registry import recommended_encoding
+
+    return options.encoding or recommended_encoding(solver)
+
+
 def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> MatchConfig:
     assert variant.solver is not None
     return MatchConfig(
@@ -248,7 +256,7 @@ def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> Match
         solver=variant.solver,
         max_disparity=scene.max_disparity,
         bundle_height=options.bundle_height,
-        encoding=options.encoding,
+        encoding=encoding_for(variant.solver, options),
         seed=options.seed,
         solver_params={
             **options.solver_params.get("*", {}),
@@ -278,12 +286,13 @@ def paper_figure(variant: Variant, scene: str) -> dict | None:
 SceneRunner = Callable[[Scene, np.ndarray, np.ndarray, MatchConfig], RunOutput]
 
 
-def local_runner(processes: int = 1) -> SceneRunner:
-    """Run the one pipeline in this process (``processes`` > 1: a local process pool)."""
+def local_runner(processes: int = 0) -> SceneRunner:
+    """Run the one pipeline here: ``processes`` 1 in this process, else a local process pool
+    (0: one process per core)."""
     from shared.pipeline import run_pipeline
 
     def run(scene: Scene, left: np.ndarray, right: np.ndarray, config: MatchConfig) -> RunOutput:
-        if processes > 1:
+        if processes != 1:
             from shared.solve import ProcessPoolLevelSolver
 
             with ProcessPoolLevelSolver(processes) as solve_level:
@@ -478,23 +487,34 @@ def select_scenes(options: BenchOptions) -> list[Scene]:
 
 def run_bench(
     options: BenchOptions,
-    log: Callable[[str], None] = lambda line: print(line, file=sys.stderr),
+    log: Callable[[str], None] | None = None,
     command: Sequence[str] | None = None,
+    progress: bool = False,
 ) -> dict:
-    """Run every variant on every scene, write ``results.md``/``results.json``; return the data."""
+    """Run every variant on every scene, write ``results.md``/``results.json``; return the data.
+
+    ``progress`` shows a progress bar on stderr (tqdm) with the run in hand; each finished
+    run's line goes to ``log`` (default: stderr, above the bar)."""
+    from tqdm import tqdm
+
     chosen = variants(options)
     scenes = select_scenes(options)
     runner = remote_runner(options.url) if options.url else local_runner(options.processes)
     options.out.mkdir(parents=True, exist_ok=True)
     runs: list[Run] = []
-    for scene in scenes:
-        images = scene.load()
-        gt = scene.ground_truth() if scene.gt is not None else None
-        cache: dict[str, tuple[str, RunOutput]] = {}
-        for variant in chosen:
-            run = run_one(variant, scene, images, gt, options, runner, cache)
-            runs.append(run)
-            log(_log_line(run))
+    bar = tqdm(total=len(scenes) * len(chosen), unit="run", file=sys.stderr, disable=not progress)
+    log = log or (lambda line: bar.write(line, file=sys.stderr))
+    with bar:
+        for scene in scenes:
+            images = scene.load()
+            gt = scene.ground_truth() if scene.gt is not None else None
+            cache: dict[str, tuple[str, RunOutput]] = {}
+            for variant in chosen:
+                bar.set_description(f"{scene.name} {variant.key}")
+                run = run_one(variant, scene, images, gt, options, runner, cache)
+                runs.append(run)
+                log(_log_line(run))
+                bar.update()
     results = {
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "command": list(command) if command is not None else None,

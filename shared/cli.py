@@ -27,8 +27,37 @@ EXIT_USAGE = 2
 EXIT_FAILED = 1
 
 
+DESCRIPTION = (
+    "Quantum-hybrid stereo matching: disparity maps from rectified stereo pairs, in this process "
+    "(match, eval, bench) or through the job service (serve, submit, admin). "
+    "`qhsm COMMAND --help` shows a command's options."
+)
+#: ``qhsm bench --encoding auto``: each solver's recommended encoding, else the preset's.
+AUTO_ENCODING = "auto"
+
+
 class CommandError(Exception):
     """A user-facing failure: printed as ``qhsm: <message>`` with exit status 1."""
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default, except where there is none to show (unset, off, empty) or
+    the help text already says it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        default = action.default
+        nothing = default is None or default is False or default == [] or default == "==SUPPRESS=="
+        if nothing or "default" in (action.help or "").lower():  # or the help says it
+            return action.help
+        return super()._get_help_string(action)
+
+
+class Parser(argparse.ArgumentParser):
+    """``qhsm``'s parser: every subcommand (they inherit the class) shows its defaults."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
 
 
 def _field_help(name: str, text: str = "") -> str:
@@ -244,7 +273,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         ablation_solver=args.ablation_solver,
         url=args.url,
         bundle_height=args.bundle_height,
-        encoding=args.encoding,
+        encoding=None if args.encoding == AUTO_ENCODING else args.encoding,
         seed=args.seed,
         solver_params=parse_solver_params(args.param),
         processes=args.processes,
@@ -252,7 +281,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         border=args.border,
         max_disparity=args.max_disparity,
     )
-    run_bench(options, command=["qhsm", *sys.argv[1:]])
+    run_bench(options, command=["qhsm", *sys.argv[1:]], progress=True)
     print(f"wrote {options.out / 'results.md'} and {options.out / 'results.json'}")
     return 0
 
@@ -301,12 +330,12 @@ def cmd_datasets_list(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="qhsm", description=__doc__.splitlines()[0])
+    parser = Parser(prog="qhsm", description=DESCRIPTION)
     commands = parser.add_subparsers(dest="command", required=True)
 
     match = commands.add_parser("match", help="match a stereo pair in this process")
-    match.add_argument("left")
-    match.add_argument("right")
+    match.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
+    match.add_argument("right", help="right view, same size, rectified")
     match.add_argument("-o", "--output", required=True, help="OUT.pfm, OUT.png (x256) or .npy")
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")
@@ -320,8 +349,8 @@ def build_parser() -> argparse.ArgumentParser:
     match.set_defaults(handler=cmd_match)
 
     evaluate = commands.add_parser("eval", help="score a disparity map against ground truth")
-    evaluate.add_argument("disparity")
-    evaluate.add_argument("ground_truth")
+    evaluate.add_argument("disparity", help="disparity map to score (.pfm, .png x256, .npy)")
+    evaluate.add_argument("ground_truth", help="ground truth (stored value = disparity x --scale)")
     evaluate.add_argument(
         "--scale",
         type=float,
@@ -333,7 +362,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(handler=cmd_eval)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
-    solvers.add_argument("--json", action="store_true")
+    solvers.add_argument("--json", action="store_true", help="print the list as JSON")
     solvers.set_defaults(handler=cmd_solvers)
 
     bench = commands.add_parser(
@@ -358,11 +387,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--bundle-height", type=int, default=1, help="rows per QUBO bundle")
     bench.add_argument(
         "--encoding",
-        choices=[e.value for e in Encoding],
-        help="label encoding of the QUBO solvers (default: each run's preset: domain-wall for "
-        "accurate, one-hot for paper)",
+        choices=[AUTO_ENCODING, *(e.value for e in Encoding)],
+        default=AUTO_ENCODING,
+        help="label encoding of the QUBO solvers; auto: domain-wall for the annealers (sa, tabu, "
+        "steepest-descent, qpu, hybrid and their -sim stand-ins), else each run's preset's "
+        "(domain-wall for accurate, one-hot for paper)",
     )
-    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--seed", type=int, default=0, help="seeds every bundle's solver")
     bench.add_argument(
         "--param",
         action="append",
@@ -371,7 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="solver parameter (JSON value), e.g. --param sa:num_reads=10",
     )
     bench.add_argument(
-        "--processes", type=int, default=1, help="local processes for the bundles (default 1)"
+        "--processes", type=int, default=0, help="local processes for the bundles (0: one per core)"
     )
     bench.add_argument("--scale", type=float, help="override every scene's ground-truth scale")
     bench.add_argument("--border", type=int, help="override every scene's ignored border (px)")
@@ -382,15 +413,15 @@ def build_parser() -> argparse.ArgumentParser:
     dataset_commands = datasets.add_subparsers(dest="datasets_command", required=True)
     fetch = dataset_commands.add_parser("fetch", help="download a Middlebury set (checksums)")
     fetch.add_argument("name", help="middlebury2001 or middlebury2003")
-    fetch.add_argument("directory")
+    fetch.add_argument("directory", help="folder that receives one sub-folder per scene")
     fetch.add_argument("--scenes", help="comma-separated subset of the set's scenes")
     fetch.add_argument(
         "--mirror", help="base URL replacing vision.middlebury.edu (also QHSM_DATASET_MIRROR)"
     )
     fetch.set_defaults(handler=cmd_datasets_fetch)
     listing = dataset_commands.add_parser("list", help="show the scenes found and their protocol")
-    listing.add_argument("directory")
-    listing.add_argument("--json", action="store_true")
+    listing.add_argument("directory", help="folder of scene folders")
+    listing.add_argument("--json", action="store_true", help="print the scenes as JSON")
     listing.set_defaults(handler=cmd_datasets_list)
 
     for entry in entry_points(group="qhsm.commands"):

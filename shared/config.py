@@ -295,8 +295,32 @@ class Settings(BaseSettings):
     worker_concurrency: int | None = Field(
         None, ge=1, description="Processes per `qhsm serve` CPU worker (default: CPU count)"
     )
+    control_concurrency: int = Field(
+        2, ge=1, description="Processes of the worker that runs only the control queue"
+    )
     inspect_timeout: float = Field(
         1.0, gt=0, description="Seconds to wait for workers to report their queues"
+    )
+    max_active_jobs_per_user: int | None = Field(
+        8,
+        ge=0,
+        description="Jobs one user may have queued or running at once; more is a 429 "
+        "(0 or None: no limit)",
+    )
+    task_soft_time_limit: float = Field(
+        900.0,
+        gt=0,
+        description="Seconds one solver task may run before it is stopped and its job fails "
+        "(per solver: QHSM_SOLVER_TIME_LIMITS)",
+    )
+    solver_time_limits: dict[str, float] = Field(
+        default_factory=dict,
+        description='Per-solver soft time limit of a task, seconds (JSON, e.g. {"gurobi": 3600})',
+    )
+    task_time_limit_grace: float = Field(
+        30.0,
+        gt=0,
+        description="Seconds after the soft limit at which a task that ignores it is killed",
     )
     plugins: str = Field(
         "", description="Comma-separated modules imported at start-up (register extra solvers)"

@@ -54,9 +54,28 @@ def celery_config(settings: Settings) -> dict:
         "task_acks_late": True,
         "task_reject_on_worker_lost": True,
         "worker_prefetch_multiplier": 1,
-        "worker_send_task_events": False,
-        "task_send_sent_event": False,
+        # task events for Flower and `celery events` (docker compose --profile monitoring)
+        "worker_send_task_events": True,
+        "task_send_sent_event": True,
     }
+
+
+def task_time_limits(settings: Settings, solver: str) -> dict[str, float]:
+    """Celery options bounding one solver task: the soft limit raises in the task (the job
+    fails with a message), the hard one kills a process stuck in native code."""
+    soft = settings.solver_time_limits.get(solver, settings.task_soft_time_limit)
+    return {"soft_time_limit": soft, "time_limit": soft + settings.task_time_limit_grace}
+
+
+def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
+    """Revoke tasks and kill the pool processes running them, so a cancelled or failed job
+    frees its workers at once. SIGKILL: a solver in native code ignores anything softer;
+    metered solvers get SIGTERM so their QPU slot and budget reservation are released."""
+    from shared.solvers.qpu_time import is_metered
+
+    if task_ids:
+        signal = "SIGTERM" if is_metered(solver) else "SIGKILL"
+        celery.control.revoke(task_ids, terminate=True, signal=signal)
 
 
 def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> Celery:

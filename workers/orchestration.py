@@ -29,7 +29,7 @@ from shared.pipeline import finish, finish_level, match_views, prepare_level, re
 from shared.pyramid import LevelPlan
 from shared.solve import BundleResult, LevelInputs, assemble, solve_bundles
 from shared.solvers.qpu_time import is_metered
-from workers.app import LEVEL_DONE, SOLVE_ROWS
+from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.store import ChunkReport, JobRecord, JobState, JobStore, now
 
@@ -140,8 +140,11 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     if updated is None or updated.state is not JobState.RUNNING:
         store.drop_level(record.id, inputs.index)
         return
+    limits = task_time_limits(settings, config.solver)
     header = [
-        celery.signature(SOLVE_ROWS, args=(record.id, inputs.index, chunk), queue=config.solver)
+        celery.signature(
+            SOLVE_ROWS, args=(record.id, inputs.index, chunk), queue=config.solver, **limits
+        )
         for chunk in chunks
     ]
     callback = celery.signature(

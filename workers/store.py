@@ -5,9 +5,11 @@ Keys (all under ``{key_prefix}:``):
     job:{id}                 JSON ``JobRecord`` (expires ``result_ttl_seconds`` after the end)
     jobs                     sorted set id -> creation time (newest-first listing)
     jobs:owner:{user}        the same, one user's jobs
+    jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:result          .npy bytes of the full-resolution disparity
+    job:{id}:tasks           set of the ids of the job's solver tasks running now
     job:{id}:view:{name}     what the web page shows next to the result: the left view (PNG) and
                              the ground truth (.npy); they outlive the uploads like the result
 
@@ -19,6 +21,7 @@ compare-and-set, so a cancel racing with the last fan-in resolves to exactly one
 from __future__ import annotations
 
 import io
+import json
 import logging
 import math
 import re
@@ -213,6 +216,7 @@ class JobStore:
         with self.redis.pipeline() as pipe:
             pipe.set(self.key("job", record.id), record.model_dump_json())
             pipe.zadd(self.key("jobs"), {record.id: record.created_at.timestamp()})
+            pipe.hset(self.key("jobs", "active"), record.id, record.owner or "")
             if record.owner is not None:
                 pipe.zadd(
                     self.key("jobs", "owner", record.owner),
@@ -295,6 +299,7 @@ class JobStore:
 
     def _finished(self, job_id: str) -> None:
         """A job reached a final state: drop what only running jobs need."""
+        self.redis.hdel(self.key("jobs", "active"), job_id)
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
@@ -318,6 +323,27 @@ class JobStore:
         if expired:
             self.redis.zrem(index, *expired)
         return records, int(self.redis.zcard(index))
+
+    def active_jobs(self, owner: str) -> int:
+        """How many of ``owner``'s jobs are queued or running (the per-user cap counts them).
+
+        Reads the small ``jobs:active`` index, not the owner's history; entries whose record
+        is gone or already final (a crash between the two writes) are dropped on the way."""
+        index = self.key("jobs", "active")
+        ids = [
+            job.decode() for job, who in self.redis.hgetall(index).items() if who.decode() == owner
+        ]
+        if not ids:
+            return 0
+        raws = self.redis.mget([self.key("job", job_id) for job_id in ids])
+        stale = [
+            job_id
+            for job_id, raw in zip(ids, raws, strict=True)
+            if raw is None or json.loads(raw).get("state") not in ACTIVE
+        ]
+        if stale:
+            self.redis.hdel(index, *stale)
+        return len(ids) - len(stale)
 
     # progress and usage -----------------------------------------------------------------------
 
@@ -355,6 +381,22 @@ class JobStore:
             for key, value in chunk.timing.items():
                 total[key] = total.get(key, 0.0) + value
         return total
+
+    # running solver tasks (what a cancel terminates) ------------------------------------------
+
+    def task_started(self, job_id: str, task_id: str) -> None:
+        key = self.key("job", job_id, "tasks")
+        with self.redis.pipeline() as pipe:
+            pipe.sadd(key, task_id)
+            pipe.expire(key, self.settings.task_visibility_timeout)
+            pipe.execute()
+
+    def task_ended(self, job_id: str, task_id: str) -> None:
+        self.redis.srem(self.key("job", job_id, "tasks"), task_id)
+
+    def running_tasks(self, job_id: str) -> list[str]:
+        """Ids of the job's solver tasks that started and have not ended (or were killed)."""
+        return sorted(raw.decode() for raw in self.redis.smembers(self.key("job", job_id, "tasks")))
 
     # level inputs -----------------------------------------------------------------------------
 

@@ -10,15 +10,26 @@ from __future__ import annotations
 
 import importlib
 import logging
+import time
 
-from celery import signals
+from celery import Task, signals
+from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
 from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
 from workers import orchestration
-from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB, app, load_plugins
+from workers.app import (
+    LEVEL_DONE,
+    SOLVE_ROWS,
+    START_JOB,
+    app,
+    load_plugins,
+    task_time_limits,
+    terminate_tasks,
+)
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
+from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +37,7 @@ settings = get_settings()
 load_plugins(settings)
 _store: JobStore | None = None
 _meter: QpuMeter | None = None
+_telemetry: Telemetry | None = None
 
 
 def meter() -> QpuMeter:
@@ -34,6 +46,14 @@ def meter() -> QpuMeter:
     if _meter is None:
         _meter = QpuMeter.from_settings(settings, store().redis)
     return _meter
+
+
+def telemetry() -> Telemetry:
+    """This process's metrics writer (``workers.telemetry``), sharing the store's connection."""
+    global _telemetry
+    if _telemetry is None:
+        _telemetry = Telemetry(store().redis, settings.key_prefix)
+    return _telemetry
 
 
 def store() -> JobStore:
@@ -60,9 +80,10 @@ def install_embedding_store() -> None:
 
 @signals.worker_process_init.connect
 def _init_process(**_: object) -> None:
-    global _store, _meter
+    global _store, _meter, _telemetry
     _store = None
     _meter = None
+    _telemetry = None
     install_embedding_store()
 
 
@@ -84,36 +105,79 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
         store().fail(job_id, orchestration.internal_error(job_id, f"assembling level {index + 1}"))
 
 
-@app.task(name=SOLVE_ROWS, bind=True)
+class SolverTask(Task):
+    """A solver task; a hard time limit (the pool process was killed) fails its job."""
+
+    def on_failure(self, exc, task_id, args, kwargs, einfo) -> None:
+        if isinstance(exc, TimeLimitExceeded) and args:
+            job_id, index = args[0], args[1]
+            store().task_ended(job_id, task_id)
+            _fail(job_id, time_limit_message(job_id, index, hard=True))
+
+
+@app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
 def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
     ranges = [(int(start), int(stop)) for start, stop in row_ranges]
     worker = self.request.hostname or ""
+    task_id = self.request.id
+    if task_id:
+        store().task_started(job_id, task_id)
+    started = time.perf_counter()
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
+        if result is not None:
+            queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
+            telemetry().task_done(queue, time.perf_counter() - started, len(result["bundles"]))
+    except SoftTimeLimitExceeded:
+        return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
     except TransientSolverError as error:
         retries = self.request.retries
         if retries < settings.task_retries:
             delay = orchestration.retry_delay(settings, retries)
             log.warning("job %s: transient solver error, retry in %.1f s: %s", job_id, delay, error)
             raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
-        return _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+        return _fail(
+            job_id, f"{error} (still failing after {retries} retries; try again later)", task_id
+        )
     except QuotaExceeded as error:
         message = f"stopped: {error}; bundles not solved yet were not sent"
         store().fail(job_id, message)
         return {"error": message}
     except SolverError as error:
-        return _fail(job_id, str(error))
+        return _fail(job_id, str(error), task_id)
     except (LevelInputsMissing, orchestration.JobGone):
         return {"skipped": True}
     except Exception:
         log.exception("job %s: bundle task of level %d failed", job_id, index)
-        return _fail(job_id, orchestration.internal_error(job_id, f"solving level {index + 1}"))
+        message = orchestration.internal_error(job_id, f"solving level {index + 1}")
+        return _fail(job_id, message, task_id)
+    finally:
+        if task_id:
+            store().task_ended(job_id, task_id)
     return result if result is not None else {"skipped": True}
 
 
-def _fail(job_id: str, message: str) -> dict:
+def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:
+    """What a user reads when one of the job's solver tasks ran out of time."""
+    record = store().get(job_id)
+    solver = record.config.solver if record else "?"
+    limits = task_time_limits(settings, solver)
+    limit = limits["time_limit" if hard else "soft_time_limit"]
+    how = "was stopped" if hard else "ran out of time"
+    return (
+        f"a task of level {index + 1} {how} after the time limit of {limit:g} s per task "
+        "(QHSM_TASK_SOFT_TIME_LIMIT, per solver QHSM_SOLVER_TIME_LIMITS); use fewer reads or "
+        "sweeps, a smaller image, or ask the operator to raise the limit"
+    )
+
+
+def _fail(job_id: str, message: str, task_id: str | None = None) -> dict:
+    """Fail the job; its other running solver tasks are stopped (they would only waste
+    workers: their results are no longer wanted)."""
     record = store().get(job_id)
     solver = record.config.solver if record else "?"
     full = f"solver {solver!r} failed: {message}"
-    store().fail(job_id, full)
+    if store().fail(job_id, full):
+        others = [other for other in store().running_tasks(job_id) if other != task_id]
+        terminate_tasks(app, others, solver)
     return {"error": full}

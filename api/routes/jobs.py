@@ -27,9 +27,9 @@ from shared.disparity_range import resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
-from shared.solvers import UnknownSolver
+from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
 from shared.solvers.qpu_time import is_metered, job_seconds
-from workers.app import START_JOB
+from workers.app import START_JOB, terminate_tasks
 from workers.quota import QuotaExceeded
 from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 
@@ -126,6 +126,30 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     )
 
 
+def bounded_params(config: MatchConfig) -> MatchConfig:
+    """422 unless every solver parameter is inside the solver's schema (the registry's)."""
+    try:
+        params = check_params(config.solver, config.solver_params)
+    except InvalidSolverParams as error:
+        raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
+    return config.model_copy(update={"solver_params": params})
+
+
+def check_active_jobs(principal: Principal, svc: Services) -> None:
+    """429 when the user already has ``Settings.max_active_jobs_per_user`` jobs in flight."""
+    cap = svc.settings.max_active_jobs_per_user
+    if not cap:  # 0 or None: no limit
+        return
+    active = svc.store.active_jobs(principal.name)
+    if active >= cap:
+        raise HTTPException(
+            http.HTTP_429_TOO_MANY_REQUESTS,
+            f"user {principal.name!r} already has {active} jobs queued or running, the limit "
+            f"per user (QHSM_MAX_ACTIVE_JOBS_PER_USER={cap}); wait for one to finish or cancel "
+            "one (DELETE /v1/jobs/{id}), then submit again",
+        )
+
+
 def check_budget(
     config: MatchConfig,
     shape: tuple[int, int],
@@ -160,7 +184,11 @@ def check_budget(
         413: {"description": "File or image too large"},
         415: {"description": "Not a supported image format"},
         403: {"description": "QPU budget too small for the job's estimate"},
-        422: {"description": "Invalid parameters, sizes, or solver"},
+        429: {"description": "Too many of the user's jobs are queued or running"},
+        422: {
+            "description": "Invalid parameters (solver_params outside their range), sizes, or "
+            "solver"
+        },
     },
 )
 def create_job(
@@ -190,8 +218,10 @@ def create_job(
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     settings = svc.settings
+    check_active_jobs(principal, svc)
     config = parse_config(params)
     check_solver(config, svc)
+    config = bounded_params(config)
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
@@ -260,7 +290,8 @@ def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     responses={**NOT_FOUND, 409: {"description": "The job already finished"}},
 )
 def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
-    """Cancel a queued or running job: bundles not solved yet are not solved."""
+    """Cancel a queued or running job: its running solver tasks are terminated and bundles
+    not solved yet are not solved."""
     record = find_job(job_id, svc, principal)
     moved = svc.store.transition(job_id, JobState.CANCELLED, ACTIVE)
     if moved is None:
@@ -272,7 +303,13 @@ def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
             )
     else:
         record = moved
+    stop_tasks(record, svc)
     return status_of(record, svc)
+
+
+def stop_tasks(record: JobRecord, svc: Services) -> None:
+    """Revoke the cancelled job's running solver tasks and kill the processes running them."""
+    terminate_tasks(svc.celery, svc.store.running_tasks(record.id), record.config.solver)
 
 
 def finished_result(job_id: str, svc: Services, principal: Principal):

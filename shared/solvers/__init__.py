@@ -8,17 +8,28 @@ from shared.solvers.base import (
     SolverUnavailable,
     TransientSolverError,
 )
-from shared.solvers.registry import UnknownSolver, get_solver, register, solver_names
+from shared.solvers.params import InvalidSolverParams
+from shared.solvers.registry import (
+    UnknownSolver,
+    check_params,
+    get_solver,
+    params_schema,
+    register,
+    solver_names,
+)
 
 __all__ = [
     "Availability",
+    "InvalidSolverParams",
     "SolveResult",
     "Solver",
     "SolverError",
     "SolverUnavailable",
     "TransientSolverError",
     "UnknownSolver",
+    "check_params",
     "get_solver",
+    "params_schema",
     "register",
     "solver_names",
 ]

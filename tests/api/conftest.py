@@ -32,6 +32,7 @@ def api_settings(tmp_path_factory):
         data_dir=folder / "data",
         plugins="qhsm_test_plugin",
         inspect_timeout=0.3,
+        max_active_jobs_per_user=None,  # no worker runs here: accepted jobs stay queued
     )
     yield settings
     harness.drop_prefix(url, settings.key_prefix)

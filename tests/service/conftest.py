@@ -1,12 +1,15 @@
-"""Session fixtures: a real Redis, two real Celery workers (prefork) and an in-process API.
+"""Session fixtures: a real Redis, three real Celery workers (prefork) and an in-process API.
 
-Worker ``main`` consumes control + the CPU queues + the fakes; worker ``gurobi`` consumes only
-``gurobi`` and ``fake-routed``, so routing is observable. Everything lives under a unique key
+As under ``qhsm serve``, worker ``control`` consumes only the control queue; worker ``main``
+consumes the CPU queues + the fakes; worker ``routed`` consumes only ``gurobi`` and
+``fake-routed``, so routing is observable. ``fake-sleepy`` and ``fake-hung`` get a time limit of
+``TIME_LIMIT`` seconds per task (hard limit one second later). Everything lives under a unique key
 prefix in a dedicated Redis database and is deleted afterwards.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from pathlib import Path
@@ -26,7 +29,17 @@ from workers.app import make_celery
 PLUGIN = "qhsm_test_plugin"
 ROWS_PER_TASK = 4
 SLOW_SECONDS = 0.25
-MAIN_QUEUES = ["control", "exact", "sa", "fake-slow", "fake-flaky", "fake-broken"]
+TIME_LIMIT = 1.0
+MAIN_QUEUES = [
+    "exact",
+    "sa",
+    "fake-slow",
+    "fake-flaky",
+    "fake-broken",
+    "fake-sleepy",
+    "fake-hung",
+    "fake-split",
+]
 ROUTED_QUEUES = ["gurobi", "fake-routed"]
 
 
@@ -55,6 +68,9 @@ def settings(redis_url, service_dir) -> Settings:
         solver_rows_per_task={},
         retry_backoff=0.1,
         inspect_timeout=0.5,
+        solver_time_limits={"fake-sleepy": TIME_LIMIT, "fake-hung": TIME_LIMIT},
+        task_time_limit_grace=1.0,
+        max_active_jobs_per_user=None,
     )
     harness.drop_prefix(redis_url, prefix)
 
@@ -76,9 +92,14 @@ def workers(settings, markers, service_dir):
     env["QHSM_RETRY_BACKOFF"] = str(settings.retry_backoff)
     env["QHSM_TEST_SLOW_SECONDS"] = str(SLOW_SECONDS)
     env["QHSM_TEST_MARKERS"] = str(markers)
+    env["QHSM_SOLVER_TIME_LIMITS"] = json.dumps(settings.solver_time_limits)
+    env["QHSM_TASK_TIME_LIMIT_GRACE"] = str(settings.task_time_limit_grace)
     logs = service_dir / "logs"
     suffix = settings.key_prefix
     started = {
+        "control": WorkerProcess(
+            f"control-{suffix}", [settings.control_queue], 1, env, logs / "control.log"
+        ).start(),
         "main": WorkerProcess(f"main-{suffix}", MAIN_QUEUES, 2, env, logs / "main.log").start(),
         "routed": WorkerProcess(
             f"routed-{suffix}", ROUTED_QUEUES, 1, env, logs / "routed.log"

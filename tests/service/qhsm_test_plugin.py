@@ -73,6 +73,41 @@ class _Broken(_Fake):
         raise SolverError("fake-broken: the device is on fire; use another solver")
 
 
+class _Sleepy(_Fake):
+    """Sleeps far longer than its task's time limit (interruptible: the soft limit stops it)."""
+
+    def act(self, seed: int | None) -> None:
+        time.sleep(600)
+
+
+class _Hung(_Fake):
+    """Like a solver stuck in native code: swallows the soft time limit and keeps going."""
+
+    def act(self, seed: int | None) -> None:
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline:
+            try:
+                time.sleep(600)
+            except Exception:  # SoftTimeLimitExceeded
+                continue
+
+
+class _Split(_Fake):
+    """The first bundle ever sleeps (a busy marker names its process); every later one fails
+    after a second: a job that fails while another of its tasks still runs."""
+
+    def act(self, seed: int | None) -> None:
+        markers = Path(os.environ["QHSM_TEST_MARKERS"])
+        first = markers / "split-first"
+        try:
+            first.touch(exist_ok=False)
+        except FileExistsError:
+            time.sleep(1)
+            raise SolverError("fake-split: this bundle fails") from None
+        (markers / f"split-busy-{os.getpid()}").write_text("sleeping")
+        time.sleep(600)
+
+
 class _Unavailable(_Fake):
     def available(self) -> Availability:
         return Availability(False, "fake-unavailable needs hardware this machine lacks")
@@ -82,4 +117,7 @@ register("fake-slow", lambda: _Slow("fake-slow"))
 register("fake-flaky", lambda: _Flaky("fake-flaky"))
 register("fake-broken", lambda: _Broken("fake-broken"))
 register("fake-routed", lambda: _Fake("fake-routed"))
+register("fake-sleepy", lambda: _Sleepy("fake-sleepy"))
+register("fake-hung", lambda: _Hung("fake-hung"))
+register("fake-split", lambda: _Split("fake-split"))
 register("fake-unavailable", lambda: _Unavailable("fake-unavailable"))

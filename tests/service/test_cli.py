@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 
 import harness
@@ -94,3 +95,42 @@ def test_embedded_redis_persists_to_its_folder(tmp_path):
         server.stop()
     with pytest.raises(redis.ConnectionError):
         redis.Redis.from_url(server.url, socket_connect_timeout=0.5).ping()
+
+
+# --- issue 10, item 17: progress on stderr in every mode, JSON alone on stdout with --json,
+# and --wait without -o says where it wrote
+
+
+@pytest.fixture
+def images(tmp_path, monkeypatch):
+    scene = make_scene(16, 24, max_disparity=4, seed=5)
+    (tmp_path / "l.png").write_bytes(harness.png(scene.left))
+    (tmp_path / "r.png").write_bytes(harness.png(scene.right))
+    monkeypatch.chdir(tmp_path)
+    return ["l.png", "r.png", "--max-disparity", "4"]
+
+
+def test_json_wait_prints_progress_to_stderr_and_only_json_to_stdout(api_url, images, capsys):
+    assert main(["submit", *images, "--url", api_url, "--json", "--wait"]) == 0
+    captured = capsys.readouterr()
+    status = json.loads(captured.out)  # nothing else on stdout
+    assert status["state"] == "succeeded"
+    levels = status["progress"]["levels"]
+    assert f"succeeded level {levels}/{levels}" in " ".join(captured.err.split())  # the bar
+    written = os.path.join(os.getcwd(), f"{status['id']}.pfm")
+    assert status["output"] == written and os.path.isfile(written)
+    assert f"wrote {written} (no -o given: named after the job, in this directory)" in captured.err
+
+
+def test_wait_without_output_says_where_it_wrote(api_url, images, capsys):
+    assert main(["submit", *images, "--url", api_url, "--wait"]) == 0
+    captured = capsys.readouterr()
+    assert "bundles" in captured.err
+    [line] = captured.out.splitlines()
+    assert line.startswith(f"wrote {os.getcwd()}{os.sep}") and "no -o given" in line
+
+
+def test_json_without_wait_is_json(api_url, images, capsys):
+    assert main(["submit", *images, "--url", api_url, "--json"]) == 0
+    job = json.loads(capsys.readouterr().out)
+    assert job["state"] == "queued" and job["url"].endswith(f"/v1/jobs/{job['id']}")

@@ -16,7 +16,17 @@ from shared.config import Settings
 from shared.solvers import solver_names
 
 ROOT = Path(__file__).resolve().parents[2]
-SERVICES = {"redis", "api", "worker-cpu", "worker-gurobi", "worker-qpu", "worker-hybrid"}
+SERVICES = {
+    "redis",
+    "api",
+    "worker-control",
+    "worker-cpu",
+    "worker-gurobi",
+    "worker-qpu",
+    "worker-hybrid",
+    "flower",
+}
+WORKERS = {name for name in SERVICES if name.startswith("worker-")}
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +56,9 @@ def test_every_command_is_a_real_entry_point_on_real_queues(compose):
         command = service["command"]
         if command[0] == "qhsm":
             assert command[1] in subcommands, f"{name}: no `qhsm {command[1]}` command"
+            continue
+        if name == "flower":
+            assert command[:4] == ["celery", "-A", "workers", "flower"]
             continue
         assert command[:4] == ["celery", "-A", "workers", "worker"], name
         service_queues = option(command, "-Q").split(",")
@@ -81,3 +94,37 @@ def test_dockerfile_copies_existing_files_and_runs_a_real_command():
     assert '"qhsm", "api"' in cmd
     ignored = (ROOT / ".dockerignore").read_text().split()
     assert "data" in ignored and ".git" in ignored
+
+
+def test_orchestration_has_a_worker_of_its_own(compose):
+    control = Settings().control_queue
+    consumers = {
+        name: option(compose["services"][name]["command"], "-Q").split(",") for name in WORKERS
+    }
+    assert [name for name, queues in consumers.items() if control in queues] == ["worker-control"]
+    assert consumers["worker-control"] == [control]
+
+
+def test_every_worker_has_a_ping_health_check(compose):
+    for name in WORKERS:
+        service = compose["services"][name]
+        node = option(service["command"], "-n").replace("%h", "$$HOSTNAME")
+        check = service["healthcheck"]["test"]
+        assert check[0] == "CMD-SHELL", name
+        assert f"celery -A workers inspect ping -d {node}" in check[1], name
+        assert service["healthcheck"]["retries"] >= 1
+
+
+def test_flower_is_an_opt_in_profile_on_task_events(compose):
+    from workers.app import celery_config
+
+    flower = compose["services"]["flower"]
+    assert flower["profiles"] == ["monitoring"]
+    assert all(port.startswith("127.0.0.1:") for port in flower["ports"])  # Flower has no login
+    assert not [
+        name for name, s in compose["services"].items() if name != "flower" and "profiles" in s
+    ]
+    config = celery_config(Settings())
+    assert config["worker_send_task_events"] and config["task_send_sent_event"]
+    assert "flower" in (ROOT / "pyproject.toml").read_text()
+    assert ".[monitoring]" in (ROOT / "Dockerfile").read_text()

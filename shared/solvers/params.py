@@ -1,0 +1,219 @@
+"""Bounds of every solver parameter a job may send, one pydantic model per solver.
+
+The registry (:mod:`shared.solvers.registry`) names each solver's model; the API validates a
+job's ``solver_params`` against it at submit, so a parameter that would run for days or
+allocate hundreds of gigabytes (``num_sweeps=1e8``, ``num_reads=1e9``) is a 422 that states the
+allowed range, never a stalled worker. The bounds are generous for real use: the largest preset
+of each solver (``sa``'s ``paper``: 500 reads x 1000 sweeps) is well inside them. Time spent is
+bounded separately by the solver tasks' time limits (``Settings.task_soft_time_limit``); a
+per-bundle time parameter is capped at 600 s so that a bundle fits in the default limit.
+
+The models are pure pydantic (no Ocean or Gurobi import), so importing them is cheap.
+"""
+
+from __future__ import annotations
+
+import math
+from types import UnionType
+from typing import Annotated, Any, Literal, Union, get_args, get_origin
+
+from annotated_types import Ge, Gt, Le
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+#: Most sweeps (reads x sweeps) ``sa`` may run on one bundle: 4x the paper's setting, about a
+#: minute on a full-resolution domain-wall row without fixing (1e5 sweeps/s at 336 variables).
+MAX_SA_SWEEPS = 2_000_000
+#: Most seconds a time parameter may give one bundle.
+MAX_BUNDLE_SECONDS = 600
+
+
+class SolverParams(BaseModel):
+    """Parameters every solver accepts: ``warm_start`` steers the pipeline, not the solver."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    warm_start: bool = Field(False, description="Start each bundle from the coarser level")
+
+
+class NoParams(SolverParams):
+    """Solvers without tunable parameters (``exact``)."""
+
+
+class AnnealParams(SolverParams):
+    """``sa``: dwave-samplers' simulated annealing after roof-duality fixing."""
+
+    preset: Literal["default", "fast", "quality", "paper"] = Field(
+        "default", description="Named setting (shared.solvers.anneal.SA_PRESETS)"
+    )
+    num_reads: int = Field(20, ge=1, le=1000, description="Independent anneals per bundle")
+    num_sweeps: int = Field(1000, ge=1, le=100_000, description="Sweeps per anneal")
+    beta_range: Literal["sampler-default"] | tuple[float, float] | None = Field(
+        None, description="(hot, cold) inverse temperatures, or the sampler's own rule"
+    )
+    beta_schedule_type: Literal["linear", "geometric"] = "geometric"
+    preprocess: Literal["roof-duality", "none"] = "roof-duality"
+    polish: bool = Field(False, description="Steepest descent on every read afterwards")
+
+    @field_validator("beta_range")
+    @classmethod
+    def _positive_range(cls, value: Any) -> Any:
+        if isinstance(value, tuple) and not all(0 < b < 1e12 for b in value):
+            raise ValueError("beta_range must be two inverse temperatures in (0, 1e12)")
+        return value
+
+    @model_validator(mode="after")
+    def _bounded_work(self) -> AnnealParams:
+        from shared.solvers.anneal import SA_PRESETS  # a preset sets what is not given here
+
+        preset = SA_PRESETS[self.preset]
+        given = self.model_fields_set
+        reads = self.num_reads if "num_reads" in given else preset["num_reads"]
+        sweeps = self.num_sweeps if "num_sweeps" in given else preset["num_sweeps"]
+        if reads * sweeps > MAX_SA_SWEEPS:
+            raise ValueError(
+                f"num_reads x num_sweeps = {reads * sweeps} is above {MAX_SA_SWEEPS} sweeps per "
+                "bundle (4x the paper's 500 x 1000); lower one of them"
+            )
+        return self
+
+
+class TabuParams(SolverParams):
+    """``tabu``: dwave-samplers' tabu search."""
+
+    num_reads: int = Field(4, ge=1, le=1000)
+    timeout: int = Field(25, ge=1, le=60_000, description="Milliseconds per read")
+    tenure: int | None = Field(None, ge=0, le=10_000)
+    num_restarts: int | None = Field(None, ge=0, le=1_000_000)
+
+    @model_validator(mode="after")
+    def _bounded_time(self) -> TabuParams:
+        total = self.num_reads * self.timeout
+        if total > MAX_BUNDLE_SECONDS * 1000:
+            raise ValueError(
+                f"num_reads x timeout = {total} ms is above {MAX_BUNDLE_SECONDS} s per bundle; "
+                "lower one of them"
+            )
+        return self
+
+
+class DescentParams(SolverParams):
+    """``steepest-descent``: greedy single-flip descent."""
+
+    num_reads: int = Field(10, ge=1, le=10_000)
+
+
+class GurobiParams(SolverParams):
+    """``gurobi``: the QUBO as a MIQP."""
+
+    time_limit: float = Field(60.0, gt=0, le=MAX_BUNDLE_SECONDS, description="Seconds per bundle")
+    mip_gap: float = Field(0.0, ge=0, le=1)
+    threads: int = Field(1, ge=1, le=64)
+
+
+#: One point of a QPU anneal schedule: (time in microseconds, anneal fraction s).
+SchedulePoint = tuple[Annotated[float, Ge(0), Le(2000)], Annotated[float, Ge(0), Le(1)]]
+
+
+class QPUParams(SolverParams):
+    """``qpu`` and ``qpu-sim``: D-Wave's sampler (ranges of Advantage systems).
+
+    The parameters that set the work done are bounded here; any other ``DWaveSampler``
+    parameter (``answer_mode``, ``flux_biases``, ...) is passed on and checked by the sampler
+    itself (the QPU's SAPI server, or the offline mock), which refuses unknown ones.
+    """
+
+    model_config = ConfigDict(extra="allow")
+
+    num_reads: int = Field(500, ge=1, le=10_000)
+    annealing_time: float | None = Field(None, ge=0.5, le=2000, description="Microseconds")
+    chain_strength: Annotated[float, Gt(0), Le(1e6)] | None = None
+    anneal_schedule: list[SchedulePoint] | None = Field(None, min_length=2, max_length=12)
+    programming_thermalization: float | None = Field(None, ge=0, le=10_000)
+    readout_thermalization: float | None = Field(None, ge=0, le=10_000)
+    reduce_intersample_correlation: bool | None = None
+    auto_scale: bool | None = None
+
+
+class LeapHybridParams(SolverParams):
+    """``hybrid``: Leap's hybrid BQM solver."""
+
+    time_limit: float | None = Field(None, ge=3, le=MAX_BUNDLE_SECONDS, description="Seconds")
+
+
+class KerberosParams(SolverParams):
+    """``hybrid-sim``: dwave-hybrid's Kerberos with the mock QPU."""
+
+    max_iter: int = Field(10, ge=1, le=1000)
+    max_time: float | None = Field(None, gt=0, le=MAX_BUNDLE_SECONDS, description="Seconds")
+    convergence: int = Field(3, ge=1, le=1000)
+    sa_reads: int = Field(1, ge=1, le=100)
+    sa_sweeps: int = Field(1000, ge=1, le=100_000)
+    tabu_timeout: int = Field(100, ge=1, le=60_000, description="Milliseconds")
+    qpu_reads: int = Field(100, ge=1, le=10_000)
+    max_subproblem_size: int = Field(50, ge=1, le=1000)
+
+
+class InvalidSolverParams(ValueError):
+    """``solver_params`` outside the solver's schema; the message lists the allowed ranges."""
+
+
+def allowed(model: type[BaseModel]) -> str:
+    """The model's parameters with their ranges, e.g. ``num_reads (int, 1..1000)``."""
+    parts = []
+    for name, field in model.model_fields.items():
+        low = high = None
+        for item in field.metadata:
+            low = getattr(item, "ge", None) if getattr(item, "ge", None) is not None else low
+            low = getattr(item, "gt", None) if getattr(item, "gt", None) is not None else low
+            high = getattr(item, "le", None) if getattr(item, "le", None) is not None else high
+        kind = _kind(field.annotation)
+        bounds = f", {low:g}..{high:g}" if low is not None and high is not None else ""
+        parts.append(f"{name} ({kind}{bounds})")
+    return ", ".join(parts)
+
+
+def _kind(annotation: Any) -> str:
+    """A short, readable type: ``int``, ``'linear'|'geometric'``, ``bool``."""
+    if get_origin(annotation) is Literal:
+        return "|".join(map(str, get_args(annotation)))
+    args = [a for a in get_args(annotation) if a is not type(None)]
+    if args and get_origin(annotation) in (Union, UnionType):
+        return " or ".join(_kind(a) for a in args)
+    if get_origin(annotation) is Annotated:
+        return _kind(args[0])
+    return getattr(annotation, "__name__", None) or str(annotation).replace("typing.", "")
+
+
+def check(model: type[SolverParams], solver: str, params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` validated against ``model``: the parameters as given, with coerced types.
+
+    Raises :class:`InvalidSolverParams` naming each bad parameter and the allowed ranges.
+    """
+    try:
+        parsed = model.model_validate(params)
+    except ValidationError as error:
+        problems = "; ".join(
+            f"{'.'.join(map(str, e['loc'])) or 'solver_params'}: {_message(e)}"
+            for e in error.errors()
+        )
+        raise InvalidSolverParams(
+            f"solver_params for {solver!r}: {problems}. Allowed parameters: {allowed(model)}"
+        ) from None
+    return parsed.model_dump(mode="json", exclude_unset=True)
+
+
+def _message(error: dict[str, Any]) -> str:
+    if error["type"] == "extra_forbidden":
+        return "unknown parameter"
+    value = error.get("input")
+    shown = f" (got {value!r})" if isinstance(value, int | float | str) else ""
+    if isinstance(value, float) and not math.isfinite(value):
+        shown = f" (got {value})"
+    return f"{error['msg'].removeprefix('Value error, ')}{shown}"

@@ -1,0 +1,159 @@
+"""No user can stall the service (issue 10, item 2), with real workers: solver tasks have time
+limits, a cancel terminates the job's running tasks, and orchestration has a worker of its own,
+so a new job starts while every solver process is busy."""
+
+from __future__ import annotations
+
+import time
+
+import harness
+import pytest
+
+from shared.config import LevelConfig
+from shared.synthetic import make_scene
+from workers.store import JobStore
+
+pytestmark = pytest.mark.service
+
+
+@pytest.fixture(scope="module")
+def pair():
+    scene = make_scene(32, 48, max_disparity=8, seed=6)
+    return harness.png(scene.left), harness.png(scene.right)
+
+
+def one_level(solver: str, **extra) -> dict:
+    return {
+        "preset": "paper",
+        "levels": [LevelConfig(downsample=1, candidates=8).model_dump()],
+        "max_disparity": 8,
+        "median": False,
+        "bilateral": False,
+        "solver": solver,
+        **extra,
+    }
+
+
+#: The most a user may ask of sa (native code, no fixing): about 20 s per bundle here, so a task
+#: of 4 bundles keeps its process busy for over a minute.
+HEAVY_SA = one_level(
+    "sa", solver_params={"num_reads": 20, "num_sweeps": 100_000, "preprocess": "none"}
+)
+
+
+def wait_until(condition, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"not within {timeout} s: {what}")
+
+
+def occupy_every_solver_process(client, pair, store: JobStore) -> str:
+    """Submit the heavy sa job and wait until both processes of worker ``main`` run it."""
+    job_id = harness.submit(client, *pair, HEAVY_SA)
+    wait_until(lambda: len(store.running_tasks(job_id)) >= 2, 30, "two sa tasks running")
+    return job_id
+
+
+@pytest.fixture
+def store(settings) -> JobStore:
+    return JobStore.from_settings(settings)
+
+
+def test_soft_time_limit_fails_the_job_with_a_message(client, pair, settings):
+    limit = settings.solver_time_limits["fake-sleepy"]
+    started = time.monotonic()
+    job_id = harness.submit(client, *pair, one_level("fake-sleepy"))
+    status = harness.wait_for(client, job_id, timeout=30)
+    assert status["state"] == "failed"
+    assert f"ran out of time after the time limit of {limit:g} s per task" in status["error"]
+    assert "QHSM_SOLVER_TIME_LIMITS" in status["error"]
+    assert time.monotonic() - started < 15  # the fake would sleep 600 s
+
+
+def test_hard_time_limit_kills_a_task_that_ignores_the_soft_one(
+    client, pair, workers, store, settings
+):
+    hard = settings.solver_time_limits["fake-hung"] + settings.task_time_limit_grace
+    before = set(workers["main"].children())
+    job_id = harness.submit(client, *pair, one_level("fake-hung"))
+    status = harness.wait_for(client, job_id, timeout=30)
+    assert status["state"] == "failed"
+    assert f"was stopped after the time limit of {hard:g} s" in status["error"]
+    # the stuck pool process was killed and replaced
+    wait_until(lambda: before - set(workers["main"].children()), 10, "a pool process replaced")
+
+
+def test_cancel_terminates_the_running_tasks_of_the_job(client, pair, workers, store):
+    before = set(workers["main"].children())
+    heavy = occupy_every_solver_process(client, pair, store)
+
+    cancelled = client.delete(f"/v1/jobs/{heavy}")
+    assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    # both processes running the heavy job were killed (each sa bundle takes minutes)...
+    wait_until(lambda: not before & set(workers["main"].children()), 15, "pool processes killed")
+    # ...so another job's small solve runs at once instead of waiting for them
+    started = time.monotonic()
+    small = harness.submit(client, *pair, one_level("exact"))
+    assert harness.wait_for(client, small, timeout=30)["state"] == "succeeded"
+    assert time.monotonic() - started < 30
+    assert client.get(f"/v1/jobs/{heavy}").json()["state"] == "cancelled"
+
+
+def test_a_failing_task_stops_the_other_running_tasks_of_its_job(client, pair, workers, markers):
+    job_id = harness.submit(client, *pair, one_level("fake-split"))
+    status = harness.wait_for(client, job_id, timeout=30)
+    assert status["state"] == "failed" and "fake-split: this bundle fails" in status["error"]
+    [busy] = markers.glob("split-busy-*")  # the task that sleeps 600 s ...
+    pid = int(busy.name.removeprefix("split-busy-"))
+    # ... is killed with its process instead of holding a worker for 10 minutes
+    wait_until(lambda: pid not in workers["main"].children(), 10, "sleeping task killed")
+
+
+def test_orchestration_runs_while_every_solver_process_is_busy(client, pair, store):
+    heavy = occupy_every_solver_process(client, pair, store)
+    try:
+        small = harness.submit(client, *pair, one_level("exact"))
+        # start_job ran and launched the first level although no solver process is free
+        status = wait_until(
+            lambda: (
+                (job := client.get(f"/v1/jobs/{small}").json())["progress"]["bundles_total"] and job
+            ),
+            10,
+            "the small job's first level launched",
+        )
+        assert status["state"] == "running" and status["progress"]["level"] == 1
+        assert status["progress"]["bundles_total"] == 32
+    finally:
+        client.delete(f"/v1/jobs/{heavy}")
+    assert harness.wait_for(client, small, timeout=30)["state"] == "succeeded"
+
+
+def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_path):
+    """What `qhsm serve` starts: the control queue is consumed by one worker, and only that."""
+    from api.serve import Stack
+    from workers.app import make_celery
+
+    own = settings.model_copy(
+        update={"key_prefix": harness.unique_prefix(), "data_dir": tmp_path, "plugins": ""}
+    )
+    stack = Stack(own, concurrency=1).start()
+    started = len(stack.workers)
+    try:
+        inspect = make_celery(own, with_tasks=False).control.inspect(
+            timeout=2, destination=[worker.hostname for worker in stack.workers]
+        )
+        queues = {
+            worker: {queue["name"] for queue in consumed}
+            for worker, consumed in (inspect.active_queues() or {}).items()
+        }
+    finally:
+        stack.stop()
+        harness.drop_prefix(own.redis_url, own.key_prefix)
+    assert len(queues) == started >= 2
+    control = [worker for worker, names in queues.items() if own.control_queue in names]
+    assert len(control) == 1 and queues[control[0]] == {own.control_queue}
+    assert "sa" in set().union(*queues.values())

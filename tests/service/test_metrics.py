@@ -1,0 +1,90 @@
+"""GET /metrics (issue 10, item 20) after real jobs on real workers: Prometheus text with jobs by
+state, bundles and task times per solver, queue depths, QPU seconds per user, watchdog re-sends."""
+
+from __future__ import annotations
+
+import time
+import uuid
+
+import harness
+import pytest
+from prometheus_client.parser import text_string_to_metric_families
+
+from shared.config import LevelConfig
+from shared.synthetic import make_scene
+from workers.quota import QuotaLedger
+from workers.telemetry import Telemetry
+
+pytestmark = pytest.mark.service
+
+
+def scrape(client) -> dict[tuple[str, tuple], float]:
+    response = client.get("/metrics")
+    assert response.status_code == 200, response.text
+    assert response.headers["content-type"].startswith("text/plain; version=")
+    return {
+        (sample.name, tuple(sorted(sample.labels.items()))): sample.value
+        for family in text_string_to_metric_families(response.text)
+        for sample in family.samples
+    }
+
+
+def value(samples, name: str, **labels) -> float:
+    return samples.get((name, tuple(sorted(labels.items()))), 0.0)
+
+
+def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
+    scene = make_scene(16, 24, max_disparity=4, seed=8)
+    left, right = harness.png(scene.left), harness.png(scene.right)
+    level = {
+        "preset": "paper",
+        "levels": [LevelConfig(downsample=1, candidates=4).model_dump()],
+        "max_disparity": 4,
+    }
+    before = scrape(client)
+
+    done = harness.submit(client, left, right, {**level, "solver": "exact"})
+    assert harness.wait_for(client, done)["state"] == "succeeded"
+    # no worker of the session consumes tabu: its tasks wait in the queue
+    waiting = harness.submit(client, left, right, {**level, "solver": "tabu"})
+    harness.wait_for(client, waiting, states={"running"})
+    user = f"metered-{uuid.uuid4().hex[:6]}"
+    ledger = QuotaLedger.from_settings(settings)
+    ledger.set_limit(user, 10.0)
+    ledger.settle(ledger.reserve(user, "job", 1.0, ttl=60), 0.25)
+    Telemetry.from_settings(settings).resent(3)
+
+    chunks = 16 // settings.rows_per_task
+    deadline = time.monotonic() + 10  # the chord is sent just after the job turns running
+    while (after := scrape(client)) and value(after, "qhsm_queue_depth", queue="tabu") < chunks:
+        assert time.monotonic() < deadline, "the tabu tasks never reached their queue"
+        time.sleep(0.1)
+    assert value(after, "qhsm_jobs", state="succeeded") >= 1 + value(
+        before, "qhsm_jobs", state="succeeded"
+    )
+    assert value(after, "qhsm_jobs", state="running") >= 1
+    solved = value(after, "qhsm_bundles_solved_total", solver="exact") - value(
+        before, "qhsm_bundles_solved_total", solver="exact"
+    )
+    assert solved == 16  # one level, 16 single-row bundles
+    tasks = value(after, "qhsm_task_seconds_count", solver="exact") - value(
+        before, "qhsm_task_seconds_count", solver="exact"
+    )
+    assert tasks == 16 // settings.rows_per_task
+    assert value(after, "qhsm_task_seconds_sum", solver="exact") > 0
+    assert value(after, "qhsm_queue_depth", queue="tabu") == chunks
+    assert (("qhsm_queue_depth", (("queue", settings.control_queue),))) in after
+    assert value(after, "qhsm_qpu_seconds_used_total", user=user) == pytest.approx(0.25)
+    resends = value(after, "qhsm_watchdog_resends_total") - value(
+        before, "qhsm_watchdog_resends_total"
+    )
+    assert resends == 3
+    client.delete(f"/v1/jobs/{waiting}")
+
+
+def test_metrics_need_an_admin_key(client, settings):
+    from api.users import UserStore
+
+    _, key = UserStore.from_settings(settings).create_user(f"plain-{uuid.uuid4().hex[:6]}")
+    assert client.get("/metrics", headers={"Authorization": f"Bearer {key}"}).status_code == 403
+    assert client.get("/metrics", headers={"Authorization": ""}).status_code == 401
