@@ -3,7 +3,9 @@
 Kerberos races tabu search, simulated annealing and QPU-solved subproblems (energy-impact
 decomposition) and keeps the best; ``hybrid-sim`` gives it the offline ``MockDWaveSampler`` as
 its QPU, so it runs anywhere and its QPU timing is not real. It is a stand-in for the workflow
-shape, not for Leap's proprietary solver, and is always named as such.
+shape, not for Leap's proprietary solver, and is always named as such. It reports (and is charged)
+the ``charge_time`` Leap's hybrid solver would bill for a problem of its size
+(:func:`shared.solvers.qpu_time.hybrid_charge_seconds`).
 """
 
 from __future__ import annotations
@@ -148,5 +150,14 @@ class KerberosSolver:
             )
         except (TypeError, ValueError) as error:
             raise SolverError(f"hybrid-sim: invalid parameters: {error}") from None
-        info = {"simulated": True, "warm_start": initial_state is not None}
-        return result_from_sampleset(sampleset, bqm, started, {}, info)
+        from shared.solvers.qpu_time import hybrid_charge_seconds
+
+        charge = hybrid_charge_seconds(bqm.num_variables, params)
+        info = {
+            "simulated": True,
+            "warm_start": initial_state is not None,
+            "note": "offline Kerberos: charge_time is what Leap's hybrid solver would bill for "
+            "this problem size (its minimum time limit), not a measurement",
+        }
+        timing = {"charge_time": charge, "run_time": charge}
+        return result_from_sampleset(sampleset, bqm, started, timing, info)

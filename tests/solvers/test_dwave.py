@@ -24,10 +24,11 @@ from shared.solvers import (
     TransientSolverError,
     get_solver,
 )
+from shared.solvers import qpu_time
 from shared.solvers.dwave import SimulatedQPUSolver
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
 
-MOCK_QPU_ACCESS_US = 8550.28  # MockDWaveSampler's fixed demonstration timing
+MOCK_QPU_ACCESS_US = 8550.28  # MockDWaveSampler's fixed demonstration timing (not charged)
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +56,11 @@ def test_qpu_sim_solves_a_small_row(encoding, mock_qpu, tmp_path):
     assert result.info["simulated"] is True and result.info["num_reads"] == 500
     assert 0.0 <= result.info["chain_break_fraction"] <= 1.0
     assert result.info["qubits"] >= bqm.num_variables
-    # D-Wave's microseconds, reported in seconds
-    assert result.timing["qpu_access_time"] == pytest.approx(MOCK_QPU_ACCESS_US * 1e-6)
+    assert result.info["chains"] == bqm.num_variables
+    # Not the mock's fixed demonstration value: the timing model for the actual embedding.
+    modeled = qpu_time.qpu_access_seconds(result.info["qubits"], {"num_reads": 500})
+    assert result.timing == {"qpu_access_time": pytest.approx(modeled)}
+    assert result.timing["qpu_access_time"] != pytest.approx(MOCK_QPU_ACCESS_US * 1e-6)
     assert result.info["qpu_access_time"] == result.timing["qpu_access_time"]
 
 
@@ -88,7 +92,14 @@ def test_embedding_is_found_once_per_structure_and_persisted(mock_qpu, tmp_path)
     # A different structure (wider row) needs its own embedding.
     wider = solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=10)
     assert wider.info["embedding_cache"] == "computed"
-    assert len(list(Path(tmp_path / "embeddings").glob("*.json"))) == 2
+    files = [path.name for path in Path(tmp_path / "embeddings").glob("*.json")]
+    assert len([name for name in files if not name.startswith("size-")]) == 2
+    # Each embedding's size is kept for estimates, under the solver's name and the structure.
+    assert len([name for name in files if name.startswith("size-qpu-sim-")]) == 2
+    digest = first.info["embedding_key"].rsplit("-", 1)[1]
+    size = EmbeddingCache(store).known_size("qpu-sim", digest)
+    assert size is not None and size.qubits == first.info["qubits"]
+    assert size.chains == 6 * 3 and size.longest_chain == first.info["longest_chain"]
 
 
 def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
