@@ -23,8 +23,8 @@ from shared.solvers import (
     SolverUnavailable,
     TransientSolverError,
     get_solver,
+    qpu_time,
 )
-from shared.solvers import qpu_time
 from shared.solvers.dwave import SimulatedQPUSolver
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
 
