@@ -65,6 +65,31 @@ def _seconds(timing: dict[str, Any]) -> dict[str, float]:
     return {key: float(value) * 1e-6 for key, value in timing.items() if _is_number(value)}
 
 
+class _TokenScrubber(logging.Filter):
+    """Replaces the API token in log records: dwave-cloud-client logs its whole configuration,
+    token included, at DEBUG level when a client is created."""
+
+    def __init__(self, secret: str) -> None:
+        super().__init__()
+        self.secret = secret
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if self.secret in message:
+            record.msg, record.args = message.replace(self.secret, "***"), ()
+        return True
+
+
+def scrub_cloud_logs(secret: str) -> None:
+    """Put a :class:`_TokenScrubber` on every ``dwave.cloud`` logger (a filter on a parent logger
+    does not see its children's records, so each one gets its own)."""
+    names = [n for n in list(logging.root.manager.loggerDict) if n.startswith("dwave.cloud.")]
+    for name in ["dwave.cloud", *names]:
+        logger = logging.getLogger(name)
+        if not any(getattr(f, "secret", None) == secret for f in logger.filters):
+            logger.addFilter(_TokenScrubber(secret))
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
@@ -235,6 +260,16 @@ class _EmbeddedQPU:
                 f"{self.name}: D-Wave did not answer in time or the connection failed "
                 f"({detail}); retry later"
             )
+        if isinstance(
+            error,
+            cloud.ProblemStructureError
+            | dimod.exceptions.BinaryQuadraticModelStructureError
+            | api.ResourceBadRequestError,
+        ):
+            return SolverError(
+                f"{self.name}: D-Wave refused the problem as too large or not fitting the solver "
+                f"({detail}); use smaller bundles (--bundle-height 1) or --encoding domain-wall"
+            )
         if isinstance(error, cloud.ConfigFileError):
             return SolverUnavailable(f"{self.name}: invalid D-Wave configuration: {detail}")
         return SolverError(f"{self.name}: D-Wave sampling failed: {detail}")
@@ -286,7 +321,10 @@ class QPUSolver(_EmbeddedQPU):
             options["region"] = settings.dwave_region
         if settings.dwave_endpoint:
             options["endpoint"] = settings.dwave_endpoint
-        return DWaveSampler(**options)
+        scrub_cloud_logs(options["token"])
+        sampler = DWaveSampler(**options)
+        scrub_cloud_logs(options["token"])  # loggers of modules the client imported lazily
+        return sampler
 
 
 class SimulatedQPUSolver(_EmbeddedQPU):

@@ -24,7 +24,7 @@ from shared.solvers.base import (
     SolverUnavailable,
     result_from_sampleset,
 )
-from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver
+from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver, scrub_cloud_logs
 
 #: Kerberos settings sized for stereo bundles (its own defaults run 100 iterations of 10k sweeps).
 KERBEROS_DEFAULTS: dict[str, Any] = {
@@ -67,7 +67,10 @@ class LeapHybridSolver(QPUSolver):
             options["region"] = settings.dwave_region
         if settings.dwave_endpoint:
             options["endpoint"] = settings.dwave_endpoint
-        return LeapHybridSampler(**options)
+        scrub_cloud_logs(options["token"])
+        sampler = LeapHybridSampler(**options)
+        scrub_cloud_logs(options["token"])
+        return sampler
 
     def solve(
         self,
@@ -82,12 +85,14 @@ class LeapHybridSolver(QPUSolver):
             with self._lock:
                 if self._sampler is None:
                     self._sampler = self._make_sampler()
+            self._check_size(bqm)
             sampleset = self._sampler.sample(bqm, **params)
             sampleset.resolve()
         except SolverError:
             raise
         except Exception as error:
             raise self._translate(error) from None
+        # Leap reports microseconds, like the QPU
         timing = {
             key: float(value) * 1e-6
             for key, value in sampleset.info.items()
@@ -100,6 +105,17 @@ class LeapHybridSolver(QPUSolver):
             "warm_start_ignored": initial_state is not None,
         }
         return result_from_sampleset(sampleset, bqm, started, timing, info)
+
+
+    def _check_size(self, bqm: dimod.BinaryQuadraticModel) -> None:
+        """Refuse what the solver would refuse after a long upload (its size limits)."""
+        limit = self._sampler.properties.get("maximum_number_of_variables")
+        if limit is not None and bqm.num_variables > int(limit):
+            raise SolverError(
+                f"{self.name}: the problem is too large for the hybrid solver "
+                f"({bqm.num_variables} variables, at most {limit} variables); use smaller "
+                "bundles (--bundle-height) or --encoding domain-wall"
+            )
 
 
 class KerberosSolver:
