@@ -238,6 +238,13 @@ def find_embedding(
     import minorminer
     import networkx as nx
 
+    qubits = len({qubit for edge in target_edges for qubit in edge})
+    if bqm.num_variables > qubits:
+        raise SolverError(
+            f"this bundle is too large for the QPU: {bqm.num_variables} variables, the QPU has "
+            f"{qubits} qubits; use a smaller bundle height, --encoding domain-wall, or a "
+            "coarser level"
+        )
     source = nx.Graph()
     source.add_nodes_from(range(bqm.num_variables))
     source.add_edges_from(structure_edges(bqm).tolist())

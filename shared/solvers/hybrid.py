@@ -106,7 +106,6 @@ class LeapHybridSolver(QPUSolver):
         }
         return result_from_sampleset(sampleset, bqm, started, timing, info)
 
-
     def _check_size(self, bqm: dimod.BinaryQuadraticModel) -> None:
         """Refuse what the solver would refuse after a long upload (its size limits)."""
         limit = self._sampler.properties.get("maximum_number_of_variables")

@@ -1,4 +1,4 @@
-"""The qpu code path on MockDWaveSampler, its embedding cache and its error translation."""
+"""The qpu code path on MockDWaveSampler and its embedding cache (errors: test_dwave_cloud)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import requests
-from dwave.cloud import exceptions as cloud
-from dwave.cloud.api import exceptions as api
 from solver_helpers import optimum, stereo_costs
 
 from shared.encodings import get_codec
@@ -21,7 +18,6 @@ from shared.energy import mrf_energy
 from shared.solvers import (
     SolverError,
     SolverUnavailable,
-    TransientSolverError,
     get_solver,
     qpu_time,
 )
@@ -145,30 +141,6 @@ def test_no_embedding_is_a_clear_solver_error(tmp_path):
         cache.lookup(bqm, path, "path6", timeout=1)
     assert time.perf_counter() - started < 0.5
     assert not list(tmp_path.glob("*.json"))
-
-
-@pytest.mark.parametrize(
-    ("error", "kind", "words"),
-    [
-        (cloud.SolverAuthenticationError(), SolverUnavailable, "DWAVE_API_TOKEN"),
-        (api.ResourceLimitsExceededError(error_code=429), TransientSolverError, "429"),
-        (cloud.SolverOfflineError(), TransientSolverError, "offline"),
-        (api.RequestTimeout(), TransientSolverError, "retry later"),
-        (cloud.PollingTimeout(), TransientSolverError, "retry later"),
-        (requests.ConnectionError("refused"), TransientSolverError, "connection failed"),
-        (cloud.SolverFailureError("bad h range"), SolverError, "sampling failed"),
-    ],
-)
-def test_dwave_errors_become_typed_errors(error, kind, words, mock_qpu, tmp_path, monkeypatch):
-    def fail(bqm, **kwargs):
-        raise error  # what the cloud client raises from DWaveSampler.sample / resolve
-
-    monkeypatch.setattr(mock_qpu, "sample", fail)
-    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
-    bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
-    with pytest.raises(kind, match=words) as caught:
-        solver.solve(bqm, seed=0)
-    assert type(caught.value) is kind
 
 
 @pytest.mark.parametrize("name", ["qpu", "hybrid"])

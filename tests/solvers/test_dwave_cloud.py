@@ -333,12 +333,13 @@ def test_authentication_failure_when_connecting(name, leap, tmp_path, caplog):
     assert not leap.submissions
 
 
-def test_a_bundle_too_large_for_the_qpu_is_refused_before_submission(leap, tmp_path, monkeypatch):
-    """No embedding onto P16 within the time limit: a clear error, nothing sent."""
-    monkeypatch.setenv("QHSM_EMBEDDING_TIMEOUT", "1")
-    bqm = dimod.generators.gnp_random_bqm(240, 1.0, "BINARY", random_state=0)
-    bqm.relabel_variables({v: i for i, v in enumerate(bqm.variables)})
-    with pytest.raises(SolverError, match="no minor embedding") as caught:
+def test_a_bundle_too_large_for_the_qpu_is_refused_before_submission(leap, tmp_path):
+    """More variables than the P16 solver has qubits: a clear error at once, nothing sent."""
+    size = 6000
+    bqm = dimod.BinaryQuadraticModel.from_numpy_vectors(
+        np.ones(size), (np.arange(size - 1), np.arange(1, size), np.ones(size - 1)), 0.0, "BINARY"
+    )
+    with pytest.raises(SolverError, match="too large for the QPU: 6000 variables") as caught:
         qpu_solver(tmp_path).solve(bqm)
     assert type(caught.value) is SolverError and not leap.submissions
 
