@@ -10,7 +10,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from api.deps import QueueInspector, Services
-from api.routes import health, jobs, solvers, usage
+from api.routes import estimate, health, jobs, solvers, usage
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
@@ -40,6 +40,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # every /v1 route needs an API key; /healthz, /readyz and /docs stay open
     authenticated = [Depends(current_user)]
     app.include_router(jobs.router, dependencies=authenticated)
+    app.include_router(estimate.router, dependencies=authenticated)
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)
     app.include_router(health.router)

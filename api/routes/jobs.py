@@ -22,7 +22,9 @@ from api.users import UserStore, user_store
 from shared.config import MatchConfig
 from shared.images import disparity_bytes, preview_png
 from shared.solvers import UnknownSolver
-from shared.solvers.qpu_time import is_metered, job_seconds
+from shared.solvers.embedding_cache import EmbeddingCache
+from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
+from workers import embedding_store
 from workers.app import START_JOB
 from workers.quota import QuotaExceeded
 from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
@@ -71,12 +73,18 @@ def find_job(job_id: str, svc: Services, principal: Principal) -> JobRecord:
     return record
 
 
-def check_solver(config: MatchConfig, svc: Services) -> None:
-    """The solver must exist, and run here or have a worker consuming its queue."""
+def check_solver_name(config: MatchConfig):
+    """422 unless the solver is registered; returns its availability here."""
     try:
         _, availability = load_solver(config.solver)
     except UnknownSolver as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
+    return availability
+
+
+def check_solver(config: MatchConfig, svc: Services) -> None:
+    """The solver must exist, and run here or have a worker consuming its queue."""
+    availability = check_solver_name(config)
     if availability.ok:
         return
     consumers = svc.queues.consumers() or {}
@@ -90,19 +98,30 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     )
 
 
-def check_budget(
-    config: MatchConfig, shape: tuple[int, int], principal: Principal, users: UserStore
-) -> None:
-    """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
-    if not is_metered(config.solver):
-        return
+def estimate_job(config: MatchConfig, shape: tuple[int, int], svc: Services) -> JobEstimate:
+    """The job's metered time, with the actual embeddings the workers have already found
+    (shared through Redis) for bundle shapes they have met; 422 for unusable solver_params."""
+    cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
     try:
-        estimate = job_seconds(config, shape)
+        return job_seconds(config, shape, cache)
     except (TypeError, ValueError, KeyError) as error:
         raise UploadError(
             http.HTTP_422_UNPROCESSABLE_CONTENT,
             f"params: cannot estimate the job's QPU time from solver_params ({error})",
         ) from None
+
+
+def check_budget(
+    config: MatchConfig,
+    shape: tuple[int, int],
+    principal: Principal,
+    users: UserStore,
+    svc: Services,
+) -> None:
+    """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
+    if not is_metered(config.solver):
+        return
+    estimate = estimate_job(config, shape, svc)
     try:
         users.ledger.check(
             principal.name, estimate.seconds, f"this job ({estimate.bundles} bundles)"
@@ -145,7 +164,7 @@ def create_job(
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
-    check_budget(config, left_image.shape, principal, users)
+    check_budget(config, left_image.shape, principal, users, svc)
     arrays = {"left": left_image, "right": right_image}
     truth = None
     if ground_truth is not None:

@@ -1,0 +1,73 @@
+"""/v1/estimate: what a job would be charged, without running it (same form as POST /v1/jobs)."""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, File, Form, UploadFile
+
+from api.auth import Principal, current_principal
+from api.deps import Services, services
+from api.routes.jobs import check_solver_name, estimate_job
+from api.schemas import Estimate, LevelEstimate
+from api.uploads import decode_pair, parse_config, read_upload
+from api.users import UserStore, user_store
+from shared.solvers.qpu_time import is_metered
+
+router = APIRouter(prefix="/v1", tags=["jobs"])
+
+
+@router.post(
+    "/estimate",
+    response_model=Estimate,
+    responses={
+        400: {"description": "params is not JSON"},
+        413: {"description": "File or image too large"},
+        415: {"description": "Not a supported image format"},
+        422: {"description": "Invalid parameters, sizes, or solver"},
+    },
+)
+def estimate(
+    svc: Annotated[Services, Depends(services)],
+    principal: Annotated[Principal, Depends(current_principal)],
+    users: Annotated[UserStore, Depends(user_store)],
+    left: Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")],
+    right: Annotated[UploadFile, File(description="Right view, same size")],
+    params: Annotated[
+        str | None, Form(description='MatchConfig fields as JSON, e.g. {"solver": "qpu"}')
+    ] = None,
+) -> Estimate:
+    """The QPU (or hybrid) seconds a job with these images and params would be charged, per
+    level, and whether it fits your remaining budget. Nothing is stored or queued. Bundle shapes
+    that earlier jobs have embedded are estimated with their actual embedding."""
+    settings = svc.settings
+    config = parse_config(params)
+    check_solver_name(config)
+    left_image, _ = decode_pair(
+        read_upload(left, "left", settings), read_upload(right, "right", settings), settings
+    )
+    job = estimate_job(config, left_image.shape[:2], svc)
+    metered = is_metered(config.solver)
+    remaining = users.ledger.status(principal.name).remaining if metered else math.inf
+    return Estimate(
+        solver=config.solver,
+        metered=metered,
+        seconds=job.seconds,
+        bundles=job.bundles,
+        levels=[
+            LevelEstimate(
+                index=level.index,
+                height=level.shape[0],
+                width=level.shape[1],
+                bundles=level.bundles,
+                variables_per_bundle=level.variables_per_bundle,
+                qubits_per_bundle=level.qubits_per_bundle,
+                embedding_known=level.embedding_known,
+                seconds=level.seconds,
+            )
+            for level in job.levels
+        ],
+        remaining_seconds=None if math.isinf(remaining) else remaining,
+        fits=job.seconds <= remaining,
+    )
