@@ -150,5 +150,7 @@ class Estimate(BaseModel):
     seconds: float = Field(description="Estimated QPU access (hybrid: charge) time of the job")
     bundles: int
     levels: list[LevelEstimate]
-    remaining_seconds: float | None = Field(description="Your budget left; null: unlimited")
+    remaining_seconds: float | None = Field(
+        description="Your budget left; null: unlimited, or the solver is not metered"
+    )
     fits: bool = Field(description="false: POST /v1/jobs would answer 403 for this job")

@@ -10,10 +10,9 @@ from fastapi import APIRouter, Depends, File, Form, UploadFile
 from api.auth import Principal, current_principal
 from api.deps import Services, services
 from api.routes.jobs import check_solver_name, estimate_job
-from api.schemas import Estimate, LevelEstimate
+from api.schemas import Estimate
 from api.uploads import decode_pair, parse_config, read_upload
 from api.users import UserStore, user_store
-from shared.solvers.qpu_time import is_metered
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
@@ -48,26 +47,9 @@ def estimate(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
     job = estimate_job(config, left_image.shape[:2], svc)
-    metered = is_metered(config.solver)
-    remaining = users.ledger.status(principal.name).remaining if metered else math.inf
+    remaining = users.ledger.status(principal.name).remaining if job.seconds > 0 else math.inf
     return Estimate(
-        solver=config.solver,
-        metered=metered,
-        seconds=job.seconds,
-        bundles=job.bundles,
-        levels=[
-            LevelEstimate(
-                index=level.index,
-                height=level.shape[0],
-                width=level.shape[1],
-                bundles=level.bundles,
-                variables_per_bundle=level.variables_per_bundle,
-                qubits_per_bundle=level.qubits_per_bundle,
-                embedding_known=level.embedding_known,
-                seconds=level.seconds,
-            )
-            for level in job.levels
-        ],
+        **job.as_dict(),
         remaining_seconds=None if math.isinf(remaining) else remaining,
         fits=job.seconds <= remaining,
     )

@@ -266,6 +266,19 @@ class LevelEstimate:
     qubits_per_bundle: int | None = None
     embedding_known: bool = False
 
+    def as_dict(self) -> dict[str, Any]:
+        """The wire form (``POST /v1/estimate``, ``qhsm estimate --json``)."""
+        return {
+            "index": self.index,
+            "height": self.shape[0],
+            "width": self.shape[1],
+            "bundles": self.bundles,
+            "variables_per_bundle": self.variables_per_bundle,
+            "qubits_per_bundle": self.qubits_per_bundle,
+            "embedding_known": self.embedding_known,
+            "seconds": self.seconds,
+        }
+
 
 @dataclass(frozen=True)
 class JobEstimate:
@@ -275,6 +288,15 @@ class JobEstimate:
     seconds: float
     bundles: int
     levels: list[LevelEstimate] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "solver": self.solver,
+            "metered": is_metered(self.solver),
+            "seconds": self.seconds,
+            "bundles": self.bundles,
+            "levels": [level.as_dict() for level in self.levels],
+        }
 
 
 def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:

@@ -160,3 +160,46 @@ def test_hybrid_sim_solves_a_small_row():
     assert result.info["simulated"] is True
     labels = codec.decode(costs, result.sample).labels
     assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)
+
+
+def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys):
+    """Before any embedding the estimate assumes 2 qubits per variable (within 2x of the
+    charge); after a run, `qhsm estimate --local` uses the embeddings and equals the charge."""
+    import cv2
+
+    from shared.cli import main
+    from shared.config import MatchConfig
+    from shared.pipeline import run_pipeline
+    from shared.solve import solve_level_in_process
+    from shared.synthetic import make_scene
+
+    scene = make_scene(12, 20, max_disparity=6, seed=5)
+    left, right = tmp_path / "left.png", tmp_path / "right.png"
+    cv2.imwrite(str(left), np.rint(scene.left * 255).astype(np.uint8))
+    cv2.imwrite(str(right), np.rint(scene.right * 255).astype(np.uint8))
+    argv = ["estimate", str(left), str(right), "--local", "--json", "--solver", "qpu-sim",
+            "--encoding", "domain-wall", "--max-disparity", "6",
+            "--param", "num_reads=20"]  # fmt: skip
+    assert main(argv) == 0
+    before = json.loads(capsys.readouterr().out)
+    assert not any(level["embedding_known"] for level in before["levels"])
+
+    config = MatchConfig(solver="qpu-sim", encoding="domain-wall", max_disparity=6,
+                         solver_params={"num_reads": 20})  # fmt: skip
+    charged = []
+
+    def solve_level(inputs, cfg):
+        solution = solve_level_in_process(inputs, cfg)
+        charged.append(qpu_time.charged_seconds(solution.timing))
+        return solution
+
+    run_pipeline(scene.left, scene.right, config, solve_level)
+    charge = sum(charged)
+    assert 0.5 <= before["seconds"] / charge <= 2.0
+    # not the mock's fixed demonstration timing
+    assert charge / before["bundles"] != pytest.approx(MOCK_QPU_ACCESS_US * 1e-6, rel=0.05)
+
+    assert main(argv) == 0
+    after = json.loads(capsys.readouterr().out)
+    assert all(level["embedding_known"] for level in after["levels"])
+    assert after["seconds"] == pytest.approx(charge, rel=1e-9)
