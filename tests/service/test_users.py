@@ -147,6 +147,7 @@ def test_every_v1_route_needs_a_key_but_health_and_docs_do_not(http, users):
     for method, path in [
         ("GET", "/v1/jobs"),
         ("POST", "/v1/jobs"),
+        ("POST", "/v1/estimate"),
         ("GET", "/v1/jobs/0123456789abcdef0123456789abcdef"),
         ("DELETE", "/v1/jobs/0123456789abcdef0123456789abcdef"),
         ("GET", "/v1/solvers"),

@@ -126,19 +126,19 @@ def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
 
 
 def test_no_embedding_is_a_clear_solver_error(tmp_path):
-    """A complete graph on 8 variables does not fit a 6-qubit path graph."""
+    """A complete graph on 8 variables does not fit a 10-qubit path graph."""
     from solver_helpers import random_bqm
 
     bqm = random_bqm(8, seed=0)
     bqm.add_quadratic_from({(u, v): 1.0 for u in range(8) for v in range(u + 1, 8)})
-    path = [(i, i + 1) for i in range(5)]
+    path = [(i, i + 1) for i in range(9)]
     cache = EmbeddingCache(DirectoryStore(tmp_path))
     with pytest.raises(SolverError, match=r"no minor embedding.*domain-wall"):
-        cache.lookup(bqm, path, "path6", timeout=1)
+        cache.lookup(bqm, path, "path10", timeout=1)
     # The next bundle of the same structure fails at once instead of searching again.
     started = time.perf_counter()
     with pytest.raises(SolverError, match=r"no minor embedding"):
-        cache.lookup(bqm, path, "path6", timeout=1)
+        cache.lookup(bqm, path, "path10", timeout=1)
     assert time.perf_counter() - started < 0.5
     assert not list(tmp_path.glob("*.json"))
 
@@ -158,6 +158,10 @@ def test_hybrid_sim_solves_a_small_row():
     codec = get_codec("domain-wall")
     result = get_solver("hybrid-sim").solve(codec.encode(costs), seed=1, max_iter=3)
     assert result.info["simulated"] is True
+    # charged what Leap's hybrid solver would bill for this size (its minimum time limit)
+    bqm_size = codec.encode(costs).num_variables
+    assert result.timing["charge_time"] == qpu_time.hybrid_charge_seconds(bqm_size) == 3.0
+    assert qpu_time.charged_seconds(result.timing) == 3.0
     labels = codec.decode(costs, result.sample).labels
     assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)
 
