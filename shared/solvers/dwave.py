@@ -163,6 +163,8 @@ class _EmbeddedQPU:
                     anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
                     reinitialize_state=True,
                 )
+                # the schedule sets the anneal's length; SAPI refuses both (the estimate's view)
+                settings.pop("annealing_time", None)
             composite = FixedEmbeddingComposite(base, embedding)
             # The mock's seed is sampler state, so simulated calls are serialised.
             with self._lock if self.simulated else contextlib.nullcontext():

@@ -207,3 +207,25 @@ def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys)
     after = json.loads(capsys.readouterr().out)
     assert all(level["embedding_known"] for level in after["levels"])
     assert after["seconds"] == pytest.approx(charge, rel=1e-9)
+
+
+def test_warm_started_qpu_sim_is_charged_the_reverse_anneal_its_estimate_assumes(
+    mock_qpu, tmp_path
+):
+    costs = stereo_costs(1, 5)
+    codec = get_codec("domain-wall")
+    bqm = codec.encode(costs)
+    start = codec.encode_labels(np.zeros((1, 5), dtype=np.int32), costs.num_labels)
+    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
+    params = {"num_reads": 30, "annealing_time": 80.0, "warm_start": True}
+    result = solver.solve(bqm, seed=0, initial_state=start, num_reads=30, annealing_time=80.0)
+    expected = qpu_time.bundle_seconds(
+        "qpu-sim",
+        bqm.num_variables,
+        qpu_time.sampler_params(params, warm=True),
+        num_qubits=result.info["qubits"],
+    )
+    assert result.info["warm_start"] is True
+    assert result.timing["qpu_access_time"] == pytest.approx(expected)
+    cold = qpu_time.qpu_access_seconds(result.info["qubits"], {"num_reads": 30})
+    assert result.timing["qpu_access_time"] != pytest.approx(cold)
