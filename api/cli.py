@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from shared.cli import CommandError, add_match_options, config_from_args
+from shared.cli import CommandError, add_match_options, config_from_args, match_params
 from shared.config import Settings, get_settings
 
 
@@ -234,8 +234,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_submit(args: argparse.Namespace) -> int:
     from api.client import Client, ClientError, progress_bar, write_result
 
-    config = config_from_args(args)
-    params = config.model_dump(mode="json", exclude_defaults=True)
+    config_from_args(args)  # refuse bad options before uploading anything
+    params = match_params(args)
     url = args.url or get_settings().api_url
     files = [Path(args.left), Path(args.right)]
     if args.ground_truth:
@@ -294,7 +294,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
 
         url = args.url or get_settings().api_url
         client = Client(url, key=args.key)
-        params = config.model_dump(mode="json", exclude_defaults=True)
+        params = match_params(args)
         try:
             result = client.estimate(
                 files[0].read_bytes(),
@@ -314,14 +314,18 @@ def cmd_estimate(args: argparse.Namespace) -> int:
 
 
 def _local_estimate(config, files: list[Path]) -> dict:
+    from shared.disparity_range import resolve_max_disparity
     from shared.images import load_pair
+    from shared.pipeline import match_views
     from shared.solvers import get_solver
     from shared.solvers.embedding_cache import default_cache
     from shared.solvers.qpu_time import job_seconds
 
     get_solver(config.solver)  # UnknownSolver lists the valid names
-    left, _ = load_pair(files[0], files[1])
-    return job_seconds(config, left.shape[:2], default_cache()).as_dict()
+    left, right = load_pair(files[0], files[1])
+    top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
+    estimate = job_seconds(config, left.shape[:2], top.max_disparity, default_cache())
+    return {**estimate.as_dict(), "max_disparity": top.max_disparity}
 
 
 def format_estimate(result: dict) -> str:
@@ -332,7 +336,8 @@ def format_estimate(result: dict) -> str:
     kind = "QPU access" if result["levels"][0]["qubits_per_bundle"] is not None else "hybrid"
     lines = [
         f"{solver}: {result['seconds']:.2f} s of {kind} time estimated "
-        f"({result['bundles']} bundles, {len(result['levels'])} levels)"
+        f"({result['bundles']} bundles, {len(result['levels'])} levels, "
+        f"max disparity {result['max_disparity']})"
     ]
     for level in result["levels"]:
         qubits = ""

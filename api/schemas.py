@@ -35,6 +35,8 @@ class LevelTiming(BaseModel):
 
     index: int
     downsample: int
+    bin_width: int = Field(1, description="Disparity-bin width of the level's labels (px)")
+    views: int = Field(1, description="2 when the right view is matched too (rows stacked)")
     height: int
     width: int
     candidates: int
@@ -44,6 +46,15 @@ class LevelTiming(BaseModel):
     seconds: float
     solver_seconds: float
     timing: dict[str, float] = Field(default_factory=dict)
+
+
+class DisparityRange(BaseModel):
+    """``shared.disparity_range.RangeEstimate``."""
+
+    max_disparity: int
+    source: str = Field(description="given, auto or auto-fallback")
+    confirmed: float = Field(0.0, description="Share of pixels the estimate's quick match kept")
+    note: str = ""
 
 
 class Metrics(BaseModel):
@@ -91,6 +102,9 @@ class JobStatus(JobSummary):
     metrics: Metrics | None = None
     error: str | None = None
     config: MatchConfig
+    disparity_range: DisparityRange | None = Field(
+        None, description="The disparity range used: given, or estimated (max_disparity auto)"
+    )
 
 
 class JobPage(BaseModel):
@@ -148,6 +162,7 @@ class Estimate(BaseModel):
     solver: str
     metered: bool = Field(description="false: the solver spends no QPU/hybrid budget")
     seconds: float = Field(description="Estimated QPU access (hybrid: charge) time of the job")
+    max_disparity: int = Field(description="The disparity range the job would use (resolved)")
     bundles: int
     levels: list[LevelEstimate]
     remaining_seconds: float | None = Field(

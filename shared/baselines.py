@@ -51,6 +51,7 @@ def heidari_config(max_disparity: int, level: LevelConfig | None = None) -> Matc
     """
     base = level or LevelConfig()
     return MatchConfig(
+        preset="paper",
         levels=[base.model_copy(update={"downsample": 1, "candidates": max_disparity + 1})],
         max_disparity=max_disparity,
         regularizer=Regularizer.LINEAR,

@@ -2,8 +2,11 @@
 
 Experiments (each a list of variants run on every scene):
 
-* ``solvers``: the paper's pipeline with each requested solver (the paper's Gurobi / SA / hybrid
-  / QPU table with what is available here; unavailable solvers are listed with the reason);
+* ``accurate``: the default preset with ``--ablation-solver`` and the ablation of each of its
+  steps (no left-right check, no weighted median, an image pyramid, the squared difference);
+* ``solvers``: the paper's pipeline (``preset=paper``) with each requested solver (the paper's
+  Gurobi / SA / hybrid / QPU table with what is available here; unavailable solvers are listed
+  with the reason);
 * ``ablations``: the paper's ablations with one solver: the full method, no regulariser, the
   linear regulariser, no bilateral filter, neither median nor bilateral filter;
 * ``baselines``: Heidari et al. (exact per-row min-cut, cross-checked against the row DP) and
@@ -47,13 +50,21 @@ import cv2
 import numpy as np
 
 from shared.baselines import heidari, sgbm
-from shared.config import MatchConfig, Regularizer
+from shared.config import (
+    DataTerm,
+    MatchConfig,
+    Preset,
+    PyramidKind,
+    Regularizer,
+    accurate_levels,
+    paper_levels,
+)
 from shared.datasets import Scene, find_scenes
-from shared.images import preview_png, save_disparity
+from shared.images import preview_png, save_disparity, to_gray
 from shared.metrics import error_map, evaluate
 from shared.solvers import SolverUnavailable
 
-EXPERIMENTS = ("solvers", "ablations", "baselines")
+EXPERIMENTS = ("accurate", "solvers", "ablations", "baselines")
 #: The paper's solver table (Gurobi, SA, hybrid, QPU) plus the exact row DP.
 DEFAULT_SOLVERS = ("exact", "gurobi", "sa", "hybrid", "qpu")
 #: The paper's ablations: MatchConfig changes relative to the full method.
@@ -63,6 +74,22 @@ ABLATIONS: dict[str, dict[str, Any]] = {
     "linear-regularizer": {"regularizer": Regularizer.LINEAR},
     "no-bilateral": {"bilateral": False},
     "no-median-no-bilateral": {"median": False, "bilateral": False},
+}
+#: The accurate preset's ablations: each of its steps switched back to the paper's choice.
+ACCURATE_ABLATIONS: dict[str, dict[str, Any]] = {
+    "accurate": {},
+    "no-lr-check": {"lr_check": False},
+    "no-weighted-median": {"weighted_median": False},
+    "image-pyramid": {
+        "pyramid": PyramidKind.IMAGE,
+        "levels": [
+            accurate_levels()[0].model_copy(
+                update={"downsample": level.downsample, "candidates": level.candidates}
+            )
+            for level in paper_levels()
+        ],
+    },
+    "squared-difference": {"data_term": DataTerm.SQUARED},
 }
 BASELINES = ("heidari", "sgbm")
 RUNNER_GROUP = "qhsm.runners"
@@ -114,6 +141,7 @@ class Variant:
     method: str  # "pipeline", "heidari" or "sgbm"
     solver: str | None = None
     overrides: dict[str, Any] = field(default_factory=dict)
+    preset: Preset = Preset.PAPER
 
     @property
     def key(self) -> str:
@@ -155,7 +183,7 @@ class BenchOptions:
     ablation_solver: str = "exact"
     url: str | None = None
     bundle_height: int = 1
-    encoding: str = "one-hot"
+    encoding: str | None = None  # None: the preset's
     seed: int = 0
     solver_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     processes: int = 1
@@ -196,6 +224,11 @@ def variants(options: BenchOptions) -> list[Variant]:
             f"unknown experiment {', '.join(sorted(unknown))}; choose from {', '.join(EXPERIMENTS)}"
         )
     chosen: list[Variant] = []
+    if "accurate" in options.experiments:
+        chosen += [
+            Variant("accurate", name, "pipeline", options.ablation_solver, changes, Preset.ACCURATE)
+            for name, changes in ACCURATE_ABLATIONS.items()
+        ]
     if "solvers" in options.experiments:
         chosen += [Variant("solvers", name, "pipeline", name) for name in options.solvers]
     if "ablations" in options.experiments:
@@ -211,6 +244,7 @@ def variants(options: BenchOptions) -> list[Variant]:
 def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> MatchConfig:
     assert variant.solver is not None
     return MatchConfig(
+        preset=variant.preset,
         solver=variant.solver,
         max_disparity=scene.max_disparity,
         bundle_height=options.bundle_height,
@@ -397,10 +431,10 @@ def run_one(
                 if cache is not None:
                     cache[key] = (variant.key, output)
         elif variant.method == "heidari":
-            result = heidari(left, right, scene.max_disparity)
+            result = heidari(to_gray(left), to_gray(right), scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
         else:
-            result = sgbm(left, right, scene.max_disparity)
+            result = sgbm(to_gray(left), to_gray(right), scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
     except SolverUnavailable as error:  # found out only when solving (e.g. licence size)
         run.status, run.reason = "skipped", str(error)

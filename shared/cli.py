@@ -8,10 +8,20 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from enum import Enum
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from shared.config import Encoding, MatchConfig, Rectifier, Regularizer
+from shared.config import (
+    AUTO,
+    DataTerm,
+    Encoding,
+    MatchConfig,
+    Preset,
+    PyramidKind,
+    Rectifier,
+    Regularizer,
+)
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
@@ -21,23 +31,73 @@ class CommandError(Exception):
     """A user-facing failure: printed as ``qhsm: <message>`` with exit status 1."""
 
 
+def _field_help(name: str, text: str = "") -> str:
+    """Help of a ``MatchConfig`` option with its default, read from the model (never repeated)."""
+    field = MatchConfig.model_fields[name]
+    text = text or field.description or ""
+    if field.is_required():  # filled by the preset
+        return f"{text} (default: from --preset)"
+    default = field.default.value if isinstance(field.default, Enum) else field.default
+    return f"{text} (default: {default})"
+
+
+def _max_disparity(text: str) -> int | str:
+    if text == AUTO:
+        return AUTO
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto or an integer, got {text!r}") from None
+
+
+#: Boolean ``MatchConfig`` options offered as ``--NAME`` / ``--no-NAME``.
+SWITCHES = {
+    "median": "median filter of every level's result",
+    "bilateral": "bilateral filter of the final map (paper)",
+    "lr_check": "match the right view too and check left against right (accurate)",
+    "weighted_median": "colour-weighted median of the final map (accurate)",
+    "subpixel": "parabola fit of the final cost: lower RMSE on slants, more 1-px errors",
+}
+
+
 def add_match_options(parser: argparse.ArgumentParser) -> None:
-    """Options that map onto ``MatchConfig`` (shared with ``qhsm submit``)."""
-    parser.add_argument("--solver", default="exact", help="solver name (see `qhsm solvers`)")
-    parser.add_argument("--max-disparity", type=int, default=20, help="full-resolution pixels")
-    parser.add_argument("--bundle-height", type=int, default=1, help="rows per QUBO bundle")
+    """Options that map onto ``MatchConfig`` (shared with ``qhsm submit``). Every default is
+    ``None`` here: an option not given is left to the preset and ``MatchConfig``."""
     parser.add_argument(
-        "--regularizer", choices=[r.value for r in Regularizer], default=Regularizer.TRUNCATED.value
+        "--preset",
+        choices=[p.value for p in Preset],
+        help="accurate: disparity-bin pyramid at full resolution, AD-census cost, both views "
+        "with a left-right check, weighted median, domain-wall bundles; paper: the "
+        "publication's image pyramid, squared difference, median + bilateral, one-hot bundles "
+        f"(default: {MatchConfig.model_fields['preset'].default.value})",
     )
+    parser.add_argument("--solver", help=_field_help("solver", "solver name, see `qhsm solvers`"))
     parser.add_argument(
-        "--encoding", choices=[e.value for e in Encoding], default=Encoding.ONE_HOT.value
+        "--max-disparity",
+        type=_max_disparity,
+        metavar="auto|N",
+        help=_field_help("max_disparity"),
     )
-    parser.add_argument(
-        "--rectifier", choices=[r.value for r in Rectifier], default=Rectifier.LOCAL.value
-    )
-    parser.add_argument("--no-median", action="store_true", help="skip the per-level median")
-    parser.add_argument("--no-bilateral", action="store_true", help="skip the final bilateral")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--bundle-height", type=int, help=_field_help("bundle_height"))
+    for name, enum in (
+        ("regularizer", Regularizer),
+        ("encoding", Encoding),
+        ("rectifier", Rectifier),
+        ("data_term", DataTerm),
+        ("pyramid", PyramidKind),
+    ):
+        parser.add_argument(
+            "--" + name.replace("_", "-"),
+            choices=[e.value for e in enum],
+            help=_field_help(name, name.replace("_", " ")),
+        )
+    for name, text in SWITCHES.items():
+        parser.add_argument(
+            "--" + name.replace("_", "-"),
+            action=argparse.BooleanOptionalAction,
+            help=_field_help(name, text),
+        )
+    parser.add_argument("--seed", type=int, help=_field_help("seed", "random seed"))
     parser.add_argument(
         "--param",
         action="append",
@@ -45,6 +105,21 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="solver parameter, e.g. --param num_reads=50 (JSON values)",
     )
+
+
+MATCH_OPTIONS = (
+    "preset",
+    "solver",
+    "max_disparity",
+    "bundle_height",
+    "regularizer",
+    "encoding",
+    "rectifier",
+    "data_term",
+    "pyramid",
+    *SWITCHES,
+    "seed",
+)
 
 
 def _parse_param(text: str) -> tuple[str, object]:
@@ -61,20 +136,20 @@ def config_from_args(args: argparse.Namespace) -> MatchConfig:
     from pydantic import ValidationError
 
     try:
-        return MatchConfig(
-            solver=args.solver,
-            max_disparity=args.max_disparity,
-            bundle_height=args.bundle_height,
-            regularizer=args.regularizer,
-            encoding=args.encoding,
-            rectifier=args.rectifier,
-            median=not args.no_median,
-            bilateral=not args.no_bilateral,
-            seed=args.seed,
-            solver_params=dict(_parse_param(p) for p in args.param),
-        )
+        return MatchConfig(**match_params(args))
     except ValidationError as error:
         raise CommandError(_validation_message(error)) from None
+
+
+def match_params(args: argparse.Namespace) -> dict:
+    """The ``MatchConfig`` options given on the command line (the rest keep their defaults):
+    what ``qhsm submit`` sends as the job's ``params``."""
+    params = {
+        name: getattr(args, name) for name in MATCH_OPTIONS if getattr(args, name) is not None
+    }
+    if args.param:
+        params["solver_params"] = dict(_parse_param(p) for p in args.param)
+    return params
 
 
 def _validation_message(error) -> str:
@@ -106,7 +181,8 @@ def cmd_match(args: argparse.Namespace) -> int:
         result = run_pipeline(left, right, config, solve_level, progress=progress)
     save_disparity(result.disparity, args.output)
     if args.preview:
-        Path(args.preview).write_bytes(preview_png(result.disparity, config.max_disparity))
+        top = result.max_disparity.max_disparity
+        Path(args.preview).write_bytes(preview_png(result.disparity, top))
     if args.json:
         print(
             json.dumps(
@@ -259,7 +335,9 @@ def build_parser() -> argparse.ArgumentParser:
     solvers.add_argument("--json", action="store_true")
     solvers.set_defaults(handler=cmd_solvers)
 
-    bench = commands.add_parser("bench", help="run the paper's experiments on a dataset folder")
+    bench = commands.add_parser(
+        "bench", help="run the accurate preset's and the paper's experiments on a dataset folder"
+    )
     bench.add_argument("dataset", help="folder of scene folders (or one scene folder)")
     bench.add_argument("--scenes", help="comma-separated scene names (default: all found)")
     bench.add_argument(
@@ -269,8 +347,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument(
         "--experiments",
-        default="solvers,ablations,baselines",
-        help="comma-separated subset of solvers, ablations, baselines",
+        default="accurate,solvers,ablations,baselines",
+        help="comma-separated subset of accurate (the default preset and its ablations), "
+        "solvers and ablations (the paper's tables, preset paper), baselines",
     )
     bench.add_argument("--ablation-solver", default="exact", help="solver of the ablations")
     bench.add_argument("--url", help="run the pipeline through the service at this URL")
@@ -279,8 +358,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument(
         "--encoding",
         choices=[e.value for e in Encoding],
-        default=Encoding.ONE_HOT.value,
-        help="label encoding of the QUBO solvers",
+        help="label encoding of the QUBO solvers (default: each run's preset: domain-wall for "
+        "accurate, one-hot for paper)",
     )
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import itertools
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import (
     AliasChoices,
@@ -33,6 +33,27 @@ class Regularizer(StrEnum):
     NONE = "none"  # data term only
 
 
+class Preset(StrEnum):
+    """A named set of defaults for the options that differ between the two methods."""
+
+    ACCURATE = "accurate"  # bin pyramid, AD-census, both views + LR check, weighted median
+    PAPER = "paper"  # the publication: image pyramid, squared difference, median + bilateral
+
+
+class DataTerm(StrEnum):
+    """How a pixel's cost for a disparity is measured."""
+
+    SQUARED = "squared"  # (I_L - I_R)^2 of the gray images (the paper)
+    AD_CENSUS = "ad-census"  # absolute colour difference + census Hamming distance, 5x5 aggregated
+
+
+class PyramidKind(StrEnum):
+    """What gets coarser from level to level."""
+
+    IMAGE = "image"  # the images are downsampled; labels are disparities of the level (the paper)
+    BINS = "bins"  # full-resolution images; labels are disparity bins that halve each level
+
+
 class Encoding(StrEnum):
     """How a pixel's label becomes binary variables."""
 
@@ -48,7 +69,12 @@ class Rectifier(StrEnum):
 
 
 class LevelConfig(BaseModel):
-    """One pyramid level. Defaults are the paper's full-resolution level."""
+    """One pyramid level's MRF. Defaults are the paper's full-resolution level.
+
+    With the bin pyramid there is one entry, the template of every level: ``downsample`` is 1,
+    ``candidates`` is the window of finer levels (the coarsest level takes every bin), and the
+    smoothness is measured in bins.
+    """
 
     model_config = ConfigDict(frozen=True)
 
@@ -73,26 +99,111 @@ def paper_levels() -> list[LevelConfig]:
     ]
 
 
+def accurate_levels() -> list[LevelConfig]:
+    """The bin pyramid's level template: 6 candidate bins, 0.1 per bin capped at 0.2, times 0.3
+    across gray steps above 0.06."""
+    return [
+        LevelConfig(
+            downsample=1,
+            candidates=6,
+            edge_threshold=0.06,
+            slope=0.1,
+            truncation=0.2,
+            edge_factor=0.3,
+        )
+    ]
+
+
+#: The values a preset gives to the options it decides; anything the user sets wins.
+PRESETS: dict[Preset, dict[str, Any]] = {
+    Preset.ACCURATE: {
+        "levels": accurate_levels,
+        "pyramid": PyramidKind.BINS,
+        "data_term": DataTerm.AD_CENSUS,
+        "encoding": Encoding.DOMAIN_WALL,
+        "median_size": 3,
+        "bilateral": False,
+        "lr_check": True,
+        "weighted_median": True,
+    },
+    Preset.PAPER: {
+        "levels": paper_levels,
+        "pyramid": PyramidKind.IMAGE,
+        "data_term": DataTerm.SQUARED,
+        "encoding": Encoding.ONE_HOT,
+        "median_size": 7,
+        "bilateral": True,
+        "lr_check": False,
+        "weighted_median": False,
+    },
+}
+
+AUTO = "auto"
+
+
 class MatchConfig(BaseModel):
-    """Everything that determines the disparity map of one stereo pair."""
+    """Everything that determines the disparity map of one stereo pair.
+
+    ``preset`` fills the options listed in :data:`PRESETS` that are not given; every option set
+    explicitly overrides its preset value. A validated config always holds concrete values, so a
+    stored config reproduces its run whatever the defaults become.
+    """
 
     model_config = ConfigDict(extra="forbid")
 
-    levels: list[LevelConfig] = Field(default_factory=paper_levels, min_length=1)
-    max_disparity: int = Field(20, ge=1, le=1024, description="Largest disparity, full-res px")
+    preset: Preset = Field(Preset.ACCURATE, description="accurate (default) or paper")
+    levels: list[LevelConfig] = Field(min_length=1, description="Pyramid levels (from preset)")
+    pyramid: PyramidKind = Field(description="image or bins (from preset)")
+    data_term: DataTerm = Field(description="squared or ad-census (from preset)")
+    max_disparity: int | Literal["auto"] = Field(
+        AUTO,
+        description="Largest disparity in full-resolution pixels, or auto: estimated from "
+        "feature matches between the views",
+    )
+    max_coarse_bins: int = Field(
+        8, ge=2, le=64, description="Bin pyramid: bins of the coarsest level, at most"
+    )
     bundle_height: int = Field(1, ge=1, le=64, description="Rows per QUBO bundle")
     regularizer: Regularizer = Regularizer.TRUNCATED
-    encoding: Encoding = Encoding.ONE_HOT
+    encoding: Encoding = Field(description="one-hot or domain-wall (from preset)")
     rectifier: Rectifier = Rectifier.LOCAL
-    median: bool = True
-    median_size: int = Field(7, ge=1, le=31)
-    bilateral: bool = True
+    median: bool = Field(True, description="Median filter of every level's result")
+    median_size: int = Field(ge=1, le=31, description="Its window (from preset)")
+    bilateral: bool = Field(description="Final bilateral filter (from preset)")
     bilateral_diameter: int = Field(9, ge=1, le=31)
     bilateral_sigma_color: float = Field(4.0, gt=0, description="In disparity pixels")
     bilateral_sigma_space: float = Field(3.0, gt=0, description="In pixels")
+    lr_check: bool = Field(
+        description="Match the right view too; pixels failing the left-right check take the "
+        "background's disparity (from preset)"
+    )
+    lr_tolerance: float = Field(1.0, ge=0, description="Left-right check tolerance, pixels")
+    weighted_median: bool = Field(
+        description="Colour-weighted median of the final map (from preset)"
+    )
+    weighted_median_radius: int = Field(9, ge=1, le=64)
+    weighted_median_sigma: float = Field(25.5, gt=0, description="On the 0..255 colour scale")
+    subpixel: bool = Field(
+        False, description="Parabola fit on the final cost (bin pyramid): lower RMSE on slants"
+    )
     solver: str = "exact"
     seed: int = Field(0, ge=0, lt=2**32)
     solver_params: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _apply_preset(cls, data: Any) -> Any:
+        if not isinstance(data, dict):
+            return data
+        try:
+            preset = Preset(data.get("preset", Preset.ACCURATE))
+        except ValueError:
+            return data  # the field validator reports the bad name
+        filled = dict(data)
+        for name, value in PRESETS[preset].items():
+            if filled.get(name) is None:
+                filled[name] = value() if callable(value) else value
+        return filled
 
     @field_validator("median_size")
     @classmethod
@@ -101,8 +212,24 @@ class MatchConfig(BaseModel):
             raise ValueError("median_size must be odd")
         return value
 
+    @field_validator("max_disparity")
+    @classmethod
+    def _positive(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and not 1 <= value <= 1024:
+            raise ValueError("max_disparity must be auto or an integer in 1..1024")
+        return value
+
     @model_validator(mode="after")
     def _levels_coarse_to_fine(self) -> MatchConfig:
+        if self.subpixel and self.data_term is not DataTerm.AD_CENSUS:
+            raise ValueError("subpixel fits the AD-census cost: use it with data_term ad-census")
+        if self.pyramid is PyramidKind.BINS:
+            if len(self.levels) != 1 or self.levels[0].downsample != 1:
+                raise ValueError(
+                    "the bin pyramid takes one level template with downsample 1 (its levels "
+                    "follow from the disparity range)"
+                )
+            return self
         factors = [level.downsample for level in self.levels]
         for coarse, fine in itertools.pairwise(factors):
             if coarse != 2 * fine:

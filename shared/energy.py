@@ -1,15 +1,17 @@
 """The MRF of one pyramid level as cost arrays, and its energy.
 
-For candidate index l of pixel p = (y, x) with disparity d = C[y, x, l] (left view):
+For candidate index l of pixel p = (y, x) standing for label C[y, x, l] (a disparity, or a
+disparity bin in the bin pyramid):
 
-    unary[y, x, l]      = (I_L(y, x) - I_R(y, x - d))^2          (x - d clamped to the image)
+    unary[y, x, l]      = the data term of that label (:mod:`shared.data_terms`)
     pair_h[y, x, l, s]  = w(p, q) * R(|C[p, l] - C[q, s]|)         q = (y, x + 1)
     pair_v[y, x, l, s]  = w(p, q) * R(|C[p, l] - C[q, s]|)         q = (y + 1, x)
 
-with R(t) = min(trunc, s t) and w = m where |I_L(p) - I_L(q)| > thr, else 1 ("truncated"), or
-R(t) = s t and w = 1 ("linear"), or R = 0 ("none"). All costs are non-negative, which the
-rectifier proofs in :mod:`shared.encodings` rely on. These arrays are the one description of the
-level: the exact row DP, both QUBO codecs and the reported energies all read them.
+with R(t) = min(trunc, s t) and w = m where the gray step |I_L(p) - I_L(q)| > thr, else 1
+("truncated"), or R(t) = s t and w = 1 ("linear"), or R = 0 ("none"). All costs are
+non-negative, which the rectifier proofs in :mod:`shared.encodings` rely on. These arrays are the
+one description of the level: the exact row DP, both QUBO codecs and the reported energies all
+read them.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.config import LevelConfig, Regularizer
+from shared.data_terms import squared_difference
 
 
 @dataclass(frozen=True)
@@ -39,6 +42,20 @@ class Costs:
     def num_labels(self) -> int:
         return self.unary.shape[2]
 
+    @staticmethod
+    def stack(blocks: list[Costs]) -> Costs:
+        """Blocks of rows one below the other, with no vertical edge between two blocks."""
+        if len(blocks) == 1:
+            return blocks[0]
+        seam = np.zeros((1, *blocks[0].pair_v.shape[1:]), dtype=blocks[0].pair_v.dtype)
+        pair_v = [part for block in blocks for part in (seam, block.pair_v)][1:]
+        return Costs(
+            candidates=np.concatenate([block.candidates for block in blocks]),
+            unary=np.concatenate([block.unary for block in blocks]),
+            pair_h=np.concatenate([block.pair_h for block in blocks]),
+            pair_v=np.concatenate(pair_v),
+        )
+
     def rows(self, start: int, stop: int) -> Costs:
         """The costs of rows [start, stop): edges leaving the block are dropped."""
         return Costs(
@@ -49,28 +66,48 @@ class Costs:
         )
 
 
-def data_costs(left: np.ndarray, right: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """(I_L(y, x) - I_R(y, x - d))^2 for every candidate d; x - d is clamped at the border."""
-    height, width, _ = candidates.shape
-    columns = np.arange(width)[None, :, None] - candidates
-    np.clip(columns, 0, width - 1, out=columns)
-    rows = np.arange(height)[:, None, None]
-    diff = left[:, :, None].astype(np.float64) - right[rows, columns]
-    return diff * diff
-
-
 def smoothness(
     delta: np.ndarray, intensity_step: np.ndarray, level: LevelConfig, regularizer: Regularizer
 ) -> np.ndarray:
     """R(|delta|) times the edge weight; ``intensity_step`` broadcasts against ``delta``."""
     if regularizer is Regularizer.NONE:
         return np.zeros(delta.shape, dtype=np.float64)
-    penalty = level.slope * np.abs(delta).astype(np.float64)
+    penalty = np.abs(delta).astype(np.float64)
+    penalty *= level.slope
     if regularizer is Regularizer.LINEAR:
         return penalty
     np.minimum(penalty, level.truncation, out=penalty)
-    weight = np.where(intensity_step > level.edge_threshold, level.edge_factor, 1.0)
-    return penalty * weight
+    penalty *= np.where(intensity_step > level.edge_threshold, level.edge_factor, 1.0)
+    return penalty
+
+
+def mrf_costs(
+    unary: np.ndarray,
+    candidates: np.ndarray,
+    guide: np.ndarray,
+    level: LevelConfig,
+    regularizer: Regularizer,
+    vertical: bool = True,
+) -> Costs:
+    """The cost arrays of a block of rows from its unary term and its gray ``guide`` image
+    (whose steps decide where the smoothness weight drops to m). Without ``vertical`` the
+    vertical edges are left at zero: single-row bundles never read them."""
+    candidates = np.asarray(candidates, dtype=np.int32)
+    step_h = np.abs(guide[:, 1:] - guide[:, :-1])[:, :, None, None]
+    delta_h = candidates[:, :-1, :, None] - candidates[:, 1:, None, :]
+    if vertical:
+        step_v = np.abs(guide[1:, :] - guide[:-1, :])[:, :, None, None]
+        delta_v = candidates[:-1, :, :, None] - candidates[1:, :, None, :]
+        pair_v = smoothness(delta_v, step_v, level, regularizer)
+    else:
+        height, width, labels = candidates.shape
+        pair_v = np.zeros((max(height - 1, 0), width, labels, labels))
+    return Costs(
+        candidates=candidates,
+        unary=unary,
+        pair_h=smoothness(delta_h, step_h, level, regularizer),
+        pair_v=pair_v,
+    )
 
 
 def level_costs(
@@ -80,18 +117,11 @@ def level_costs(
     level: LevelConfig,
     regularizer: Regularizer,
 ) -> Costs:
-    """All cost arrays of a level (or of a block of its rows: pass the rows' image slices)."""
+    """The paper's level costs: squared gray difference at the candidate disparities (a block
+    of rows: pass the rows' image slices)."""
     candidates = np.asarray(candidates, dtype=np.int32)
-    step_h = np.abs(left[:, 1:] - left[:, :-1])[:, :, None, None]
-    step_v = np.abs(left[1:, :] - left[:-1, :])[:, :, None, None]
-    delta_h = candidates[:, :-1, :, None] - candidates[:, 1:, None, :]
-    delta_v = candidates[:-1, :, :, None] - candidates[1:, :, None, :]
-    return Costs(
-        candidates=candidates,
-        unary=data_costs(left, right, candidates),
-        pair_h=smoothness(delta_h, step_h, level, regularizer),
-        pair_v=smoothness(delta_v, step_v, level, regularizer),
-    )
+    unary = squared_difference(left, right, candidates)
+    return mrf_costs(unary, candidates, left, level, regularizer)
 
 
 def mrf_energy(costs: Costs, labels: np.ndarray) -> float:

@@ -1,5 +1,6 @@
-"""Post-processing of disparity maps: a median filter per level and a bilateral filter at the end
-(the paper's "No B" / "No M No B" ablations switch them off)."""
+"""Post-processing of disparity maps: a median filter per level; at the end a bilateral filter
+(the paper; its "No B" / "No M No B" ablations switch them off) or the accurate preset's
+left-right check, background fill and colour-weighted median."""
 
 from __future__ import annotations
 
@@ -33,3 +34,62 @@ def bilateral(
     return cv2.bilateralFilter(
         np.asarray(disparity, np.float32), diameter, sigma_color, sigma_space
     )
+
+
+def left_right_check(left: np.ndarray, right: np.ndarray, tolerance: float = 1.0) -> np.ndarray:
+    """Where the left view's disparity is confirmed by the right view's (bool, (h, w)).
+
+    Left pixel (y, x) with disparity d matches right pixel (y, x - d); it passes when that pixel
+    lies inside the image and its own disparity differs from d by at most ``tolerance``.
+    """
+    height, width = left.shape
+    target = np.arange(width)[None, :] - np.rint(left).astype(np.int64)
+    inside = target >= 0
+    rows = np.arange(height)[:, None]
+    back = right[rows, np.clip(target, 0, width - 1)]
+    return inside & (np.abs(left - back) <= tolerance)
+
+
+def fill_from_background(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Replace invalid pixels by the smaller of the nearest valid disparities to their left and
+    right on the row (occluded pixels belong to the farther surface); rows with no valid pixel
+    are left as they are."""
+    height, width = disparity.shape
+    columns = np.broadcast_to(np.arange(width), (height, width))
+    left_index = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
+    right_index = np.minimum.accumulate(np.where(valid, columns, width)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(height)[:, None]
+    inf = np.float32(np.inf)
+    from_left = np.where(left_index >= 0, disparity[rows, np.maximum(left_index, 0)], inf)
+    from_right = np.where(
+        right_index < width, disparity[rows, np.minimum(right_index, width - 1)], inf
+    )
+    nearest = np.minimum(from_left, from_right)
+    return np.where(valid | ~np.isfinite(nearest), disparity, nearest).astype(np.float32)
+
+
+def weighted_median(disparity: np.ndarray, guide: np.ndarray, radius: int, sigma: float):
+    """Colour-weighted median (OpenCV ximgproc): each pixel takes the median of its window's
+    disparities weighted by colour similarity to it in ``guide`` (float32 [0, 1], gray or BGR;
+    ``sigma`` on the 0..255 scale), which snaps edges of the map to edges of the image."""
+    guide8 = np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8)
+    return cv2.ximgproc.weightedMedianFilter(
+        guide8, np.asarray(disparity, np.float32), radius, sigma
+    ).astype(np.float32)
+
+
+def subpixel(disparity: np.ndarray, volume: np.ndarray) -> np.ndarray:
+    """Refine integer disparities by the vertex of the parabola through the costs at d - 1, d,
+    d + 1 of ``volume`` (D + 1, h, w); pixels at the ends of the range or without a convex fit
+    keep their value. The offset is at most half a pixel."""
+    top = volume.shape[0] - 1
+    d = np.clip(np.rint(disparity).astype(np.intp), 0, top)
+    inner = (d > 0) & (d < top)
+    rows, columns = np.indices(d.shape)
+    below = volume[np.maximum(d - 1, 0), rows, columns]
+    at = volume[d, rows, columns]
+    above = volume[np.minimum(d + 1, top), rows, columns]
+    curvature = below - 2.0 * at + above
+    usable = inner & (curvature > 1e-6)
+    offset = np.where(usable, (below - above) / (2.0 * np.where(usable, curvature, 1.0)), 0.0)
+    return (d + np.clip(offset, -0.5, 0.5)).astype(np.float32)

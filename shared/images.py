@@ -1,8 +1,9 @@
 """Image and disparity-map I/O. Everything crossing this module's boundary inward is float32.
 
-Intensity images become grayscale in [0, 1] with Rec. 709 luma weights, whatever their bit depth
-(8/16-bit PNG, PPM/PGM, JPEG, float PFM). Disparity maps are written as Middlebury PFM
-(float32), 16-bit PNG (disparity x 256, the KITTI convention) or ``.npy``.
+Views are float32 in [0, 1] whatever their bit depth (8/16-bit PNG, PPM/PGM, JPEG, float PFM),
+gray (h, w) or colour (h, w, 3) in OpenCV's BGR order; :func:`to_gray` gives Rec. 709 luma.
+Disparity maps are written as Middlebury PFM (float32), 16-bit PNG
+(disparity x 256, the KITTI convention) or ``.npy``.
 """
 
 from __future__ import annotations
@@ -25,7 +26,11 @@ class ImageError(ValueError):
 
 
 def decode_image(data: bytes, name: str) -> np.ndarray:
-    """Decode image bytes to float32 grayscale in [0, 1]; ``name`` is only used in errors."""
+    """Decode image bytes to a float32 view in [0, 1]: (h, w) gray or (h, w, 3) BGR colour.
+
+    Colour is kept (the accurate data term and the weighted median read it); alpha is dropped.
+    ``name`` is only used in errors.
+    """
     if not data:
         raise ImageError(f"{name}: the file is empty")
     raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
@@ -33,19 +38,24 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
         raise ImageError(
             f"{name}: not a readable image (supported: PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)"
         )
-    return to_gray(raw, name)
+    return to_unit_range(raw, name)
 
 
-def load_image(path: str | Path) -> np.ndarray:
-    """Read an image file as float32 grayscale in [0, 1]."""
+def load_view(path: str | Path) -> np.ndarray:
+    """Read an image file as a float32 view in [0, 1], colour kept (see :func:`decode_image`)."""
     path = Path(path)
     if not path.is_file():
         raise ImageError(f"{path}: no such file")
     return decode_image(path.read_bytes(), str(path))
 
 
-def to_gray(raw: np.ndarray, name: str = "image") -> np.ndarray:
-    """Convert an OpenCV-decoded array (BGR order, any depth) to float32 gray in [0, 1]."""
+def load_image(path: str | Path) -> np.ndarray:
+    """Read an image file as float32 grayscale in [0, 1]."""
+    return to_gray(load_view(path))
+
+
+def to_unit_range(raw: np.ndarray, name: str = "image") -> np.ndarray:
+    """An OpenCV-decoded array (BGR order, any depth) as float32 in [0, 1], gray or BGR."""
     if raw.size == 0 or raw.shape[0] == 0 or raw.shape[1] == 0:
         raise ImageError(f"{name}: the image has no pixels")
     if raw.dtype == np.uint8:
@@ -63,17 +73,29 @@ def to_gray(raw: np.ndarray, name: str = "image") -> np.ndarray:
     if scaled.ndim == 2:
         return np.ascontiguousarray(scaled)
     if scaled.ndim == 3 and scaled.shape[2] in (3, 4):
-        bgr = scaled[:, :, :3]
-        gray = bgr @ REC709[::-1]
-        return np.ascontiguousarray(gray, dtype=np.float32)
+        return np.ascontiguousarray(scaled[:, :, :3])
     if scaled.ndim == 3 and scaled.shape[2] == 1:
         return np.ascontiguousarray(scaled[:, :, 0])
     raise ImageError(f"{name}: unsupported image layout {raw.shape}")
 
 
+def to_gray(view: np.ndarray) -> np.ndarray:
+    """Rec. 709 luma of a BGR view (gray views are returned as they are)."""
+    if view.ndim == 2:
+        return view
+    return np.ascontiguousarray(view @ REC709[::-1], dtype=np.float32)
+
+
+def as_pair_of_same_kind(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both views in colour, or both gray when either is gray."""
+    if left.ndim != right.ndim:
+        return to_gray(left), to_gray(right)
+    return left, right
+
+
 def check_pair(left: np.ndarray, right: np.ndarray, names: tuple[str, str] = ("left", "right")):
     """Raise ``ImageError`` unless the two views have the same size."""
-    if left.shape != right.shape:
+    if left.shape[:2] != right.shape[:2]:
         raise ImageError(
             f"{names[0]} is {left.shape[1]}x{left.shape[0]} but {names[1]} is "
             f"{right.shape[1]}x{right.shape[0]}: a rectified stereo pair has two views of one size"
@@ -81,10 +103,10 @@ def check_pair(left: np.ndarray, right: np.ndarray, names: tuple[str, str] = ("l
 
 
 def load_pair(left: str | Path, right: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a rectified stereo pair as two float32 gray images of the same size."""
-    left_image, right_image = load_image(left), load_image(right)
+    """Read a rectified stereo pair as two float32 views of the same size (colour kept)."""
+    left_image, right_image = load_view(left), load_view(right)
     check_pair(left_image, right_image, (str(left), str(right)))
-    return left_image, right_image
+    return as_pair_of_same_kind(left_image, right_image)
 
 
 def load_mask(path: str | Path) -> np.ndarray:

@@ -1,13 +1,17 @@
-"""The one pipeline: coarse-to-fine MRF stereo over a spatial pyramid.
+"""The one pipeline: coarse-to-fine MRF stereo, one row QUBO per bundle at every level.
 
+    resolve max disparity    the given one, or estimated from feature matches (``auto``)
+    plan                     the levels (:func:`shared.pyramid.plan`: image or bin pyramid)
     for each level k (coarse to fine):
-        prepare_level   downsample, candidates (from level k-1), warm-start labels
-        solve_level     injected: in process (CLI, tests) or a Celery fan-out (service)
-        finish_level    labels -> disparities, median filter
-    finish              upsample to full resolution, bilateral filter
+        prepare_level        level images (both views stacked with the LR check), candidates
+                             from level k-1, warm-start labels
+        solve_level          injected: in process (CLI, tests) or a Celery fan-out (service)
+        finish_level         labels -> level map, median filter per view
+    finish                   full-resolution left disparity: left-right check and background
+                             fill, sub-pixel fit, weighted median, bilateral (as configured)
 
-``run_pipeline`` runs the loop synchronously. The service calls the same three functions from
-its fan-in callbacks, so the level logic lives only here.
+``run_pipeline`` runs the loop synchronously. The service calls the same functions from its
+fan-in callbacks, so the level logic lives only here.
 """
 
 from __future__ import annotations
@@ -19,12 +23,19 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from shared import filters, pyramid
-from shared.config import MatchConfig
-from shared.images import check_pair
+from shared.config import DataTerm, MatchConfig, PyramidKind
+from shared.data_terms import ad_census_volume
+from shared.disparity_range import RangeEstimate, resolve_max_disparity
+from shared.images import as_pair_of_same_kind, check_pair, to_gray
+from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs, LevelSolution, solve_level_in_process
 
 SolveLevel = Callable[[LevelInputs, MatchConfig], LevelSolution]
 Progress = Callable[[int, int], None]
+
+#: In process, a view's aggregated cost volume is computed once for all levels when it is at
+#: most this large; larger volumes are recomputed per block of rows (memory bound by rows).
+VOLUME_CACHE_BYTES = 256 * 2**20
 
 
 @dataclass
@@ -33,7 +44,9 @@ class LevelReport:
 
     index: int
     downsample: int
-    height: int
+    bin_width: int
+    views: int
+    height: int  # of one view (the level has ``views`` times as many rows)
     width: int
     candidates: int
     bundles: int
@@ -51,53 +64,122 @@ class MatchResult:
     disparity: np.ndarray
     levels: list[LevelReport]
     seconds: float
+    max_disparity: RangeEstimate
 
     def summary(self) -> dict:
-        return {"seconds": self.seconds, "levels": [asdict(level) for level in self.levels]}
+        return {
+            "seconds": self.seconds,
+            "max_disparity": self.max_disparity.as_dict(),
+            "levels": [asdict(level) for level in self.levels],
+        }
+
+
+def match_views(
+    left: np.ndarray, right: np.ndarray, config: MatchConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """The views the data term reads: gray for the squared difference (the paper converts before
+    downsampling), colour otherwise when both views have it."""
+    check_pair(left, right)
+    if config.data_term is DataTerm.SQUARED:
+        return to_gray(left), to_gray(right)
+    return as_pair_of_same_kind(left, right)
+
+
+def plan_run(
+    left: np.ndarray, right: np.ndarray, config: MatchConfig
+) -> tuple[RangeEstimate, list[LevelPlan]]:
+    """The run's disparity range (given or estimated) and its levels, from the match views."""
+    estimate = resolve_max_disparity(left, right, config.max_disparity)
+    return estimate, pyramid.plan(config, estimate.max_disparity)
+
+
+def level_views(
+    left: np.ndarray, right: np.ndarray, config: MatchConfig, plan: LevelPlan
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The level's images and view count: with the left-right check the mirrored pair (both
+    images flipped, roles swapped) is stacked below the pair, so its left view is the right one."""
+    left_k = pyramid.downsample(left, plan.downsample)
+    right_k = pyramid.downsample(right, plan.downsample)
+    if not config.lr_check:
+        return left_k, right_k, 1
+    return (
+        np.concatenate([left_k, right_k[:, ::-1]]),
+        np.concatenate([right_k, left_k[:, ::-1]]),
+        2,
+    )
 
 
 def prepare_level(
     left: np.ndarray,
     right: np.ndarray,
     config: MatchConfig,
-    index: int,
+    plan: LevelPlan,
     previous: np.ndarray | None = None,
 ) -> LevelInputs:
-    """Inputs of level ``index``; ``previous`` is level ``index - 1``'s filtered disparity."""
-    level = config.levels[index]
-    left_k = pyramid.downsample(left, level.downsample)
-    right_k = pyramid.downsample(right, level.downsample)
-    max_k = pyramid.level_max_disparity(config.max_disparity, level.downsample)
+    """Inputs of one level from the :func:`match_views` of the pair; ``previous`` is the coarser
+    level's finished map (:func:`finish_level`)."""
+    left_k, right_k, views = level_views(left, right, config, plan)
+    shape = left_k.shape[:2]
     if previous is None:
-        candidates = pyramid.initial_candidates(left_k.shape, level.candidates, max_k)
+        candidates = pyramid.initial_candidates(shape, plan.candidates, plan.max_label)
         initial = None
     else:
-        candidates = pyramid.refined_candidates(previous, left_k.shape, level.candidates, max_k)
-        target = pyramid.upsample_disparity(previous, left_k.shape)
+        if config.pyramid is PyramidKind.IMAGE:
+            candidates = pyramid.refined_candidates(
+                previous, shape, plan.candidates, plan.max_label
+            )
+            target = pyramid.upsample_disparity(previous, shape)
+        else:
+            candidates = pyramid.refined_bins(previous, plan.candidates, plan.max_label)
+            target = 2.0 * previous  # the lower child of the coarser bin
         initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
     return LevelInputs(
-        index=index,
-        level=level,
+        plan=plan,
         left=left_k,
         right=right_k,
         candidates=candidates,
         initial_labels=initial,
+        views=views,
     )
 
 
 def finish_level(inputs: LevelInputs, solution: LevelSolution, config: MatchConfig) -> np.ndarray:
-    """The level's disparity map (level pixels) from its labels, median-filtered if enabled."""
+    """The level's map (labels of the level: disparities or bins) from its solution, median-
+    filtered view by view if enabled."""
     picked = np.take_along_axis(inputs.candidates, solution.labels[:, :, None], axis=2)[:, :, 0]
-    disparity = picked.astype(np.float32)
+    level_map = picked.astype(np.float32)
     if config.median:
-        disparity = filters.median(disparity, config.median_size)
-    return disparity
+        height = inputs.view_height
+        for view in range(inputs.views):
+            rows = slice(view * height, (view + 1) * height)
+            level_map[rows] = filters.median(level_map[rows], config.median_size)
+    return level_map
 
 
-def finish(disparity: np.ndarray, shape: tuple[int, int], config: MatchConfig) -> np.ndarray:
-    """Full-resolution result: scale to ``shape`` if the last level is coarser, then bilateral."""
-    if disparity.shape != shape:
-        disparity = pyramid.upsample_disparity(disparity, shape)
+def finish(
+    level_map: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    config: MatchConfig,
+    last: LevelPlan,
+    views: int,
+) -> np.ndarray:
+    """The full-resolution left disparity from the finest level's map (both views stacked when
+    ``views`` is 2) and the pair's :func:`match_views`."""
+    height = level_map.shape[0] // views
+    disparity = level_map[:height]
+    if config.subpixel:
+        disparity = filters.subpixel(disparity, _full_volume(left, right, last, 0, height))
+    if disparity.shape != left.shape[:2]:
+        disparity = pyramid.upsample_disparity(disparity, left.shape[:2])
+    if views == 2:
+        right_disparity = pyramid.upsample_disparity(level_map[height:, ::-1], left.shape[:2])
+        valid = filters.left_right_check(disparity, right_disparity, config.lr_tolerance)
+        disparity = filters.fill_from_background(disparity, valid)
+    if config.weighted_median:
+        disparity = filters.weighted_median(
+            disparity, left, config.weighted_median_radius, config.weighted_median_sigma
+        )
     if config.bilateral:
         disparity = filters.bilateral(
             disparity,
@@ -108,14 +190,23 @@ def finish(disparity: np.ndarray, shape: tuple[int, int], config: MatchConfig) -
     return disparity.astype(np.float32)
 
 
+def _full_volume(
+    left: np.ndarray, right: np.ndarray, plan: LevelPlan, start: int, stop: int
+) -> np.ndarray:
+    """The aggregated AD-census cost of every disparity (the sub-pixel fit reads it)."""
+    return ad_census_volume(left, right, plan.max_disparity, start, stop)
+
+
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:
-    height, width = inputs.shape
+    height, width = inputs.view_height, inputs.shape[1]
     return LevelReport(
         index=inputs.index,
-        downsample=inputs.level.downsample,
+        downsample=inputs.plan.downsample,
+        bin_width=inputs.plan.bin_width,
+        views=inputs.views,
         height=height,
         width=width,
-        candidates=inputs.level.candidates,
+        candidates=inputs.plan.candidates,
         bundles=solution.bundles,
         energy=solution.energy,
         repaired=solution.repaired,
@@ -132,19 +223,46 @@ def run_pipeline(
     solve_level: SolveLevel = solve_level_in_process,
     progress: Progress | None = None,
 ) -> MatchResult:
-    """Match a rectified pair (float32 gray in [0, 1]); returns the left view's disparity."""
-    check_pair(left, right)
+    """Match a rectified pair (float32 in [0, 1], gray or BGR); returns the left view's
+    disparity in full-resolution pixels."""
     started = time.perf_counter()
+    left, right = match_views(left, right, config)
+    estimate, plans = plan_run(left, right, config)
     reports: list[LevelReport] = []
-    disparity: np.ndarray | None = None
-    for index in range(len(config.levels)):
+    level_map: np.ndarray | None = None
+    volumes: list[np.ndarray] | None = None
+    inputs: LevelInputs | None = None
+    for plan in plans:
         level_started = time.perf_counter()
-        inputs = prepare_level(left, right, config, index, disparity)
+        inputs = prepare_level(left, right, config, plan, level_map)
+        if volumes is None:
+            volumes = _cached_volumes(inputs, config)
+        inputs.volumes = volumes
         solution = solve_level(inputs, config)
-        disparity = finish_level(inputs, solution, config)
+        level_map = finish_level(inputs, solution, config)
         reports.append(report(inputs, solution, time.perf_counter() - level_started))
         if progress is not None:
-            progress(index + 1, len(config.levels))
-    assert disparity is not None  # levels has at least one entry (validated)
-    result = finish(disparity, left.shape, config)
-    return MatchResult(disparity=result, levels=reports, seconds=time.perf_counter() - started)
+            progress(plan.index + 1, len(plans))
+    assert level_map is not None and inputs is not None  # plan() gives at least one level
+    disparity = finish(level_map, left, right, config, plans[-1], inputs.views)
+    return MatchResult(
+        disparity=disparity,
+        levels=reports,
+        seconds=time.perf_counter() - started,
+        max_disparity=estimate,
+    )
+
+
+def _cached_volumes(inputs: LevelInputs, config: MatchConfig) -> list[np.ndarray] | None:
+    """Every view's full cost volume when the bin pyramid reads the same one at each level and
+    it fits :data:`VOLUME_CACHE_BYTES`; ``None`` otherwise (costs are then built per block)."""
+    if config.pyramid is not PyramidKind.BINS or config.data_term is not DataTerm.AD_CENSUS:
+        return None
+    height, width = inputs.view_height, inputs.shape[1]
+    size = (inputs.plan.max_disparity + 1) * height * width * 4 * inputs.views
+    if size > VOLUME_CACHE_BYTES:
+        return None
+    return [
+        ad_census_volume(left, right, inputs.plan.max_disparity, 0, height)
+        for left, right in inputs.view_images()
+    ]

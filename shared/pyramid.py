@@ -1,15 +1,108 @@
-"""Coarse-to-fine pyramid: image sizes per level and each level's candidate disparities.
+"""Coarse-to-fine pyramids: which levels a run has and each level's candidate labels.
 
-Disparities at a level are in that level's pixels. The coarsest level spreads its candidates
-evenly over [0, max disparity]; each finer level looks at the window {2d-2, ..., 2d+1} around the
-upsampled coarser estimate d, shifted (not cropped) so that the whole window stays inside
-[0, max disparity]. Ground truth is never read here.
+Two kinds (``MatchConfig.pyramid``):
+
+image (the paper)
+    Level k works on the images downsampled by its factor; labels are disparities in that
+    level's pixels. The coarsest level spreads its candidates evenly over [0, max disparity];
+    each finer level looks at the window {2d-2, ..., 2d+1} around the upsampled coarser
+    estimate d, shifted (not cropped) so that the whole window stays inside [0, max disparity].
+bins (accurate)
+    Every level works on the full-resolution grid; labels are disparity bins
+    b = {b w, ..., b w + w - 1} of width w. The coarsest width is the smallest power of two
+    giving at most ``max_coarse_bins`` bins over 0..D, and the width halves each level down to 1
+    (16-20 px: widths 4, 2, 1; 60 px: 8, 4, 2, 1). The coarsest level takes every bin; a finer
+    level takes ``K`` consecutive bins starting ``K/2 - 1`` below the lower child 2b of the
+    coarser estimate b (for K = 6: {2b-2, ..., 2b+3}), shifted to stay in range, so both
+    children of the coarser bin are always candidates.
+
+Ground truth is never read here.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from shared.config import LevelConfig, MatchConfig, PyramidKind
+
+
+class LevelPlan(BaseModel):
+    """What level ``index`` of a run is: its image scale, label width and MRF parameters.
+
+    ``downsample`` > 1 only in the image pyramid, ``bin_width`` > 1 only in the bin pyramid.
+    ``max_label`` is the largest label of the level (a disparity in level pixels, or a bin);
+    ``max_disparity`` is the run's, in full-resolution pixels.
+    """
+
+    model_config = ConfigDict(frozen=True)
+
+    index: int
+    downsample: int
+    bin_width: int
+    candidates: int
+    max_label: int
+    max_disparity: int
+    mrf: LevelConfig
+
+
+def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
+    """The levels of a run, coarse to fine, for a resolved ``max_disparity`` (full-res px)."""
+    if config.pyramid is PyramidKind.IMAGE:
+        return [
+            LevelPlan(
+                index=index,
+                downsample=level.downsample,
+                bin_width=1,
+                candidates=level.candidates,
+                max_label=level_max_disparity(max_disparity, level.downsample),
+                max_disparity=max_disparity,
+                mrf=level,
+            )
+            for index, level in enumerate(config.levels)
+        ]
+    template = config.levels[0]
+    widths = bin_widths(max_disparity, config.max_coarse_bins)
+    plans = []
+    for index, width in enumerate(widths):
+        bins = bin_count(max_disparity, width)
+        count = bins if index == 0 else min(template.candidates, bins)
+        plans.append(
+            LevelPlan(
+                index=index,
+                downsample=1,
+                bin_width=width,
+                candidates=count,
+                max_label=bins - 1,
+                max_disparity=max_disparity,
+                mrf=template,
+            )
+        )
+    return plans
+
+
+def bin_widths(max_disparity: int, max_coarse_bins: int) -> list[int]:
+    """Bin widths coarse to fine: powers of two from the coarsest that fits, down to 1."""
+    width = 1
+    while bin_count(max_disparity, width) > max_coarse_bins:
+        width *= 2
+    widths = [width]
+    while widths[-1] > 1:
+        widths.append(widths[-1] // 2)
+    return widths
+
+
+def bin_count(max_disparity: int, width: int) -> int:
+    """Bins of ``width`` disparities covering 0..max_disparity (the last one may be partial)."""
+    return max_disparity // width + 1
+
+
+def refined_bins(coarse_bins: np.ndarray, count: int, max_bin: int) -> np.ndarray:
+    """Candidate bins (h, w, count) of the next finer level from the coarser bin map (h, w)."""
+    start = 2 * np.rint(coarse_bins).astype(np.int32) - (count // 2 - 1)
+    start = np.clip(start, 0, max(0, max_bin + 1 - count))
+    return start[:, :, None] + np.arange(count, dtype=np.int32)
 
 
 def level_shape(shape: tuple[int, int], downsample: int) -> tuple[int, int]:

@@ -3,7 +3,7 @@
 ``LevelInputs`` is everything needed to build any bundle of a level: the level's images and
 candidate array. From a block of rows the worker computes the costs, encodes each bundle with the
 configured codec, calls the solver adapter, decodes and repairs. A ``RowSolver`` (the exact DP)
-skips the QUBO and works on the costs of the whole block at once.
+skips the QUBO and works on the costs of blocks of rows.
 """
 
 from __future__ import annotations
@@ -11,48 +11,134 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from multiprocessing import get_context
 
 import numpy as np
 
 from shared.bundles import bundle_rows, bundle_seed
-from shared.config import LevelConfig, MatchConfig
+from shared.config import DataTerm, LevelConfig, MatchConfig
+from shared.data_terms import ad_census_volume, bin_minimum, gather, squared_difference
 from shared.encodings import get_codec
-from shared.energy import Costs, level_costs, mrf_energy
+from shared.energy import Costs, mrf_costs, mrf_energy
+from shared.images import to_gray
+from shared.pyramid import LevelPlan
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver
 
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
 
+#: A row solver takes as many rows at once as keep one block's pairwise cost arrays (float64,
+#: horizontal and vertical, K x K per pixel) within this: large enough to vectorise, small
+#: enough that memory is bounded by the block, not by the image.
+COST_BLOCK_BYTES = 64 * 2**20
+
 
 @dataclass
 class LevelInputs:
-    """A level's images (float32, level resolution) and candidates (h, w, K) int32.
+    """Everything needed to build any bundle of a level.
 
-    ``initial_labels`` (h, w) is the coarser level's estimate expressed as labels, used for warm
-    starts; ``None`` on the coarsest level.
+    ``left`` / ``right`` are the level's images (float32 in [0, 1], gray or BGR colour) and
+    ``candidates`` (rows, w, K) int32 the labels each pixel may take. With ``views`` = 2 the
+    arrays hold two matching problems one below the other: rows [0, h) are the left view's,
+    rows [h, 2h) the right view's as the mirrored pair (both images flipped, roles swapped).
+    Bundles, tasks and progress therefore treat the right view as more rows of the same level;
+    costs never mix the two. ``initial_labels`` (rows, w) is the coarser level's estimate as
+    labels, for warm starts; ``None`` on the coarsest level.
     """
 
-    index: int
-    level: LevelConfig
+    plan: LevelPlan
     left: np.ndarray
     right: np.ndarray
     candidates: np.ndarray
     initial_labels: np.ndarray | None = None
+    views: int = 1
+    #: Optional per-view full cost volumes (in process only; workers build costs per block).
+    volumes: list[np.ndarray] | None = None
+    _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
+
+    @property
+    def index(self) -> int:
+        return self.plan.index
+
+    @property
+    def level(self) -> LevelConfig:
+        return self.plan.mrf
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.left.shape
+        """(rows of all views, width)."""
+        return self.left.shape[0], self.left.shape[1]
+
+    @property
+    def view_height(self) -> int:
+        return self.left.shape[0] // self.views
+
+    def view_parts(self, start: int, stop: int) -> list[tuple[int, int, int]]:
+        """Rows [start, stop) split by view, as (view, first row, stop row) in view rows."""
+        parts = []
+        height = self.view_height
+        for view in range(self.views):
+            first, last = max(start, view * height), min(stop, (view + 1) * height)
+            if first < last:
+                parts.append((view, first - view * height, last - view * height))
+        return parts
+
+    def bundle_rows(self, bundle_height: int) -> list[tuple[int, int]]:
+        """The level's bundles as row ranges: each view tiled on its own, so that no bundle
+        spans the seam between the two views."""
+        height = self.view_height
+        return [
+            (view * height + start, view * height + stop)
+            for view in range(self.views)
+            for start, stop in bundle_rows(height, bundle_height)
+        ]
+
+    def view_images(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(left, right) image of each view."""
+        height = self.view_height
+        return [
+            (self.left[v * height : (v + 1) * height], self.right[v * height : (v + 1) * height])
+            for v in range(self.views)
+        ]
+
+    def _bin_costs(self, view: int, first: int, last: int) -> np.ndarray:
+        """AD-census cost of every label (bins, last - first, w) on rows of one view."""
+        if self.volumes is None:
+            left, right = self.view_images()[view]
+            volume = ad_census_volume(left, right, self.plan.max_disparity, first, last)
+            return bin_minimum(volume, self.plan.bin_width)
+        if self._binned is None:
+            self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
+        return self._binned[view][:, first:last]
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
-        """Costs of rows [start, stop) (the right image is only ever read on the same rows)."""
-        rows = slice(start, stop)
-        return level_costs(
-            self.left[rows], self.right[rows], self.candidates[rows], self.level, config.regularizer
-        )
+        """Costs of rows [start, stop) (a block that spans both views has no edge between)."""
+        stop = self.shape[0] if stop is None else stop
+        height = self.view_height
+        blocks = []
+        for view, first, last in self.view_parts(start, stop):
+            base = view * height
+            left, right = self.view_images()[view]
+            candidates = self.candidates[base + first : base + last]
+            guide = to_gray(left[first:last])
+            if config.data_term is DataTerm.SQUARED:
+                unary = squared_difference(guide, to_gray(right[first:last]), candidates)
+            else:
+                unary = gather(self._bin_costs(view, first, last), candidates)
+            blocks.append(
+                mrf_costs(
+                    unary,
+                    candidates,
+                    guide,
+                    self.level,
+                    config.regularizer,
+                    vertical=config.bundle_height > 1,
+                )
+            )
+        return Costs.stack(blocks)
 
 
 @dataclass
@@ -124,27 +210,51 @@ def solve_bundles(
 def _solve_on_costs(
     solver: RowSolver, inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
 ) -> list[BundleResult]:
-    """A row solver on the smallest block of rows covering ``row_ranges``, all rows at once."""
-    started = time.perf_counter()
-    first, last = min(r[0] for r in row_ranges), max(r[1] for r in row_ranges)
-    costs = inputs.costs(config, first, last)
-    labels = solver.solve_rows(costs, config.bundle_height)
-    share = (time.perf_counter() - started) / len(row_ranges)
+    """A row solver on blocks of consecutive bundles' rows at once (vectorised over rows, memory
+    bounded by :data:`COST_BLOCK_BYTES`, not by the image)."""
+    width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
+    rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
     results = []
-    for start, stop in row_ranges:
-        rows = costs.rows(start - first, stop - first)
-        bundle_labels = labels[start - first : stop - first]
-        results.append(
-            BundleResult(
-                row_start=start,
-                row_stop=stop,
-                labels=bundle_labels,
-                energy=mrf_energy(rows, bundle_labels),
-                repaired=0,
-                wall_time=share,
+    for block in _blocks(sorted(row_ranges), rows, inputs.view_height):
+        started = time.perf_counter()
+        first, last = block[0][0], block[-1][1]
+        costs = inputs.costs(config, first, last)
+        labels = solver.solve_rows(costs, config.bundle_height)
+        share = (time.perf_counter() - started) / len(block)
+        for start, stop in block:
+            rows = costs.rows(start - first, stop - first)
+            bundle_labels = labels[start - first : stop - first]
+            results.append(
+                BundleResult(
+                    row_start=start,
+                    row_stop=stop,
+                    labels=bundle_labels,
+                    energy=mrf_energy(rows, bundle_labels),
+                    repaired=0,
+                    wall_time=share,
+                )
             )
-        )
     return results
+
+
+def _blocks(
+    row_ranges: list[tuple[int, int]], rows: int, view_height: int
+) -> list[list[tuple[int, int]]]:
+    """Consecutive, contiguous row ranges grouped into blocks of at most ``rows`` rows of one
+    view (a gap between ranges, or the seam between views, starts a new block)."""
+    blocks: list[list[tuple[int, int]]] = []
+    for start, stop in row_ranges:
+        first = blocks[-1][0][0] if blocks else 0
+        if (
+            blocks
+            and blocks[-1][-1][1] == start
+            and stop - first <= rows
+            and start // view_height == first // view_height
+        ):
+            blocks[-1].append((start, stop))
+        else:
+            blocks.append([(start, stop)])
+    return blocks
 
 
 def assemble(inputs: LevelInputs, results: list[BundleResult]) -> LevelSolution:
@@ -177,7 +287,7 @@ def assemble(inputs: LevelInputs, results: list[BundleResult]) -> LevelSolution:
 
 def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
     """The in-process ``solve_level``: every bundle of the level, one after another."""
-    rows = bundle_rows(inputs.shape[0], config.bundle_height)
+    rows = inputs.bundle_rows(config.bundle_height)
     return assemble(inputs, solve_bundles(inputs, config, rows))
 
 
@@ -209,8 +319,9 @@ class ProcessPoolLevelSolver:
     def __call__(self, inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
         if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
             return solve_level_in_process(inputs, config)
-        rows = bundle_rows(inputs.shape[0], config.bundle_height)
+        rows = inputs.bundle_rows(config.bundle_height)
         chunks = [rows[i :: self.processes * 4] for i in range(self.processes * 4)]
-        solve = partial(solve_bundles, inputs, config)
+        # the children build costs per bundle; the in-process volume cache is not worth sending
+        solve = partial(solve_bundles, replace(inputs, volumes=None), config)
         results = [r for chunk in self._pool.map(solve, [c for c in chunks if c]) for r in chunk]
         return assemble(inputs, results)

@@ -21,6 +21,7 @@ class SyntheticScene:
     left: np.ndarray  # float32 gray in [0, 1]
     right: np.ndarray
     disparity: np.ndarray  # float32, left view, pixels
+    right_disparity: np.ndarray  # float32, right view: right pixel x matches left x + d
 
     def ground_truth_values(self, scale: float = 1.0) -> np.ndarray:
         """Ground truth as stored values (disparity x scale), Middlebury style."""
@@ -102,5 +103,7 @@ def make_scene(
             _Surface(_texture(rng, tex_shape), (d, 0.0), (top, top + h, left, left + w))
         )
     left_image, disparity = _render(surfaces, (height, width), "left")
-    right_image, _ = _render(surfaces, (height, width), "right")
-    return SyntheticScene(left=left_image, right=right_image, disparity=disparity)
+    right_image, right_disparity = _render(surfaces, (height, width), "right")
+    return SyntheticScene(
+        left=left_image, right=right_image, disparity=disparity, right_disparity=right_disparity
+    )

@@ -1,6 +1,7 @@
 """The service's ``solve_level``: a Celery chord per pyramid level, driven by fan-in callbacks.
 
-    start_job      (control)  load uploads, prepare_level(0), write inputs, launch chord 0
+    start_job      (control)  load uploads, plan the levels, prepare_level(0), write inputs,
+                              launch chord 0
     solve_rows     (solver)   load the level's inputs once per process, solve_bundles, labels back
     level_done     (control)  assemble, finish_level, report; prepare the next level and launch
                               its chord, or finish() (+ metrics) and store the result
@@ -21,10 +22,11 @@ from dataclasses import asdict
 import numpy as np
 from celery import Celery, chord
 
-from shared.bundles import bundle_rows
+from shared import pyramid
 from shared.config import MatchConfig, Settings
 from shared.metrics import evaluate
-from shared.pipeline import finish, finish_level, prepare_level, report
+from shared.pipeline import finish, finish_level, match_views, prepare_level, report
+from shared.pyramid import LevelPlan
 from shared.solve import BundleResult, LevelInputs, assemble, solve_bundles
 from shared.solvers.qpu_time import is_metered
 from workers.app import LEVEL_DONE, SOLVE_ROWS
@@ -53,13 +55,14 @@ def internal_error(job_id: str, what: str) -> str:
 # --- chunks of bundles -----------------------------------------------------------------------
 
 
-def task_chunks(height: int, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
-    """The level's bundles grouped so each task covers about ``rows_per_task`` rows.
+def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
+    """The level's bundles (both views' with the left-right check) grouped so each task covers
+    about ``rows_per_task`` rows.
 
     Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
     (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
     """
-    bundles = bundle_rows(height, config.bundle_height)
+    bundles = inputs.bundle_rows(config.bundle_height)
     per_task = max(1, rows_per_task // config.bundle_height)
     if is_metered(config.solver):
         per_task = 1
@@ -101,8 +104,22 @@ def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
     if record is None:
         log.info("job %s: not queued any more (cancelled or gone); nothing to start", job_id)
         return
-    left, right = store.load_upload(job_id, "left"), store.load_upload(job_id, "right")
-    launch_level(celery, store, record, prepare_level(left, right, record.config, 0))
+    left, right = job_views(store, record)
+    first = job_plans(record)[0]
+    launch_level(celery, store, record, prepare_level(left, right, record.config, first))
+
+
+def job_views(store: JobStore, record: JobRecord) -> tuple[np.ndarray, np.ndarray]:
+    """The job's uploads as the views its data term reads."""
+    left, right = store.load_upload(record.id, "left"), store.load_upload(record.id, "right")
+    return match_views(left, right, record.config)
+
+
+def job_plans(record: JobRecord) -> list[LevelPlan]:
+    """The job's levels, from the disparity range resolved when it was accepted."""
+    if record.disparity_range is None:
+        raise ValueError(f"job {record.id}: no disparity range recorded")
+    return pyramid.plan(record.config, int(record.disparity_range["max_disparity"]))
 
 
 def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: LevelInputs) -> None:
@@ -111,7 +128,7 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     config = record.config
     store.save_level(record.id, inputs, started=time.time())
     rows_per_task = settings.solver_rows_per_task.get(config.solver, settings.rows_per_task)
-    chunks = task_chunks(inputs.shape[0], config, rows_per_task)
+    chunks = task_chunks(inputs, config, rows_per_task)
     total = sum(len(chunk) for chunk in chunks)
 
     def advance(current: JobRecord) -> JobRecord | None:
@@ -158,7 +175,7 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     width = inputs.shape[1]
     bundles = [decode_bundle(b, width) for result in results for b in result["bundles"]]
     solution = assemble(inputs, bundles)
-    disparity = finish_level(inputs, solution, config)
+    level_map = finish_level(inputs, solution, config)
     level_report = asdict(report(inputs, solution, time.time() - started))
     store.drop_level(job_id, index)
 
@@ -170,12 +187,13 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     record = store.update(job_id, add_report)
     if record is None or record.state is not JobState.RUNNING:
         return
-    left, right = store.load_upload(job_id, "left"), store.load_upload(job_id, "right")
-    if index + 1 < len(config.levels):
-        next_inputs = prepare_level(left, right, config, index + 1, disparity)
+    left, right = job_views(store, record)
+    plans = job_plans(record)
+    if index + 1 < len(plans):
+        next_inputs = prepare_level(left, right, config, plans[index + 1], level_map)
         launch_level(celery, store, record, next_inputs)
         return
-    result = finish(disparity, left.shape, config)
+    result = finish(level_map, left, right, config, plans[-1], inputs.views)
     metrics, warning = None, None
     if record.ground_truth is not None:
         try:

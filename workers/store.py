@@ -30,7 +30,8 @@ import numpy as np
 import redis
 from pydantic import BaseModel, Field
 
-from shared.config import LevelConfig, MatchConfig, Settings
+from shared.config import MatchConfig, Settings
+from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs
 
 JOB_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -74,7 +75,10 @@ class JobRecord(BaseModel):
     started_at: datetime | None = None
     finished_at: datetime | None = None
     level: int = 0  # 1-based index of the level being solved; 0 before the first
+    levels_total: int = 0  # levels of the run (the bin pyramid's depend on the range)
     bundles_total: int = 0  # bundles of that level
+    #: ``shared.disparity_range.RangeEstimate`` as a dict: the range the job runs with
+    disparity_range: dict[str, Any] | None = None
     levels: list[dict[str, Any]] = Field(default_factory=list)  # shared.pipeline.LevelReport
     metrics: dict[str, float] | None = None
     error: str | None = None
@@ -284,7 +288,7 @@ class JobStore:
             done = record.bundles_total
         return Progress(
             level=record.level,
-            levels=len(record.config.levels),
+            levels=record.levels_total,
             bundles_done=min(done, record.bundles_total),
             bundles_total=record.bundles_total,
         )
@@ -304,7 +308,8 @@ class JobStore:
     def save_level(self, job_id: str, inputs: LevelInputs, started: float) -> None:
         """Write a level's inputs once; every worker of the level reads them (by reference)."""
         fields = {
-            "level": inputs.level.model_dump_json().encode(),
+            "plan": inputs.plan.model_dump_json().encode(),
+            "views": str(inputs.views).encode(),
             "started": repr(started).encode(),
             "left": _npy(inputs.left),
             "right": _npy(inputs.right),
@@ -325,8 +330,8 @@ class JobStore:
             raise LevelInputsMissing(f"job {job_id}: inputs of level {index} are gone")
         initial = fields.get(b"initial_labels")
         inputs = LevelInputs(
-            index=index,
-            level=LevelConfig.model_validate_json(fields[b"level"]),
+            plan=LevelPlan.model_validate_json(fields[b"plan"]),
+            views=int(fields[b"views"]),
             left=_from_npy(fields[b"left"]),
             right=_from_npy(fields[b"right"]),
             candidates=_from_npy(fields[b"candidates"]),

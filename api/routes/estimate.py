@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, File, Form, UploadFile
 
 from api.auth import Principal, current_principal
 from api.deps import Services, services
-from api.routes.jobs import check_solver_name, estimate_job
+from api.routes.jobs import check_solver_name, disparity_range_of, estimate_job
 from api.schemas import Estimate
 from api.uploads import decode_pair, parse_config, read_upload
 from api.users import UserStore, user_store
@@ -43,13 +43,15 @@ def estimate(
     settings = svc.settings
     config = parse_config(params)
     check_solver_name(config)
-    left_image, _ = decode_pair(
+    left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
-    job = estimate_job(config, left_image.shape[:2], svc)
+    top = disparity_range_of(left_image, right_image, config).max_disparity
+    job = estimate_job(config, left_image.shape[:2], top, svc)
     remaining = users.ledger.status(principal.name).remaining if job.seconds > 0 else math.inf
     return Estimate(
         **job.as_dict(),
+        max_disparity=top,
         remaining_seconds=None if math.isinf(remaining) else remaining,
         fits=job.seconds <= remaining,
     )

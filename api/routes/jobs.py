@@ -20,7 +20,10 @@ from api.uploads import (
 )
 from api.users import UserStore, user_store
 from shared.config import MatchConfig
+from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
+from shared.pipeline import match_views
+from shared.pyramid import plan
 from shared.solvers import UnknownSolver
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
@@ -59,6 +62,7 @@ def status_of(record: JobRecord, svc: Services) -> JobStatus:
         metrics=record.metrics,
         error=record.error,
         config=record.config,
+        disparity_range=record.disparity_range,
     )
 
 
@@ -98,12 +102,21 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     )
 
 
-def estimate_job(config: MatchConfig, shape: tuple[int, int], svc: Services) -> JobEstimate:
+def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEstimate:
+    """The job's disparity range: it decides the levels, hence the job's size."""
+    return resolve_max_disparity(
+        *match_views(left_image, right_image, config), config.max_disparity
+    )
+
+
+def estimate_job(
+    config: MatchConfig, shape: tuple[int, int], max_disparity: int, svc: Services
+) -> JobEstimate:
     """The job's metered time, with the actual embeddings the workers have already found
     (shared through Redis) for bundle shapes they have met; 422 for unusable solver_params."""
     cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
     try:
-        return job_seconds(config, shape, cache)
+        return job_seconds(config, shape, max_disparity, cache)
     except (TypeError, ValueError, KeyError) as error:
         raise UploadError(
             http.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -114,6 +127,7 @@ def estimate_job(config: MatchConfig, shape: tuple[int, int], svc: Services) -> 
 def check_budget(
     config: MatchConfig,
     shape: tuple[int, int],
+    max_disparity: int,
     principal: Principal,
     users: UserStore,
     svc: Services,
@@ -121,7 +135,7 @@ def check_budget(
     """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
     if not is_metered(config.solver):
         return
-    estimate = estimate_job(config, shape, svc)
+    estimate = estimate_job(config, shape, max_disparity, svc)
     try:
         users.ledger.check(
             principal.name, estimate.seconds, f"this job ({estimate.bundles} bundles)"
@@ -164,7 +178,9 @@ def create_job(
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
-    check_budget(config, left_image.shape, principal, users, svc)
+    # the range decides the levels, hence the job's size: resolved once, here, for good
+    disparity_range = disparity_range_of(left_image, right_image, config)
+    check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users, svc)
     arrays = {"left": left_image, "right": right_image}
     truth = None
     if ground_truth is not None:
@@ -180,6 +196,8 @@ def create_job(
         height=left_image.shape[0],
         ground_truth=truth,
         created_at=now(),
+        disparity_range=disparity_range.as_dict(),
+        levels_total=len(plan(config, disparity_range.max_disparity)),
     )
     svc.store.create(record, arrays)
     svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
@@ -280,4 +298,5 @@ def get_disparity(
 def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     """Colour-mapped disparity (near = warm) for a quick look."""
     record, disparity = finished_result(job_id, svc, principal)
-    return Response(preview_png(disparity, record.config.max_disparity), media_type="image/png")
+    top = record.disparity_range["max_disparity"] if record.disparity_range else None
+    return Response(preview_png(disparity, top), media_type="image/png")

@@ -51,7 +51,7 @@ from shared.bundles import bundle_rows
 from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
-from shared.pyramid import level_shape
+from shared.pyramid import level_shape, plan
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
 
 log = logging.getLogger(__name__)
@@ -318,14 +318,17 @@ def level_estimate(
     index: int,
     shape: tuple[int, int],
     candidates: int,
+    views: int = 1,
     cache: EmbeddingCache | None = None,
 ) -> LevelEstimate:
-    """Bundle count x per-bundle time of level ``index`` (``shape`` = its height, width).
+    """Bundle count x per-bundle time of level ``index`` (``shape`` = one view's height, width;
+    ``views`` = 2 with the left-right check, whose right view has as many bundles again).
 
     Every bundle is estimated at the size of the level's largest bundle, with that bundle
     shape's actual embedding when ``cache`` knows one."""
     height, width = shape
     rows = bundle_rows(height, config.bundle_height)
+    bundles = views * len(rows)
     tallest = max(stop - start for start, stop in rows)
     variables = tallest * width * get_codec(config.encoding).variables_per_pixel(candidates)
     params = sampler_params(config.solver_params, warm=index > 0)
@@ -337,23 +340,35 @@ def level_estimate(
     return LevelEstimate(
         index=index,
         shape=(height, width),
-        bundles=len(rows),
+        bundles=bundles,
         variables_per_bundle=variables,
-        seconds=each * len(rows),
+        seconds=each * bundles,
         qubits_per_bundle=qubits,
         embedding_known=embedding is not None,
     )
 
 
 def job_seconds(
-    config: MatchConfig, shape: tuple[int, int], cache: EmbeddingCache | None = None
+    config: MatchConfig,
+    shape: tuple[int, int],
+    max_disparity: int,
+    cache: EmbeddingCache | None = None,
 ) -> JobEstimate:
-    """Estimate a job before accepting it, from the image ``shape`` (height, width), the
-    pyramid and the solver parameters: nothing is embedded or solved. ``cache``: where the
-    actual embeddings of earlier jobs are looked up (the service's shared store)."""
+    """Estimate a job before accepting it, from the image ``shape`` (height, width), its
+    resolved ``max_disparity``, the pyramid and the solver parameters: nothing is embedded or
+    solved. ``cache``: where the actual embeddings of earlier jobs are looked up (the service's
+    shared store)."""
+    views = 2 if config.lr_check else 1
     levels = [
-        level_estimate(config, index, level_shape(shape, level.downsample), level.candidates, cache)
-        for index, level in enumerate(config.levels)
+        level_estimate(
+            config,
+            level.index,
+            level_shape(shape, level.downsample),
+            level.candidates,
+            views,
+            cache,
+        )
+        for level in plan(config, max_disparity)
     ]
     return JobEstimate(
         solver=config.solver,

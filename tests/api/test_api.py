@@ -106,7 +106,14 @@ def test_queued_job_lifecycle_and_listing(api):
         ids.append(response.json()["id"])
 
     status = api.get(f"/v1/jobs/{ids[0]}").json()
-    assert status["state"] == "queued" and status["progress"]["levels"] == 3
+    # max 6 px: the bin pyramid has one level (7 bins of 1 px)
+    assert status["state"] == "queued" and status["progress"]["levels"] == 1
+    assert status["disparity_range"] == {
+        "max_disparity": 6,
+        "source": "given",
+        "confirmed": 0.0,
+        "note": "",
+    }
     assert (
         status["width"] == 32 and status["height"] == 24 and status["config"]["max_disparity"] == 6
     )
@@ -167,11 +174,13 @@ def test_estimate_reports_the_jobs_qpu_seconds_without_queueing_it(api, api_sett
     from shared.solvers import qpu_time
 
     before = api.get("/v1/jobs", params={"limit": 100}).json()["total"]
-    params = {"solver": "qpu", "encoding": "domain-wall", "solver_params": {"num_reads": 50}}
+    params = {"solver": "qpu", "encoding": "domain-wall", "solver_params": {"num_reads": 50},
+              "max_disparity": 6}  # fmt: skip
     response = estimate(api, params=params)
     assert response.status_code == 200, response.text
     body = response.json()
-    expected = qpu_time.job_seconds(MatchConfig.model_validate(params), (24, 32))
+    assert body["max_disparity"] == 6
+    expected = qpu_time.job_seconds(MatchConfig.model_validate(params), (24, 32), 6)
     assert body["seconds"] == pytest.approx(expected.seconds)
     assert body["metered"] and body["bundles"] == expected.bundles
     assert [level["bundles"] for level in body["levels"]] == [lv.bundles for lv in expected.levels]

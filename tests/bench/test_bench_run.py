@@ -30,6 +30,7 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
     expected = {
         ("solvers", "exact"),
         ("solvers", "nosuch"),
+        *(("accurate", name) for name in bench.ACCURATE_ABLATIONS),
         *(("ablations", name) for name in bench.ABLATIONS),
         ("baselines", "heidari"),
         ("baselines", "sgbm"),
@@ -73,6 +74,28 @@ def test_ablations_change_what_they_claim(bench_result):
         for r in results["runs"]
         if (r["experiment"], r["variant"], r["scene"]) == ("solvers", "exact", "cones")
     )
+
+
+def test_accurate_ablations_switch_one_step_each(bench_result):
+    results, _, _ = bench_result
+    configs = {
+        r["variant"]: r["config"]
+        for r in results["runs"]
+        if r["experiment"] == "accurate" and r["scene"] == "cones"
+    }
+    full = configs["accurate"]
+    assert full["preset"] == "accurate" and full["lr_check"] and full["weighted_median"]
+    changed = {
+        name: {k for k in full if config[k] != full[k]}
+        for name, config in configs.items()
+        if name != "accurate"
+    }
+    assert changed == {
+        "no-lr-check": {"lr_check"},
+        "no-weighted-median": {"weighted_median"},
+        "image-pyramid": {"pyramid", "levels"},
+        "squared-difference": {"data_term"},
+    }
 
 
 def test_table_and_json_carry_every_figure(bench_result):

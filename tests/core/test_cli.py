@@ -47,9 +47,15 @@ def test_console_script_matches_and_reports_json(pair, tmp_path, scene):
         check=True,
     )
     summary = json.loads(completed.stdout)
-    assert [level["downsample"] for level in summary["levels"]] == [4, 2, 1]
+    assert [level["bin_width"] for level in summary["levels"]] == [4, 2, 1]
+    assert summary["max_disparity"] == {
+        "max_disparity": 16,
+        "source": "given",
+        "confirmed": 0.0,
+        "note": "",
+    }
     assert all(level["energy"] > 0 and level["seconds"] > 0 for level in summary["levels"])
-    assert evaluate(load_disparity(out), scene.disparity).bpp < 15
+    assert evaluate(load_disparity(out), scene.disparity).bpp < 5
     assert (tmp_path / "p.png").stat().st_size > 0
 
 
@@ -106,3 +112,18 @@ def test_user_errors_are_one_line_messages(pair, tmp_path, capsys):
         assert main(["match", *arguments]) == 1
         error = capsys.readouterr().err
         assert message in error and error.count("\n") == 1, error
+
+
+def test_preset_and_auto_range_from_the_command_line(pair, tmp_path, capsys):
+    out = str(tmp_path / "d.npy")
+    base = ["match", str(pair / "left.png"), str(pair / "right.png"), "-o", out, "--json"]
+    assert main([*base, "--preset", "paper", "--max-disparity", "16"]) == 0
+    paper = json.loads(capsys.readouterr().out)
+    assert [level["downsample"] for level in paper["levels"]] == [4, 2, 1]
+    assert main(base) == 0  # default: accurate, auto range
+    accurate = json.loads(capsys.readouterr().out)
+    assert accurate["max_disparity"]["source"] == "auto"
+    assert 16 <= accurate["max_disparity"]["max_disparity"] <= 28
+    with pytest.raises(SystemExit):
+        main([*base, "--max-disparity", "wide"])
+    assert "expected auto or an integer" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""The pipeline end to end on synthetic scenes with known ground truth."""
+"""The pipeline end to end on synthetic scenes with known ground truth, both presets."""
 
 from __future__ import annotations
 
@@ -6,43 +6,65 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from shared.config import LevelConfig, MatchConfig, Regularizer
+from shared.config import LevelConfig, MatchConfig, Preset, Regularizer
 from shared.energy import mrf_energy
 from shared.metrics import evaluate
-from shared.pipeline import prepare_level, run_pipeline
+from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
 from shared.solve import BundleResult, assemble, solve_bundles, solve_level_in_process
 
 
 def _scores(scene, **overrides):
-    result = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=16, **overrides))
+    config = MatchConfig(**{"max_disparity": 16, **overrides})
+    result = run_pipeline(scene.left, scene.right, config)
     return result, evaluate(result.disparity, scene.disparity)
+
+
+def _level(scene, config, index, previous=None):
+    left, right = match_views(scene.left, scene.right, config)
+    _, plans = plan_run(left, right, config)
+    return prepare_level(left, right, config, plans[index], previous)
 
 
 def test_default_pipeline_recovers_the_synthetic_ground_truth(scene):
     result, scores = _scores(scene)
     assert result.disparity.shape == scene.left.shape
     assert result.disparity.dtype == np.float32
-    # A shuffled, shifted or wrong-view pipeline lands far above these (see the next test).
-    assert scores.bpp < 15.0
-    assert scores.rmse < 2.5
+    # The paper's preset misses these thresholds on the same scene (next test).
+    assert scores.bpp < 4.0
+    assert scores.rmse < 1.5
+    assert [level.bin_width for level in result.levels] == [4, 2, 1]
+    assert [level.downsample for level in result.levels] == [1, 1, 1]
+    # both views: the right view's rows are more bundles of the same level
+    assert [level.bundles for level in result.levels] == [2 * 96] * 3
+
+
+def test_the_paper_preset_keeps_its_image_pyramid_and_misses_the_accurate_threshold(scene):
+    result, scores = _scores(scene, preset=Preset.PAPER)
     assert [level.downsample for level in result.levels] == [4, 2, 1]
     assert [level.bundles for level in result.levels] == [24, 48, 96]
+    assert scores.bpp < 15.0 and scores.rmse < 2.5
+    assert scores.bpp > 4.0
 
 
-def test_matching_the_wrong_view_fails_the_same_threshold(scene):
-    swapped = run_pipeline(scene.right, scene.left, MatchConfig(max_disparity=16))
+@pytest.mark.parametrize("preset", list(Preset))
+def test_matching_the_wrong_view_fails_the_same_threshold(scene, preset):
+    config = MatchConfig(max_disparity=16, preset=preset)
+    swapped = run_pipeline(scene.right, scene.left, config)
     assert evaluate(swapped.disparity, scene.disparity).bpp > 40.0
 
 
-def test_regularisation_and_filters_each_help(scene):
-    _, full = _scores(scene)
-    _, data_only = _scores(scene, regularizer=Regularizer.NONE, median=False, bilateral=False)
+@pytest.mark.parametrize("preset", list(Preset))
+def test_regularisation_and_filters_each_help(scene, preset):
+    _, full = _scores(scene, preset=preset)
+    off = {"median": False, "bilateral": False, "weighted_median": False, "lr_check": False}
+    _, data_only = _scores(scene, preset=preset, regularizer=Regularizer.NONE, **off)
     assert full.bpp < data_only.bpp
 
 
-def test_level_energies_are_the_exact_row_optima(scene):
-    config = MatchConfig(max_disparity=16)
-    inputs = prepare_level(scene.left, scene.right, config, 0)
+@pytest.mark.parametrize("preset", list(Preset))
+def test_level_energies_are_the_exact_row_optima(scene, preset):
+    config = MatchConfig(max_disparity=16, preset=preset)
+    inputs = _level(scene, config, 0)
     solution = solve_level_in_process(inputs, config)
     costs = inputs.costs(config)
     rng = np.random.default_rng(0)
@@ -55,61 +77,96 @@ def test_level_energies_are_the_exact_row_optima(scene):
 
 
 def test_finer_level_candidates_follow_the_coarser_estimate(scene):
-    config = MatchConfig(max_disparity=16)
+    config = MatchConfig(max_disparity=16, preset=Preset.PAPER)
     coarse = np.full((24, 32), 3.0, dtype=np.float32)
-    inputs = prepare_level(scene.left, scene.right, config, 1, coarse)
+    inputs = _level(scene, config, 1, coarse)
     np.testing.assert_array_equal(inputs.candidates[0, 0], [4, 5, 6, 7])
     assert np.all(inputs.initial_labels == 2)  # candidate 6 = 2 * 3
 
 
+def test_finer_bins_follow_the_coarser_bin(scene):
+    config = MatchConfig(max_disparity=16)  # bins of 4, 2, 1 px
+    coarse = np.full((2 * 96, 128), 2.0, dtype=np.float32)  # bin 2 of width 4: 8..11 px
+    inputs = _level(scene, config, 1, coarse)
+    np.testing.assert_array_equal(inputs.candidates[0, 0], [2, 3, 4, 5, 6, 7])
+    assert np.all(inputs.initial_labels == 2)  # bin 4 of width 2 = 8..9 px
+
+
 def test_assemble_refuses_missing_or_doubled_rows(scene):
     config = MatchConfig(max_disparity=16)
-    inputs = prepare_level(scene.left, scene.right, config, 0)
+    inputs = _level(scene, config, 0)
     results = solve_bundles(inputs, config, [(0, 1), (1, 2)])
     with pytest.raises(ValueError, match="rows missing"):
         assemble(inputs, results)
     extra = BundleResult(0, 1, results[0].labels, 0.0, 0, 0.0)
-    whole = solve_bundles(inputs, config, [(r, r + 1) for r in range(inputs.shape[0])])
+    whole = solve_bundles(inputs, config, inputs.bundle_rows(1))
     with pytest.raises(ValueError, match="solved twice"):
         assemble(inputs, [*whole, extra])
 
 
+def test_bundles_never_span_the_two_views(scene):
+    config = MatchConfig(max_disparity=16, bundle_height=5)
+    inputs = _level(scene, config, 0)
+    rows = inputs.bundle_rows(5)
+    assert all(stop <= 96 or start >= 96 for start, stop in rows)
+    assert sum(stop - start for start, stop in rows) == 2 * 96
+
+
 def test_bundle_results_do_not_depend_on_how_rows_are_grouped(scene):
     config = MatchConfig(max_disparity=16)
-    inputs = prepare_level(scene.left, scene.right, config, 1)
-    together = assemble(
-        inputs, solve_bundles(inputs, config, [(r, r + 1) for r in range(inputs.shape[0])])
-    )
+    inputs = _level(scene, config, 1)
+    rows = inputs.bundle_rows(1)
+    together = assemble(inputs, solve_bundles(inputs, config, rows))
     apart = assemble(
-        inputs,
-        [
-            result
-            for r in range(inputs.shape[0])
-            for result in solve_bundles(inputs, config, [(r, r + 1)])
-        ],
+        inputs, [result for row in rows for result in solve_bundles(inputs, config, [row])]
     )
     np.testing.assert_array_equal(together.labels, apart.labels)
+    assert together.energy == pytest.approx(apart.energy)
 
 
 def test_single_level_configurations_work(scene):
-    config = MatchConfig(max_disparity=16, levels=[LevelConfig(downsample=1, candidates=17)])
+    config = MatchConfig(
+        max_disparity=16, preset=Preset.PAPER, levels=[LevelConfig(downsample=1, candidates=17)]
+    )
     result = run_pipeline(scene.left, scene.right, config)
     assert len(result.levels) == 1 and result.disparity.shape == scene.left.shape
 
 
 def test_invalid_configurations_are_refused():
     with pytest.raises(ValidationError, match="halve"):
-        MatchConfig(levels=[LevelConfig(downsample=4), LevelConfig(downsample=1)])
+        MatchConfig(
+            preset=Preset.PAPER, levels=[LevelConfig(downsample=4), LevelConfig(downsample=1)]
+        )
+    with pytest.raises(ValidationError, match="bin pyramid"):
+        MatchConfig(levels=[LevelConfig(downsample=2)])
     with pytest.raises(ValidationError, match="odd"):
         MatchConfig(median_size=4)
     with pytest.raises(ValidationError):
         MatchConfig(max_disparity=0)
+    with pytest.raises(ValidationError):
+        MatchConfig(max_disparity="wide")
+    with pytest.raises(ValidationError, match="ad-census"):
+        MatchConfig(preset=Preset.PAPER, subpixel=True)
 
 
-def test_process_pool_gives_the_sequential_result(scene):
+def test_every_option_overrides_its_preset():
+    config = MatchConfig(preset=Preset.PAPER, encoding="domain-wall", bilateral=False)
+    assert config.encoding.value == "domain-wall" and not config.bilateral
+    assert config.median_size == 7  # the rest still from the preset
+    accurate = MatchConfig()
+    assert accurate.preset is Preset.ACCURATE and accurate.encoding.value == "domain-wall"
+    assert accurate.lr_check and accurate.weighted_median and not accurate.bilateral
+    # a stored config reproduces its run: it holds concrete values, not the preset's name only
+    assert MatchConfig(**accurate.model_dump()) == accurate
+
+
+@pytest.mark.parametrize("preset", list(Preset))
+def test_process_pool_gives_the_sequential_result(scene, preset):
     from shared.solve import ProcessPoolLevelSolver
 
-    config = MatchConfig(max_disparity=16, solver="steepest-descent", encoding="domain-wall")
+    config = MatchConfig(
+        max_disparity=16, preset=preset, solver="steepest-descent", encoding="domain-wall"
+    )
     small = scene.left[:32, :48], scene.right[:32, :48]
     sequential = run_pipeline(*small, config)
     with ProcessPoolLevelSolver(2) as pool:

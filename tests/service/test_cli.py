@@ -64,8 +64,9 @@ def test_bench_http_runner_and_the_key_it_sends(api_url, tmp_path, capsys):
     right.write_bytes(harness.png(scene.right))
     config = MatchConfig(max_disparity=6, seed=1)
     disparity, levels = runner.load()(left, right, config, api_url)
-    assert np.array_equal(disparity, run_pipeline(*load_pair(left, right), config).disparity)
-    assert len(levels) == 3
+    expected = run_pipeline(*load_pair(left, right), config)
+    assert np.array_equal(disparity, expected.disparity)
+    assert len(levels) == len(expected.levels) == 1  # max 6 px: one level of 1-px bins
     argv = ["submit", str(left), str(right), "--url", api_url, "--key", "qhsm_0_wrong"]
     assert main(argv) == 1
     err = capsys.readouterr().err
@@ -108,7 +109,7 @@ def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_
     assert main(["estimate", str(left), str(right), *options, "--url", api_url, "--json"]) == 0
     remote = json.loads(capsys.readouterr().out)
     config = MatchConfig(solver="qpu", encoding="domain-wall", max_disparity=8)
-    expected = qpu_time.job_seconds(config, (24, 32))
+    expected = qpu_time.job_seconds(config, (24, 32), 8)
     assert remote["seconds"] == pytest.approx(expected.seconds) and remote["metered"]
     assert remote["bundles"] == expected.bundles and remote["fits"] is True
     assert main(["estimate", str(left), str(right), *options, "--url", api_url]) == 0

@@ -33,6 +33,7 @@ def pair():
 def one_level(**extra) -> dict:
     """A single full-resolution level: every bundle of the job is in one chord."""
     return {
+        "preset": "paper",
         "levels": [LevelConfig(downsample=1, candidates=3).model_dump()],
         "max_disparity": 8,
         "median": False,
@@ -69,15 +70,18 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
     assert status["state"] == "succeeded", status["error"]
     assert np.array_equal(harness.download(client, job_id), reference(pair, params))
 
-    assert status["progress"] == {"level": 3, "levels": 3, "bundles_done": 32, "bundles_total": 32}
-    assert [level["height"] for level in status["levels"]] == [8, 16, 32]
+    # max 8 px: bins of 2 then 1 px; both views' rows are bundles of each level's chord
+    assert status["progress"] == {"level": 2, "levels": 2, "bundles_done": 64, "bundles_total": 64}
+    assert [(level["bin_width"], level["views"]) for level in status["levels"]] == [(2, 2), (1, 2)]
+    assert [level["height"] for level in status["levels"]] == [32, 32]
+    assert status["disparity_range"]["max_disparity"] == 8
     assert status["usage"]["solver_seconds"] > 0
     assert 0 <= status["metrics"]["bpp"] <= 100 and status["metrics"]["pixels"] > 0
     # the finest level was really fanned out: several tasks, each a few rows
     from workers.store import JobStore
 
-    chunks = [c for c in JobStore.from_settings(settings).chunks(job_id) if c.level == 2]
-    assert len(chunks) == 32 // settings.rows_per_task
+    chunks = [c for c in JobStore.from_settings(settings).chunks(job_id) if c.level == 1]
+    assert len(chunks) == 2 * 32 // settings.rows_per_task
     for fmt, magic in [("pfm", b"Pf"), ("png", b"\x89PNG")]:
         response = client.get(f"/v1/jobs/{job_id}/disparity", params={"format": fmt})
         assert response.status_code == 200 and response.content.startswith(magic)
@@ -136,7 +140,7 @@ def test_jobs_run_only_on_workers_consuming_their_queue(client, pair, settings, 
     if solver not in solver_names() or not get_solver(solver).available().ok:
         pytest.skip(f"{solver} is not available here")
     left, right, *_ = pair
-    params = {"solver": solver, "max_disparity": 8}
+    params = {"solver": solver, "max_disparity": 8, "preset": "paper"}  # fits gurobi's licence
     job_id = harness.submit(client, left, right, params)
     status = harness.wait_for(client, job_id, timeout=120)
     assert status["state"] == "succeeded", status["error"]

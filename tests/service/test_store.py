@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from shared.config import MatchConfig
-from shared.pipeline import prepare_level
+from shared.pipeline import plan_run, prepare_level
 from workers import orchestration
 from workers.store import (
     ChunkReport,
@@ -63,11 +63,12 @@ def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
     record = new_job(store, JobState.RUNNING)
     left, right = pair_arrays
     config = MatchConfig(max_disparity=8)
-    coarse = prepare_level(left, right, config, 0)
-    fine = prepare_level(left, right, config, 1, np.full(coarse.shape, 2.0, np.float32))
+    _, plans = plan_run(left, right, config)
+    coarse = prepare_level(left, right, config, plans[0])
+    fine = prepare_level(left, right, config, plans[1], np.full(coarse.shape, 2.0, np.float32))
     store.save_level(record.id, fine, started=123.0)
     loaded, started = store.load_level(record.id, 1)
-    assert started == 123.0 and loaded.level == fine.level
+    assert started == 123.0 and loaded.plan == fine.plan and loaded.views == fine.views == 2
     for name in ("left", "right", "candidates", "initial_labels"):
         assert np.array_equal(getattr(loaded, name), getattr(fine, name))
     store.drop_level(record.id, 1)

@@ -105,6 +105,7 @@ def pair():
 
 
 QPU_PARAMS = {
+    "preset": "paper",  # small coarse levels keep the QPU stand-in quick
     "solver": "qpu-sim",
     "encoding": "domain-wall",
     "max_disparity": 6,
@@ -117,7 +118,7 @@ QPU_PARAMS = {
 def job_estimate(shape=(16, 24)) -> qpu_time.JobEstimate:
     from shared.config import MatchConfig
 
-    return qpu_time.job_seconds(MatchConfig.model_validate(QPU_PARAMS), shape)
+    return qpu_time.job_seconds(MatchConfig.model_validate(QPU_PARAMS), shape, 6)
 
 
 def submit(http, key, pair, params, expect=202):

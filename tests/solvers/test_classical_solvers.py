@@ -12,6 +12,7 @@ from solver_helpers import optimum, random_bqm, stereo_costs
 from shared.config import LevelConfig, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
+from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs, solve_bundles
 from shared.solvers import SolverError, get_solver
 from shared.solvers.anneal import SA_PRESETS, beta_range, fix_variables
@@ -94,6 +95,7 @@ def test_pipeline_warm_start_passes_the_coarser_estimate():
     rng = np.random.default_rng(0)
     initial = rng.integers(0, 4, size=(2, 6)).astype(np.int32)
     config = MatchConfig(
+        preset="paper",
         solver="sa",
         encoding="domain-wall",
         bundle_height=2,
@@ -104,9 +106,17 @@ def test_pipeline_warm_start_passes_the_coarser_estimate():
             "num_sweeps": 1,
         },
     )
-    inputs = LevelInputs(
+    plan = LevelPlan(
         index=1,
-        level=LevelConfig(candidates=4),
+        downsample=1,
+        bin_width=1,
+        candidates=4,
+        max_label=int(costs.candidates.max()),
+        max_disparity=int(costs.candidates.max()),
+        mrf=LevelConfig(candidates=4),
+    )
+    inputs = LevelInputs(
+        plan=plan,
         left=np.zeros((2, 6), np.float32),
         right=np.zeros((2, 6), np.float32),
         candidates=costs.candidates,

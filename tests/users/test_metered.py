@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from shared.config import MatchConfig
-from shared.pipeline import prepare_level
+from shared.pipeline import plan_run, prepare_level
 from shared.solvers import SolveResult, qpu_time, registry
 from shared.synthetic import make_scene
 from workers.quota import (
@@ -60,12 +60,14 @@ def fake(monkeypatch) -> FakeQPU:
 def level():
     scene = make_scene(16, 24, max_disparity=6, seed=0)
     config = MatchConfig(
+        preset="paper",
         solver="qpu-sim",
         encoding="domain-wall",
         max_disparity=6,
         solver_params={"num_reads": 10},
     )
-    return prepare_level(scene.left, scene.right, config, 2), config  # full resolution
+    _, plans = plan_run(scene.left, scene.right, config)
+    return prepare_level(scene.left, scene.right, config, plans[2]), config  # full resolution
 
 
 @pytest.fixture

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from shared.bundles import bundle_rows
 from shared.config import MatchConfig
-from shared.pyramid import level_shape
+from shared.pyramid import level_shape, plan
 from shared.solvers import qpu_time
 from shared.solvers.embedding_cache import EmbeddingSize, structure_digest
 from shared.solvers.qpu_time import ADVANTAGE_TIMING_DATA as DATA
@@ -71,16 +71,19 @@ def test_charged_seconds_prefers_the_hybrid_charge_time():
     assert qpu_time.charged_seconds({"run_time": 5.0}) == 0.0
 
 
+@pytest.mark.parametrize("preset", ["accurate", "paper"])
 @pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])
-def test_job_estimate_counts_every_bundle_of_every_level(encoding):
-    config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2,
+def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
+    config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
                          solver_params={"num_reads": 10})  # fmt: skip
-    estimate = qpu_time.job_seconds(config, (37, 50))
+    estimate = qpu_time.job_seconds(config, (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
-    assert len(estimate.levels) == len(config.levels)
-    for level, got in zip(config.levels, estimate.levels, strict=True):
+    views = 2 if preset == "accurate" else 1  # the right view's bundles too
+    plans = plan(config, 20)
+    assert len(estimate.levels) == len(plans) == 3  # paper: 1/4, 1/2, 1; bins of 4, 2, 1 px
+    for level, got in zip(plans, estimate.levels, strict=True):
         height, width = level_shape((37, 50), level.downsample)
-        assert got.bundles == len(bundle_rows(height, 2))
+        assert got.bundles == views * len(bundle_rows(height, 2))
         assert got.variables_per_bundle == 2 * width * (level.candidates + per_pixel)
         each = qpu_time.bundle_seconds("qpu-sim", got.variables_per_bundle, {"num_reads": 10})
         assert got.seconds == pytest.approx(each * got.bundles)
@@ -89,15 +92,15 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding):
 
 
 def test_unmetered_solvers_cost_nothing():
-    assert qpu_time.job_seconds(MatchConfig(solver="sa"), (40, 60)).seconds == 0.0
+    assert qpu_time.job_seconds(MatchConfig(solver="sa"), (40, 60), 16).seconds == 0.0
     assert not qpu_time.is_metered("exact") and qpu_time.is_metered("hybrid-sim")
 
 
 def test_warm_started_levels_are_estimated_as_reverse_anneals():
     cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100})
     warm = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": True})
-    cold_levels = qpu_time.job_seconds(cold, (60, 80)).levels
-    warm_levels = qpu_time.job_seconds(warm, (60, 80)).levels
+    cold_levels = qpu_time.job_seconds(cold, (60, 80), 16).levels
+    warm_levels = qpu_time.job_seconds(warm, (60, 80), 16).levels
     assert warm_levels[0] == cold_levels[0]  # the coarsest level has nothing to start from
     for cold_level, warm_level in zip(cold_levels[1:], warm_levels[1:], strict=True):
         assert warm_level.seconds != cold_level.seconds
@@ -145,21 +148,22 @@ def test_a_bundle_shape_has_the_structure_of_every_bundle_of_that_shape(
 
 
 def test_known_embeddings_replace_the_assumed_qubits_level_by_level():
-    config = MatchConfig(solver="qpu", encoding="domain-wall", solver_params={"num_reads": 100})
+    config = MatchConfig(solver="qpu", encoding="domain-wall", preset="paper",
+                         solver_params={"num_reads": 100})  # fmt: skip
     shape = (40, 64)
-    assumed = qpu_time.job_seconds(config, shape)
+    assumed = qpu_time.job_seconds(config, shape, 16)
     assert all(not level.embedding_known for level in assumed.levels)
     finest = assumed.levels[-1]
     digest = qpu_time.bundle_digest("domain-wall", 1, finest.shape[1], 4)
     size = EmbeddingSize(qubits=150, chains=finest.variables_per_bundle, longest_chain=3)
-    known = qpu_time.job_seconds(config, shape, KnownSizes({("qpu", digest): size}))
+    known = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu", digest): size}))
     assert [level.embedding_known for level in known.levels] == [False, False, True]
     assert known.levels[:2] == assumed.levels[:2]
     assert known.levels[-1].qubits_per_bundle == 150
     each = qpu_time.qpu_access_seconds(150, {"num_reads": 100})
     assert known.levels[-1].seconds == pytest.approx(each * finest.bundles)
     # another solver's embedding of the same structure is not used
-    other = qpu_time.job_seconds(config, shape, KnownSizes({("qpu-sim", digest): size}))
+    other = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu-sim", digest): size}))
     assert other == assumed
 
 
@@ -169,6 +173,6 @@ def test_an_unreachable_embedding_store_falls_back_to_the_assumption():
             raise ConnectionError("store down")
 
     config = MatchConfig(solver="qpu-sim")
-    assert qpu_time.job_seconds(config, (20, 30), Broken()) == qpu_time.job_seconds(
-        config, (20, 30)
+    assert qpu_time.job_seconds(config, (20, 30), 16, Broken()) == qpu_time.job_seconds(
+        config, (20, 30), 16
     )

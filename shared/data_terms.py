@@ -1,0 +1,117 @@
+"""Data terms: what it costs to say that left-view pixel (y, x) has disparity d.
+
+``squared`` (the paper) is evaluated at a level's candidates only:
+
+    c(y, x, d) = (I_L(y, x) - I_R(y, x - d))^2            gray images in [0, 1]
+
+``ad-census`` is a cost volume over every disparity 0..D, aggregated by a 5x5 box (mean):
+
+    c(y, x, d) = 1/2 [(1 - exp(-AD / 10)) + (1 - exp(-H / 30))]
+
+with AD the mean absolute colour difference on the 0..255 scale (gray inputs: the gray
+difference) and H the Hamming distance between the 5x5 census codes of the gray images
+(bit = neighbour darker than the centre). In both terms right-image columns x - d < 0 are clamped
+to column 0. Rows beyond a view's border replicate its first or last row, so a block of rows gets
+exactly the values it would get as part of the whole image: costs are computed per block of rows
+(memory bounded by the block, not the image) and blocks can be computed anywhere.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from shared.images import to_gray
+
+#: AD-census constants: the exponential scales of the two terms and the window sizes.
+AD_SCALE = 10.0
+CENSUS_SCALE = 30.0
+CENSUS_WINDOW = 5
+AGGREGATION_WINDOW = 5
+#: Image rows a block of cost rows needs on each side (census reach + aggregation reach).
+HALO = CENSUS_WINDOW // 2 + AGGREGATION_WINDOW // 2
+
+
+def squared_difference(left: np.ndarray, right: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """(I_L(y, x) - I_R(y, x - d))^2 for every candidate d of (h, w, K) gray images' pixels."""
+    height, width, _ = candidates.shape
+    columns = np.arange(width)[None, :, None] - candidates
+    np.clip(columns, 0, width - 1, out=columns)
+    rows = np.arange(height)[:, None, None]
+    diff = left[:, :, None].astype(np.float64) - right[rows, columns]
+    return diff * diff
+
+
+def census(gray: np.ndarray) -> np.ndarray:
+    """5x5 census codes (24 bits) of the rows 2..n-3 of ``gray`` (n, w); columns replicate."""
+    reach = CENSUS_WINDOW // 2
+    rows, width = gray.shape
+    padded = np.pad(gray, ((0, 0), (reach, reach)), mode="edge")
+    centre = gray[reach : rows - reach]
+    code = np.zeros(centre.shape, dtype=np.uint32)
+    for dy in range(-reach, reach + 1):
+        for dx in range(-reach, reach + 1):
+            if dy == 0 and dx == 0:
+                continue
+            neighbour = padded[reach + dy : rows - reach + dy, reach + dx : reach + dx + width]
+            code = (code << np.uint32(1)) | (neighbour < centre)
+    return code
+
+
+def _shifted(image: np.ndarray, max_disparity: int) -> np.ndarray:
+    """``image`` with ``max_disparity`` replicated copies of column 0 in front: column
+    ``max_disparity + x - d`` of the result is column ``max(x - d, 0)`` of the image."""
+    pad = [(0, 0), (max_disparity, 0)] + [(0, 0)] * (image.ndim - 2)
+    return np.pad(image, pad, mode="edge")
+
+
+def ad_census_volume(
+    left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+) -> np.ndarray:
+    """Aggregated AD-census costs (D + 1, stop - start, w) float32 of rows [start, stop).
+
+    ``left`` and ``right`` are one whole view each (h, w) gray or (h, w, 3) colour in [0, 1];
+    rows outside [start, stop) are read as context.
+    """
+    height, width = left.shape[:2]
+    rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
+    left_rows = left[rows].astype(np.float32) * np.float32(255.0)
+    right_rows = right[rows].astype(np.float32) * np.float32(255.0)
+    census_left = census(to_gray(left_rows))
+    census_right = _shifted(census(to_gray(right_rows)), max_disparity)
+    census_reach = CENSUS_WINDOW // 2
+    left_rows = left_rows[census_reach:-census_reach]
+    right_rows = _shifted(right_rows[census_reach:-census_reach], max_disparity)
+    channel_mean = np.full((1, 3), 1.0 / 3.0, dtype=np.float32)
+    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - exp(-AD / 10) / 2
+    table = np.zeros(256, dtype=np.float32)
+    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
+    table += 0.5
+    box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
+    reach = AGGREGATION_WINDOW // 2
+    volume = np.empty((max_disparity + 1, stop - start, width), dtype=np.float32)
+    for d in range(max_disparity + 1):
+        columns = slice(max_disparity - d, max_disparity - d + width)
+        ad = cv2.absdiff(left_rows, right_rows[:, columns])
+        if ad.ndim == 3:
+            ad = cv2.transform(ad, channel_mean)
+        hamming = np.bitwise_count(census_left ^ census_right[:, columns]).astype(np.uint8)
+        ad_term = cv2.exp(ad * np.float32(-1.0 / AD_SCALE))
+        cost = cv2.scaleAdd(ad_term, -0.5, cv2.LUT(hamming, table))
+        aggregated = cv2.boxFilter(cost, -1, box, borderType=cv2.BORDER_REPLICATE)
+        volume[d] = aggregated[reach:-reach]
+    return volume
+
+
+def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:
+    """(bins, n, w): each bin's cost is the least cost over its ``bin_width`` disparities."""
+    if bin_width == 1:
+        return volume
+    return np.minimum.reduceat(volume, np.arange(0, volume.shape[0], bin_width), axis=0)
+
+
+def gather(per_label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """(n, w, K) costs of the candidate labels from a (labels, n, w) stack."""
+    return np.take_along_axis(
+        np.moveaxis(per_label, 0, -1), candidates.astype(np.intp), axis=2
+    ).astype(np.float64)

@@ -1,0 +1,186 @@
+"""The accurate preset's parts: AD-census costs, the bin pyramid, both views, the automatic
+disparity range, and the paper preset left exactly as it was."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared import filters, pyramid
+from shared.config import MatchConfig, Preset
+from shared.data_terms import ad_census_volume, bin_minimum, census
+from shared.disparity_range import estimate_max_disparity
+from shared.images import load_pair
+from shared.metrics import evaluate
+from shared.pipeline import finish_level, match_views, plan_run, prepare_level, run_pipeline
+from shared.solve import solve_level_in_process
+from shared.synthetic import make_scene
+
+
+def _extended(image: np.ndarray, y: int, x: int) -> np.ndarray:
+    """The image extended by replicating its border rows and columns."""
+    height, width = image.shape[:2]
+    return image[min(max(y, 0), height - 1), min(max(x, 0), width - 1)]
+
+
+def _census_code(gray: np.ndarray, y: int, x: int) -> int:
+    code, centre = 0, _extended(gray, y, x)
+    for dy in range(-2, 3):
+        for dx in range(-2, 3):
+            if dy or dx:
+                code = (code << 1) | int(_extended(gray, y + dy, x + dx) < centre)
+    return code
+
+
+def _naive_cost(left, right, y, x, d) -> float:
+    """The AD-census formula of one pixel and disparity, written out (before aggregation)."""
+    gray_left, gray_right = left.mean(axis=2), right.mean(axis=2)  # any gray works for census
+    xr = max(x - d, 0)
+    ad = np.mean(np.abs(_extended(left, y, x) - _extended(right, y, xr))) * 255.0
+    hamming = bin(_census_code(gray_left, y, x) ^ _census_code(gray_right, y, xr)).count("1")
+    return 0.5 * (1 - np.exp(-ad / 10.0)) + 0.5 * (1 - np.exp(-hamming / 30.0))
+
+
+def test_ad_census_volume_is_the_formula_aggregated_over_5x5():
+    rng = np.random.default_rng(3)
+    left = rng.random((7, 9, 3)).astype(np.float32)
+    right = rng.random((7, 9, 3)).astype(np.float32)
+    # the library takes Rec. 709 luma for census; give it views whose gray is the channel mean
+    left[:] = left.mean(axis=2, keepdims=True)
+    right[:] = right.mean(axis=2, keepdims=True)
+    volume = ad_census_volume(left, right, 3, 0, 7)
+    for y, x, d in [(0, 0, 0), (3, 4, 2), (6, 8, 3), (2, 1, 3), (5, 7, 1)]:
+        expected = np.mean(
+            [
+                _naive_cost(left, right, y + dy, min(max(x + dx, 0), 8), d)
+                for dy in range(-2, 3)
+                for dx in range(-2, 3)
+            ]
+        )
+        assert volume[d, y, x] == pytest.approx(expected, abs=1e-5)
+
+
+def test_constant_images_cost_only_their_colour_difference():
+    left = np.full((8, 10), 0.5, np.float32)
+    right = np.full((8, 10), 0.3, np.float32)
+    volume = ad_census_volume(left, right, 4, 0, 8)
+    assert np.allclose(volume, 0.5 * (1 - np.exp(-51.0 / 10.0)), atol=1e-5)  # H = 0
+
+
+def test_census_bit_is_set_where_the_neighbour_is_darker():
+    gray = np.zeros((5, 5), np.float32)
+    gray[2, 2] = 1.0  # a bright centre: every neighbour is darker
+    assert census(gray)[0, 2] == 2**24 - 1
+    gray[2, 2] = 0.0
+    assert census(gray)[0, 2] == 0
+
+
+def test_cost_blocks_equal_the_whole_image_rows():
+    scene = make_scene(30, 40, max_disparity=8, seed=1)
+    whole = ad_census_volume(scene.left, scene.right, 8, 0, 30)
+    for start, stop in [(0, 1), (5, 12), (29, 30)]:
+        np.testing.assert_array_equal(
+            ad_census_volume(scene.left, scene.right, 8, start, stop), whole[:, start:stop]
+        )
+
+
+def test_a_bin_costs_the_least_of_its_disparities():
+    volume = np.random.default_rng(0).random((11, 2, 3)).astype(np.float32)
+    binned = bin_minimum(volume, 4)
+    assert binned.shape == (3, 2, 3)
+    np.testing.assert_array_equal(binned[2], volume[8:11].min(axis=0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    max_disparity=st.integers(1, 300),
+    coarse_bins=st.integers(2, 16),
+    candidates=st.integers(4, 8),
+    data=st.data(),
+)
+def test_the_finer_window_holds_the_truth_when_the_coarser_bin_does(
+    max_disparity, coarse_bins, candidates, data
+):
+    widths = pyramid.bin_widths(max_disparity, coarse_bins)
+    assert widths[-1] == 1 and pyramid.bin_count(max_disparity, widths[0]) <= coarse_bins
+    truth = data.draw(st.integers(0, max_disparity))
+    for coarse, fine in itertools.pairwise(widths):
+        count = min(candidates, pyramid.bin_count(max_disparity, fine))
+        max_bin = pyramid.bin_count(max_disparity, fine) - 1
+        window = pyramid.refined_bins(np.array([[truth // coarse]]), count, max_bin)[0, 0]
+        assert truth // fine in window
+        assert window.min() >= 0 and window.max() <= max_bin
+
+
+def test_occluded_strip_takes_the_background_disparity():
+    scene = make_scene(64, 96, max_disparity=16, slanted=False, layers=1, seed=5)
+    right_of_left = scene.disparity  # use the ground truths of both views
+    valid = filters.left_right_check(right_of_left, scene.right_disparity, 1.0)
+    occluded = ~valid
+    assert occluded.any()
+    corrupted = np.where(occluded, 99.0, right_of_left).astype(np.float32)
+    filled = filters.fill_from_background(corrupted, valid)
+    background = float(scene.disparity.min())
+    # every occluded pixel (uncovered background beside the square) gets the background's value
+    np.testing.assert_allclose(filled[occluded], background, atol=1.0)
+    np.testing.assert_array_equal(filled[valid], right_of_left[valid])
+
+
+def test_the_mirrored_pair_gives_the_right_views_disparity():
+    scene = make_scene(64, 96, max_disparity=12, seed=2)
+    config = MatchConfig(max_disparity=12)
+    left, right = match_views(scene.left, scene.right, config)
+    _, plans = plan_run(left, right, config)
+    level_map = None
+    for plan in plans:
+        inputs = prepare_level(left, right, config, plan, level_map)
+        level_map = finish_level(inputs, solve_level_in_process(inputs, config), config)
+    right_view = level_map[64:, ::-1]
+    assert evaluate(right_view, scene.right_disparity).bpp < 5.0
+    assert evaluate(level_map[:64], scene.disparity).bpp < 5.0
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("max_disparity", [8, 24, 60])
+def test_auto_range_covers_the_scene_and_stays_near_it(seed, max_disparity):
+    scene = make_scene(96, 160, max_disparity=max_disparity, seed=seed)
+    true = float(scene.disparity.max())
+    estimate = estimate_max_disparity(scene.left, scene.right)
+    assert estimate.source == "auto"
+    assert true <= estimate.max_disparity <= 1.5 * true + 4
+
+
+def test_auto_range_on_the_middlebury_scenes(middlebury_dir):
+    for name, true in [("tsukuba", 14), ("venus", 19.75), ("cones", 55)]:
+        folder = middlebury_dir / name
+        ext = "png" if name == "cones" else "ppm"
+        left, right = load_pair(folder / f"left.{ext}", folder / f"right.{ext}")
+        estimate = estimate_max_disparity(left, right).max_disparity
+        assert true <= estimate <= 1.5 * true + 4, name
+
+
+def _digest(disparity: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(disparity, np.float32).tobytes()).hexdigest()[:16]
+
+
+#: Outputs of the paper's pipeline before the presets existed (commit 6e99293).
+PAPER_DIGESTS = {"exact": "7aa3bf1a24006d5c", "sa": "c1c263020ca1f2ab"}
+
+
+@pytest.mark.parametrize("solver", sorted(PAPER_DIGESTS))
+def test_the_paper_preset_gives_the_output_it_gave_before_the_presets(solver):
+    scene = make_scene(seed=0)
+    config = MatchConfig(preset=Preset.PAPER, solver=solver, max_disparity=12, seed=3)
+    result = run_pipeline(scene.left, scene.right, config)
+    assert _digest(result.disparity) == PAPER_DIGESTS[solver]
+
+
+def test_the_paper_preset_on_tsukuba_is_unchanged(tsukuba):
+    left, right = load_pair(tsukuba.left, tsukuba.right)
+    config = MatchConfig(preset=Preset.PAPER, max_disparity=20)
+    assert _digest(run_pipeline(left, right, config).disparity) == "b33a223c855eb795"
