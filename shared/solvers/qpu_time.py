@@ -243,8 +243,13 @@ def known_embedding(
     solvers that do not embed)."""
     if cache is None or solver_name not in QPU_SOLVERS:
         return None
+    height, width = shape
+    if height * width * get_codec(encoding).variables_per_pixel(candidates) > MAX_QUBITS:
+        return None  # cannot embed, so never was (and its QUBO may be too big to build here)
     try:
-        return cache.known_size(solver_name, bundle_digest(str(encoding), *shape, candidates))
+        return cache.known_size(
+            solver_name, bundle_digest(str(encoding), height, width, candidates)
+        )
     except Exception as error:  # an unreachable store only costs us the better estimate
         log.warning("embedding sizes unavailable (%s); assuming %.1f qubits per variable",
                     error, QUBITS_PER_VARIABLE)  # fmt: skip

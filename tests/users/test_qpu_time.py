@@ -176,3 +176,19 @@ def test_an_unreachable_embedding_store_falls_back_to_the_assumption():
     assert qpu_time.job_seconds(config, (20, 30), 16, Broken()) == qpu_time.job_seconds(
         config, (20, 30), 16
     )
+
+
+def test_bundles_larger_than_the_qpu_are_never_looked_up():
+    """No embedding can exist, and their QUBO (here 64 x 2000 pixels x 64 labels) is not built."""
+
+    class Counting(KnownSizes):
+        calls = 0
+
+        def known_size(self, solver, digest):
+            Counting.calls += 1
+            return None
+
+    assert qpu_time.known_embedding(Counting({}), "qpu", "one-hot", (64, 2000), 64) is None
+    assert Counting.calls == 0
+    assert qpu_time.known_embedding(Counting({}), "qpu", "one-hot", (1, 20), 4) is None
+    assert Counting.calls == 1
