@@ -21,6 +21,7 @@ from shared.config import Settings, get_settings
 def register(commands: argparse._SubParsersAction) -> None:
     serve = commands.add_parser("serve", help="run the API and workers (embedded Redis if unset)")
     _stack_options(serve)
+    _log_level_option(serve)
     serve.set_defaults(handler=cmd_serve)
 
     demo = commands.add_parser("demo", help="start the service, run one demo job, stop")
@@ -38,6 +39,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     api = commands.add_parser("api", help="run the HTTP API only (uvicorn)")
     api.add_argument("--host", help="bind address (QHSM_API_HOST)")
     api.add_argument("--port", type=int, help="port (QHSM_API_PORT)")
+    _log_level_option(api)
     api.set_defaults(handler=cmd_api)
 
     submit = commands.add_parser("submit", help="send a stereo pair to a running service")
@@ -75,6 +77,15 @@ def register(commands: argparse._SubParsersAction) -> None:
     estimate.set_defaults(handler=cmd_estimate)
 
 
+def _log_level_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--log-level",
+        choices=["debug", "info", "warning", "error"],
+        default="info",
+        help="API log level; debug also shows every poll of a job's status and health check",
+    )
+
+
 def _stack_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="API bind address (QHSM_API_HOST, default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="API port (QHSM_API_PORT, default 8000)")
@@ -110,7 +121,7 @@ def _uvicorn_server(settings: Settings, log_level: str = "info"):
 
 
 def cmd_api(args: argparse.Namespace) -> int:
-    _uvicorn_server(_settings(args)).run()
+    _uvicorn_server(_settings(args), args.log_level).run()
     return 0
 
 
@@ -123,15 +134,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
         stack.start()
         settings = stack.settings
         print(stack.describe(), file=sys.stderr)
-        _announce_key(settings)
-        print(
-            f"API on http://{settings.api_host}:{settings.api_port} (docs: /docs); Ctrl-C stops",
-            file=sys.stderr,
-        )
-        _uvicorn_server(settings).run()
+        key = _announce_key(settings)
+        url = f"http://{settings.api_host}:{settings.api_port}"
+        print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
+        print(f"web page: {sign_in_url(url, settings.api_host, key)}", file=sys.stderr)
+        _uvicorn_server(settings, args.log_level).run()
     finally:
         stack.stop()
     return 0
+
+
+def sign_in_url(url: str, host: str, key: str | None) -> str:
+    """The web page's address; on a loopback address it signs the local admin in: the key is
+    in the fragment, which browsers never send, so it stays out of every server log."""
+    import ipaddress
+
+    try:
+        local = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        local = False
+    return f"{url}/#key={key}" if key and local else f"{url}/"
 
 
 def _announce_key(settings: Settings) -> str | None:
@@ -197,7 +219,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         stack.start()
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
-        client = Client(api.url, key=_announce_key(stack.settings))
+        key = _announce_key(stack.settings)
+        client = Client(api.url, key=key, key_source="the demo's local admin")
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
         print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
@@ -218,6 +241,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
         if args.keep_running:
             print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
+            page = sign_in_url(api.url, stack.settings.api_host, key)
+            print(f"web page: {page}", file=sys.stderr)
             api.join()
     except KeyboardInterrupt:
         pass
@@ -243,7 +268,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     for path in files:
         if not path.is_file():
             raise CommandError(f"{path}: no such file")
-    client = Client(url, key=args.key)
+    client = Client(url, key=args.key, key_source="the --key option")
     try:
         job = client.submit(
             files[0].read_bytes(),

@@ -19,32 +19,53 @@ class ClientError(RuntimeError):
     """The API refused a request or cannot be reached; the message says why."""
 
 
-def default_key() -> str | None:
-    """``QHSM_API_KEY``, else the local admin key ``qhsm serve`` keeps in the data directory."""
+def default_key() -> tuple[str | None, str]:
+    """``QHSM_API_KEY``, else the local admin key ``qhsm serve`` keeps in the data directory;
+    with where it was looked for (a wrong key is most often another data directory's)."""
     from shared.config import get_settings
 
     settings = get_settings()
     if settings.api_key is not None:
-        return settings.api_key.get_secret_value()
-    from api.users import read_local_key
+        return settings.api_key.get_secret_value(), "the QHSM_API_KEY environment variable"
+    from api.users import LOCAL_KEY_FILE, read_local_key
 
-    return read_local_key(settings.data_dir)
+    path = (settings.data_dir / LOCAL_KEY_FILE).resolve()
+    return read_local_key(settings.data_dir), f"the file {path} (QHSM_DATA_DIR's local admin key)"
 
 
 @dataclass
 class Client:
-    """``key``: the API key sent as ``Authorization: Bearer``; default :func:`default_key`."""
+    """``key``: the API key sent as ``Authorization: Bearer``; default :func:`default_key`.
+    ``key_source`` says where ``key`` came from (``--key``, ...), for the message of a 401."""
 
     url: str
     timeout: float = 60.0
     key: str | None = field(default=None, repr=False)
+    key_source: str | None = None
     http: httpx.Client = field(init=False, repr=False)
+    _has_key: bool = field(init=False, repr=False, default=False)
 
     def __post_init__(self) -> None:
-        key = self.key or default_key()
+        key = self.key
+        if key:
+            self.key_source = self.key_source or "the key given to the client"
+        else:
+            key, self.key_source = default_key()
         headers = {"Authorization": f"Bearer {key}"} if key else {}
         self.http = httpx.Client(
             base_url=self.url.rstrip("/"), timeout=self.timeout, headers=headers
+        )
+        self._has_key = bool(key)
+
+    def _unauthorized_hint(self) -> str:
+        if not self._has_key:
+            return (
+                f"no API key was sent: no --key, no QHSM_API_KEY, and no key in "
+                f"{self.key_source}; pass --key or set QHSM_API_KEY"
+            )
+        return (
+            f"the key came from {self.key_source}; if that is another service's or data "
+            "directory's key, pass --key or set QHSM_API_KEY"
         )
 
     def close(self) -> None:
@@ -63,7 +84,7 @@ class Client:
             except ValueError:
                 detail = response.text
             if response.status_code == 401:
-                detail = f"{detail} (pass --key or set QHSM_API_KEY)"
+                detail = f"{detail} ({self._unauthorized_hint()})"
             raise ClientError(f"{method} {path}: {response.status_code}: {detail}")
         return response
 

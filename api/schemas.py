@@ -41,11 +41,11 @@ class LevelTiming(BaseModel):
     width: int
     candidates: int
     bundles: int
-    energy: float
+    energy: float | None = Field(description="MRF energy of the level (null if not finite)")
     repaired: int
     seconds: float
     solver_seconds: float
-    timing: dict[str, float] = Field(default_factory=dict)
+    timing: dict[str, float | None] = Field(default_factory=dict)
 
 
 class DisparityRange(BaseModel):
@@ -58,9 +58,11 @@ class DisparityRange(BaseModel):
 
 
 class Metrics(BaseModel):
-    rmse: float
-    bpp: float = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
-    pixels: int
+    """Scores against the uploaded ground truth; null where a score is not a finite number."""
+
+    rmse: float | None
+    bpp: float | None = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
+    pixels: int | None
 
 
 class JobSummary(BaseModel):

@@ -3,18 +3,37 @@ message that says what is wrong and what to do; nothing a client sends can cause
 
 from __future__ import annotations
 
+import io
 import json
+import math
+import re
 from typing import Any
 
 import cv2
+import imagesize
 import numpy as np
 from fastapi import UploadFile, status
+from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
 from shared.config import MatchConfig, Settings
 from shared.images import ImageError, check_pair, decode_image
 
 NPY_MAGIC = b"\x93NUMPY"
+#: Largest .npy header read (numpy's own default); anything longer is not a disparity map.
+NPY_MAX_HEADER = 10_000
+#: A PFM header: "PF" (colour) or "Pf" (gray), then width and height (imagesize has no PFM).
+PFM_HEADER = re.compile(rb"^P[Ff]\s+(\d+)\s+(\d+)\s")
+#: Signatures of the other accepted formats (PNG, JPEG, TIFF, BMP, PBM/PGM/PPM), whose header
+#: sizes imagesize reads.
+IMAGE_SIGNATURES = (
+    b"\x89PNG\r\n\x1a\n",
+    b"\xff\xd8",
+    b"II*\x00",
+    b"MM\x00*",
+    b"BM",
+    *(f"P{kind}".encode() for kind in range(1, 7)),
+)
 
 
 class UploadError(Exception):
@@ -37,19 +56,52 @@ def read_upload(upload: UploadFile, name: str, settings: Settings) -> bytes:
     return data
 
 
+def declared_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) as the file's header declares them, read without decoding any pixel;
+    None when the format is not one whose header we can read."""
+    match = PFM_HEADER.match(data[:64])
+    if match:
+        return int(match.group(1)), int(match.group(2))
+    if not data.startswith(IMAGE_SIGNATURES):
+        return None
+    width, height = imagesize.get(io.BytesIO(data), exif_rotation=False)  # (-1, -1): unreadable
+    return (width, height) if width >= 0 and height >= 0 else None
+
+
+def check_pixels(width: int, height: int, name: str, settings: Settings) -> None:
+    pixels = width * height
+    if pixels > settings.max_image_pixels:
+        raise UploadError(
+            status.HTTP_413_CONTENT_TOO_LARGE,
+            f"{name}: {width}x{height} = {pixels} pixels is above the limit of "
+            f"{settings.max_image_pixels} (QHSM_MAX_IMAGE_PIXELS); downsample the pair first",
+        )
+
+
 def decode_view(data: bytes, name: str, settings: Settings) -> np.ndarray:
-    """One view as float32 gray in [0, 1], within the configured pixel limit."""
+    """One view decoded, within the configured pixel limit.
+
+    The limit is checked on the size the header declares before anything is decoded, so a small
+    file that declares a huge image (a decompression bomb) costs neither time nor memory;
+    formats whose header cannot be read that way are refused.
+    """
+    size = declared_size(data) if data else None
+    if data and size is None:
+        raise UploadError(
+            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            f"{name}: not a readable image (supported: PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)",
+        )
+    if size is not None:
+        check_pixels(*size, name, settings)
     try:
         image = decode_image(data, name)
     except ImageError as error:
         raise UploadError(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE, str(error)) from None
-    pixels = image.shape[0] * image.shape[1]
-    if pixels > settings.max_image_pixels:
+    except cv2.error:  # OpenCV's own checks (e.g. a header it reads differently)
         raise UploadError(
-            status.HTTP_413_CONTENT_TOO_LARGE,
-            f"{name}: {image.shape[1]}x{image.shape[0]} = {pixels} pixels is above the limit of "
-            f"{settings.max_image_pixels} (QHSM_MAX_IMAGE_PIXELS); downsample the pair first",
-        )
+            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE, f"{name}: the image cannot be decoded"
+        ) from None
+    check_pixels(image.shape[1], image.shape[0], name, settings)
     return image
 
 
@@ -68,15 +120,25 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
     name = "ground_truth"
     if not data:
         raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: the file is empty")
-    try:
-        if data.startswith(NPY_MAGIC):
-            import io
-
-            values = np.load(io.BytesIO(data), allow_pickle=False)
-        else:
+    if data.startswith(NPY_MAGIC):
+        values = read_npy(data, shape)
+    else:
+        size = declared_size(data)  # checked before decoding, as for the views
+        if size is None:
+            raise UploadError(
+                status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+                f"{name}: not a readable disparity map (send PNG/PGM, PFM or .npy)",
+            )
+        if (size[1], size[0]) != shape:
+            raise UploadError(
+                status.HTTP_422_UNPROCESSABLE_CONTENT,
+                f"{name} is {size[0]}x{size[1]} but the views are "
+                f"{shape[1]}x{shape[0]}: send the left view's ground truth at full size",
+            )
+        try:
             values = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except ValueError:
-        values = None
+        except cv2.error:
+            values = None
     if values is None or not isinstance(values, np.ndarray) or values.ndim not in (2, 3):
         raise UploadError(
             status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
@@ -98,15 +160,76 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
     return np.where(np.isfinite(values), values, 0.0).astype(np.float32)
 
 
+def read_npy(data: bytes, shape: tuple[int, int]) -> np.ndarray:
+    """A .npy ground truth, its header checked before any array is allocated: numbers only (no
+    pickles), the views' size, and as many bytes as the header announces."""
+    name = "ground_truth"
+    stream = io.BytesIO(data)
+    try:
+        version = npy_format.read_magic(stream)
+        if version == (1, 0):
+            header = npy_format.read_array_header_1_0(stream, max_header_size=NPY_MAX_HEADER)
+        elif version == (2, 0):
+            header = npy_format.read_array_header_2_0(stream, max_header_size=NPY_MAX_HEADER)
+        else:
+            raise ValueError(f"version {version[0]}.{version[1]} is not supported")
+    except (ValueError, SyntaxError, TypeError) as error:
+        raise UploadError(
+            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            f"{name}: not a readable .npy file ({error}); save it with numpy.save",
+        ) from None
+    dims, fortran_order, dtype = header
+    if dtype.hasobject or dtype.kind not in "uif" or dtype.subdtype is not None:
+        raise UploadError(
+            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            f"{name}: unsupported values {dtype} (send integers or floats)",
+        )
+    if len(dims) not in (2, 3) or tuple(dims[:2]) != shape or (len(dims) == 3 and dims[2] > 4):
+        described = "x".join(map(str, dims[1::-1] if len(dims) >= 2 else dims)) or "a scalar"
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"{name} is {described} but the views are {shape[1]}x{shape[0]}: "
+            "send the left view's ground truth at full size",
+        )
+    count = math.prod(dims)
+    if len(data) - stream.tell() < count * dtype.itemsize:
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"{name}: the .npy file is truncated (its header announces {count} values)",
+        )
+    values = np.frombuffer(data, dtype=dtype, count=count, offset=stream.tell())
+    return values.reshape(dims, order="F" if fortran_order else "C")
+
+
+def _finite_number(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text} is out of range")
+    return value
+
+
+def _no_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a number this service accepts")
+
+
 def parse_config(params: str | None) -> MatchConfig:
     """``params`` JSON (MatchConfig fields, as for ``qhsm match``) -> a validated config."""
     if params is None or not params.strip():
         return MatchConfig()
     try:
-        raw: Any = json.loads(params)
+        raw: Any = json.loads(params, parse_float=_finite_number, parse_constant=_no_constant)
     except json.JSONDecodeError as error:
         raise UploadError(
             status.HTTP_400_BAD_REQUEST, f"params: not valid JSON ({error.msg} at {error.pos})"
+        ) from None
+    except ValueError as error:  # NaN, Infinity or a float that overflows (1e400)
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}; numbers must be finite"
+        ) from None
+    except RecursionError:
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            "params: nested too deeply; send the MatchConfig fields as a flat JSON object",
         ) from None
     if not isinstance(raw, dict):
         raise UploadError(
@@ -115,8 +238,13 @@ def parse_config(params: str | None) -> MatchConfig:
         )
     try:
         return MatchConfig.model_validate(raw)
+    except RecursionError:
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT, "params: nested too deeply"
+        ) from None
     except ValidationError as error:
         problems = "; ".join(
-            f"{'.'.join(map(str, e['loc'])) or 'params'}: {e['msg']}" for e in error.errors()
+            f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"]
+            for e in error.errors()
         )
         raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {problems}") from None

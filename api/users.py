@@ -38,6 +38,8 @@ KEY_ID_BYTES = 4
 KEY_SECRET_BYTES = 32
 USER_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.@-]{0,63}$")
 _KEY = re.compile(rf"^{KEY_TAG}_([0-9a-f]{{{2 * KEY_ID_BYTES}}})_([A-Za-z0-9_-]{{20,}})$")
+#: Scope key under which ``api.middleware.RequestGuard`` leaves the authenticated user.
+USER_SCOPE_KEY = "qhsm.user"
 #: ``create_user``'s budget argument meaning "the settings' default".
 DEFAULT_BUDGET = "default"
 
@@ -263,14 +265,18 @@ def ensure_local_admin(store: UserStore, data_dir: Path) -> tuple[str, bool]:
 _bearer = HTTPBearer(auto_error=False, description="API key from `qhsm admin create-user`")
 
 
-def user_store(request: Request) -> UserStore:
+def user_store_of(app) -> UserStore:
     """The app's user store: ``app.state.users``, else built from the app's services."""
-    store = getattr(request.app.state, "users", None)
+    store = getattr(app.state, "users", None)
     if store is None:
-        services = request.app.state.services
+        services = app.state.services
         store = UserStore.from_settings(services.settings, services.store.redis)
-        request.app.state.users = store
+        app.state.users = store
     return store
+
+
+def user_store(request: Request) -> UserStore:
+    return user_store_of(request.app)
 
 
 def _unauthorized(detail: str, error: str | None = None) -> HTTPException:
@@ -282,25 +288,40 @@ def _unauthorized(detail: str, error: str | None = None) -> HTTPException:
     )
 
 
-def current_user(
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-    store: Annotated[UserStore, Depends(user_store)],
-) -> User:
-    """The caller, from ``Authorization: Bearer KEY``; 401 when missing, wrong or revoked."""
+def authenticate_header(store: UserStore, authorization: str | None) -> User:
+    """The caller from an ``Authorization`` header value; 401 when missing, wrong or revoked.
+
+    Runs in :class:`api.middleware.RequestGuard`, before the request body is read.
+    """
     if not store.auth_enabled:
         return User(name=LOCAL_USER, admin=True)
-    if credentials is None or credentials.scheme.lower() != "bearer":
+    scheme, _, credentials = (authorization or "").partition(" ")
+    if scheme.lower() != "bearer" or not credentials.strip():
         raise _unauthorized(
             "missing API key: send `Authorization: Bearer KEY` (an admin creates keys with "
             "`qhsm admin create-user NAME`)"
         )
-    user = store.authenticate(credentials.credentials)
+    user = store.authenticate(credentials.strip())
     if user is None:
         raise _unauthorized(
             "invalid or revoked API key; ask an admin for a new one (`qhsm admin rotate-key`)",
             "invalid_token",
         )
     return user
+
+
+def current_user(
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+    store: Annotated[UserStore, Depends(user_store)],
+) -> User:
+    """The caller, as ``RequestGuard`` authenticated them (``credentials`` only declares the
+    scheme in the OpenAPI document); checked here when the guard did not run."""
+    user = request.scope.get(USER_SCOPE_KEY)
+    if user is not None:
+        return user
+    header = None if credentials is None else f"{credentials.scheme} {credentials.credentials}"
+    return authenticate_header(store, header)
 
 
 def admin_user(user: Annotated[User, Depends(current_user)]) -> User:

@@ -76,7 +76,7 @@ class LevelConfig(BaseModel):
     smoothness is measured in bins.
     """
 
-    model_config = ConfigDict(frozen=True)
+    model_config = ConfigDict(frozen=True, allow_inf_nan=False)
 
     downsample: int = Field(1, ge=1, description="Integer downsampling factor of this level")
     candidates: int = Field(4, ge=2, le=64, description="Candidate disparities per pixel")
@@ -149,7 +149,7 @@ class MatchConfig(BaseModel):
     stored config reproduces its run whatever the defaults become.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     preset: Preset = Field(Preset.ACCURATE, description="accurate (default) or paper")
     levels: list[LevelConfig] = Field(min_length=1, description="Pyramid levels (from preset)")

@@ -8,6 +8,8 @@ Keys (all under ``{key_prefix}:``):
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:result          .npy bytes of the full-resolution disparity
+    job:{id}:view:{name}     what the web page shows next to the result: the left view (PNG) and
+                             the ground truth (.npy); they outlive the uploads like the result
 
 Chunk reports are written with HSET, so a task that runs twice (a worker died after solving)
 is counted once. State changes go through :meth:`JobStore.transition`, an optimistic
@@ -17,6 +19,8 @@ compare-and-set, so a cancel racing with the last fan-in resolves to exactly one
 from __future__ import annotations
 
 import io
+import logging
+import math
 import re
 import shutil
 import uuid
@@ -28,11 +32,13 @@ from typing import Any
 
 import numpy as np
 import redis
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from shared.config import MatchConfig, Settings
 from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs
+
+log = logging.getLogger(__name__)
 
 JOB_ID = re.compile(r"^[0-9a-f]{32}$")
 #: Level inputs live this long at most (they are deleted as soon as the level is assembled).
@@ -62,7 +68,14 @@ class GroundTruth(BaseModel):
 
 
 class JobRecord(BaseModel):
-    """What the service knows about a job (storage model; API schemas are separate)."""
+    """What the service knows about a job (storage model; API schemas are separate).
+
+    Any float survives the JSON round trip (``Infinity``/``NaN`` are written as such, not as
+    ``null``), so a stored record always loads again; in metrics and level reports, which
+    clients read, numbers that are not finite are stored as null.
+    """
+
+    model_config = ConfigDict(ser_json_inf_nan="constants")
 
     id: str
     state: JobState = JobState.QUEUED
@@ -80,18 +93,55 @@ class JobRecord(BaseModel):
     #: ``shared.disparity_range.RangeEstimate`` as a dict: the range the job runs with
     disparity_range: dict[str, Any] | None = None
     levels: list[dict[str, Any]] = Field(default_factory=list)  # shared.pipeline.LevelReport
-    metrics: dict[str, float] | None = None
+    metrics: dict[str, float | None] | None = None
     error: str | None = None
+
+    @field_validator("metrics", "levels")
+    @classmethod
+    def _finite_or_null(cls, value: Any) -> Any:
+        return finite_or_null(value)
+
+
+def finite_or_null(value: Any) -> Any:
+    """``value`` with every float that is not finite (in nested dicts and lists) made None: what
+    clients read must be valid JSON, which has no Infinity or NaN."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: finite_or_null(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [finite_or_null(item) for item in value]
+    return value
+
+
+def load_record(raw: bytes | str, job_id: str) -> JobRecord | None:
+    """The stored record, or None (logged) when it no longer validates: one broken record must
+    not make the job listings or the workers fail."""
+    try:
+        return JobRecord.model_validate_json(raw)
+    except ValidationError as error:
+        log.error("job %s: stored record does not load, skipped: %s", job_id, error)
+        return None
 
 
 class ChunkReport(BaseModel):
-    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it."""
+    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it.
+
+    Timing entries that are not finite numbers are dropped (they would poison the job's usage).
+    """
+
+    model_config = ConfigDict(ser_json_inf_nan="constants")
 
     level: int
     bundles: int
     wall_time: float
     timing: dict[str, float] = Field(default_factory=dict)
     worker: str = ""
+
+    @field_validator("timing")
+    @classmethod
+    def _finite_timing(cls, value: dict[str, float]) -> dict[str, float]:
+        return {key: seconds for key, seconds in value.items() if math.isfinite(seconds)}
 
 
 class Progress(BaseModel):
@@ -177,7 +227,7 @@ class JobStore:
         if not JOB_ID.match(job_id):
             return None
         raw = self.redis.get(self.key("job", job_id))
-        return None if raw is None else JobRecord.model_validate_json(raw)
+        return None if raw is None else load_record(raw, job_id)
 
     def state(self, job_id: str) -> JobState | None:
         record = self.get(job_id)
@@ -196,9 +246,10 @@ class JobStore:
                 try:
                     pipe.watch(key)
                     raw = pipe.get(key)
-                    if raw is None:
+                    current = None if raw is None else load_record(raw, job_id)
+                    if current is None:
+                        pipe.unwatch()
                         return None
-                    current = JobRecord.model_validate_json(raw)
                     changed = change(current.model_copy(deep=True))
                     if changed is None:
                         pipe.unwatch()
@@ -246,6 +297,8 @@ class JobStore:
         """A job reached a final state: drop what only running jobs need."""
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
+        for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
+            self.redis.expire(key, self.ttl)
         shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
 
     def list(
@@ -260,8 +313,8 @@ class JobStore:
         for job_id, raw in zip(ids, raws, strict=True):
             if raw is None:
                 expired.append(job_id)
-            else:
-                records.append(JobRecord.model_validate_json(raw))
+            elif (record := load_record(raw, job_id)) is not None:
+                records.append(record)
         if expired:
             self.redis.zrem(index, *expired)
         return records, int(self.redis.zcard(index))
@@ -350,3 +403,13 @@ class JobStore:
     def load_result(self, job_id: str) -> np.ndarray | None:
         raw = self.redis.get(self.key("job", job_id, "result"))
         return None if raw is None else _from_npy(raw)
+
+    # views ------------------------------------------------------------------------------------
+
+    def save_view(self, job_id: str, name: str, data: bytes) -> None:
+        """Keep ``data`` for the job's web view; it expires with the result once the job ends."""
+        ttl = self.ttl + self.settings.task_visibility_timeout
+        self.redis.set(self.key("job", job_id, "view", name), data, ex=ttl)
+
+    def load_view(self, job_id: str, name: str) -> bytes | None:
+        return self.redis.get(self.key("job", job_id, "view", name))

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import io
 from typing import Annotated, Literal
 
+import cv2
+import numpy as np
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
@@ -42,7 +45,36 @@ DISPARITY_MEDIA = {
     "png": "image/png",
     "npy": "application/x-npy",
 }
+#: A ground truth's scale: stored value per disparity pixel. Outside this range the scaled
+#: errors lose all precision or overflow (an infinite RMSE).
+GT_SCALE_RANGE = (1e-3, 1e6)
+#: Widest ignored frame, pixels (above any image side the pixel limit allows evaluating).
+MAX_GT_BORDER = 10_000
+#: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
+MAX_OFFSET = 10**9
 NOT_FOUND = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
+
+
+#: Response header of colour-mapped images: the value (pixels) the top colour stands for.
+SCALE_HEADER = "X-Scale-Max"
+
+
+def display_max(record: JobRecord, disparity: np.ndarray) -> float:
+    """The disparity the preview's top colour stands for: the job's range, else the map's max."""
+    top = record.disparity_range["max_disparity"] if record.disparity_range else None
+    if isinstance(top, int | float) and top > 0:
+        return float(top)
+    return max(float(np.max(disparity)), 1.0)
+
+
+def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> None:
+    """Keep what the web page shows beside the result (the uploads go when the job ends)."""
+    view = np.rint(np.clip(arrays["left"], 0.0, 1.0) * 255).astype(np.uint8)
+    svc.store.save_view(job_id, "left.png", cv2.imencode(".png", view)[1].tobytes())
+    if "ground_truth" in arrays:
+        stream = io.BytesIO()
+        np.save(stream, arrays["ground_truth"], allow_pickle=False)
+        svc.store.save_view(job_id, "ground_truth.npy", stream.getvalue())
 
 
 def links(job_id: str) -> Links:
@@ -168,8 +200,18 @@ def create_job(
     ground_truth: Annotated[
         UploadFile | None, File(description="Left disparity ground truth (PNG/PGM/PFM/npy)")
     ] = None,
-    gt_scale: Annotated[float, Form(gt=0, description="Stored value per disparity pixel")] = 1.0,
-    gt_border: Annotated[int, Form(ge=0, description="Ignored frame, pixels")] = 0,
+    gt_scale: Annotated[
+        float,
+        Form(
+            ge=GT_SCALE_RANGE[0],
+            le=GT_SCALE_RANGE[1],
+            allow_inf_nan=False,
+            description="Stored value per disparity pixel (e.g. 1, 4, 16, 256)",
+        ),
+    ] = 1.0,
+    gt_border: Annotated[
+        int, Form(ge=0, le=MAX_GT_BORDER, description="Ignored frame, pixels")
+    ] = 0,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     settings = svc.settings
@@ -185,7 +227,7 @@ def create_job(
     truth = None
     if ground_truth is not None:
         arrays["ground_truth"] = decode_ground_truth(
-            read_upload(ground_truth, "ground_truth", settings), left_image.shape
+            read_upload(ground_truth, "ground_truth", settings), left_image.shape[:2]
         )
         truth = GroundTruth(scale=gt_scale, border=gt_border)
     record = JobRecord(
@@ -200,6 +242,7 @@ def create_job(
         levels_total=len(plan(config, disparity_range.max_disparity)),
     )
     svc.store.create(record, arrays)
+    keep_views(svc, record.id, arrays)
     svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
     body = JobCreated(id=record.id, state=record.state, links=links(record.id))
     return JSONResponse(
@@ -214,7 +257,7 @@ def list_jobs(
     request: Request,
     svc: ServicesDep,
     principal: PrincipalDep,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
 ):
     """Your jobs, newest first (admins: everyone's)."""
@@ -296,7 +339,9 @@ def get_disparity(
     response_class=Response,
 )
 def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
-    """Colour-mapped disparity (near = warm) for a quick look."""
+    """Colour-mapped disparity (near = warm) for a quick look; 0 to ``X-Scale-Max`` pixels."""
     record, disparity = finished_result(job_id, svc, principal)
-    top = record.disparity_range["max_disparity"] if record.disparity_range else None
-    return Response(preview_png(disparity, top), media_type="image/png")
+    top = display_max(record, disparity)
+    return Response(
+        preview_png(disparity, top), media_type="image/png", headers={SCALE_HEADER: f"{top:g}"}
+    )

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 import sys
+import threading
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import uvicorn
+from fastapi import FastAPI
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "service"))  # harness + test plugin
+sys.path.insert(0, str(Path(__file__).parent))  # api_helpers
 
 import harness
 from fastapi.testclient import TestClient
@@ -58,3 +64,35 @@ def make_client(api_settings, admin_headers):
         )
 
     return build
+
+
+@dataclass
+class LiveApi:
+    """The app behind a real uvicorn server (connections, logging and bodies as in production)."""
+
+    app: FastAPI
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}"
+
+
+@pytest.fixture(scope="session")
+def live_api(api_settings):
+    """A uvicorn server in a thread; ``log_config=None`` leaves logging to pytest (caplog)."""
+    from api.serve import free_port
+
+    app = create_app(api_settings)
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.02)
+    yield LiveApi(app, "127.0.0.1", port)
+    server.should_exit = True
+    thread.join(10)

@@ -1,0 +1,173 @@
+"""ASGI middleware around the routes: what must happen before a request body is read, and what
+keeps an unexpected error a well-formed response.
+
+``RequestGuard`` authenticates ``/v1`` requests and checks ``Content-Length`` from the headers
+alone, so an unauthenticated or oversized upload is refused without receiving a byte of its
+body (FastAPI reads and spools a form before any dependency runs). ``ErrorBoundary`` turns an
+unexpected exception into a JSON 500 and does not re-raise it: Starlette's own handler
+re-raises after answering, and the server then drops the connection (the client sees a reset
+when it reuses it).
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import logging
+import uuid
+from typing import Any
+
+from fastapi import HTTPException, Request, status
+from starlette.concurrency import run_in_threadpool
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from api.users import USER_SCOPE_KEY, authenticate_header, user_store_of
+from shared.config import Settings
+
+log = logging.getLogger("qhsm.api")
+
+#: Files of the largest request (left, right, ground truth), each up to ``max_upload_bytes``.
+FILES_PER_REQUEST = 3
+#: Room for the form's other fields (params, gt_scale, ...) and multipart boundaries.
+FORM_OVERHEAD_BYTES = 2**20
+
+
+def max_request_bytes(settings: Settings) -> int:
+    """The largest request body accepted, derived from the per-file limit."""
+    return FILES_PER_REQUEST * settings.max_upload_bytes + FORM_OVERHEAD_BYTES
+
+
+class BodyTooLarge(HTTPException):
+    """A body without (or beyond) its ``Content-Length`` grew past the limit while read (an
+    HTTPException, so FastAPI's form parsing passes it on as it is)."""
+
+    def __init__(self, limit: int):
+        super().__init__(
+            status.HTTP_413_CONTENT_TOO_LARGE,
+            f"the request body is larger than the limit of {limit} bytes "
+            f"({FILES_PER_REQUEST} files of QHSM_MAX_UPLOAD_BYTES plus the form); "
+            "send smaller files",
+        )
+
+
+async def send_json(
+    send: Send, status_code: int, body: dict[str, Any], headers: dict[str, str] | None = None
+) -> None:
+    payload = json.dumps(body).encode()
+    raw_headers = [
+        (b"content-type", b"application/json"),
+        (b"content-length", str(len(payload)).encode()),
+    ]
+    raw_headers += [(k.lower().encode(), v.encode()) for k, v in (headers or {}).items()]
+    await send({"type": "http.response.start", "status": status_code, "headers": raw_headers})
+    await send({"type": "http.response.body", "body": payload})
+
+
+def _header(scope: Scope, name: bytes) -> str | None:
+    for key, value in scope.get("headers", []):
+        if key.lower() == name:
+            return value.decode("latin-1")
+    return None
+
+
+class RequestGuard:
+    """401 for a missing or wrong key on ``/v1`` and 413 for a too-large body, both decided from
+    the headers before the body is received; a body longer than announced is cut off at the
+    limit too."""
+
+    def __init__(self, app: ASGIApp, settings: Settings):
+        self.app = app
+        self.limit = max_request_bytes(settings)
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        path = scope["path"].removeprefix(scope.get("root_path", ""))
+        if path == "/v1" or path.startswith("/v1/"):
+            store = user_store_of(scope["app"])
+            try:
+                user = await run_in_threadpool(
+                    authenticate_header, store, _header(scope, b"authorization")
+                )
+            except HTTPException as refused:
+                await self.refuse(scope, send, refused)
+                return
+            scope[USER_SCOPE_KEY] = user
+        length = _header(scope, b"content-length")
+        if length is not None and length.strip().isdigit() and int(length) > self.limit:
+            await self.refuse(scope, send, BodyTooLarge(self.limit))
+            return
+        received = 0
+
+        async def counting_receive() -> Message:
+            """The body as it comes, cut off at the limit (the HTTPException raised here is
+            answered by FastAPI's handler, or by :class:`ErrorBoundary`)."""
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.limit:
+                    raise BodyTooLarge(self.limit)
+            return message
+
+        await self.app(scope, counting_receive, send)
+
+    @staticmethod
+    async def refuse(scope: Scope, send: Send, refused: HTTPException) -> None:
+        """Answer without reading the body; with one coming, close the connection afterwards
+        (else the server would have to drain the unread body to reuse it)."""
+        headers = dict(refused.headers or {})
+        has_body = _header(scope, b"transfer-encoding") or _header(scope, b"content-length")
+        if has_body and has_body.strip() != "0":
+            headers["connection"] = "close"
+        await send_json(send, refused.status_code, {"detail": refused.detail}, headers)
+
+
+def _registered_handler(app: Any, error: Exception) -> Any:
+    """The app's exception handler for ``error``'s class (nearest in its MRO), if any: errors
+    raised outside the routes (in :class:`RequestGuard`) get the answers the routes' get."""
+    handlers = getattr(app, "exception_handlers", {})
+    for kind in type(error).__mro__:
+        if kind is Exception:
+            return None
+        if kind in handlers:
+            return handlers[kind]
+    return None
+
+
+class ErrorBoundary:
+    """Any exception that escapes the routes: answered by the app's handler for its class when
+    there is one, else logged with an incident id and answered as a JSON 500 that names the
+    incident; never re-raised (so the connection stays usable)."""
+
+    def __init__(self, app: ASGIApp):
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracking_send)
+        except Exception as error:
+            handler = None if started else _registered_handler(scope["app"], error)
+            if handler is not None:  # e.g. a Redis outage raised while authenticating
+                response = handler(Request(scope, receive), error)
+                if inspect.isawaitable(response):
+                    response = await response
+                await response(scope, receive, send)
+                return
+            incident = uuid.uuid4().hex[:12]
+            log.exception("incident %s: %s %s failed", incident, scope["method"], scope["path"])
+            if started:  # half a response is out: only closing the connection can end it
+                raise
+            detail = f"internal error (incident {incident}); the details are in the server log"
+            await send_json(send, status.HTTP_500_INTERNAL_SERVER_ERROR, {"detail": detail})

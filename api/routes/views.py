@@ -1,0 +1,98 @@
+"""Images the web page shows beside a result: the left view, the error map against the ground
+truth, and the colour bars of the colour-mapped images (their scale in ``X-Scale-Max``)."""
+
+from __future__ import annotations
+
+import io
+from typing import Annotated, Literal
+
+import cv2
+import numpy as np
+from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi import status as http
+from fastapi.responses import Response
+
+from api.auth import Principal, current_principal
+from api.deps import Services, services
+from api.routes.jobs import NOT_FOUND, SCALE_HEADER, display_max, find_job, finished_result
+from shared.images import colorize
+from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+ServicesDep = Annotated[Services, Depends(services)]
+PrincipalDep = Annotated[Principal, Depends(current_principal)]
+#: Errors at or above this many pixels get the top colour of the error map.
+ERROR_MAP_MAX = 4 * BAD_PIXEL_THRESHOLD
+#: Colour (BGR) of the pixels the error map does not evaluate.
+NOT_EVALUATED = (128, 128, 128)
+PNG = {200: {"content": {"image/png": {}}}}
+
+
+def png(image: np.ndarray, top: float | None = None) -> Response:
+    headers = {SCALE_HEADER: f"{top:g}"} if top is not None else None
+    return Response(
+        cv2.imencode(".png", image)[1].tobytes(), media_type="image/png", headers=headers
+    )
+
+
+def gone(job_id: str, what: str) -> HTTPException:
+    return HTTPException(http.HTTP_410_GONE, f"the {what} of job {job_id} has expired")
+
+
+@router.get("/{job_id}/left.png", response_class=Response, responses={**NOT_FOUND, **PNG})
+def get_left(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """The left view as the job received it (8-bit)."""
+    find_job(job_id, svc, principal)
+    data = svc.store.load_view(job_id, "left.png")
+    if data is None:
+        raise gone(job_id, "left view")
+    return Response(data, media_type="image/png")
+
+
+def errors_of(job_id: str, svc: Services, principal: Principal) -> np.ndarray:
+    """|disparity - ground truth| in pixels, NaN where not evaluated."""
+    record, disparity = finished_result(job_id, svc, principal)
+    if record.ground_truth is None:
+        raise HTTPException(
+            http.HTTP_404_NOT_FOUND,
+            f"job {job_id} was submitted without a ground truth, so it has no error map",
+        )
+    data = svc.store.load_view(job_id, "ground_truth.npy")
+    if data is None:
+        raise gone(job_id, "ground truth")
+    truth = np.load(io.BytesIO(data), allow_pickle=False)
+    return error_map(disparity, truth, record.ground_truth.scale, record.ground_truth.border)
+
+
+@router.get(
+    "/{job_id}/error.png",
+    response_class=Response,
+    responses={**NOT_FOUND, 409: {"description": "Not finished"}, **PNG},
+)
+def get_error_map(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """|disparity - ground truth| colour-mapped from 0 to ``X-Scale-Max`` px; grey: not
+    evaluated (unknown ground truth or the border)."""
+    errors = errors_of(job_id, svc, principal)
+    image = colorize(np.nan_to_num(errors, nan=0.0), ERROR_MAP_MAX)
+    image[np.isnan(errors)] = NOT_EVALUATED
+    return png(image, ERROR_MAP_MAX)
+
+
+@router.get(
+    "/{job_id}/colorbar.png",
+    response_class=Response,
+    responses={**NOT_FOUND, 409: {"description": "Not finished"}, **PNG},
+)
+def get_colorbar(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    kind: Annotated[Literal["disparity", "error"], Query(alias="map")] = "disparity",
+):
+    """The colour bar of the job's disparity preview or error map, left (0) to right
+    (``X-Scale-Max`` pixels)."""
+    record, disparity = finished_result(job_id, svc, principal)
+    top = display_max(record, disparity) if kind == "disparity" else ERROR_MAP_MAX
+    ramp = np.tile(np.linspace(0.0, top, 256, dtype=np.float32), (12, 1))
+    return png(colorize(ramp, top), top)

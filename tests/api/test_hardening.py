@@ -1,0 +1,557 @@
+"""Issue 10's API breaks: inputs that used to answer 500, poison a job record, exhaust memory or
+be read before the key was checked; connections after a 500; quiet polls; offline docs; where a
+client's wrong key came from."""
+
+from __future__ import annotations
+
+import asyncio
+import http.client
+import io
+import json
+import logging
+import shutil
+import socket
+import struct
+import time
+import tracemalloc
+import zlib
+
+import cv2
+import harness
+import httpx
+import numpy as np
+import pytest
+from api_helpers import LEFT, SCENE, post
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from api.client import Client, ClientError
+from workers.store import ACTIVE, ChunkReport, JobState
+
+MiB = 2**20
+
+
+def jobs_total(api) -> int:
+    return api.get("/v1/jobs", params={"limit": 1}).json()["total"]
+
+
+def svc(api):
+    return api.app.state.services
+
+
+# --- 1. poisoned job records ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("scale", ["inf", "-inf", "nan", "1e400", "1e-300", "0", "-1", "1e9"])
+def test_gt_scale_must_be_finite_and_sane(api, scale):
+    before = jobs_total(api)
+    response = post(api, ground_truth=harness.npy(SCENE.disparity), gt_scale=scale)
+    assert response.status_code == 422, response.text
+    assert "gt_scale" in response.text
+    assert jobs_total(api) == before  # nothing stored
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        '{"levels": [{"slope": 1e400}]}',
+        '{"levels": [{"truncation": Infinity}]}',
+        '{"bilateral_sigma_color": NaN}',
+        '{"solver": "sa", "solver_params": {"beta_range": [-Infinity, 1]}}',
+    ],
+)
+def test_params_numbers_must_be_finite(api, params):
+    response = post(api, params=params)
+    assert response.status_code == 422
+    assert "numbers must be finite" in response.json()["detail"]
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("-inf"), float("nan")])
+def test_configs_refuse_non_finite_numbers_whatever_their_source(value):
+    """The CLI and the bench build configs without JSON: the model itself refuses them too."""
+    from pydantic import ValidationError
+
+    from shared.config import LevelConfig, MatchConfig
+
+    with pytest.raises(ValidationError, match="finite number"):
+        LevelConfig(slope=value)
+    with pytest.raises(ValidationError, match="finite number"):
+        MatchConfig(lr_tolerance=value)
+
+
+def test_a_record_that_no_longer_loads_is_skipped_and_logged_never_a_500(api, caplog):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    store = svc(api).store
+    key = store.key("job", job_id)
+    record = json.loads(store.redis.get(key))
+    record["ground_truth"] = {"scale": None, "border": 0}  # what gt_scale=inf used to store
+    store.redis.set(key, json.dumps(record))
+
+    with caplog.at_level(logging.ERROR, logger="workers.store"):
+        page = api.get("/v1/jobs", params={"limit": 100})
+        assert page.status_code == 200
+        assert job_id not in [item["id"] for item in page.json()["items"]]
+        assert api.get(f"/v1/jobs/{job_id}").status_code == 404
+        assert api.delete(f"/v1/jobs/{job_id}").status_code == 404
+    assert f"job {job_id}: stored record does not load" in caplog.text
+    store.redis.delete(key)
+
+
+def test_non_finite_metrics_are_stored_as_null_and_the_job_still_loads(api):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    level = {"index": 0, "downsample": 1, "height": 24, "width": 32, "candidates": 4}
+    level |= {"bundles": 24, "energy": float("inf"), "repaired": 0, "seconds": 0.1}
+    level |= {"solver_seconds": 0.05, "timing": {"qpu_access_time": float("nan")}}
+    moved = svc(api).store.transition(
+        job_id,
+        JobState.SUCCEEDED,
+        ACTIVE,
+        metrics={"rmse": float("inf"), "bpp": float("nan"), "pixels": 768.0},
+        levels=[level],
+    )
+    assert moved is not None
+    response = api.get(f"/v1/jobs/{job_id}")
+    assert response.status_code == 200, response.text
+    assert response.json()["metrics"] == {"rmse": None, "bpp": None, "pixels": 768}
+    assert response.json()["levels"][0]["energy"] is None
+
+
+def test_a_non_finite_solver_timing_does_not_break_the_job_status(api):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    timing = {"qpu_access_time": float("inf"), "sampling_time": 0.5}
+    report = ChunkReport(level=0, bundles=8, wall_time=0.2, timing=timing)
+    svc(api).store.record_chunk(job_id, 0, report)
+    response = api.get(f"/v1/jobs/{job_id}")
+    assert response.status_code == 200, response.text
+    assert response.json()["usage"] == {"solver_seconds": 0.2, "sampling_time": 0.5}
+    assert job_id in [i["id"] for i in api.get("/v1/jobs", params={"limit": 100}).json()["items"]]
+
+
+LEVEL = st.fixed_dictionaries(
+    {},
+    optional={
+        "downsample": st.sampled_from([1, 2, 4, 64]),
+        "candidates": st.integers(2, 64),
+        "slope": st.floats(0, 1e300),
+        "truncation": st.floats(0, 1e300),
+        "edge_factor": st.floats(0, 1e300),
+    },
+)
+CONFIG_PARAMS = st.fixed_dictionaries(
+    {},
+    optional={
+        "preset": st.sampled_from(["accurate", "paper"]),
+        "levels": st.lists(LEVEL, min_size=1, max_size=4),
+        "pyramid": st.sampled_from(["image", "bins"]),
+        "max_disparity": st.one_of(st.just("auto"), st.integers(1, 10**5)),
+        "max_coarse_bins": st.integers(2, 64),
+        "bundle_height": st.integers(1, 64),
+        "bilateral_sigma_color": st.floats(1e-300, 1e300),
+        "solver": st.sampled_from(["exact", "sa", "qpu-sim", "hybrid-sim", "gurobi"]),
+        "solver_params": st.dictionaries(
+            st.sampled_from(["num_reads", "num_sweeps", "time_limit"]),
+            st.one_of(st.integers(-10, 10**12), st.floats(allow_nan=False), st.text(max_size=3)),
+        ),
+    },
+)
+
+
+@settings(
+    max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(params=CONFIG_PARAMS, shape=st.sampled_from([(24, 32), (1, 1), (1, 40), (40, 1)]))
+def test_config_shaped_params_on_a_real_pair_never_cause_a_server_error(api, params, shape):
+    """Well-formed params at the edges of their ranges, on tiny and degenerate images: a 202 or
+    a 4xx that says why, never a 500."""
+    view = harness.png(np.random.default_rng(0).random(shape).astype(np.float32))
+    response = post(api, left=view, right=view, params=params)
+    assert response.status_code < 500, (params, shape, response.text)
+
+
+# --- 3. decompression bombs -------------------------------------------------------------------
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def png_declaring(width: int, height: int, *, pixels: bool = True) -> bytes:
+    """An 8-bit gray PNG of zeros (compresses ~1000:1), or only its header."""
+    header = _chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+    body = b""
+    if pixels:
+        compressor, rows = zlib.compressobj(9), bytes(width + 1) * 64
+        data = b"".join(compressor.compress(rows) for _ in range(height // 64))
+        body = _chunk(b"IDAT", data + compressor.flush())
+    return b"\x89PNG\r\n\x1a\n" + header + body + _chunk(b"IEND", b"")
+
+
+def test_a_decompression_bomb_is_refused_from_its_header_fast_and_without_memory(api):
+    bomb = png_declaring(8000, 8000)  # 64 Mpx (16x the limit) in ~70 KB
+    assert len(bomb) < 200_000
+    tracemalloc.start()
+    try:
+        started = time.monotonic()
+        response = post(api, left=bomb, right=bomb)
+        seconds = time.monotonic() - started
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert response.status_code == 413
+    assert "8000x8000 = 64000000 pixels is above the limit" in response.json()["detail"]
+    assert seconds < 1.0
+    assert peak < 100 * MiB
+
+
+@pytest.mark.parametrize(
+    "upload",
+    [
+        png_declaring(60000, 60000, pixels=False),  # header only: OpenCV itself raised
+        b"PF\n60000 60000\n-1.0\n" + bytes(64),  # PFM
+        b"P5\n60000 60000\n255\n" + bytes(64),  # PGM
+    ],
+    ids=["png", "pfm", "pgm"],
+)
+def test_a_header_claiming_a_huge_image_is_413(api, upload):
+    assert len(upload) < 100
+    response = post(api, left=upload, right=upload)
+    assert response.status_code == 413
+    assert "60000x60000" in response.json()["detail"]
+
+
+@pytest.mark.parametrize("suffix", [".png", ".ppm", ".pgm", ".jpg", ".tif", ".bmp", ".pfm"])
+@pytest.mark.parametrize("depth", ["8-bit", "16-bit or float"])
+def test_every_supported_format_passes_the_header_check(api, suffix, depth):
+    """The size check reads the header of every format the README lists (none is refused)."""
+    gray = SCENE.left
+    if suffix == ".pfm":
+        image = gray.astype(np.float32)
+    elif depth == "8-bit" or suffix in (".jpg", ".bmp"):
+        image = np.rint(gray * 255).astype(np.uint8)
+    else:
+        image = np.rint(gray * 65535).astype(np.uint16)
+    if suffix in (".ppm", ".pfm", ".jpg", ".bmp", ".tif"):
+        image = np.dstack([image] * 3)
+    ok, encoded = cv2.imencode(suffix, image)
+    assert ok
+    data = encoded.tobytes()
+    response = post(api, left=data, right=data, params={"max_disparity": 6})
+    assert response.status_code == 202, response.text
+
+
+def test_a_ground_truth_image_is_measured_before_decoding(api):
+    response = post(api, ground_truth=png_declaring(60000, 60000, pixels=False))
+    assert response.status_code == 422
+    assert "ground_truth is 60000x60000" in response.json()["detail"]
+
+
+# --- 4. other inputs that answered 500 --------------------------------------------------------
+
+
+def npy_header(shape: tuple[int, ...], descr: str = "<f4") -> bytes:
+    stream = io.BytesIO()
+    header = {"descr": descr, "fortran_order": False, "shape": shape}
+    np.lib.format.write_array_header_1_0(stream, header)
+    return stream.getvalue()
+
+
+@pytest.mark.parametrize(
+    ("upload", "code", "message"),
+    [
+        (npy_header((10**6, 10**6)), 422, "ground_truth is 1000000x1000000"),
+        (npy_header((24, 32)) + bytes(100), 422, "truncated"),
+        (npy_header((24, 32), "|O"), 415, "unsupported values object"),
+        (b"\x93NUMPY\x01\x00\x10\x00{'descr': oops}\n", 415, "not a readable .npy"),
+        (b"\x93NUMPY\x03\x00" + bytes(16), 415, "not a readable .npy"),
+    ],
+    ids=["huge", "truncated", "object", "malformed", "version-3"],
+)
+def test_npy_ground_truth_header_is_checked_before_allocating(api, upload, code, message):
+    response = post(api, ground_truth=upload)
+    assert response.status_code == code, response.text
+    assert message in response.json()["detail"]
+
+
+def test_a_fortran_order_npy_ground_truth_is_read_correctly(api):
+    truth = np.asfortranarray(SCENE.disparity.astype(np.float32))
+    response = post(api, params={"max_disparity": 6}, ground_truth=harness.npy(truth))
+    assert response.status_code == 202, response.text
+    stored = svc(api).store.load_upload(response.json()["id"], "ground_truth")
+    np.testing.assert_array_equal(stored, SCENE.disparity)
+
+
+@pytest.mark.parametrize(
+    "params",
+    ["[" * 100_000 + "]" * 100_000, '{"solver_params": ' + '{"a": ' * 50_000 + "1" + "}" * 50_001],
+    ids=["lists", "objects"],
+)
+def test_deeply_nested_params_are_422(api, params):
+    response = post(api, params=params)
+    assert response.status_code == 422
+    assert "nested too deeply" in response.json()["detail"]
+
+
+@pytest.mark.parametrize("offset", ["9223372036854775807", "-1", "1e3"])
+def test_list_offsets_are_bounded(api, offset):
+    assert api.get("/v1/jobs", params={"offset": offset}).status_code == 422
+
+
+# --- 9. the key and the size are checked before the body is read ------------------------------
+
+
+def call_asgi(app, headers: dict[str, str], body_bytes: int) -> tuple[int, dict, int]:
+    """POST /v1/jobs with a multipart body of ``body_bytes`` fed in 1 MiB pieces; returns the
+    status, the JSON answer and how many body bytes the app asked for."""
+    scope = {
+        "type": "http",
+        "asgi": {"version": "3.0"},
+        "http_version": "1.1",
+        "method": "POST",
+        "scheme": "http",
+        "path": "/v1/jobs",
+        "raw_path": b"/v1/jobs",
+        "root_path": "",
+        "query_string": b"",
+        "headers": [(k.lower().encode(), v.encode()) for k, v in headers.items()],
+        "client": ("127.0.0.1", 50000),
+        "server": ("testserver", 80),
+    }
+    consumed = 0
+    messages: list[dict] = []
+
+    async def receive() -> dict:
+        nonlocal consumed
+        piece = min(MiB, body_bytes - consumed)
+        consumed += piece
+        return {"type": "http.request", "body": bytes(piece), "more_body": consumed < body_bytes}
+
+    async def send(message: dict) -> None:
+        messages.append(message)
+
+    asyncio.run(asyncio.wait_for(app(scope, receive, send), 60))
+    status = next(m["status"] for m in messages if m["type"] == "http.response.start")
+    body = b"".join(m.get("body", b"") for m in messages if m["type"] == "http.response.body")
+    return status, json.loads(body), consumed
+
+
+BIG = 1_500_000_000
+MULTIPART = {"content-type": "multipart/form-data; boundary=x", "content-length": str(BIG)}
+
+
+@pytest.mark.parametrize("authorization", [None, "Bearer qhsm_0badc0de_" + "x" * 43, "Basic Zm9v"])
+def test_an_unauthenticated_upload_is_401_without_reading_its_body(api, authorization):
+    headers = dict(MULTIPART)
+    if authorization:
+        headers["authorization"] = authorization
+    status, answer, consumed = call_asgi(api.app, headers, 64 * MiB)
+    assert status == 401 and "API key" in answer["detail"]
+    assert consumed == 0
+
+
+def test_an_announced_body_above_the_limit_is_413_without_reading_it(api, admin_headers):
+    headers = {**MULTIPART, "authorization": admin_headers["Authorization"]}
+    status, answer, consumed = call_asgi(api.app, headers, 64 * MiB)
+    assert status == 413 and "QHSM_MAX_UPLOAD_BYTES" in answer["detail"]
+    assert consumed == 0
+
+
+def test_a_chunked_body_is_cut_off_at_the_limit(make_client):
+    client = make_client(max_upload_bytes=1000)  # limit: 3 x 1000 bytes + 1 MiB of form
+
+    def pieces():
+        for _ in range(8):
+            yield bytes(MiB)
+
+    response = client.post(
+        "/v1/jobs", content=pieces(), headers={"content-type": "multipart/form-data; boundary=x"}
+    )
+    assert response.status_code == 413
+    assert "request body is larger than the limit of 1051576 bytes" in response.json()["detail"]
+
+
+def test_a_real_server_answers_401_to_a_huge_unauthenticated_upload_at_once(live_api):
+    """The answer comes at once, and the server then closes the connection instead of
+    draining the 1.5 GB it was promised."""
+    head = "".join(f"{name}: {value}\r\n" for name, value in MULTIPART.items())
+    started = time.monotonic()
+    with socket.create_connection((live_api.host, live_api.port), timeout=5) as sock:
+        sock.sendall(f"POST /v1/jobs HTTP/1.1\r\nhost: x\r\n{head}\r\n--x\r\n".encode())
+        answer = b""
+        while chunk := sock.recv(65536):  # b"": the server closed the connection
+            answer += chunk
+    assert answer.startswith(b"HTTP/1.1 401 ")
+    assert b"connection: close" in answer.lower()
+    assert time.monotonic() - started < 5
+
+
+# --- 11. a 500 keeps the connection usable ----------------------------------------------------
+
+
+def test_after_a_500_the_connection_is_still_usable(live_api, admin_headers, monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError("simulated bug")
+
+    monkeypatch.setattr(live_api.app.state.services.store, "list", broken)
+    connection = http.client.HTTPConnection(live_api.host, live_api.port, timeout=10)
+    for _ in range(3):
+        connection.request("GET", "/v1/jobs", headers=admin_headers)
+        response = connection.getresponse()
+        answer = json.loads(response.read())
+        assert response.status == 500 and "incident" in answer["detail"]
+        assert "simulated bug" not in answer["detail"]  # details stay in the log
+        connection.request("GET", "/healthz")
+        follow_up = connection.getresponse()
+        assert follow_up.status == 200 and json.loads(follow_up.read())["status"] == "ok"
+    connection.close()
+
+
+def test_errors_raised_before_the_routes_get_the_apps_handlers(api_settings, admin_headers):
+    """Authentication runs ahead of FastAPI's exception handling; a handler registered for an
+    error (here a Redis outage) still answers it, and anything else is a JSON 500."""
+    import redis
+    from fastapi.responses import JSONResponse
+    from fastapi.testclient import TestClient
+
+    from api.app import create_app
+    from api.serve import free_port
+
+    app = create_app(
+        api_settings.model_copy(update={"redis_url": f"redis://127.0.0.1:{free_port()}/0"})
+    )
+    with TestClient(app, raise_server_exceptions=False, headers=admin_headers) as client:
+        crashed = client.get("/v1/jobs")
+        assert crashed.status_code == 500 and "incident" in crashed.json()["detail"]
+
+        def unavailable(request, error):
+            return JSONResponse({"detail": "the job store is down"}, status_code=503)
+
+        app.add_exception_handler(redis.ConnectionError, unavailable)
+        response = client.get("/v1/jobs")
+    assert response.status_code == 503 and response.json()["detail"] == "the job store is down"
+
+
+# --- 16. polls are logged at debug level ------------------------------------------------------
+
+
+def access_records(caplog) -> list[logging.LogRecord]:
+    time.sleep(0.2)  # uvicorn logs after the response is sent
+    return [r for r in caplog.records if r.name == "uvicorn.access"]
+
+
+def test_polls_are_logged_at_debug_and_other_requests_at_info(live_api, admin_headers, caplog):
+    with httpx.Client(base_url=live_api.url, headers=admin_headers) as client:
+        job_id = client.post(
+            "/v1/jobs", files={"left": ("l.png", LEFT), "right": ("r.png", LEFT)}
+        ).json()["id"]
+        caplog.set_level(logging.INFO, logger="uvicorn.access")
+        caplog.clear()
+        for _ in range(3):
+            assert client.get(f"/v1/jobs/{job_id}").status_code == 200
+        assert client.get("/healthz").status_code == 200
+        assert client.get("/v1/jobs").status_code == 200
+        records = access_records(caplog)
+        assert [r.getMessage().split('"')[1] for r in records] == ["GET /v1/jobs HTTP/1.1"]
+        assert records[0].levelno == logging.INFO
+
+        caplog.set_level(logging.DEBUG, logger="uvicorn.access")
+        caplog.clear()
+        assert client.get(f"/v1/jobs/{job_id}").status_code == 200
+        assert client.get("/v1/jobs/0123456789abcdef0123456789abcdef").status_code == 404
+        levels = {r.getMessage().split('"')[1]: r.levelno for r in access_records(caplog)}
+    assert levels == {
+        f"GET /v1/jobs/{job_id} HTTP/1.1": logging.DEBUG,
+        "GET /v1/jobs/0123456789abcdef0123456789abcdef HTTP/1.1": logging.INFO,  # errors stay
+    }
+
+
+# --- 13. a wrong key's message says where the key came from -----------------------------------
+
+WRONG_KEY = "qhsm_0badc0de_" + "y" * 43
+
+
+def unauthorized_message(client: Client) -> str:
+    with pytest.raises(ClientError) as raised:
+        client.status("0123456789abcdef0123456789abcdef")
+    client.close()
+    assert ": 401: " in str(raised.value)
+    return str(raised.value)
+
+
+def test_a_wrong_key_says_it_came_from_the_key_option(live_api):
+    client = Client(live_api.url, key=WRONG_KEY, key_source="the --key option")
+    message = unauthorized_message(client)
+    assert "invalid or revoked API key" in message
+    assert "the key came from the --key option" in message
+
+
+def test_a_wrong_key_says_it_came_from_the_environment(live_api, monkeypatch):
+    monkeypatch.setenv("QHSM_API_KEY", WRONG_KEY)
+    message = unauthorized_message(Client(live_api.url))
+    assert "the key came from the QHSM_API_KEY environment variable" in message
+
+
+def test_a_wrong_key_names_the_key_file_it_came_from(live_api, monkeypatch, tmp_path):
+    monkeypatch.delenv("QHSM_API_KEY", raising=False)
+    monkeypatch.setenv("QHSM_DATA_DIR", str(tmp_path))
+    message = unauthorized_message(Client(live_api.url))
+    assert "no API key was sent" in message and str(tmp_path / "api-key") in message
+    (tmp_path / "api-key").write_text(WRONG_KEY + "\n")
+    message = unauthorized_message(Client(live_api.url))
+    assert f"the key came from the file {tmp_path / 'api-key'}" in message
+
+
+def test_qhsm_submit_with_a_wrong_key_names_the_option(live_api, tmp_path, capsys):
+    from shared.cli import main
+
+    for name in ("l.png", "r.png"):
+        (tmp_path / name).write_bytes(LEFT)
+    left, right = str(tmp_path / "l.png"), str(tmp_path / "r.png")
+    code = main(["submit", left, right, "--url", live_api.url, "--key", WRONG_KEY])
+    assert code != 0
+    assert "the key came from the --key option" in capsys.readouterr().err
+
+
+# --- 15. /docs works offline ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("path", ["/docs", "/redoc"])
+def test_docs_pages_load_nothing_from_another_host(api, path):
+    import re
+
+    html = api.get(path).text
+    urls = re.findall(r"""(?:src|href|url)\s*[=:]\s*['"]([^'"]+)['"]""", html)
+    assert urls, html
+    for url in urls:
+        assert url.startswith("/"), f"{path} loads {url}"
+        assert api.get(url).status_code == 200, url
+    assert "http://" not in html and "https://" not in html
+
+
+CHROMIUM = shutil.which("chromium")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (apt-get install chromium)")
+def test_swagger_ui_renders_with_the_internet_blocked(live_api):
+    sync_playwright = pytest.importorskip("playwright.sync_api").sync_playwright
+
+    outside: list[str] = []
+
+    def only_local(route):
+        if route.request.url.startswith(live_api.url):
+            route.continue_()
+        else:
+            outside.append(route.request.url)
+            route.abort()
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM)
+        try:
+            page = browser.new_page()
+            page.route("**/*", only_local)
+            page.goto(f"{live_api.url}/docs")
+            page.wait_for_selector(".opblock", timeout=15_000)
+            operations = page.locator(".opblock-summary-path").all_inner_texts()
+        finally:
+            browser.close()
+    assert "/v1/jobs/{job_id}/disparity" in [text.replace("\u200b", "") for text in operations]
+    assert outside == []

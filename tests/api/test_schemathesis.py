@@ -1,0 +1,38 @@
+"""Schemathesis over the OpenAPI document with a valid key: whatever the schema allows (and,
+in negative mode, what it does not), no request may end in a 5xx. At most 60 examples per
+operation and phase (about 20 s here); the timeout caps a slow machine."""
+
+from __future__ import annotations
+
+import pytest
+import schemathesis
+from hypothesis import HealthCheck, settings
+from schemathesis.config import (
+    GenerationConfig,
+    ProjectConfig,
+    ProjectsConfig,
+    SchemathesisConfig,
+)
+
+schema = schemathesis.pytest.from_fixture("openapi_schema")
+
+
+@pytest.fixture(scope="module")
+def openapi_schema(api):
+    generation = GenerationConfig(modes=list(schemathesis.GenerationMode), max_examples=60)
+    config = SchemathesisConfig(
+        projects=ProjectsConfig(default=ProjectConfig(generation=generation))
+    )
+    return schemathesis.openapi.from_asgi("/openapi.json", api.app, config=config)
+
+
+@schema.parametrize()
+@settings(
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=list(HealthCheck),
+)
+@pytest.mark.timeout(120)
+def test_no_request_ends_in_a_server_error(case, admin_headers):
+    response = case.call(headers=admin_headers)
+    assert response.status_code < 500, f"{case.method} {case.formatted_path}: {response.text}"

@@ -1,0 +1,154 @@
+"""The routes the web page adds: /v1/me, the admin's /v1/users, and the job's images."""
+
+from __future__ import annotations
+
+import re
+
+import cv2
+import harness
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from api.routes.views import ERROR_MAP_MAX, NOT_EVALUATED
+
+pytestmark = pytest.mark.service
+
+
+def as_user(client: TestClient, key: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {key}"}
+
+
+@pytest.fixture(scope="module")
+def member(client) -> tuple[str, str]:
+    """A non-admin (name, key), made through the admin route."""
+    name = f"member-{harness.unique_prefix()[-6:]}"
+    response = client.post("/v1/users", json={"name": name})
+    assert response.status_code == 201, response.text
+    return name, response.json()["key"]
+
+
+def test_me_names_the_key_owner(client, member):
+    name, key = member
+    assert client.get("/v1/me", headers=as_user(client, key)).json()["name"] == name
+    assert client.get("/v1/me", headers=as_user(client, key)).json()["admin"] is False
+    assert client.get("/v1/me").json()["admin"] is True
+    assert client.get("/v1/me", headers={"Authorization": "Bearer nope"}).status_code == 401
+
+
+def test_user_routes_are_for_admins_only(client, member):
+    _, key = member
+    for method, path in [
+        ("GET", "/v1/users"),
+        ("POST", "/v1/users"),
+        ("POST", "/v1/users/x/key"),
+        ("DELETE", "/v1/users/x/key"),
+        ("PUT", "/v1/users/x/quota"),
+    ]:
+        response = client.request(method, path, headers=as_user(client, key), json={})
+        assert response.status_code == 403, (method, path, response.text)
+
+
+def test_create_rotate_revoke_and_quota(client, settings):
+    name = f"ada-{harness.unique_prefix()[-6:]}"
+    created = client.post("/v1/users", json={"name": name})
+    assert created.status_code == 201
+    assert created.json()["user"]["limit_seconds"] == settings.default_qpu_seconds
+    old_key = created.json()["key"]
+    assert "key_hash" not in created.text
+    assert client.post("/v1/users", json={"name": name}).status_code == 409
+    assert client.post("/v1/users", json={"name": "no spaces"}).status_code == 422
+    unlimited = client.post("/v1/users", json={"name": f"{name}-u", "qpu_seconds": None})
+    assert unlimited.json()["user"]["limit_seconds"] is None
+
+    rotated = client.post(f"/v1/users/{name}/key").json()["key"]
+    assert client.get("/v1/me", headers=as_user(client, old_key)).status_code == 401
+    assert client.get("/v1/me", headers=as_user(client, rotated)).status_code == 200
+
+    quota = client.put(f"/v1/users/{name}/quota", json={"qpu_seconds": 7.5})
+    assert quota.json()["limit_seconds"] == 7.5
+    usage = client.get("/v1/usage", params={"user": name}).json()["users"][0]
+    assert usage["limit_seconds"] == 7.5
+    assert client.put(f"/v1/users/{name}/quota", json={"qpu_seconds": -1}).status_code == 422
+    assert client.put("/v1/users/nobody-here/quota", json={"qpu_seconds": 1}).status_code == 404
+
+    revoked = client.delete(f"/v1/users/{name}/key")
+    assert revoked.json()["revoked"] is True
+    assert client.get("/v1/me", headers=as_user(client, rotated)).status_code == 401
+    me = client.get("/v1/me").json()["name"]
+    assert client.delete(f"/v1/users/{me}/key").status_code == 409  # not one's own key
+
+
+def test_job_images_left_error_map_and_colour_bars(client, member):
+    from shared.synthetic import make_scene
+
+    scene = make_scene(32, 48, max_disparity=8, seed=2)
+    left, right = harness.png(scene.left), harness.png(scene.right)
+    params = {"solver": "exact", "max_disparity": 8}
+    with_gt = harness.submit(
+        client, left, right, params, ground_truth=harness.npy(scene.disparity), gt_border=2
+    )
+    without = harness.submit(client, left, right, params)
+    assert harness.wait_for(client, with_gt)["state"] == "succeeded"
+    assert harness.wait_for(client, without)["state"] == "succeeded"
+
+    view = cv2.imdecode(
+        np.frombuffer(client.get(f"/v1/jobs/{with_gt}/left.png").content, np.uint8), 0
+    )
+    np.testing.assert_array_equal(view, np.rint(scene.left * 255).astype(np.uint8))
+
+    response = client.get(f"/v1/jobs/{with_gt}/error.png")
+    assert response.status_code == 200 and response.headers["x-scale-max"] == f"{ERROR_MAP_MAX:g}"
+    errors = cv2.imdecode(np.frombuffer(response.content, np.uint8), cv2.IMREAD_COLOR)
+    assert errors.shape == (32, 48, 3)
+    assert (errors[:2] == NOT_EVALUATED).all() and (errors[:, :2] == NOT_EVALUATED).all()
+    assert not (errors[2:-2, 2:-2] == NOT_EVALUATED).all(axis=2).any()
+    missing = client.get(f"/v1/jobs/{without}/error.png")
+    assert missing.status_code == 404 and "without a ground truth" in missing.json()["detail"]
+
+    bar = client.get(f"/v1/jobs/{with_gt}/colorbar.png", params={"map": "disparity"})
+    assert bar.headers["x-scale-max"] == "8"
+    assert client.get(f"/v1/jobs/{with_gt}/preview.png").headers["x-scale-max"] == "8"
+    assert client.get(f"/v1/jobs/{with_gt}/colorbar.png?map=nope").status_code == 422
+
+    _, key = member  # another user's job: not found, like every other job route
+    for path in ("left.png", "error.png", "colorbar.png"):
+        response = client.get(f"/v1/jobs/{with_gt}/{path}", headers=as_user(client, key))
+        assert response.status_code == 404, path
+
+
+def test_the_page_is_served_with_a_self_only_policy(client):
+    page = client.get("/", headers={"Authorization": ""})
+    assert page.status_code == 200 and 'src="/web/app.js"' in page.text
+    assert "default-src 'self'" in page.headers["content-security-policy"]
+    for asset in ("/web/app.js", "/web/style.css"):
+        assert client.get(asset).status_code == 200
+    assert not re.search(r'(src|href)="(https?:)?//', page.text)  # nothing from elsewhere
+
+
+@pytest.mark.parametrize(
+    ("host", "signs_in"),
+    [("127.0.0.1", True), ("localhost", True), ("::1", True), ("0.0.0.0", False), ("lab", False)],
+)
+def test_serve_puts_the_key_in_the_address_only_on_loopback(host, signs_in):
+    from api.cli import sign_in_url
+
+    url = sign_in_url(f"http://{host}:8000", host, "qhsm_k")
+    assert url == (f"http://{host}:8000/#key=qhsm_k" if signs_in else f"http://{host}:8000/")
+    assert sign_in_url("http://127.0.0.1:8000", "127.0.0.1", None) == "http://127.0.0.1:8000/"
+
+
+def test_a_colour_pair_keeps_its_colour_and_takes_a_ground_truth(client):
+    from shared.synthetic import make_scene
+
+    scene = make_scene(32, 48, max_disparity=8, seed=3)
+    tint = np.array([0.6, 0.8, 1.0], dtype=np.float32)  # BGR: a colour view, not a gray one
+    left, right = (harness.png(view[:, :, None] * tint) for view in (scene.left, scene.right))
+    job_id = harness.submit(
+        client, left, right, {"solver": "exact"}, ground_truth=harness.npy(scene.disparity)
+    )
+    assert harness.wait_for(client, job_id)["state"] == "succeeded"
+    view = client.get(f"/v1/jobs/{job_id}/left.png").content
+    colour = cv2.imdecode(np.frombuffer(view, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert colour.shape == (32, 48, 3) and not np.array_equal(colour[..., 0], colour[..., 2])
+    assert client.get(f"/v1/jobs/{job_id}/error.png").status_code == 200
