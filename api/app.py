@@ -12,7 +12,7 @@ from api import web
 from api.access_log import quiet_polls
 from api.deps import QueueInspector, Services
 from api.middleware import ErrorBoundary, RequestGuard
-from api.routes import health, jobs, metrics, solvers, usage, users, views
+from api.routes import estimate, health, jobs, metrics, solvers, usage, users, views
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
@@ -40,6 +40,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # every /v1 route needs an API key; /healthz, /readyz, /docs and the web page stay open
     authenticated = [Depends(current_user)]
     app.include_router(jobs.router, dependencies=authenticated)
+    app.include_router(estimate.router, dependencies=authenticated)
     app.include_router(views.router, dependencies=authenticated)
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)

@@ -4,6 +4,7 @@ qhsm serve    API + workers for every solver that runs here (+ an embedded Redis
 qhsm demo     the same, then one job end to end on a sample scene, then stop
 qhsm api      the API alone (deployments run workers with ``celery -A workers worker``)
 qhsm submit   the client: upload a pair, show progress, download the disparity map
+qhsm estimate a job's estimated QPU (or hybrid) seconds, without running it
 """
 
 from __future__ import annotations
@@ -68,6 +69,23 @@ def register(commands: argparse._SubParsersAction) -> None:
         "--key", help="API key (QHSM_API_KEY; default: the local admin key of `qhsm serve`)"
     )
     submit.set_defaults(handler=cmd_submit)
+
+    estimate = commands.add_parser(
+        "estimate", help="print a job's estimated QPU (or hybrid) seconds without running it"
+    )
+    estimate.add_argument("left")
+    estimate.add_argument("right")
+    add_match_options(estimate)
+    estimate.add_argument("--url", help="API address (QHSM_API_URL, default http://127.0.0.1:8000)")
+    estimate.add_argument("--key", help="API key (QHSM_API_KEY; default: the local admin key)")
+    estimate.add_argument(
+        "--local",
+        action="store_true",
+        help="estimate in this process, without a service (embeddings known to this machine's "
+        "cache in QHSM_DATA_DIR; no budget check)",
+    )
+    estimate.add_argument("--json", action="store_true", help="print the estimate as JSON")
+    estimate.set_defaults(handler=cmd_estimate)
 
 
 def _log_level_option(parser: argparse.ArgumentParser) -> None:
@@ -317,3 +335,83 @@ def cmd_submit(args: argparse.Namespace) -> int:
     else:
         print(line)
     return 0
+
+
+# --- estimate --------------------------------------------------------------------------------
+
+
+def cmd_estimate(args: argparse.Namespace) -> int:
+    """The service's estimate (the one its 403 uses), or with ``--local`` this process's."""
+    config = config_from_args(args)
+    files = [Path(args.left), Path(args.right)]
+    for path in files:
+        if not path.is_file():
+            raise CommandError(f"{path}: no such file")
+    if args.local:
+        result = _local_estimate(config, files)
+    else:
+        from api.client import Client, ClientError
+
+        url = args.url or get_settings().api_url
+        client = Client(url, key=args.key)
+        params = match_params(args)
+        try:
+            result = client.estimate(
+                files[0].read_bytes(),
+                files[1].read_bytes(),
+                params,
+                names=(files[0].name, files[1].name),
+            )
+        except ClientError as error:
+            raise CommandError(f"{error} (or use --local)") from None
+        finally:
+            client.close()
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(format_estimate(result))
+    return 0
+
+
+def _local_estimate(config, files: list[Path]) -> dict:
+    from shared.disparity_range import resolve_max_disparity
+    from shared.images import load_pair
+    from shared.pipeline import match_views
+    from shared.solvers import get_solver
+    from shared.solvers.embedding_cache import default_cache
+    from shared.solvers.qpu_time import job_seconds
+
+    get_solver(config.solver)  # UnknownSolver lists the valid names
+    left, right = load_pair(files[0], files[1])
+    top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
+    estimate = job_seconds(config, left.shape[:2], top.max_disparity, default_cache())
+    return {**estimate.as_dict(), "max_disparity": top.max_disparity}
+
+
+def format_estimate(result: dict) -> str:
+    """The estimate as a few lines of text: the total, then one line per level."""
+    solver = result["solver"]
+    if not result["metered"]:
+        return f"{solver}: not metered (no QPU or hybrid time is charged)"
+    kind = "QPU access" if result["levels"][0]["qubits_per_bundle"] is not None else "hybrid"
+    lines = [
+        f"{solver}: {result['seconds']:.2f} s of {kind} time estimated "
+        f"({result['bundles']} bundles, {len(result['levels'])} levels, "
+        f"max disparity {result['max_disparity']})"
+    ]
+    for level in result["levels"]:
+        qubits = ""
+        if level["qubits_per_bundle"] is not None:
+            source = "embedding" if level["embedding_known"] else "assumed"
+            qubits = f", {level['qubits_per_bundle']} qubits ({source})"
+        lines.append(
+            f"  level {level['index']}: {level['height']}x{level['width']}, "
+            f"{level['bundles']} bundles of {level['variables_per_bundle']} variables{qubits}: "
+            f"{level['seconds']:.2f} s"
+        )
+    if "fits" in result:
+        remaining = result["remaining_seconds"]
+        left = "unlimited" if remaining is None else f"{remaining:.2f} s"
+        verdict = "fits" if result["fits"] else "does NOT fit: submitting it would be refused (403)"
+        lines.append(f"your budget: {left} remaining; this job {verdict}")
+    return "\n".join(lines)

@@ -106,6 +106,18 @@ class Client:
             data.update(gt_scale=str(gt_scale), gt_border=str(gt_border))
         return self._request("POST", "/v1/jobs", files=files, data=data).json()
 
+    def estimate(
+        self,
+        left: bytes,
+        right: bytes,
+        params: dict[str, Any] | None = None,
+        names: tuple[str, str] = ("left.png", "right.png"),
+    ) -> dict:
+        """POST /v1/estimate: the job's metered seconds per level and whether they fit."""
+        files = {"left": (names[0], left), "right": (names[1], right)}
+        data = {"params": json.dumps(params or {})}
+        return self._request("POST", "/v1/estimate", files=files, data=data).json()
+
     def status(self, job_id: str) -> dict:
         return self._request("GET", f"/v1/jobs/{job_id}").json()
 

@@ -138,3 +138,36 @@ class Health(BaseModel):
 
 class ErrorBody(BaseModel):
     detail: str
+
+
+class LevelEstimate(BaseModel):
+    """One pyramid level of an estimate: bundle count x per-bundle metered time."""
+
+    index: int
+    height: int
+    width: int
+    bundles: int
+    variables_per_bundle: int
+    qubits_per_bundle: int | None = Field(
+        description="QPU qubits per bundle the estimate used (null: hybrid, no embedding)"
+    )
+    embedding_known: bool = Field(
+        description="true: an actual embedding of this bundle shape; false: the assumption of "
+        "2 qubits per variable (no job has embedded this shape yet)"
+    )
+    seconds: float
+
+
+class Estimate(BaseModel):
+    """What a job would be charged, before it is run (``POST /v1/estimate``)."""
+
+    solver: str
+    metered: bool = Field(description="false: the solver spends no QPU/hybrid budget")
+    seconds: float = Field(description="Estimated QPU access (hybrid: charge) time of the job")
+    max_disparity: int = Field(description="The disparity range the job would use (resolved)")
+    bundles: int
+    levels: list[LevelEstimate]
+    remaining_seconds: float | None = Field(
+        description="Your budget left; null: unlimited, or the solver is not metered"
+    )
+    fits: bool = Field(description="false: POST /v1/jobs would answer 403 for this job")

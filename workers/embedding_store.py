@@ -37,13 +37,17 @@ class RedisEmbeddingStore:
         self.client.set(self.prefix + key, value)
 
 
+def for_settings(settings: Settings, client: redis.Redis | None = None) -> RedisEmbeddingStore:
+    """The service's embedding store (``client``: an existing connection to its Redis)."""
+    if client is None:
+        from workers.app import redis_url
+
+        client = redis.Redis.from_url(redis_url(settings), decode_responses=True)
+    return RedisEmbeddingStore(client, prefix=f"{settings.key_prefix}:embedding:")
+
+
 def install(settings: Settings) -> RedisEmbeddingStore:
     """Make Redis this process's embedding store (called at worker start-up)."""
-    from workers.app import redis_url
-
-    store = RedisEmbeddingStore(
-        redis.Redis.from_url(redis_url(settings), decode_responses=True),
-        prefix=f"{settings.key_prefix}:embedding:",
-    )
+    store = for_settings(settings)
     set_default_store(store)
     return store

@@ -503,15 +503,27 @@ def live_timing_solver(solver_name: str):
 
 
 def bundle_estimate(inputs, config, start: int, stop: int) -> float:
-    """Estimated charge of the bundle of rows [start, stop) of a level (no BQM is built)."""
+    """Estimated charge of the bundle of rows [start, stop) of a level (no BQM is built), with
+    the actual embedding of its shape once any worker has embedded one."""
     from shared.encodings import get_codec
-    from shared.solvers.qpu_time import QPU_SOLVERS, bundle_seconds, sampler_params
+    from shared.solvers.embedding_cache import default_cache
+    from shared.solvers.qpu_time import (
+        QPU_SOLVERS,
+        bundle_seconds,
+        known_embedding,
+        sampler_params,
+    )
 
     width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
     variables = (stop - start) * width * get_codec(config.encoding).variables_per_pixel(labels)
     params = sampler_params(config.solver_params, warm=uses_warm_start(config))
-    live = live_timing_solver(config.solver) if config.solver in QPU_SOLVERS else None
-    return bundle_seconds(config.solver, variables, params, solver=live)
+    if config.solver not in QPU_SOLVERS:
+        return bundle_seconds(config.solver, variables, params)
+    embedding = known_embedding(
+        default_cache(), config.solver, config.encoding, (stop - start, width), labels
+    )
+    live = live_timing_solver(config.solver)
+    return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
 
 
 def solve_metered(

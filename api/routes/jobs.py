@@ -23,12 +23,14 @@ from api.uploads import (
 )
 from api.users import UserStore, user_store
 from shared.config import MatchConfig
-from shared.disparity_range import resolve_max_disparity
+from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
-from shared.solvers.qpu_time import is_metered, job_seconds
+from shared.solvers.embedding_cache import EmbeddingCache
+from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
+from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.quota import QuotaExceeded
 from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
@@ -107,12 +109,18 @@ def find_job(job_id: str, svc: Services, principal: Principal) -> JobRecord:
     return record
 
 
-def check_solver(config: MatchConfig, svc: Services) -> None:
-    """The solver must exist, and run here or have a worker consuming its queue."""
+def check_solver_name(config: MatchConfig):
+    """422 unless the solver is registered; returns its availability here."""
     try:
         _, availability = load_solver(config.solver)
     except UnknownSolver as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
+    return availability
+
+
+def check_solver(config: MatchConfig, svc: Services) -> None:
+    """The solver must exist, and run here or have a worker consuming its queue."""
+    availability = check_solver_name(config)
     if availability.ok:
         return
     consumers = svc.queues.consumers() or {}
@@ -150,23 +158,40 @@ def check_active_jobs(principal: Principal, svc: Services) -> None:
         )
 
 
+def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEstimate:
+    """The job's disparity range: it decides the levels, hence the job's size."""
+    return resolve_max_disparity(
+        *match_views(left_image, right_image, config), config.max_disparity
+    )
+
+
+def estimate_job(
+    config: MatchConfig, shape: tuple[int, int], max_disparity: int, svc: Services
+) -> JobEstimate:
+    """The job's metered time, with the actual embeddings the workers have already found
+    (shared through Redis) for bundle shapes they have met; 422 for unusable solver_params."""
+    cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
+    try:
+        return job_seconds(config, shape, max_disparity, cache)
+    except (TypeError, ValueError, KeyError) as error:
+        raise UploadError(
+            http.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"params: cannot estimate the job's QPU time from solver_params ({error})",
+        ) from None
+
+
 def check_budget(
     config: MatchConfig,
     shape: tuple[int, int],
     max_disparity: int,
     principal: Principal,
     users: UserStore,
+    svc: Services,
 ) -> None:
     """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
     if not is_metered(config.solver):
         return
-    try:
-        estimate = job_seconds(config, shape, max_disparity)
-    except (TypeError, ValueError, KeyError) as error:
-        raise UploadError(
-            http.HTTP_422_UNPROCESSABLE_CONTENT,
-            f"params: cannot estimate the job's QPU time from solver_params ({error})",
-        ) from None
+    estimate = estimate_job(config, shape, max_disparity, svc)
     try:
         users.ledger.check(
             principal.name, estimate.seconds, f"this job ({estimate.bundles} bundles)"
@@ -226,10 +251,8 @@ def create_job(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
     # the range decides the levels, hence the job's size: resolved once, here, for good
-    disparity_range = resolve_max_disparity(
-        *match_views(left_image, right_image, config), config.max_disparity
-    )
-    check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users)
+    disparity_range = disparity_range_of(left_image, right_image, config)
+    check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users, svc)
     arrays = {"left": left_image, "right": right_image}
     truth = None
     if ground_truth is not None:

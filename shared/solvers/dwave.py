@@ -6,7 +6,10 @@ steepest descent on the embedded problem offline. Everything else is shared: the
 from :mod:`shared.solvers.embedding_cache` (found once per bundle structure), chain strength is
 uniform torque compensation with the paper's prefactor 1.414, chains are resolved by majority
 vote, and the sample set is resolved inside the call. D-Wave reports microseconds; we report
-seconds. The mock's timing is a fixed demonstration value and is marked ``simulated``.
+seconds. The mock's own timing is a fixed demonstration value, so ``qpu-sim`` reports instead
+what D-Wave's published timing model says an Advantage QPU would take for the same embedding and
+parameters (:func:`shared.solvers.qpu_time.qpu_access_seconds`), marked ``simulated``; that is
+what the service charges for it.
 
 The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
 message we raise or log.
@@ -32,7 +35,12 @@ from shared.solvers.base import (
     TransientSolverError,
     sample_array,
 )
-from shared.solvers.embedding_cache import EmbeddingCache, default_cache, graph_fingerprint
+from shared.solvers.embedding_cache import (
+    EmbeddingCache,
+    EmbeddingSize,
+    default_cache,
+    graph_fingerprint,
+)
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +63,31 @@ def chain_strength(bqm: dimod.BinaryQuadraticModel) -> float:
 def _seconds(timing: dict[str, Any]) -> dict[str, float]:
     """D-Wave's microsecond timing fields in seconds."""
     return {key: float(value) * 1e-6 for key, value in timing.items() if _is_number(value)}
+
+
+class _TokenScrubber(logging.Filter):
+    """Replaces the API token in log records: dwave-cloud-client logs its whole configuration,
+    token included, at DEBUG level when a client is created."""
+
+    def __init__(self, secret: str) -> None:
+        super().__init__()
+        self.secret = secret
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if self.secret in message:
+            record.msg, record.args = message.replace(self.secret, "***"), ()
+        return True
+
+
+def scrub_cloud_logs(secret: str) -> None:
+    """Put a :class:`_TokenScrubber` on every ``dwave.cloud`` logger (a filter on a parent logger
+    does not see its children's records, so each one gets its own)."""
+    names = [n for n in list(logging.root.manager.loggerDict) if n.startswith("dwave.cloud.")]
+    for name in ["dwave.cloud", *names]:
+        logger = logging.getLogger(name)
+        if not any(getattr(f, "secret", None) == secret for f in logger.filters):
+            logger.addFilter(_TokenScrubber(secret))
 
 
 def _is_number(value: Any) -> bool:
@@ -118,7 +151,9 @@ class _EmbeddedQPU:
             base = self.sampler()
             # Seed 0, not the bundle's: the embedding must depend on the structure only, so
             # whichever worker computes it first, every run gets the same one.
-            embedding, source, key = self.cache.lookup(bqm, base.edgelist, self._target, seed=0)
+            embedding, source, key = self.cache.lookup(
+                bqm, base.edgelist, self._target, seed=0, solver=self.name
+            )
             strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
             settings: dict[str, Any] = {"num_reads": DEFAULT_NUM_READS, **params}
             if initial_state is not None:
@@ -128,6 +163,8 @@ class _EmbeddedQPU:
                     anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
                     reinitialize_state=True,
                 )
+                # the schedule sets the anneal's length; SAPI refuses both (the estimate's view)
+                settings.pop("annealing_time", None)
             composite = FixedEmbeddingComposite(base, embedding)
             # The mock's seed is sampler state, so simulated calls are serialised.
             with self._lock if self.simulated else contextlib.nullcontext():
@@ -149,7 +186,8 @@ class _EmbeddedQPU:
         record = sampleset.record
         breaks = np.asarray(record.chain_break_fraction, dtype=float)
         weights = np.asarray(record.num_occurrences, dtype=float)
-        timing = _seconds(sampleset.info.get("timing", {}))
+        size = EmbeddingSize.of(embedding)
+        timing = self._timing(sampleset, size, settings)
         info = {
             "chain_strength": strength,
             "chain_break_fraction": float(best.chain_break_fraction),
@@ -158,14 +196,18 @@ class _EmbeddedQPU:
             "embedding_cache": source,
             "embedding_cache_hit": source != "computed",
             "embedding_key": key,
-            "qubits": int(sum(len(chain) for chain in embedding.values())),
-            "longest_chain": int(max((len(c) for c in embedding.values()), default=0)),
+            "qubits": size.qubits,
+            "chains": size.chains,
+            "longest_chain": size.longest_chain,
             "qpu_access_time": timing.get("qpu_access_time", 0.0),
             "simulated": self.simulated,
             "warm_start": initial_state is not None,
         }
         if self.simulated:
-            info["note"] = "offline MockDWaveSampler: timing is a fixed demonstration value"
+            info["note"] = (
+                "offline MockDWaveSampler: qpu_access_time is the Advantage timing model's value "
+                "for this embedding and these parameters, not a measurement"
+            )
         return SolveResult(
             sample=sample,
             energy=float(bqm.energy(sample)),
@@ -173,6 +215,12 @@ class _EmbeddedQPU:
             timing=timing,
             info=info,
         )
+
+    def _timing(
+        self, sampleset: dimod.SampleSet, size: EmbeddingSize, settings: dict[str, Any]
+    ) -> dict[str, float]:
+        """The QPU's own timing, in seconds."""
+        return _seconds(sampleset.info.get("timing", {}))
 
     def _translate(self, error: Exception) -> SolverError:
         """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
@@ -213,6 +261,16 @@ class _EmbeddedQPU:
             return TransientSolverError(
                 f"{self.name}: D-Wave did not answer in time or the connection failed "
                 f"({detail}); retry later"
+            )
+        if isinstance(
+            error,
+            cloud.ProblemStructureError
+            | dimod.exceptions.BinaryQuadraticModelStructureError
+            | api.ResourceBadRequestError,
+        ):
+            return SolverError(
+                f"{self.name}: D-Wave refused the problem as too large or not fitting the solver "
+                f"({detail}); use smaller bundles (--bundle-height 1) or --encoding domain-wall"
             )
         if isinstance(error, cloud.ConfigFileError):
             return SolverUnavailable(f"{self.name}: invalid D-Wave configuration: {detail}")
@@ -265,7 +323,10 @@ class QPUSolver(_EmbeddedQPU):
             options["region"] = settings.dwave_region
         if settings.dwave_endpoint:
             options["endpoint"] = settings.dwave_endpoint
-        return DWaveSampler(**options)
+        scrub_cloud_logs(options["token"])
+        sampler = DWaveSampler(**options)
+        scrub_cloud_logs(options["token"])  # loggers of modules the client imported lazily
+        return sampler
 
 
 class SimulatedQPUSolver(_EmbeddedQPU):
@@ -286,6 +347,18 @@ class SimulatedQPUSolver(_EmbeddedQPU):
 
     def _seed_sampler(self, sampler, seed: int | None) -> None:
         sampler.substitute_kwargs["seed"] = None if seed is None else seed % 2**32
+
+    def _timing(
+        self, sampleset: dimod.SampleSet, size: EmbeddingSize, settings: dict[str, Any]
+    ) -> dict[str, float]:
+        """What a real QPU would take for this embedding and these parameters (the model the
+        estimates use), instead of the mock's fixed demonstration timing."""
+        from shared.solvers.qpu_time import qpu_access_seconds
+
+        try:
+            return {"qpu_access_time": qpu_access_seconds(size.qubits, settings)}
+        except ValueError as error:  # what SAPI would refuse, e.g. a schedule and a time
+            raise SolverError(f"{self.name}: invalid sampling parameters: {error}") from None
 
     def _make_sampler(self):
         from dwave.system.testing import MockDWaveSampler

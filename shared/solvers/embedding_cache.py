@@ -11,6 +11,10 @@ store that several processes share:
 * ``workers.embedding_store.RedisEmbeddingStore`` in the service (``shared`` never imports redis).
 
 A store is anything with ``get(key) -> str | None`` and ``set(key, value: str) -> None``.
+
+Next to each embedding the cache keeps its *size* (qubits, chains, longest chain) under a key made
+of the solver's name and the structure digest, so that QPU time can be estimated from the real
+embedding before any sampler (or network connection) exists, e.g. in the API at submit time.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Hashable, Iterable
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -35,6 +40,20 @@ from shared.solvers.base import SolverError
 log = logging.getLogger(__name__)
 
 Embedding = dict[int, list[int]]
+
+
+@dataclass(frozen=True)
+class EmbeddingSize:
+    """What the QPU time model needs to know of an embedding: qubits used and chains."""
+
+    qubits: int
+    chains: int
+    longest_chain: int
+
+    @classmethod
+    def of(cls, embedding: Embedding) -> EmbeddingSize:
+        lengths = [len(chain) for chain in embedding.values()]
+        return cls(qubits=sum(lengths), chains=len(lengths), longest_chain=max(lengths, default=0))
 
 
 class EmbeddingStore(Protocol):
@@ -83,12 +102,22 @@ def graph_fingerprint(edges: Iterable[tuple[Hashable, Hashable]]) -> str:
     return hashlib.sha256(array.tobytes()).hexdigest()[:16]
 
 
-def structure_key(bqm: dimod.BinaryQuadraticModel, target: str) -> str:
-    """Cache key of the BQM's graph on ``target`` (a target name plus its fingerprint)."""
+def structure_digest(bqm: dimod.BinaryQuadraticModel) -> str:
+    """A hash of the BQM's graph (variable count and edges), independent of its biases."""
     digest = hashlib.sha256()
     digest.update(np.int64(bqm.num_variables).tobytes())
     digest.update(structure_edges(bqm).tobytes())
-    return f"{target}-{digest.hexdigest()[:32]}"
+    return digest.hexdigest()[:32]
+
+
+def structure_key(bqm: dimod.BinaryQuadraticModel, target: str) -> str:
+    """Cache key of the BQM's graph on ``target`` (a target name plus its fingerprint)."""
+    return f"{target}-{structure_digest(bqm)}"
+
+
+def size_key(solver: str, digest: str) -> str:
+    """Store key of the size of ``solver``'s embedding of the structure ``digest``."""
+    return f"size-{solver}-{digest}"
 
 
 def _encode(embedding: Embedding) -> str:
@@ -108,6 +137,7 @@ class EmbeddingCache:
         #: Structures that found no embedding in this process: fail fast instead of searching
         #: again for every bundle of the level (not persisted: a longer timeout may succeed).
         self._failures: dict[str, str] = {}
+        self._sizes: dict[str, EmbeddingSize] = {}
         self._lock = threading.Lock()
 
     @property
@@ -123,9 +153,15 @@ class EmbeddingCache:
         target: str,
         timeout: float | None = None,
         seed: int = 0,
+        solver: str | None = None,
     ) -> tuple[Embedding, str, str]:
-        """(embedding, source, key); source is ``"memory"``, ``"store"`` or ``"computed"``."""
-        key = structure_key(bqm, target)
+        """(embedding, source, key); source is ``"memory"``, ``"store"`` or ``"computed"``.
+
+        With ``solver`` (the adapter's name) the embedding's size is also recorded for
+        :meth:`known_size` the first time this process meets the structure.
+        """
+        digest = structure_digest(bqm)
+        key = f"{target}-{digest}"
         with self._lock:
             if key in self._memory:
                 return self._memory[key], "memory", key
@@ -137,6 +173,7 @@ class EmbeddingCache:
             if _is_valid(embedding, bqm, target_edges):
                 with self._lock:
                     self._memory[key] = embedding
+                self._record_size(solver, digest, embedding)
                 return embedding, "store", key
             log.warning("embedding %s in the store does not fit the target; recomputing", key)
         timeout = get_settings().embedding_timeout if timeout is None else timeout
@@ -149,7 +186,38 @@ class EmbeddingCache:
         self.store.set(key, _encode(embedding))
         with self._lock:
             self._memory[key] = embedding
+        self._record_size(solver, digest, embedding)
         return embedding, "computed", key
+
+    def _record_size(self, solver: str | None, digest: str, embedding: Embedding) -> None:
+        if solver is None:
+            return
+        size = EmbeddingSize.of(embedding)
+        key = size_key(solver, digest)
+        with self._lock:
+            if self._sizes.get(key) == size:
+                return
+            self._sizes[key] = size
+        self.store.set(key, json.dumps(asdict(size)))
+
+    def known_size(self, solver: str, digest: str) -> EmbeddingSize | None:
+        """The size of ``solver``'s embedding of a structure, if one was ever found (by any
+        process sharing the store); None before the first bundle of that structure."""
+        key = size_key(solver, digest)
+        with self._lock:
+            if key in self._sizes:
+                return self._sizes[key]
+        stored = self.store.get(key)
+        if stored is None:
+            return None
+        try:
+            size = EmbeddingSize(**json.loads(stored))
+        except (TypeError, ValueError):
+            log.warning("ignoring a malformed embedding size under %s", key)
+            return None
+        with self._lock:
+            self._sizes[key] = size
+        return size
 
 
 def _is_valid(embedding: Embedding, bqm, target_edges) -> bool:
@@ -170,6 +238,13 @@ def find_embedding(
     import minorminer
     import networkx as nx
 
+    qubits = len({qubit for edge in target_edges for qubit in edge})
+    if bqm.num_variables > qubits:
+        raise SolverError(
+            f"this bundle is too large for the QPU: {bqm.num_variables} variables, the QPU has "
+            f"{qubits} qubits; use a smaller bundle height, --encoding domain-wall, or a "
+            "coarser level"
+        )
     source = nx.Graph()
     source.add_nodes_from(range(bqm.num_variables))
     source.add_edges_from(structure_edges(bqm).tolist())

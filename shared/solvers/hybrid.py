@@ -3,7 +3,9 @@
 Kerberos races tabu search, simulated annealing and QPU-solved subproblems (energy-impact
 decomposition) and keeps the best; ``hybrid-sim`` gives it the offline ``MockDWaveSampler`` as
 its QPU, so it runs anywhere and its QPU timing is not real. It is a stand-in for the workflow
-shape, not for Leap's proprietary solver, and is always named as such.
+shape, not for Leap's proprietary solver, and is always named as such. It reports (and is charged)
+the ``charge_time`` Leap's hybrid solver would bill for a problem of its size
+(:func:`shared.solvers.qpu_time.hybrid_charge_seconds`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from shared.solvers.base import (
     SolverUnavailable,
     result_from_sampleset,
 )
-from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver
+from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver, scrub_cloud_logs
 
 #: Kerberos settings sized for stereo bundles (its own defaults run 100 iterations of 10k sweeps).
 KERBEROS_DEFAULTS: dict[str, Any] = {
@@ -65,7 +67,10 @@ class LeapHybridSolver(QPUSolver):
             options["region"] = settings.dwave_region
         if settings.dwave_endpoint:
             options["endpoint"] = settings.dwave_endpoint
-        return LeapHybridSampler(**options)
+        scrub_cloud_logs(options["token"])
+        sampler = LeapHybridSampler(**options)
+        scrub_cloud_logs(options["token"])
+        return sampler
 
     def solve(
         self,
@@ -80,12 +85,14 @@ class LeapHybridSolver(QPUSolver):
             with self._lock:
                 if self._sampler is None:
                     self._sampler = self._make_sampler()
+            self._check_size(bqm)
             sampleset = self._sampler.sample(bqm, **params)
             sampleset.resolve()
         except SolverError:
             raise
         except Exception as error:
             raise self._translate(error) from None
+        # Leap reports microseconds, like the QPU
         timing = {
             key: float(value) * 1e-6
             for key, value in sampleset.info.items()
@@ -98,6 +105,16 @@ class LeapHybridSolver(QPUSolver):
             "warm_start_ignored": initial_state is not None,
         }
         return result_from_sampleset(sampleset, bqm, started, timing, info)
+
+    def _check_size(self, bqm: dimod.BinaryQuadraticModel) -> None:
+        """Refuse what the solver would refuse after a long upload (its size limits)."""
+        limit = self._sampler.properties.get("maximum_number_of_variables")
+        if limit is not None and bqm.num_variables > int(limit):
+            raise SolverError(
+                f"{self.name}: the problem is too large for the hybrid solver "
+                f"({bqm.num_variables} variables, at most {limit} variables); use smaller "
+                "bundles (--bundle-height) or --encoding domain-wall"
+            )
 
 
 class KerberosSolver:
@@ -148,5 +165,14 @@ class KerberosSolver:
             )
         except (TypeError, ValueError) as error:
             raise SolverError(f"hybrid-sim: invalid parameters: {error}") from None
-        info = {"simulated": True, "warm_start": initial_state is not None}
-        return result_from_sampleset(sampleset, bqm, started, {}, info)
+        from shared.solvers.qpu_time import hybrid_charge_seconds
+
+        charge = hybrid_charge_seconds(bqm.num_variables, params)
+        info = {
+            "simulated": True,
+            "warm_start": initial_state is not None,
+            "note": "offline Kerberos: charge_time is what Leap's hybrid solver would bill for "
+            "this problem size (its minimum time limit), not a measurement",
+        }
+        timing = {"charge_time": charge, "run_time": charge}
+        return result_from_sampleset(sampleset, bqm, started, timing, info)

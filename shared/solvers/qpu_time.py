@@ -15,11 +15,19 @@ arithmetic is dwave-cloud-client's own ``StructuredSolver.estimate_qpu_access_ti
 solver its ``problem_timing_data`` property is used, offline the Advantage_system4.1 values of
 August 2022 below (as published by D-Wave and recorded in dwave-cloud-client's test data).
 
-The QPU model needs the number of *qubits*, known only after embedding. Before embedding we
-assume :data:`QUBITS_PER_VARIABLE` qubits per binary variable: on Pegasus a full-resolution
-domain-wall Tsukuba row (1152 variables) embedded in 1956 qubits (1.7 per variable), so 2 is a
-slight overestimate; readout time grows only logarithmically with the qubit count, so the error
-this factor makes is small.
+The QPU model needs the number of *qubits*, known only after embedding. Once a bundle structure
+has been embedded (by any worker: the embedding cache records each embedding's size per solver),
+estimates use that embedding's qubit count. Before, we assume :data:`QUBITS_PER_VARIABLE` qubits
+per binary variable: on Pegasus a full-resolution domain-wall Tsukuba row (1152 variables)
+embedded in 1956 qubits (1.7 per variable), so 2 is a slight overestimate; readout time grows
+only logarithmically with the qubit count (and is flat above ~1500 qubits), so the error this
+factor makes is small.
+
+Charges: ``qpu`` and ``hybrid`` are charged what D-Wave reports. The offline stand-ins have no real
+timing, so they are charged what this model says the real service would take for the same problem
+(``qpu-sim``: :func:`qpu_access_seconds` of its actual embedding and parameters; ``hybrid-sim``:
+:func:`hybrid_charge_seconds` of its size), so that their estimates and charges agree as the real
+ones do.
 
 Hybrid model: Leap's hybrid BQM solver charges about its run time, which is the requested
 ``time_limit`` or, when unset, the solver's minimum for the problem size (the
@@ -32,8 +40,9 @@ All functions return seconds.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, lru_cache
 from typing import Any
 
 import numpy as np
@@ -41,8 +50,12 @@ import numpy as np
 from shared.bundles import bundle_rows
 from shared.config import MatchConfig
 from shared.encodings import get_codec
+from shared.energy import Costs
 from shared.pyramid import level_shape, plan
 from shared.solvers.base import uses_warm_start
+from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
+
+log = logging.getLogger(__name__)
 
 #: Advantage_system4.1 ``problem_timing_data`` (August 2022), microseconds.
 ADVANTAGE_TIMING_DATA: dict[str, Any] = {
@@ -93,8 +106,8 @@ MAX_QUBITS = 5627
 #: Reads the QPU adapters use when ``num_reads`` is not given (shared/solvers/dwave.py).
 DEFAULT_NUM_READS = 500
 
-#: Solvers whose use is charged to a user's budget. The offline stand-ins are charged their
-#: simulated timing the same way, so the accounting can be exercised without a token.
+#: Solvers whose use is charged to a user's budget. The offline stand-ins are charged what the
+#: model says the real service would take, so the accounting can be exercised without a token.
 QPU_SOLVERS = frozenset({"qpu", "qpu-sim"})
 HYBRID_SOLVERS = frozenset({"hybrid", "hybrid-sim"})
 METERED_SOLVERS = QPU_SOLVERS | HYBRID_SOLVERS
@@ -174,37 +187,103 @@ def hybrid_charge_seconds(
     return max(minimum, float(requested)) if requested is not None else minimum
 
 
+def assumed_qubits(num_variables: int) -> int:
+    """Qubits assumed for a bundle whose structure has not been embedded yet."""
+    return min(MAX_QUBITS, int(np.ceil(num_variables * QUBITS_PER_VARIABLE)))
+
+
 def bundle_seconds(
     solver_name: str,
     num_variables: int,
     params: dict[str, Any] | None = None,
     *,
     num_qubits: int | None = None,
+    embedding: EmbeddingSize | None = None,
     solver=None,
 ) -> float:
     """Estimated charge of one bundle of ``num_variables`` binary variables; 0 if unmetered.
 
-    ``num_qubits`` is the embedding's size when known; ``solver`` a live cloud solver whose
-    ``estimate_qpu_access_time`` and timing data then replace the offline model.
+    ``embedding`` (or ``num_qubits``) is the bundle's actual embedding when known; ``solver`` a
+    live cloud solver whose ``estimate_qpu_access_time`` and timing data replace the offline
+    model.
     """
     if solver_name in QPU_SOLVERS:
+        if embedding is not None:
+            num_qubits = embedding.qubits
         if num_qubits is None:
-            num_qubits = min(MAX_QUBITS, int(np.ceil(num_variables * QUBITS_PER_VARIABLE)))
+            num_qubits = assumed_qubits(num_variables)
         return qpu_access_seconds(num_qubits, params, solver)
     if solver_name in HYBRID_SOLVERS:
         return hybrid_charge_seconds(num_variables, params)
     return 0.0
 
 
+@lru_cache(maxsize=256)
+def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> str:
+    """Structure digest of every bundle of this shape: the QUBO's graph does not depend on the
+    costs (zero terms are kept), so a bundle of zero costs stands for all of them."""
+    zeros = np.zeros((height, width, candidates))
+    costs = Costs(
+        candidates=np.zeros((height, width, candidates), dtype=np.int32),
+        unary=zeros,
+        pair_h=np.zeros((height, max(0, width - 1), candidates, candidates)),
+        pair_v=np.zeros((max(0, height - 1), width, candidates, candidates)),
+    )
+    return structure_digest(get_codec(encoding).encode(costs))
+
+
+def known_embedding(
+    cache: EmbeddingCache | None,
+    solver_name: str,
+    encoding: str,
+    shape: tuple[int, int],
+    candidates: int,
+) -> EmbeddingSize | None:
+    """The size of the embedding ``solver_name`` uses for bundles of ``shape`` (rows, width)
+    with ``candidates`` labels, if any worker has embedded one; None otherwise (and for
+    solvers that do not embed)."""
+    if cache is None or solver_name not in QPU_SOLVERS:
+        return None
+    height, width = shape
+    if height * width * get_codec(encoding).variables_per_pixel(candidates) > MAX_QUBITS:
+        return None  # cannot embed, so never was (and its QUBO may be too big to build here)
+    try:
+        return cache.known_size(
+            solver_name, bundle_digest(str(encoding), height, width, candidates)
+        )
+    except Exception as error:  # an unreachable store only costs us the better estimate
+        log.warning("embedding sizes unavailable (%s); assuming %.1f qubits per variable",
+                    error, QUBITS_PER_VARIABLE)  # fmt: skip
+        return None
+
+
 @dataclass(frozen=True)
 class LevelEstimate:
-    """One pyramid level: its bundles, their size and the estimated charge of all of them."""
+    """One pyramid level: its bundles, their size and the estimated charge of all of them.
+
+    ``qubits_per_bundle`` is the QPU qubit count the estimate used (None for hybrid solvers);
+    ``embedding_known`` says whether it is an actual embedding's or the assumption's."""
 
     index: int
     shape: tuple[int, int]
     bundles: int
     variables_per_bundle: int
     seconds: float
+    qubits_per_bundle: int | None = None
+    embedding_known: bool = False
+
+    def as_dict(self) -> dict[str, Any]:
+        """The wire form (``POST /v1/estimate``, ``qhsm estimate --json``)."""
+        return {
+            "index": self.index,
+            "height": self.shape[0],
+            "width": self.shape[1],
+            "bundles": self.bundles,
+            "variables_per_bundle": self.variables_per_bundle,
+            "qubits_per_bundle": self.qubits_per_bundle,
+            "embedding_known": self.embedding_known,
+            "seconds": self.seconds,
+        }
 
 
 @dataclass(frozen=True)
@@ -215,6 +294,15 @@ class JobEstimate:
     seconds: float
     bundles: int
     levels: list[LevelEstimate] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "solver": self.solver,
+            "metered": is_metered(self.solver),
+            "seconds": self.seconds,
+            "bundles": self.bundles,
+            "levels": [level.as_dict() for level in self.levels],
+        }
 
 
 def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
@@ -231,29 +319,63 @@ def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
     return params
 
 
-def job_seconds(config: MatchConfig, shape: tuple[int, int], max_disparity: int) -> JobEstimate:
-    """Estimate a job before accepting it, from the image ``shape`` (height, width), its
-    resolved ``max_disparity``, the pyramid and the solver parameters only: nothing is built,
-    embedded or solved.
+def level_estimate(
+    config: MatchConfig,
+    index: int,
+    shape: tuple[int, int],
+    candidates: int,
+    views: int = 1,
+    cache: EmbeddingCache | None = None,
+) -> LevelEstimate:
+    """Bundle count x per-bundle time of level ``index`` (``shape`` = one view's height, width;
+    ``views`` = 2 with the left-right check, whose right view has as many bundles again).
 
-    Every bundle of a level is estimated at the size of the level's largest bundle; with the
-    left-right check every level has the right view's bundles too.
-    """
-    codec = get_codec(config.encoding)
+    Every bundle is estimated at the size of the level's largest bundle, with that bundle
+    shape's actual embedding when ``cache`` knows one."""
+    height, width = shape
+    rows = bundle_rows(height, config.bundle_height)
+    bundles = views * len(rows)
+    tallest = max(stop - start for start, stop in rows)
+    variables = tallest * width * get_codec(config.encoding).variables_per_pixel(candidates)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    embedding = known_embedding(cache, config.solver, config.encoding, (tallest, width), candidates)
+    each = bundle_seconds(config.solver, variables, params, embedding=embedding)
+    qubits = None
+    if config.solver in QPU_SOLVERS:
+        qubits = embedding.qubits if embedding else assumed_qubits(variables)
+    return LevelEstimate(
+        index=index,
+        shape=(height, width),
+        bundles=bundles,
+        variables_per_bundle=variables,
+        seconds=each * bundles,
+        qubits_per_bundle=qubits,
+        embedding_known=embedding is not None,
+    )
+
+
+def job_seconds(
+    config: MatchConfig,
+    shape: tuple[int, int],
+    max_disparity: int,
+    cache: EmbeddingCache | None = None,
+) -> JobEstimate:
+    """Estimate a job before accepting it, from the image ``shape`` (height, width), its
+    resolved ``max_disparity``, the pyramid and the solver parameters: nothing is embedded or
+    solved. ``cache``: where the actual embeddings of earlier jobs are looked up (the service's
+    shared store)."""
     views = 2 if config.lr_check else 1
-    warm = uses_warm_start(config)
-    levels = []
-    for level in plan(config, max_disparity):
-        height, width = level_shape(shape, level.downsample)
-        rows = bundle_rows(height, config.bundle_height)
-        bundles = views * len(rows)
-        tallest = max(stop - start for start, stop in rows)
-        variables = tallest * width * codec.variables_per_pixel(level.candidates)
-        params = sampler_params(config.solver_params, warm=warm)
-        each = bundle_seconds(config.solver, variables, params)
-        levels.append(
-            LevelEstimate(level.index, (height, width), bundles, variables, each * bundles)
+    levels = [
+        level_estimate(
+            config,
+            level.index,
+            level_shape(shape, level.downsample),
+            level.candidates,
+            views,
+            cache,
         )
+        for level in plan(config, max_disparity)
+    ]
     return JobEstimate(
         solver=config.solver,
         seconds=float(sum(level.seconds for level in levels)),

@@ -3,9 +3,12 @@ queued, listing, solvers, health."""
 
 from __future__ import annotations
 
+import json
+
 import harness
 import numpy as np
-from api_helpers import LEFT, SCENE, post
+import pytest
+from api_helpers import LEFT, RIGHT, SCENE, post
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -141,3 +144,56 @@ def test_health_and_readiness(api, make_client):
 def test_openapi_docs(api):
     assert api.get("/docs").status_code == 200
     assert "/v1/jobs/{job_id}/disparity" in api.get("/openapi.json").json()["paths"]
+
+
+def estimate(client, left=LEFT, right=RIGHT, params=None, headers=None):
+    files = {"left": ("left.png", left), "right": ("right.png", right)}
+    data = {} if params is None else {"params": json.dumps(params)}
+    return client.post("/v1/estimate", files=files, data=data, headers=headers or {})
+
+
+def test_estimate_reports_the_jobs_qpu_seconds_without_queueing_it(api, api_settings):
+    from shared.config import MatchConfig
+    from shared.solvers import qpu_time
+
+    before = api.get("/v1/jobs", params={"limit": 100}).json()["total"]
+    params = {"solver": "qpu", "encoding": "domain-wall", "solver_params": {"num_reads": 50},
+              "max_disparity": 6}  # fmt: skip
+    response = estimate(api, params=params)
+    assert response.status_code == 200, response.text
+    body = response.json()
+    assert body["max_disparity"] == 6
+    expected = qpu_time.job_seconds(MatchConfig.model_validate(params), (24, 32), 6)
+    assert body["seconds"] == pytest.approx(expected.seconds)
+    assert body["metered"] and body["bundles"] == expected.bundles
+    assert [level["bundles"] for level in body["levels"]] == [lv.bundles for lv in expected.levels]
+    assert all(
+        level["qubits_per_bundle"] and not level["embedding_known"] for level in body["levels"]
+    )
+    assert body["fits"] is True  # the local admin's budget is unlimited
+    assert api.get("/v1/jobs", params={"limit": 100}).json()["total"] == before  # nothing queued
+
+
+def test_estimate_of_an_unmetered_solver_is_zero(api):
+    body = estimate(api, params={"solver": "exact"}).json()
+    assert body["metered"] is False and body["seconds"] == 0 and body["fits"] is True
+    assert body["remaining_seconds"] is None
+
+
+def test_estimate_says_when_a_job_would_not_fit_the_budget(api, api_settings):
+    from api.users import UserStore
+
+    users = UserStore.from_settings(api_settings)
+    _, key = users.create_user("estimate-poor", qpu_seconds=0.01)
+    headers = {"Authorization": f"Bearer {key}"}
+    body = estimate(api, params={"solver": "qpu-sim"}, headers=headers).json()
+    assert body["fits"] is False and body["remaining_seconds"] == 0.01 and body["seconds"] > 0.01
+
+
+def test_estimate_refuses_bad_input_like_job_submission(api):
+    assert estimate(api, params={"solver": "quantum-magic"}).status_code == 422
+    assert estimate(api, right=harness.png(SCENE.right[:, :20])).status_code == 422
+    assert estimate(api, left=b"GIF89a no").status_code == 415
+    bad = estimate(api, params={"solver": "qpu", "solver_params": {"num_reads": "many"}})
+    assert bad.status_code == 422 and "cannot estimate" in bad.json()["detail"]
+    assert api.post("/v1/estimate", data={"params": "{"}).status_code == 422  # no images

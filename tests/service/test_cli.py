@@ -134,3 +134,28 @@ def test_json_without_wait_is_json(api_url, images, capsys):
     assert main(["submit", *images, "--url", api_url, "--json"]) == 0
     job = json.loads(capsys.readouterr().out)
     assert job["state"] == "queued" and job["url"].endswith(f"/v1/jobs/{job['id']}")
+
+
+def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_path, capsys):
+    import json
+
+    from shared.solvers import qpu_time
+
+    scene = make_scene(24, 32, max_disparity=8, seed=9)
+    left, right = tmp_path / "left.png", tmp_path / "right.png"
+    left.write_bytes(harness.png(scene.left))
+    right.write_bytes(harness.png(scene.right))
+    options = ["--solver", "qpu", "--encoding", "domain-wall", "--max-disparity", "8"]
+    assert main(["estimate", str(left), str(right), *options, "--url", api_url, "--json"]) == 0
+    remote = json.loads(capsys.readouterr().out)
+    config = MatchConfig(solver="qpu", encoding="domain-wall", max_disparity=8)
+    expected = qpu_time.job_seconds(config, (24, 32), 8)
+    assert remote["seconds"] == pytest.approx(expected.seconds) and remote["metered"]
+    assert remote["bundles"] == expected.bundles and remote["fits"] is True
+    assert main(["estimate", str(left), str(right), *options, "--url", api_url]) == 0
+    text = capsys.readouterr().out
+    assert f"qpu: {expected.seconds:.2f} s of QPU access time" in text
+    assert "qubits (assumed)" in text and "fits" in text
+    assert main(["estimate", str(left), str(right), *options, "--local", "--json"]) == 0
+    local = json.loads(capsys.readouterr().out)
+    assert local["seconds"] == pytest.approx(remote["seconds"]) and "fits" not in local

@@ -1,7 +1,8 @@
 """Users, keys and QPU quotas through the real service: HTTP + Celery workers + Redis.
 
-A dedicated worker consumes the ``qpu-sim`` queue with ``DWAVE_API_TOKEN`` set to a sentinel;
-qpu-sim's (simulated) timing is charged exactly like the real QPU's. At the end, the sentinel
+A dedicated worker consumes the ``qpu-sim`` and ``hybrid-sim`` queues with ``DWAVE_API_TOKEN``
+set to a sentinel; the stand-ins are charged what the timing model says the real service would
+take, through the same path as the real QPU's reported time. At the end, the sentinel
 must appear in no response body, log line or Redis value.
 """
 
@@ -58,7 +59,7 @@ def users(settings) -> UserStore:
 
 @pytest.fixture(scope="module")
 def qpu_worker(settings, service_dir):
-    """One worker for qpu-sim (and nothing else), two processes, the sentinel as its token."""
+    """One worker for qpu-sim and hybrid-sim, two processes, the sentinel as its token."""
     from api.serve import WorkerProcess, wait_for_workers, worker_env
     from workers.app import make_celery
 
@@ -68,7 +69,8 @@ def qpu_worker(settings, service_dir):
     env["PYTHONPATH"] = os.pathsep.join([here, env.get("PYTHONPATH", "")])
     env["QHSM_QPU_MAX_IN_FLIGHT"] = str(QPU_SLOTS)
     log = service_dir / "logs" / "qpu.log"
-    worker = WorkerProcess(f"qpu-{settings.key_prefix}", ["qpu-sim"], 2, env, log).start()
+    queues = ["qpu-sim", "hybrid-sim"]
+    worker = WorkerProcess(f"qpu-{settings.key_prefix}", queues, 2, env, log).start()
     try:
         wait_for_workers(make_celery(settings, with_tasks=False), [worker.hostname])
         yield worker
@@ -146,6 +148,7 @@ def test_every_v1_route_needs_a_key_but_health_and_docs_do_not(http, users):
     for method, path in [
         ("GET", "/v1/jobs"),
         ("POST", "/v1/jobs"),
+        ("POST", "/v1/estimate"),
         ("GET", "/v1/jobs/0123456789abcdef0123456789abcdef"),
         ("DELETE", "/v1/jobs/0123456789abcdef0123456789abcdef"),
         ("GET", "/v1/solvers"),
@@ -188,12 +191,13 @@ def test_another_users_job_is_404_and_admins_see_every_job(http, users, pair):
 
 
 def test_a_job_over_budget_is_refused_with_the_numbers(http, users, pair):
-    estimate = job_estimate()
-    _, key = users.create_user("poor", qpu_seconds=estimate.seconds / 2)
+    _, key = users.create_user("poor", qpu_seconds=0)
+    seconds = service_estimate(http, key, pair, QPU_PARAMS)["seconds"]
+    users.ledger.set_limit("poor", seconds / 2)
     refused = submit(http, key, pair, QPU_PARAMS, expect=403)
     detail = refused.json()["detail"]
-    assert "QPU budget" in detail and f"{estimate.seconds / 2:.3f} s remaining" in detail
-    assert f"{estimate.seconds:.3f} s" in detail
+    assert "QPU budget" in detail and f"{seconds / 2:.3f} s remaining" in detail
+    assert f"{seconds:.3f} s" in detail
     assert http.get("/v1/jobs", headers=bearer(key)).json()["items"] == []
     # unmetered solvers need no budget
     submit(http, key, pair, {"solver": "exact", "max_disparity": 6})
@@ -216,12 +220,62 @@ def test_usage_charged_equals_the_sample_sets_qpu_access_time(http, users, pair)
     assert mine["remaining_seconds"] == pytest.approx(100 - reported)
 
 
+def service_estimate(http, key, pair, params) -> dict:
+    """POST /v1/estimate: the number the API's 403 uses (known embeddings included)."""
+    import json
+
+    response = http.post(
+        "/v1/estimate",
+        files={"left": ("l.png", pair[0]), "right": ("r.png", pair[1])},
+        data={"params": json.dumps(params)},
+        headers=bearer(key),
+    )
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def test_estimate_and_charge_agree_and_later_estimates_use_the_embedding(http, users):
+    """qpu-sim is charged the model for its actual embedding; the estimate before any
+    embedding assumes 2 qubits per variable, after one it uses the embedding's qubits."""
+    scene = make_scene(12, 30, max_disparity=6, seed=2)  # a shape no other test embeds
+    pair = harness.png(scene.left), harness.png(scene.right)
+    _, key = users.create_user("estimator", qpu_seconds=100)
+    before = service_estimate(http, key, pair, QPU_PARAMS)
+    assert before["metered"] and before["fits"] and before["remaining_seconds"] == 100
+    assert not any(level["embedding_known"] for level in before["levels"])
+    assert http.get("/v1/jobs", headers=bearer(key)).json()["items"] == []  # nothing queued
+    job_id = submit(http, key, pair, QPU_PARAMS).json()["id"]
+    status = wait(http, key, job_id)
+    assert status["state"] == "succeeded", status["error"]
+    charged = http.get("/v1/usage", headers=bearer(key)).json()["users"][0]["used_seconds"]
+    assert 0.5 <= before["seconds"] / charged <= 2.0
+    after = service_estimate(http, key, pair, QPU_PARAMS)
+    assert all(level["embedding_known"] for level in after["levels"])
+    assert after["seconds"] == pytest.approx(charged, rel=1e-9)
+    assert after["remaining_seconds"] == pytest.approx(100 - charged)
+
+
+def test_hybrid_sim_is_charged_what_leap_would_bill(http, users, pair):
+    params = dict(QPU_PARAMS, solver="hybrid-sim", solver_params={"max_iter": 1})
+    _, key = users.create_user("hybrid-user", qpu_seconds=1000)
+    expected = service_estimate(http, key, pair, params)
+    assert expected["metered"] and expected["seconds"] > 0
+    job_id = submit(http, key, pair, params).json()["id"]
+    status = wait(http, key, job_id, timeout=180)
+    assert status["state"] == "succeeded", status["error"]
+    [mine] = http.get("/v1/usage", headers=bearer(key)).json()["users"]
+    assert mine["used_seconds"] == pytest.approx(expected["seconds"], rel=1e-9)
+    assert mine["jobs"][0]["problems"] == expected["bundles"]
+
+
 def test_twenty_concurrent_jobs_cannot_overspend_beyond_the_bundles_in_flight(
     http, users, pair, settings
 ):
-    estimate = job_estimate()
-    budget = 1.5 * estimate.seconds
-    _, key = users.create_user("greedy", qpu_seconds=budget)
+    _, key = users.create_user("greedy", qpu_seconds=0)
+    # the API's own estimate: by now it knows this shape's embeddings from the tests above
+    estimate = service_estimate(http, key, pair, QPU_PARAMS)
+    budget = 1.5 * estimate["seconds"]
+    users.ledger.set_limit("greedy", budget)
     ids = [submit(http, key, pair, QPU_PARAMS).json()["id"] for _ in range(20)]
     finals = [wait(http, key, job_id, timeout=120) for job_id in ids]
     # a failed job's bundles already sent still finish (and are charged): wait for them
@@ -236,7 +290,7 @@ def test_twenty_concurrent_jobs_cannot_overspend_beyond_the_bundles_in_flight(
 
     # every bundle was reserved at its estimate before it was sent; only bundles in flight
     # when the budget ran out can exceed it, each by at most (actual - estimate)
-    per_bundle = [level.seconds / level.bundles for level in estimate.levels]
+    per_bundle = [level["seconds"] / level["bundles"] for level in estimate["levels"]]
     actuals = [
         f["usage"]["qpu_access_time"] / max(1, sum(level["bundles"] for level in f["levels"]))
         for f in finals
@@ -254,7 +308,7 @@ def test_twenty_concurrent_jobs_cannot_overspend_beyond_the_bundles_in_flight(
             assert final["error"].startswith("stopped: not enough QPU budget left for user "
                                              "'greedy'"), final["error"]  # fmt: skip
     problems = sum(job["problems"] for job in usage["jobs"])
-    assert problems < 20 * estimate.bundles  # the failed jobs' remaining bundles were not sent
+    assert problems < 20 * estimate["bundles"]  # the failed jobs' remaining bundles were not sent
     assert slots.zcard(f"{settings.key_prefix}:qpu:slots") == 0  # no slot leaked
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 
 import dimod
@@ -124,3 +125,22 @@ def test_bundles_wait_for_a_free_lab_wide_slot(fake, level, meter, redis_client,
     solve_metered(meter, "ada", "job", inputs, config, [(0, 1)])
     assert time.monotonic() - started >= 0.25
     assert fake.calls == 1
+
+
+def test_a_bundle_estimate_uses_the_embedding_once_a_worker_found_it(level, tmp_path, monkeypatch):
+    from shared.solvers import embedding_cache
+    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, EmbeddingSize
+
+    inputs, config = level
+    cache = EmbeddingCache(DirectoryStore(tmp_path))
+    monkeypatch.setattr(embedding_cache, "_default_cache", cache)
+    width, labels = inputs.shape[1], inputs.candidates.shape[2]
+    assumed = bundle_estimate(inputs, config, 0, 1)
+    digest = qpu_time.bundle_digest(config.encoding, 1, width, labels)
+    size = EmbeddingSize(qubits=7, chains=width * (labels - 1), longest_chain=1)
+    cache.store.set(embedding_cache.size_key("qpu-sim", digest), json.dumps(size.__dict__))
+    known = bundle_estimate(inputs, config, 0, 1)
+    assert known == qpu_time.qpu_access_seconds(7, {"num_reads": 10}) != assumed
+    # a two-row bundle is another structure, not embedded yet: still the assumption
+    two_rows = qpu_time.bundle_seconds("qpu-sim", 2 * width * (labels - 1), {"num_reads": 10})
+    assert bundle_estimate(inputs, config, 0, 2) == two_rows

@@ -10,6 +10,7 @@ from shared.bundles import bundle_rows
 from shared.config import MatchConfig
 from shared.pyramid import level_shape, plan
 from shared.solvers import qpu_time
+from shared.solvers.embedding_cache import EmbeddingSize, structure_digest
 from shared.solvers.qpu_time import ADVANTAGE_TIMING_DATA as DATA
 
 
@@ -104,3 +105,90 @@ def test_warm_started_levels_are_estimated_as_reverse_anneals():
     for cold_level, warm_level in zip(cold_levels, warm_levels, strict=True):
         assert warm_level.seconds != cold_level.seconds
         assert warm_level.seconds == pytest.approx(cold_level.seconds, rel=0.2)
+
+
+class KnownSizes:
+    """An embedding cache that knows the sizes of some bundle structures."""
+
+    def __init__(self, sizes: dict[tuple[str, str], EmbeddingSize]) -> None:
+        self.sizes = sizes
+
+    def known_size(self, solver: str, digest: str) -> EmbeddingSize | None:
+        return self.sizes.get((solver, digest))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    encoding=st.sampled_from(["one-hot", "domain-wall"]),
+    height=st.integers(1, 3),
+    width=st.integers(1, 9),
+    labels=st.integers(2, 5),
+    seed=st.integers(0, 50),
+)
+def test_a_bundle_shape_has_the_structure_of_every_bundle_of_that_shape(
+    encoding, height, width, labels, seed
+):
+    """The estimate finds a bundle's embedding from its shape alone: the QUBO graph of real
+    costs (any biases, zeros included) is the graph of the zero-cost bundle."""
+    import numpy as np
+
+    from shared.encodings import get_codec
+    from shared.energy import Costs
+
+    rng = np.random.default_rng(seed)
+    costs = Costs(
+        candidates=rng.integers(0, 9, (height, width, labels)).astype(np.int32),
+        unary=rng.random((height, width, labels)) * (rng.random() < 0.8),
+        pair_h=rng.random((height, width - 1, labels, labels)).round(1),
+        pair_v=rng.random((height - 1, width, labels, labels)).round(1),
+    )
+    bqm = get_codec(encoding).encode(costs)
+    digest = qpu_time.bundle_digest(encoding, height, width, labels)
+    assert digest == structure_digest(bqm)
+
+
+def test_known_embeddings_replace_the_assumed_qubits_level_by_level():
+    config = MatchConfig(solver="qpu", encoding="domain-wall", preset="paper",
+                         solver_params={"num_reads": 100})  # fmt: skip
+    shape = (40, 64)
+    assumed = qpu_time.job_seconds(config, shape, 16)
+    assert all(not level.embedding_known for level in assumed.levels)
+    finest = assumed.levels[-1]
+    digest = qpu_time.bundle_digest("domain-wall", 1, finest.shape[1], 4)
+    size = EmbeddingSize(qubits=150, chains=finest.variables_per_bundle, longest_chain=3)
+    known = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu", digest): size}))
+    assert [level.embedding_known for level in known.levels] == [False, False, True]
+    assert known.levels[:2] == assumed.levels[:2]
+    assert known.levels[-1].qubits_per_bundle == 150
+    each = qpu_time.qpu_access_seconds(150, {"num_reads": 100})
+    assert known.levels[-1].seconds == pytest.approx(each * finest.bundles)
+    # another solver's embedding of the same structure is not used
+    other = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu-sim", digest): size}))
+    assert other == assumed
+
+
+def test_an_unreachable_embedding_store_falls_back_to_the_assumption():
+    class Broken:
+        def known_size(self, solver, digest):
+            raise ConnectionError("store down")
+
+    config = MatchConfig(solver="qpu-sim")
+    assert qpu_time.job_seconds(config, (20, 30), 16, Broken()) == qpu_time.job_seconds(
+        config, (20, 30), 16
+    )
+
+
+def test_bundles_larger_than_the_qpu_are_never_looked_up():
+    """No embedding can exist, and their QUBO (here 64 x 2000 pixels x 64 labels) is not built."""
+
+    class Counting(KnownSizes):
+        calls = 0
+
+        def known_size(self, solver, digest):
+            Counting.calls += 1
+            return None
+
+    assert qpu_time.known_embedding(Counting({}), "qpu", "one-hot", (64, 2000), 64) is None
+    assert Counting.calls == 0
+    assert qpu_time.known_embedding(Counting({}), "qpu", "one-hot", (1, 20), 4) is None
+    assert Counting.calls == 1
