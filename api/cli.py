@@ -73,8 +73,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     estimate = commands.add_parser(
         "estimate", help="print a job's estimated QPU (or hybrid) seconds without running it"
     )
-    estimate.add_argument("left")
-    estimate.add_argument("right")
+    estimate.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")
+    estimate.add_argument("right", help="right view, same size")
     add_match_options(estimate)
     estimate.add_argument("--url", help="API address (QHSM_API_URL, default http://127.0.0.1:8000)")
     estimate.add_argument("--key", help="API key (QHSM_API_KEY; default: the local admin key)")

@@ -49,8 +49,9 @@ class NoParams(SolverParams):
 class AnnealParams(SolverParams):
     """``sa``: dwave-samplers' simulated annealing after roof-duality fixing."""
 
-    preset: Literal["default", "fast", "quality", "paper"] = Field(
-        "default", description="Named setting (shared.solvers.anneal.SA_PRESETS)"
+    preset: Literal["default", "fast", "quality", "warm", "paper"] = Field(
+        "default",
+        description="Named setting (shared.solvers.anneal.SA_PRESETS; warm: the default from a warm start)",
     )
     num_reads: int = Field(20, ge=1, le=1000, description="Independent anneals per bundle")
     num_sweeps: int = Field(1000, ge=1, le=100_000, description="Sweeps per anneal")
