@@ -51,7 +51,7 @@ class AnnealParams(SolverParams):
 
     preset: Literal["default", "fast", "quality", "warm", "paper"] = Field(
         "default",
-        description="Named setting (shared.solvers.anneal.SA_PRESETS; warm: the default from a warm start)",
+        description="Named setting (shared.solvers.anneal.SA_PRESETS; warm: after a warm start)",
     )
     num_reads: int = Field(20, ge=1, le=1000, description="Independent anneals per bundle")
     num_sweeps: int = Field(1000, ge=1, le=100_000, description="Sweeps per anneal")
