@@ -66,6 +66,8 @@ def _field_help(name: str, text: str = "") -> str:
     text = text or field.description or ""
     if field.is_required():  # filled by the preset
         return f"{text} (default: from --preset)"
+    if field.default is None:  # the text says what unset means
+        return text
     default = field.default.value if isinstance(field.default, Enum) else field.default
     return f"{text} (default: {default})"
 
@@ -109,6 +111,18 @@ def add_match_options(parser: argparse.ArgumentParser) -> None:
         help=_field_help("max_disparity"),
     )
     parser.add_argument("--bundle-height", type=int, help=_field_help("bundle_height"))
+    parser.add_argument(
+        "--bundle-width",
+        type=_max_disparity,
+        metavar="auto|N",
+        help=_field_help(
+            "bundle_width",
+            "pixels per bundle along the row (overlapping row segments), or auto: the widest "
+            "segment that embeds on the QPU graph (default: auto for qpu and qpu-sim, whole "
+            "rows otherwise)",
+        ),
+    )
+    parser.add_argument("--bundle-margin", type=int, help=_field_help("bundle_margin"))
     for name, enum in (
         ("regularizer", Regularizer),
         ("encoding", Encoding),
@@ -142,6 +156,8 @@ MATCH_OPTIONS = (
     "solver",
     "max_disparity",
     "bundle_height",
+    "bundle_width",
+    "bundle_margin",
     "regularizer",
     "encoding",
     "rectifier",

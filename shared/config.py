@@ -166,6 +166,15 @@ class MatchConfig(BaseModel):
         8, ge=2, le=64, description="Bin pyramid: bins of the coarsest level, at most"
     )
     bundle_height: int = Field(1, ge=1, le=64, description="Rows per QUBO bundle")
+    bundle_width: int | Literal["auto"] | None = Field(
+        None,
+        description="Pixels per QUBO bundle along the row: an integer cuts rows into overlapping "
+        "segments of that width, auto takes the widest segment whose QUBO embeds on the QPU "
+        "graph; None = the solver's default (auto for qpu and qpu-sim, whole rows otherwise)",
+    )
+    bundle_margin: int = Field(
+        12, ge=0, le=256, description="Pixels by which neighbouring row segments overlap"
+    )
     regularizer: Regularizer = Regularizer.TRUNCATED
     encoding: Encoding = Field(description="one-hot or domain-wall (from preset)")
     rectifier: Rectifier = Rectifier.LOCAL
@@ -227,8 +236,20 @@ class MatchConfig(BaseModel):
             raise ValueError("max_disparity must be auto or an integer in 1..1024")
         return value
 
+    @field_validator("bundle_width")
+    @classmethod
+    def _width(cls, value: int | str | None) -> int | str | None:
+        if isinstance(value, int) and not 8 <= value <= 4096:
+            raise ValueError("bundle_width must be auto or an integer in 8..4096")
+        return value
+
     @model_validator(mode="after")
     def _levels_coarse_to_fine(self) -> MatchConfig:
+        if isinstance(self.bundle_width, int) and 2 * self.bundle_margin >= self.bundle_width:
+            raise ValueError(
+                f"bundle_margin ({self.bundle_margin}) must be below half the bundle_width "
+                f"({self.bundle_width}): lower --bundle-margin or widen the segments"
+            )
         if self.subpixel and self.data_term is not DataTerm.AD_CENSUS:
             raise ValueError("subpixel fits the AD-census cost: use it with data_term ad-census")
         if self.pyramid is PyramidKind.BINS:
@@ -273,6 +294,12 @@ class Settings(BaseSettings):
     rows_per_task: int = Field(8, ge=1, description="Bundles' rows grouped into one Celery task")
     task_visibility_timeout: int = Field(6 * 3600, ge=60)
     embedding_timeout: float = Field(300.0, gt=0, description="minorminer time limit, seconds")
+    embedding_search_timeout: float = Field(
+        30.0,
+        gt=0,
+        description="minorminer time limit per width tried by --bundle-width auto, seconds "
+        "(the widest segment that embeds within it wins)",
+    )
     dataset_mirror: str | None = Field(
         None,
         description="Base URL replacing https://vision.middlebury.edu/ for `qhsm datasets fetch`",

@@ -65,6 +65,15 @@ class Costs:
             pair_v=self.pair_v[start : max(start, stop - 1)],
         )
 
+    def columns(self, start: int, stop: int) -> Costs:
+        """The costs of columns [start, stop): edges leaving the block are dropped."""
+        return Costs(
+            candidates=self.candidates[:, start:stop],
+            unary=self.unary[:, start:stop],
+            pair_h=self.pair_h[:, start : max(start, stop - 1)],
+            pair_v=self.pair_v[:, start:stop],
+        )
+
 
 def smoothness(
     delta: np.ndarray, intensity_step: np.ndarray, level: LevelConfig, regularizer: Regularizer

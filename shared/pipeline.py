@@ -55,6 +55,8 @@ class LevelReport:
     seconds: float
     solver_seconds: float
     timing: dict[str, float] = field(default_factory=dict)
+    #: Once per level from the solver: embeddings computed / reused, qubits, longest chain.
+    info: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -213,6 +215,7 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         seconds=seconds,
         solver_seconds=solution.solver_seconds,
         timing=solution.timing,
+        info=solution.info,
     )
 
 

@@ -13,12 +13,13 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import partial
+from itertools import pairwise
 from multiprocessing import get_context
 
 import numpy as np
 
-from shared.bundles import bundle_rows, bundle_seed
-from shared.config import DataTerm, LevelConfig, MatchConfig
+from shared.bundles import Bundle, bundle_rows, bundle_seed, owned_columns, segment_columns
+from shared.config import AUTO, DataTerm, LevelConfig, MatchConfig
 from shared.data_terms import ad_census_volume, bin_minimum, gather, squared_difference
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_costs, mrf_energy
@@ -26,6 +27,9 @@ from shared.images import to_gray
 from shared.pyramid import LevelPlan
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, uses_warm_start
+
+#: A bundle as given to :func:`solve_bundles`: a :class:`Bundle`, or a row range (whole rows).
+BundleSpec = Bundle | tuple[int, int]
 
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
@@ -103,6 +107,26 @@ class LevelInputs:
             for start, stop in bundle_rows(height, bundle_height)
         ]
 
+    def bundles(self, bundle_height: int, bundle_width: int | None, margin: int) -> list[Bundle]:
+        """The level's bundles: :meth:`bundle_rows`, each cut into row segments of
+        ``bundle_width`` pixels overlapping by ``margin`` (:func:`shared.bundles.segment_columns`;
+        None: whole rows)."""
+        columns = segment_columns(self.shape[1], bundle_width, margin)
+        return [
+            Bundle(start, stop, first, last)
+            for start, stop in self.bundle_rows(bundle_height)
+            for first, last in columns
+        ]
+
+    def as_bundle(self, spec: BundleSpec) -> Bundle:
+        """A :class:`Bundle` from a bundle or a row range (whole rows)."""
+        if isinstance(spec, Bundle):
+            return spec
+        if len(spec) == 4:
+            return Bundle(*spec)
+        start, stop = spec
+        return Bundle(start, stop, 0, self.shape[1])
+
     def view_images(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """(left, right) image of each view."""
         height = self.view_height
@@ -150,7 +174,8 @@ class LevelInputs:
 
 @dataclass
 class BundleResult:
-    """Labels (rows, w) of one bundle with its MRF energy and the solver's report."""
+    """Labels (rows, columns) of one bundle with its MRF energy and the solver's report.
+    ``col_stop`` None means the row's end (whole-row bundles)."""
 
     row_start: int
     row_stop: int
@@ -160,6 +185,12 @@ class BundleResult:
     wall_time: float
     timing: dict[str, float] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    col_start: int = 0
+    col_stop: int | None = None
+
+    @property
+    def columns(self) -> tuple[int, int]:
+        return self.col_start, self.col_start + self.labels.shape[1]
 
 
 @dataclass
@@ -172,32 +203,84 @@ class LevelSolution:
     bundles: int
     solver_seconds: float
     timing: dict[str, float] = field(default_factory=dict)
+    #: What the bundles' solver reports once per level (embeddings computed / reused, ...).
+    info: dict = field(default_factory=dict)
+
+
+def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
+    """The segment width of this level's bundles (None: whole rows).
+
+    ``bundle_width`` None is the solver's default: ``auto`` for solvers that embed on a QPU
+    graph (they offer ``widest_bundle``), whole rows otherwise; the row DP always solves whole
+    rows. ``auto`` asks the solver for the widest segment that embeds (cached per shape)."""
+    solver = get_solver(config.solver)
+    width = config.bundle_width
+    finder = getattr(solver, "widest_bundle", None)
+    if width is None:
+        width = AUTO if finder is not None else None
+    if isinstance(solver, RowSolver):
+        if width is not None:
+            raise ValueError(
+                f"{config.solver} solves whole rows exactly; leave bundle_width unset "
+                "(or pick a QUBO solver such as sa to solve row segments)"
+            )
+        return None
+    if width == AUTO:
+        if finder is None:
+            raise ValueError(
+                f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
+                f"{config.solver} has none: give a width in pixels or leave it unset"
+            )
+        return finder(
+            encoding=config.encoding,
+            candidates=inputs.candidates.shape[2],
+            height=config.bundle_height,
+            row_width=inputs.shape[1],
+            margin=config.bundle_margin,
+        )
+    return None if width is None or width >= inputs.shape[1] else int(width)
+
+
+def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+    """Every bundle of the level (segments of the level's :func:`level_bundle_width`)."""
+    width = level_bundle_width(inputs, config)
+    return inputs.bundles(config.bundle_height, width, config.bundle_margin)
 
 
 def solve_bundles(
-    inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
+    inputs: LevelInputs, config: MatchConfig, bundles: list[BundleSpec]
 ) -> list[BundleResult]:
-    """Solve the given bundles (row ranges) of a level with ``config.solver``."""
-    if not row_ranges:
+    """Solve the given bundles (:class:`Bundle` or row ranges) of a level with
+    ``config.solver``."""
+    if not bundles:
         return []
+    items = [inputs.as_bundle(spec) for spec in bundles]
     solver = get_solver(config.solver)
     if isinstance(solver, RowSolver):
-        return _solve_on_costs(solver, inputs, config, row_ranges)
+        width = inputs.shape[1]
+        if any(b.col_start != 0 or b.col_stop != width for b in items):
+            raise ValueError(f"{config.solver} solves whole rows only, not row segments")
+        return _solve_on_costs(solver, inputs, config, [(b.row_start, b.row_stop) for b in items])
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     warm = uses_warm_start(config)
     results = []
-    for start, stop in row_ranges:
-        costs = inputs.costs(config, start, stop)
+    rows: tuple[int, int] | None = None
+    for bundle in items:
+        start, stop, first, last = bundle.as_list()
+        if rows != (start, stop):  # segments of the same rows share one cost computation
+            row_costs, rows = inputs.costs(config, start, stop), (start, stop)
+        costs = row_costs.columns(first, last)
         bqm = codec.encode(costs, config.rectifier)
         initial = (
-            codec.encode_labels(inputs.starting_labels(costs, start, stop), costs.num_labels)
+            codec.encode_labels(
+                inputs.starting_labels(row_costs, start, stop)[:, first:last], costs.num_labels
+            )
             if warm
             else None
         )
-        outcome = solver.solve(
-            bqm, seed=bundle_seed(config.seed, inputs.index, start), initial_state=initial, **params
-        )
+        seed = bundle_seed(config.seed, inputs.index, start, first)
+        outcome = solver.solve(bqm, seed=seed, initial_state=initial, **params)
         decoded = codec.decode(costs, outcome.sample)
         results.append(
             BundleResult(
@@ -209,6 +292,8 @@ def solve_bundles(
                 wall_time=outcome.wall_time,
                 timing=outcome.timing,
                 info=outcome.info,
+                col_start=first,
+                col_stop=last,
             )
         )
     return results
@@ -264,38 +349,88 @@ def _blocks(
     return blocks
 
 
-def assemble(inputs: LevelInputs, results: list[BundleResult]) -> LevelSolution:
-    """Put bundle results back into one label map; every row must be covered exactly once."""
+def assemble(
+    inputs: LevelInputs, results: list[BundleResult], config: MatchConfig | None = None
+) -> LevelSolution:
+    """Put bundle results back into one label map; every pixel must be covered exactly once.
+
+    Row segments are stitched (:func:`shared.bundles.owned_columns`: each pixel from the segment
+    in which it lies farthest from a cut). The level's energy is the sum of the bundles' own;
+    for stitched rows it is that of the stitched labels, which needs ``config`` for the costs.
+    """
     height, width = inputs.shape
     labels = np.full((height, width), -1, dtype=np.int32)
-    covered = np.zeros(height, dtype=np.int32)
+    covered = np.zeros((height, width), dtype=np.int32)
     timing: dict[str, float] = {}
-    results = sorted(results, key=lambda r: r.row_start)  # sums independent of arrival order
+    # sums independent of arrival order
+    results = sorted(results, key=lambda r: (r.row_start, r.col_start))
+    groups: dict[tuple[int, int], list[BundleResult]] = {}
     for result in results:
-        labels[result.row_start : result.row_stop] = result.labels
-        covered[result.row_start : result.row_stop] += 1
+        groups.setdefault((result.row_start, result.row_stop), []).append(result)
         for key, value in result.timing.items():
             timing[key] = timing.get(key, 0.0) + float(value)
+    energy = 0.0
+    for (start, stop), group in groups.items():
+        spans = [r.columns for r in group]
+        owned = owned_columns(spans) if _tiles(spans, width) else spans
+        for result, (first, _), (own_first, own_last) in zip(group, spans, owned, strict=True):
+            labels[start:stop, own_first:own_last] = result.labels[
+                :, own_first - first : own_last - first
+            ]
+            covered[start:stop, own_first:own_last] += 1
+        if len(group) == 1:
+            energy += group[0].energy
+        elif config is not None:
+            energy += mrf_energy(inputs.costs(config, start, stop), labels[start:stop])
+        else:
+            energy = float("nan")
     if not np.all(covered == 1):
-        missing = np.flatnonzero(covered == 0).tolist()
-        doubled = np.flatnonzero(covered > 1).tolist()
+        missing = sorted({int(y) for y in np.flatnonzero((covered == 0).any(axis=1))})
+        doubled = sorted({int(y) for y in np.flatnonzero((covered > 1).any(axis=1))})
         raise ValueError(
-            f"level {inputs.index}: rows missing {missing[:10]}, rows solved twice {doubled[:10]}"
+            f"level {inputs.index}: rows missing {missing[:10]}, rows solved twice "
+            f"{doubled[:10]} (counting rows with any such pixel)"
         )
     return LevelSolution(
         labels=labels,
-        energy=float(sum(r.energy for r in results)),
+        energy=float(energy),
         repaired=int(sum(r.repaired for r in results)),
         bundles=len(results),
         solver_seconds=float(sum(r.wall_time for r in results)),
         timing=timing,
+        info=embedding_summary(results),
     )
+
+
+def _tiles(spans: list[tuple[int, int]], width: int) -> bool:
+    """Whether sorted column spans are the overlapping segments of one whole row."""
+    return (
+        spans[0][0] == 0
+        and spans[-1][1] == width
+        and all(b[0] <= a[1] and a[0] < b[0] for a, b in pairwise(spans))
+    )
+
+
+def embedding_summary(results: list[BundleResult]) -> dict:
+    """Per level: minor embeddings computed vs reused (memory or shared store), and the qubits
+    and longest chain of the embeddings used; empty for solvers that do not embed."""
+    embedded = [r.info for r in results if "embedding_cache" in r.info]
+    if not embedded:
+        return {}
+    computed = sum(1 for info in embedded if info["embedding_cache"] == "computed")
+    shapes = {(r.row_stop - r.row_start, r.labels.shape[1]) for r in results}
+    return {
+        "embeddings_computed": computed,
+        "embeddings_reused": len(embedded) - computed,
+        "bundle_shapes": sorted(f"{h}x{w}" for h, w in shapes),
+        "qubits": max(int(info.get("qubits", 0)) for info in embedded),
+        "longest_chain": max(int(info.get("longest_chain", 0)) for info in embedded),
+    }
 
 
 def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
     """The in-process ``solve_level``: every bundle of the level, one after another."""
-    rows = inputs.bundle_rows(config.bundle_height)
-    return assemble(inputs, solve_bundles(inputs, config, rows))
+    return assemble(inputs, solve_bundles(inputs, config, level_bundles(inputs, config)), config)
 
 
 class ProcessPoolLevelSolver:
@@ -326,9 +461,12 @@ class ProcessPoolLevelSolver:
     def __call__(self, inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
         if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
             return solve_level_in_process(inputs, config)
-        rows = inputs.bundle_rows(config.bundle_height)
-        chunks = [rows[i :: self.processes * 4] for i in range(self.processes * 4)]
+        bundles = level_bundles(inputs, config)
+        count = self.processes * 4
+        # consecutive bundles stay together: segments of one row then share its costs
+        size = -(-len(bundles) // count)
+        chunks = [bundles[i : i + size] for i in range(0, len(bundles), size)]
         # the children build costs per bundle; the in-process volume cache is not worth sending
         solve = partial(solve_bundles, replace(inputs, volumes=None), config)
-        results = [r for chunk in self._pool.map(solve, [c for c in chunks if c]) for r in chunk]
-        return assemble(inputs, results)
+        results = [r for chunk in self._pool.map(solve, chunks) for r in chunk]
+        return assemble(inputs, results, config)

@@ -27,7 +27,7 @@ from shared.config import MatchConfig, Settings
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
-from shared.solve import BundleResult, LevelInputs, assemble, solve_bundles
+from shared.solve import BundleResult, LevelInputs, assemble, level_bundles, solve_bundles
 from shared.solvers.qpu_time import is_metered
 from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
@@ -35,7 +35,11 @@ from workers.store import ChunkReport, JobRecord, JobState, JobStore, now
 
 log = logging.getLogger(__name__)
 
-RowRanges = list[tuple[int, int]]
+#: Bundles as JSON-friendly lists: [row_start, row_stop] (whole rows, from older tasks) or
+#: [row_start, row_stop, col_start, col_stop].
+RowRanges = list[list[int]]
+#: The solver's report fields a bundle carries back for the level's summary.
+BUNDLE_INFO = ("embedding_cache", "qubits", "longest_chain")
 #: Level inputs a worker process keeps (a few jobs' current levels).
 LEVEL_CACHE_SIZE = 4
 _level_cache: OrderedDict[tuple[str, int], tuple[LevelInputs, MatchConfig]] = OrderedDict()
@@ -56,14 +60,15 @@ def internal_error(job_id: str, what: str) -> str:
 
 
 def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
-    """The level's bundles (both views' with the left-right check) grouped so each task covers
-    about ``rows_per_task`` rows.
+    """The level's bundles (both views' with the left-right check; row segments with a
+    ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
 
     Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
     (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
     """
-    bundles = inputs.bundle_rows(config.bundle_height)
-    per_task = max(1, rows_per_task // config.bundle_height)
+    bundles = [bundle.as_list() for bundle in level_bundles(inputs, config)]
+    segments = sum(1 for bundle in bundles if bundle[0] == bundles[0][0])
+    per_task = max(1, rows_per_task // config.bundle_height) * segments
     if is_metered(config.solver):
         per_task = 1
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
@@ -71,27 +76,35 @@ def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) ->
 
 def encode_bundle(result: BundleResult) -> dict:
     """A bundle result as JSON: labels travel as base64 uint8 (candidate indices are < 256)."""
+    first, last = result.columns
     return {
         "rows": [result.row_start, result.row_stop],
+        "columns": [first, last],
         "labels": base64.b64encode(result.labels.astype(np.uint8).tobytes()).decode("ascii"),
         "energy": result.energy,
         "repaired": result.repaired,
         "wall_time": result.wall_time,
         "timing": {key: float(value) for key, value in result.timing.items()},
+        "info": {key: result.info[key] for key in BUNDLE_INFO if key in result.info},
     }
 
 
 def decode_bundle(data: dict, width: int) -> BundleResult:
+    """A bundle result from :func:`encode_bundle` (``width``: the level's, for whole rows)."""
     start, stop = data["rows"]
+    first, last = data.get("columns", [0, width])
     labels = np.frombuffer(base64.b64decode(data["labels"]), dtype=np.uint8)
     return BundleResult(
         row_start=start,
         row_stop=stop,
-        labels=labels.reshape(stop - start, width).astype(np.int32),
+        labels=labels.reshape(stop - start, last - first).astype(np.int32),
         energy=data["energy"],
         repaired=data["repaired"],
         wall_time=data["wall_time"],
         timing=data["timing"],
+        info=data.get("info", {}),
+        col_start=first,
+        col_stop=last,
     )
 
 
@@ -177,7 +190,7 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     inputs, started = store.load_level(job_id, index)
     width = inputs.shape[1]
     bundles = [decode_bundle(b, width) for result in results for b in result["bundles"]]
-    solution = assemble(inputs, bundles)
+    solution = assemble(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = asdict(report(inputs, solution, time.time() - started))
     store.drop_level(job_id, index)
@@ -259,13 +272,13 @@ def solve_chunk(
             job_id,
             inputs,
             config,
-            row_ranges,
+            [inputs.as_bundle(tuple(spec)) for spec in row_ranges],
             still_running=lambda: store.state(job_id) is JobState.RUNNING,
         )
         if results is None:
             return None
     else:
-        results = solve_bundles(inputs, config, row_ranges)
+        results = solve_bundles(inputs, config, [tuple(spec) for spec in row_ranges])
     timing: dict[str, float] = {}
     for result in results:
         for key, value in result.timing.items():
@@ -277,7 +290,11 @@ def solve_chunk(
         timing=timing,
         worker=worker,
     )
-    store.record_chunk(job_id, row_ranges[0][0], chunk)
+    first = row_ranges[0]
+    # whole rows keep their key; a segment's first column tells it from its row's others
+    store.record_chunk(
+        job_id, f"{first[0]}.{first[2]}" if len(first) > 2 and first[2] else first[0], chunk
+    )
     return {"bundles": [encode_bundle(result) for result in results]}
 
 

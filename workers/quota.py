@@ -502,9 +502,10 @@ def live_timing_solver(solver_name: str):
     return _live_solvers[solver_name]
 
 
-def bundle_estimate(inputs, config, start: int, stop: int) -> float:
-    """Estimated charge of the bundle of rows [start, stop) of a level (no BQM is built), with
-    the actual embedding of its shape once any worker has embedded one."""
+def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None = None) -> float:
+    """Estimated charge of the bundle of rows [start, stop) (``columns`` wide: a row segment;
+    None: whole rows) of a level (no BQM is built), with the actual embedding of its shape once
+    any worker has embedded one."""
     from shared.encodings import get_codec
     from shared.solvers.embedding_cache import default_cache
     from shared.solvers.qpu_time import (
@@ -515,6 +516,7 @@ def bundle_estimate(inputs, config, start: int, stop: int) -> float:
     )
 
     width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
+    width = width if columns is None else columns
     variables = (stop - start) * width * get_codec(config.encoding).variables_per_pixel(labels)
     params = sampler_params(config.solver_params, warm=uses_warm_start(config))
     if config.solver not in QPU_SOLVERS:
@@ -532,7 +534,7 @@ def solve_metered(
     job_id: str,
     inputs,
     config,
-    row_ranges: list[tuple[int, int]],
+    bundles: list,
     still_running=lambda: True,
 ):
     """``solve_bundles`` for a metered solver: one bundle at a time, each inside a lab-wide
@@ -546,12 +548,14 @@ def solve_metered(
     from shared.solvers.qpu_time import charged_seconds
 
     results = []
-    for start, stop in row_ranges:
+    for spec in bundles:
         if not still_running():
             return None
-        estimate = bundle_estimate(inputs, config, start, stop)
+        bundle = inputs.as_bundle(spec)
+        start, stop, first, last = bundle.as_list()
+        estimate = bundle_estimate(inputs, config, start, stop, last - first)
         with meter.problem(owner, job_id, estimate) as charge:
-            [result] = solve_bundles(inputs, config, [(start, stop)])
+            [result] = solve_bundles(inputs, config, [bundle])
             charge.report(charged_seconds(result.timing))
         results.append(result)
     return results

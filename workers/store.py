@@ -347,7 +347,7 @@ class JobStore:
 
     # progress and usage -----------------------------------------------------------------------
 
-    def record_chunk(self, job_id: str, first_row: int, chunk: ChunkReport) -> None:
+    def record_chunk(self, job_id: str, first_row: int | str, chunk: ChunkReport) -> None:
         """Idempotent (a task solved twice counts once); expires like the job's record."""
         key = self.key("job", job_id, "chunks")
         with self.redis.pipeline() as pipe:

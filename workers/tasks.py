@@ -117,7 +117,7 @@ class SolverTask(Task):
 
 @app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
 def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
-    ranges = [(int(start), int(stop)) for start, stop in row_ranges]
+    ranges = [[int(value) for value in bundle] for bundle in row_ranges]
     worker = self.request.hostname or ""
     task_id = self.request.id
     if task_id:

@@ -135,6 +135,25 @@ class _EmbeddedQPU:
                 self._sampler = sampler
             return self._sampler
 
+    def widest_bundle(
+        self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int
+    ) -> int | None:
+        """``--bundle-width auto``: the widest row segment whose QUBO embeds on this solver's
+        graph (None: whole rows), found once per shape and target and kept in the embedding
+        cache together with that shape's embedding, which every such bundle then reuses."""
+        from shared.solvers.qpu_time import shape_bqm
+
+        base = self.sampler()
+        return self.cache.widest(
+            lambda width: shape_bqm(str(encoding), height, width, candidates),
+            row_width=row_width,
+            narrowest=2 * margin + 1,
+            target_edges=base.edgelist,
+            target=self._target,
+            timeout=get_settings().embedding_search_timeout,
+            solver=self.name,
+        )
+
     def solve(
         self,
         bqm: dimod.BinaryQuadraticModel,

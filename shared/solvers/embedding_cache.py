@@ -26,7 +26,7 @@ import os
 import tempfile
 import threading
 import time
-from collections.abc import Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
@@ -154,6 +154,7 @@ class EmbeddingCache:
         timeout: float | None = None,
         seed: int = 0,
         solver: str | None = None,
+        remember_failure: bool = True,
     ) -> tuple[Embedding, str, str]:
         """(embedding, source, key); source is ``"memory"``, ``"store"`` or ``"computed"``.
 
@@ -180,8 +181,9 @@ class EmbeddingCache:
         try:
             embedding = find_embedding(bqm, target_edges, timeout, seed)
         except SolverError as error:
-            with self._lock:
-                self._failures[key] = str(error)
+            if remember_failure:
+                with self._lock:
+                    self._failures[key] = str(error)
             raise
         self.store.set(key, _encode(embedding))
         with self._lock:
@@ -218,6 +220,59 @@ class EmbeddingCache:
         with self._lock:
             self._sizes[key] = size
         return size
+
+    def widest(
+        self,
+        bqm_of_width: Callable[[int], dimod.BinaryQuadraticModel],
+        row_width: int,
+        narrowest: int,
+        target_edges: list[tuple[int, int]],
+        target: str,
+        timeout: float,
+        solver: str | None = None,
+    ) -> int | None:
+        """The widest bundle (None: the whole row of ``row_width``) whose structure
+        ``bqm_of_width(w)`` embeds within ``timeout`` seconds, at least ``narrowest`` wide.
+
+        Halving from the whole row until a width embeds, then bisection to within an eighth.
+        Each width's verdict is kept in the store (an embedding found is the embedding every
+        bundle of that shape then uses; a failure is kept per timeout), so the search runs once
+        per (width, labels, encoding, target) across all processes sharing the store.
+        """
+
+        def fits(width: int) -> bool:
+            bqm = bqm_of_width(width)
+            verdict = f"nofit-{structure_key(bqm, target)}-{timeout:g}"
+            if self.store.get(verdict) is not None:
+                return False
+            try:
+                self.lookup(
+                    bqm, target_edges, target, timeout, solver=solver, remember_failure=False
+                )
+            except SolverError:
+                self.store.set(verdict, "1")
+                return False
+            return True
+
+        if fits(row_width):
+            return None
+        failed, width = row_width, row_width // 2
+        while not fits(width):
+            failed, width = width, width // 2
+            if width < narrowest:
+                raise SolverError(
+                    f"no row segment of {narrowest} pixels or more embeds on the QPU graph within "
+                    f"{timeout:g} s (QHSM_EMBEDDING_SEARCH_TIMEOUT): raise that timeout, lower "
+                    "--bundle-margin, or use --encoding domain-wall"
+                )
+        fitted = width
+        while failed - fitted > max(4, fitted // 8):
+            middle = (fitted + failed) // 2
+            if fits(middle):
+                fitted = middle
+            else:
+                failed = middle
+        return fitted
 
 
 def _is_valid(embedding: Embedding, bqm, target_edges) -> bool:

@@ -218,10 +218,9 @@ def bundle_seconds(
     return 0.0
 
 
-@lru_cache(maxsize=256)
-def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> str:
-    """Structure digest of every bundle of this shape: the QUBO's graph does not depend on the
-    costs (zero terms are kept), so a bundle of zero costs stands for all of them."""
+def shape_bqm(encoding: str, height: int, width: int, candidates: int):
+    """The QUBO of a bundle of this shape with zero costs: the QUBO's graph does not depend on
+    the costs (zero terms are kept), so it has the structure of every bundle of the shape."""
     zeros = np.zeros((height, width, candidates))
     costs = Costs(
         candidates=np.zeros((height, width, candidates), dtype=np.int32),
@@ -229,7 +228,13 @@ def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> st
         pair_h=np.zeros((height, max(0, width - 1), candidates, candidates)),
         pair_v=np.zeros((max(0, height - 1), width, candidates, candidates)),
     )
-    return structure_digest(get_codec(encoding).encode(costs))
+    return get_codec(encoding).encode(costs)
+
+
+@lru_cache(maxsize=256)
+def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> str:
+    """Structure digest of every bundle of this shape (:func:`shape_bqm`)."""
+    return structure_digest(shape_bqm(encoding, height, width, candidates))
 
 
 def known_embedding(
