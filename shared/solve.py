@@ -61,6 +61,8 @@ class LevelInputs:
     views: int = 1
     #: Optional per-view full cost volumes (in process only; workers build costs per block).
     volumes: list[np.ndarray] | None = None
+    #: What preparing the bundles did (:func:`level_bundles`): segment width, embeddings.
+    prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
 
     @property
@@ -207,17 +209,15 @@ class LevelSolution:
     info: dict = field(default_factory=dict)
 
 
-def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
-    """The segment width of this level's bundles (None: whole rows).
+def bundle_width_setting(config: MatchConfig) -> int | str | None:
+    """The run's ``bundle_width`` with the solver's default filled in, or a ``ValueError`` that
+    says what to change.
 
-    ``bundle_width`` None is the solver's default: ``auto`` for solvers that embed on a QPU
-    graph (they offer ``widest_bundle``), whole rows otherwise; the row DP always solves whole
-    rows. ``auto`` asks the solver for the widest segment that embeds (cached per shape)."""
+    Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
+    whole rows (None) otherwise; the row DP always solves whole rows."""
     solver = get_solver(config.solver)
     width = config.bundle_width
     finder = getattr(solver, "widest_bundle", None)
-    if width is None:
-        width = AUTO if finder is not None else None
     if isinstance(solver, RowSolver):
         if width is not None:
             raise ValueError(
@@ -225,13 +225,22 @@ def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
                 "(or pick a QUBO solver such as sa to solve row segments)"
             )
         return None
+    if width is None:
+        return AUTO if finder is not None else None
+    if width == AUTO and finder is None:
+        raise ValueError(
+            f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
+            f"{config.solver} has none: give a width in pixels or leave it unset"
+        )
+    return width
+
+
+def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
+    """The segment width of this level's bundles (None: whole rows); ``auto`` asks the solver
+    for the widest segment that embeds (searched once per shape and target, then cached)."""
+    width = bundle_width_setting(config)
     if width == AUTO:
-        if finder is None:
-            raise ValueError(
-                f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
-                f"{config.solver} has none: give a width in pixels or leave it unset"
-            )
-        return finder(
+        return get_solver(config.solver).widest_bundle(
             encoding=config.encoding,
             candidates=inputs.candidates.shape[2],
             height=config.bundle_height,
@@ -242,9 +251,26 @@ def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
 
 
 def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
-    """Every bundle of the level (segments of the level's :func:`level_bundle_width`)."""
+    """Every bundle of the level (segments of the level's :func:`level_bundle_width`).
+
+    Solvers that embed on a QPU graph embed each bundle shape here, once, before the bundles
+    fan out; ``inputs.prepared`` then records the width and the embeddings computed for it."""
+    solver = get_solver(config.solver)
+    started = time.perf_counter()
+    cache = getattr(solver, "cache", None)
+    before = getattr(cache, "computed", 0)
     width = level_bundle_width(inputs, config)
-    return inputs.bundles(config.bundle_height, width, config.bundle_margin)
+    bundles = inputs.bundles(config.bundle_height, width, config.bundle_margin)
+    embed = getattr(solver, "embed_shapes", None)
+    if embed is not None:
+        shapes = sorted({bundle.shape for bundle in bundles})
+        embed(encoding=config.encoding, candidates=inputs.candidates.shape[2], shapes=shapes)
+        inputs.prepared = {
+            "bundle_width": bundles[0].shape[1],
+            "embeddings_computed": getattr(cache, "computed", 0) - before,
+            "preparation_seconds": time.perf_counter() - started,
+        }
+    return bundles
 
 
 def solve_bundles(
@@ -398,7 +424,7 @@ def assemble(
         bundles=len(results),
         solver_seconds=float(sum(r.wall_time for r in results)),
         timing=timing,
-        info=embedding_summary(results),
+        info=embedding_summary(results, inputs.prepared),
     )
 
 
@@ -411,16 +437,20 @@ def _tiles(spans: list[tuple[int, int]], width: int) -> bool:
     )
 
 
-def embedding_summary(results: list[BundleResult]) -> dict:
-    """Per level: minor embeddings computed vs reused (memory or shared store), and the qubits
-    and longest chain of the embeddings used; empty for solvers that do not embed."""
+def embedding_summary(results: list[BundleResult], prepared: dict | None = None) -> dict:
+    """Per level: minor embeddings computed (while preparing the level, including the widths
+    ``auto`` tried, and by the bundles) vs reused by bundles (from memory or the shared store),
+    and the qubits and longest chain of the embeddings used; empty for solvers that do not
+    embed."""
+    prepared = prepared or {}
     embedded = [r.info for r in results if "embedding_cache" in r.info]
     if not embedded:
-        return {}
+        return dict(prepared)
     computed = sum(1 for info in embedded if info["embedding_cache"] == "computed")
     shapes = {(r.row_stop - r.row_start, r.labels.shape[1]) for r in results}
     return {
-        "embeddings_computed": computed,
+        **prepared,
+        "embeddings_computed": computed + prepared.get("embeddings_computed", 0),
         "embeddings_reused": len(embedded) - computed,
         "bundle_shapes": sorted(f"{h}x{w}" for h, w in shapes),
         "qubits": max(int(info.get("qubits", 0)) for info in embedded),

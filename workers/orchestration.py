@@ -139,9 +139,10 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     """Write the level's inputs once and fan its bundles out on the solver's queue."""
     settings = store.settings
     config = record.config
-    store.save_level(record.id, inputs, started=time.time())
+    started = time.time()
     rows_per_task = settings.solver_rows_per_task.get(config.solver, settings.rows_per_task)
-    chunks = task_chunks(inputs, config, rows_per_task)
+    chunks = task_chunks(inputs, config, rows_per_task)  # may embed (QPU): before the save
+    store.save_level(record.id, inputs, started=started)
     total = sum(len(chunk) for chunk in chunks)
 
     def advance(current: JobRecord) -> JobRecord | None:

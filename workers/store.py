@@ -409,6 +409,7 @@ class JobStore:
             "left": _npy(inputs.left),
             "right": _npy(inputs.right),
             "candidates": _npy(inputs.candidates),
+            "prepared": json.dumps(inputs.prepared).encode(),
         }
         if inputs.initial_labels is not None:
             fields["initial_labels"] = _npy(inputs.initial_labels)
@@ -431,6 +432,7 @@ class JobStore:
             right=_from_npy(fields[b"right"]),
             candidates=_from_npy(fields[b"candidates"]),
             initial_labels=None if initial is None else _from_npy(initial),
+            prepared=json.loads(fields.get(b"prepared", b"{}")),
         )
         return inputs, float(fields[b"started"])
 

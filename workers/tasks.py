@@ -91,6 +91,9 @@ def _init_process(**_: object) -> None:
 def start_job(self, job_id: str) -> None:
     try:
         orchestration.start_job(app, store(), job_id)
+    except (SolverError, ValueError) as error:  # e.g. no segment embeds: say what to change
+        log.warning("job %s: %s", job_id, error)
+        store().fail(job_id, str(error))
     except Exception:
         log.exception("job %s: start failed", job_id)
         store().fail(job_id, orchestration.internal_error(job_id, "starting the job"))
@@ -100,6 +103,9 @@ def start_job(self, job_id: str) -> None:
 def level_done(self, results: list[dict], job_id: str, index: int) -> None:
     try:
         orchestration.level_done(app, store(), results, job_id, index)
+    except SolverError as error:  # preparing the next level's bundles (embedding) failed
+        log.warning("job %s: %s", job_id, error)
+        store().fail(job_id, str(error))
     except Exception:
         log.exception("job %s: fan-in of level %d failed", job_id, index)
         store().fail(job_id, orchestration.internal_error(job_id, f"assembling level {index + 1}"))

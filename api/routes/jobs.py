@@ -27,6 +27,7 @@ from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
+from shared.solve import bundle_width_setting
 from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
@@ -114,6 +115,10 @@ def check_solver_name(config: MatchConfig):
     try:
         _, availability = load_solver(config.solver)
     except UnknownSolver as error:
+        raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
+    try:
+        bundle_width_setting(config)
+    except ValueError as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
     return availability
 

@@ -154,6 +154,23 @@ class _EmbeddedQPU:
             solver=self.name,
         )
 
+    def embed_shapes(
+        self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
+    ) -> None:
+        """Embed each bundle shape (rows, columns) of a level once, before its bundles fan out,
+        so that no two workers compute the same embedding at the same time."""
+        from shared.solvers.qpu_time import shape_bqm
+
+        base = self.sampler()
+        for height, width in shapes:
+            bqm = shape_bqm(str(encoding), height, width, candidates)
+            try:
+                self.cache.lookup(bqm, base.edgelist, self._target, seed=0, solver=self.name)
+            except SolverError:
+                raise
+            except Exception as error:
+                raise self._translate(error) from None
+
     def solve(
         self,
         bqm: dimod.BinaryQuadraticModel,

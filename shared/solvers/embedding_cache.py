@@ -139,6 +139,8 @@ class EmbeddingCache:
         self._failures: dict[str, str] = {}
         self._sizes: dict[str, EmbeddingSize] = {}
         self._lock = threading.Lock()
+        #: Embeddings this process computed (not found in memory or the store), for reports.
+        self.computed = 0
 
     @property
     def store(self) -> EmbeddingStore:
@@ -188,6 +190,7 @@ class EmbeddingCache:
         self.store.set(key, _encode(embedding))
         with self._lock:
             self._memory[key] = embedding
+            self.computed += 1
         self._record_size(solver, digest, embedding)
         return embedding, "computed", key
 
