@@ -185,3 +185,40 @@ def busy_pool_process(markers, children: list[int], timeout: float = 30.0) -> in
                 return pid
         time.sleep(0.02)
     raise AssertionError("no pool process started solving")
+
+
+def test_row_segments_through_the_service_equal_the_in_process_result(client, pair, settings):
+    """Segment bundles fan out, travel back with their columns and are stitched in the fan-in
+    exactly as in process; each row's segments share a task."""
+    from shared.bundles import segment_columns
+
+    left, right, *_ = pair
+    params = {
+        "solver": "sa",
+        "max_disparity": 8,
+        "seed": 3,
+        "encoding": "domain-wall",
+        "bundle_width": 20,
+        "bundle_margin": 4,
+        "solver_params": {"num_reads": 4, "num_sweeps": 100},
+    }
+    job_id = harness.submit(client, left, right, params)
+    status = harness.wait_for(client, job_id)
+    assert status["state"] == "succeeded", status["error"]
+    assert np.array_equal(harness.download(client, job_id), reference(pair, params))
+    per_row = len(segment_columns(SMALL["width"], 20, 4))
+    assert per_row == 3
+    total = 2 * SMALL["height"] * per_row
+    assert status["progress"]["bundles_total"] == status["progress"]["bundles_done"] == total
+    assert [level["bundles"] for level in status["levels"]] == [total, total]
+
+
+def test_a_width_the_solver_cannot_use_is_a_422(client, pair):
+    left, right, *_ = pair
+    response = client.post(
+        "/v1/jobs",
+        files={"left": ("l.png", left), "right": ("r.png", right)},
+        data={"params": '{"solver": "exact", "bundle_width": 32}'},
+    )
+    assert response.status_code == 422
+    assert "solves whole rows" in response.json()["detail"]
