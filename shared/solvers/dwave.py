@@ -141,10 +141,10 @@ class _EmbeddedQPU:
         """``--bundle-width auto``: the widest row segment whose QUBO embeds on this solver's
         graph (None: whole rows), found once per shape and target and kept in the embedding
         cache together with that shape's embedding, which every such bundle then reuses."""
-        from shared.solvers.qpu_time import shape_bqm
+        from shared.solvers.qpu_time import auto_width_key, shape_bqm
 
         base = self.sampler()
-        return self.cache.widest(
+        width = self.cache.widest(
             lambda width: shape_bqm(str(encoding), height, width, candidates),
             row_width=row_width,
             narrowest=2 * margin + 1,
@@ -153,6 +153,9 @@ class _EmbeddedQPU:
             timeout=get_settings().embedding_search_timeout,
             solver=self.name,
         )
+        key = auto_width_key(self.name, str(encoding), height, candidates, row_width, margin)
+        self.cache.record_width(key, width)
+        return width
 
     def embed_shapes(
         self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]

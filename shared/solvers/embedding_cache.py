@@ -224,6 +224,21 @@ class EmbeddingCache:
             self._sizes[key] = size
         return size
 
+    def record_width(self, key: str, width: int | None) -> None:
+        """Keep what ``--bundle-width auto`` chose for a level shape (None: whole rows), so that
+        estimates made before any job runs can count the segments."""
+        self.store.set(f"width-{key}", json.dumps(width))
+
+    def known_width(self, key: str) -> tuple[bool, int | None]:
+        """(known, width) of :meth:`record_width`."""
+        stored = self.store.get(f"width-{key}")
+        if stored is None:
+            return False, None
+        try:
+            return True, json.loads(stored)
+        except ValueError:
+            return False, None
+
     def widest(
         self,
         bqm_of_width: Callable[[int], dimod.BinaryQuadraticModel],

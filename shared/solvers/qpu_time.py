@@ -47,8 +47,8 @@ from typing import Any
 
 import numpy as np
 
-from shared.bundles import bundle_rows
-from shared.config import MatchConfig
+from shared.bundles import bundle_rows, segment_columns
+from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
 from shared.pyramid import level_shape, plan
@@ -262,6 +262,47 @@ def known_embedding(
         return None
 
 
+#: Before ``--bundle-width auto`` has run for a level shape, estimates assume segments of about
+#: this many QUBO variables (64 domain-wall pixels of 6 labels; P16 embeds them in ~15 s).
+AUTO_VARIABLES_GUESS = 320
+
+
+def auto_width_key(
+    solver_name: str, encoding: str, height: int, candidates: int, row_width: int, margin: int
+) -> str:
+    """Store key of the width ``auto`` chose for this level shape."""
+    return f"{solver_name}-{encoding}-{height}x{row_width}-{candidates}-{margin}"
+
+
+def segment_width(
+    config: MatchConfig,
+    height: int,
+    row_width: int,
+    candidates: int,
+    cache: EmbeddingCache | None,
+) -> int | None:
+    """The segment width the run will use on a level (None: whole rows): the configured one,
+    or for ``auto`` (the QPU solvers' default) the width chosen before, else a guess."""
+    setting = config.bundle_width
+    if setting is None and config.solver in QPU_SOLVERS:
+        setting = AUTO
+    if setting != AUTO:
+        return setting if setting is None or setting < row_width else None
+    if cache is not None:
+        key = auto_width_key(
+            config.solver, str(config.encoding), height, candidates, row_width, config.bundle_margin
+        )
+        try:
+            known, width = cache.known_width(key)
+        except Exception:  # an unreachable store only costs us the better estimate
+            known, width = False, None
+        if known:
+            return width
+    per_pixel = height * get_codec(config.encoding).variables_per_pixel(candidates)
+    guess = max(2 * config.bundle_margin + 1, AUTO_VARIABLES_GUESS // per_pixel)
+    return guess if guess < row_width else None
+
+
 @dataclass(frozen=True)
 class LevelEstimate:
     """One pyramid level: its bundles, their size and the estimated charge of all of them.
@@ -339,11 +380,15 @@ def level_estimate(
     shape's actual embedding when ``cache`` knows one."""
     height, width = shape
     rows = bundle_rows(height, config.bundle_height)
-    bundles = views * len(rows)
     tallest = max(stop - start for start, stop in rows)
-    variables = tallest * width * get_codec(config.encoding).variables_per_pixel(candidates)
+    columns = segment_width(config, config.bundle_height, width, candidates, cache) or width
+    segments = len(segment_columns(width, columns, config.bundle_margin))
+    bundles = views * len(rows) * segments
+    variables = tallest * columns * get_codec(config.encoding).variables_per_pixel(candidates)
     params = sampler_params(config.solver_params, warm=uses_warm_start(config))
-    embedding = known_embedding(cache, config.solver, config.encoding, (tallest, width), candidates)
+    embedding = known_embedding(
+        cache, config.solver, config.encoding, (tallest, columns), candidates
+    )
     each = bundle_seconds(config.solver, variables, params, embedding=embedding)
     qubits = None
     if config.solver in QPU_SOLVERS:

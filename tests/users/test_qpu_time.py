@@ -6,11 +6,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared.bundles import bundle_rows
+from shared.bundles import bundle_rows, segment_columns
 from shared.config import MatchConfig
 from shared.pyramid import level_shape, plan
 from shared.solvers import qpu_time
-from shared.solvers.embedding_cache import EmbeddingSize, structure_digest
+from shared.solvers.embedding_cache import (
+    DirectoryStore,
+    EmbeddingCache,
+    EmbeddingSize,
+    structure_digest,
+)
 from shared.solvers.qpu_time import ADVANTAGE_TIMING_DATA as DATA
 
 
@@ -74,8 +79,9 @@ def test_charged_seconds_prefers_the_hybrid_charge_time():
 @pytest.mark.parametrize("preset", ["accurate", "paper"])
 @pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])
 def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
+    # whole rows (a width beyond the row's; qpu-sim's default is --bundle-width auto)
     config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
-                         solver_params={"num_reads": 10})  # fmt: skip
+                         bundle_width=4096, solver_params={"num_reads": 10})  # fmt: skip
     estimate = qpu_time.job_seconds(config, (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
     views = 2 if preset == "accurate" else 1  # the right view's bundles too
@@ -89,6 +95,28 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
         assert got.seconds == pytest.approx(each * got.bundles)
     assert estimate.bundles == sum(level.bundles for level in estimate.levels)
     assert estimate.seconds == pytest.approx(sum(level.seconds for level in estimate.levels))
+
+
+def test_job_estimate_counts_row_segments(tmp_path):
+    """Segments multiply the bundles and shrink them; auto uses the width a run chose."""
+    config = MatchConfig(solver="qpu-sim", bundle_width=24, bundle_margin=6, lr_check=False)
+    got = qpu_time.job_seconds(config, (10, 50), 20).levels[-1]
+    assert got.bundles == 10 * len(segment_columns(50, 24, 6)) == 10 * 3
+    assert got.variables_per_bundle == 24 * (got_labels(config) - 1)
+
+    cache = EmbeddingCache(DirectoryStore(tmp_path))
+    auto = MatchConfig(solver="qpu-sim", lr_check=False, bundle_margin=6)
+    labels = got_labels(auto)
+    key = qpu_time.auto_width_key("qpu-sim", "domain-wall", 1, labels, 50, 6)
+    cache.record_width(key, 30)
+    level = qpu_time.job_seconds(auto, (10, 50), 20, cache).levels[-1]
+    assert level.bundles == 10 * len(segment_columns(50, 30, 6))
+    cache.record_width(key, None)  # whole rows embed
+    assert qpu_time.job_seconds(auto, (10, 50), 20, cache).levels[-1].bundles == 10
+
+
+def got_labels(config: MatchConfig) -> int:
+    return plan(config, 20)[-1].candidates
 
 
 def test_unmetered_solvers_cost_nothing():
