@@ -207,11 +207,12 @@ def _validation_message(error) -> str:
 def cmd_match(args: argparse.Namespace) -> int:
     from shared.images import load_pair, preview_png, save_disparity
     from shared.pipeline import run_pipeline
-    from shared.solve import ProcessPoolLevelSolver
+    from shared.solve import ProcessPoolLevelSolver, bundle_width_setting
     from shared.solvers import get_solver
 
     config = config_from_args(args)
     solver = get_solver(config.solver)
+    bundle_width_setting(config)  # a width the solver cannot use: say so before any work
     availability = solver.available()
     if not availability.ok:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")

@@ -107,6 +107,9 @@ def test_user_errors_are_one_line_messages(pair, tmp_path, capsys):
         ([left, right, "-o", out, "--solver", "nope"], "unknown solver 'nope'"),
         ([left, right, "-o", out, "--bundle-height", "2"], "single-row bundles"),
         ([left, right, "-o", str(tmp_path / "d.jpg")], ".pfm, .png or .npy"),
+        ([left, right, "-o", out, "--bundle-width", "64"], "exact solves whole rows"),
+        ([left, right, "-o", out, "--solver", "sa", "--bundle-width", "auto"], "in pixels"),
+        ([left, right, "-o", out, "--bundle-width", "20", "--bundle-margin", "10"], "half"),
     ]
     for arguments, message in cases:
         assert main(["match", *arguments]) == 1
@@ -127,3 +130,13 @@ def test_preset_and_auto_range_from_the_command_line(pair, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*base, "--max-disparity", "wide"])
     assert "expected auto or an integer" in capsys.readouterr().err
+
+
+def test_bundle_width_from_the_command_line(pair, tmp_path, capsys):
+    out = str(tmp_path / "d.npy")
+    base = ["match", str(pair / "left.png"), str(pair / "right.png"), "-o", out, "--json"]
+    base += ["--max-disparity", "16", "--solver", "sa", "--param", "num_reads=2"]
+    assert main([*base, "--bundle-width", "48", "--bundle-margin", "8"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    per_row = 3  # 128 px: segments at 0, 40 and 80 (the last one shifted left)
+    assert [level["bundles"] for level in summary["levels"]] == [2 * 96 * per_row] * 3
