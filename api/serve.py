@@ -15,7 +15,6 @@ with backoff.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import errno
 import fcntl
 import json
@@ -35,6 +34,7 @@ from pathlib import Path
 import redis
 
 from shared.config import Settings
+from workers.process import die_with_parent
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,6 @@ DWAVE_SECRETS = ("DWAVE_API_TOKEN", "DWAVE_API_REGION", "DWAVE_API_ENDPOINT", "D
 REDIS_ENV = ("PATH", "HOME", "LANG", "LC_ALL", "TZ")
 #: AOF rewrite thresholds: rewrite once the file doubled and passed this size.
 AOF_REWRITE_MIN_SIZE = "8mb"
-PR_SET_PDEATHSIG = 1
 
 
 def free_port() -> int:
@@ -88,17 +87,6 @@ class PortBusy(RuntimeError):
 
 class DataDirBusy(RuntimeError):
     """Another process runs this data directory's embedded Redis."""
-
-
-def die_with_parent(signum: int = signal.SIGKILL) -> None:
-    """Ask Linux to send ``signum`` to this process when its parent (thread) dies.
-
-    Used as ``preexec_fn`` and in Celery pool processes; a no-op where prctl is missing."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0)
-    except (OSError, AttributeError):
-        return
 
 
 def _die_with_parent_term() -> None:
