@@ -564,7 +564,7 @@ class Stack:
     def describe(self) -> str:
         url = self.settings.redis_url or ""
         where = f"embedded, files in {self.redis.folder}" if self.redis else "configured"
-        lines = [f"redis: {_safe_url(url)} ({where})"]
+        lines = [f"redis: {safe_url(url)} ({where})"]
         for worker in self.workers:
             lines.append(
                 f"worker {worker.hostname}: queues {','.join(worker.queues)}, "
@@ -602,7 +602,7 @@ def write_private(path: Path, text: str) -> None:
     os.chmod(path, 0o600)
 
 
-def _safe_url(url: str) -> str:
+def safe_url(url: str) -> str:
     """The URL without its password (for logs and messages)."""
     from urllib.parse import urlsplit, urlunsplit
 
