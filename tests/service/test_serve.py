@@ -91,6 +91,10 @@ def descendants(pid: int) -> set[int]:
     return found
 
 
+def parent(pid: int) -> int:
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
 def alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -131,10 +135,13 @@ class Served:
         return int((self.data_dir / "redis" / PID_FILE).read_text())
 
     def cpu_worker(self) -> int:
+        """The CPU worker's main process (serve's child; its pool processes are below it)."""
         [pid] = [
             pid
             for pid in descendants(self.process.pid)
-            if f"cpu-{self.process.pid}@" in cmdline(pid) and alive(pid)
+            if f"cpu-{self.process.pid}@" in cmdline(pid)
+            and alive(pid)
+            and parent(pid) == self.process.pid
         ]
         return pid
 
