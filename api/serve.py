@@ -426,6 +426,8 @@ class Supervisor:
     backoff_max: float = 60.0
     restarts: dict[str, int] = field(default_factory=dict)
     _stop: threading.Event = field(default_factory=threading.Event)
+    _released: threading.Event = field(default_factory=threading.Event)
+    _busy: threading.Lock = field(default_factory=threading.Lock)
     _thread: threading.Thread | None = None
 
     STABLE_SECONDS = 60.0
@@ -436,40 +438,57 @@ class Supervisor:
         return self
 
     def stop(self) -> None:
+        """Stop restarting (the thread stays: the processes it restarted die with it)."""
         self._stop.set()
+        with self._busy:  # a restart under way finishes first
+            pass
+
+    def release(self) -> None:
+        """End the thread, once what it restarted has been stopped."""
+        self._stop.set()
+        self._released.set()
         if self._thread is not None:
             self._thread.join(30)
             self._thread = None
 
     def _run(self) -> None:
+        self._watch()
+        self._released.wait()
+
+    def _watch(self) -> None:
         due: dict[str, float] = {}  # name -> when to restart
         started: dict[str, float] = {}
         while not self._stop.wait(self.poll):
-            for name, alive, code, restart in self.stack.children():
-                now = time.monotonic()
-                if alive:
-                    if now - started.get(name, now) > self.STABLE_SECONDS:
-                        self.restarts.pop(name, None)
-                    continue
-                if name not in due:
-                    count = self.restarts.get(name, 0)
-                    delay = min(self.backoff * 2**count, self.backoff_max)
-                    log.warning(
-                        "%s exited unexpectedly (exit code %s); restarting it in %.1f s",
-                        name, code, delay,
-                    )  # fmt: skip
-                    due[name] = now + delay
-                if now < due[name] or self._stop.is_set():
-                    continue
-                del due[name]
-                self.restarts[name] = self.restarts.get(name, 0) + 1
-                try:
-                    restart()
-                except Exception as error:
-                    log.error("could not restart %s: %s; trying again", name, error)
-                    continue
-                started[name] = time.monotonic()
-                log.warning("restarted %s (restart #%d)", name, self.restarts[name])
+            with self._busy:
+                if not self._stop.is_set():
+                    self._check(due, started)
+
+    def _check(self, due: dict[str, float], started: dict[str, float]) -> None:
+        for name, alive, code, restart in self.stack.children():
+            now = time.monotonic()
+            if alive:
+                if now - started.get(name, now) > self.STABLE_SECONDS:
+                    self.restarts.pop(name, None)
+                continue
+            if name not in due:
+                count = self.restarts.get(name, 0)
+                delay = min(self.backoff * 2**count, self.backoff_max)
+                log.warning(
+                    "%s exited unexpectedly (exit code %s); restarting it in %.1f s",
+                    name, code, delay,
+                )  # fmt: skip
+                due[name] = now + delay
+            if now < due[name] or self._stop.is_set():
+                continue
+            del due[name]
+            self.restarts[name] = self.restarts.get(name, 0) + 1
+            try:
+                restart()
+            except Exception as error:
+                log.error("could not restart %s: %s; trying again", name, error)
+                continue
+            started[name] = time.monotonic()
+            log.warning("restarted %s (restart #%d)", name, self.restarts[name])
 
 
 @dataclass
@@ -575,7 +594,6 @@ class Stack:
     def stop(self) -> None:
         if self.supervisor is not None:
             self.supervisor.stop()
-            self.supervisor = None
         for worker in self.workers:
             worker.stop()
         self.workers.clear()
@@ -583,6 +601,9 @@ class Stack:
             self.redis.stop()
             self.redis = None
             (self.settings.data_dir / EMBEDDED_URL_FILE).unlink(missing_ok=True)
+        if self.supervisor is not None:
+            self.supervisor.release()
+            self.supervisor = None
         if self.lock is not None:
             self.lock.release()
             self.lock = None

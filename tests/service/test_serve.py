@@ -341,6 +341,14 @@ def test_sigkill_of_serve_leaves_no_process_and_serve_starts_again(served):
     assert served.http.get("/v1/jobs").status_code == 200  # same store: the key still works
 
 
+def test_sigterm_of_serve_stops_everything_it_started(served):
+    children = descendants(served.process.pid)
+    served.process.send_signal(signal.SIGTERM)
+    assert served.process.wait(60) in (0, 128 + signal.SIGTERM)  # a clean exit
+    assert not [cmdline(pid) for pid in children if alive(pid)]
+    assert not (served.data_dir / EMBEDDED_URL_FILE).exists()
+
+
 def test_a_busy_port_fails_before_anything_starts(tmp_path):
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
