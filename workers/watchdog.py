@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 import redis
 from celery import Celery
 
-from shared.bundles import bundle_rows
 from workers import orchestration
 from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB
 from workers.store import JobRecord, JobState, JobStore
@@ -153,7 +152,7 @@ class Watchdog:
         config = record.config
         inputs, _ = self.store.load_level(record.id, index)
         solved = self.store.solved_bundles(record.id, index)
-        expected = bundle_rows(inputs.shape[0], config.bundle_height)
+        expected = inputs.bundle_rows(config.bundle_height)
         missing = [b for b in expected if b[0] not in solved]
         busy = self.in_flight(record.id, index)
         if busy is not None and missing and all(b[0] in busy for b in missing):

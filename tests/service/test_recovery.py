@@ -13,7 +13,9 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from api.serve import free_port
 from shared.config import LevelConfig, MatchConfig
+from shared.disparity_range import RangeEstimate
 from shared.pipeline import run_pipeline
+from shared.pyramid import plan
 from shared.synthetic import make_scene
 from workers import orchestration
 from workers.app import load_plugins, make_celery
@@ -29,20 +31,30 @@ def lose_chords(monkeypatch):
     monkeypatch.setattr(orchestration, "chord", lambda header: lambda callback: None)
 
 
-def started_job(store: JobStore, solver: str, seed: int = 4) -> tuple[str, MatchConfig, tuple]:
+PAPER_TWO_LEVELS = {
+    "preset": "paper",
+    "levels": [LevelConfig(downsample=2, candidates=3), LevelConfig(downsample=1, candidates=3)],
+    "median": False,
+    "bilateral": False,
+}
+
+
+def started_job(
+    store: JobStore, solver: str, seed: int = 4, options: dict | None = None
+) -> tuple[str, MatchConfig, tuple]:
     """A job started in process whose first level's tasks were lost (never reached a worker)."""
     load_plugins(store.settings)
     scene = make_scene(32, 48, max_disparity=8, seed=seed)
-    config = MatchConfig(
-        solver=solver,
-        max_disparity=8,
-        seed=seed,
-        levels=[LevelConfig(downsample=2, candidates=3), LevelConfig(downsample=1, candidates=3)],
-        median=False,
-        bilateral=False,
-    )
+    options = PAPER_TWO_LEVELS if options is None else options
+    config = MatchConfig(solver=solver, max_disparity=8, seed=seed, **options)
     record = JobRecord(
-        id=new_job_id(), config=config, width=48, height=32, created_at=now(), owner=None
+        id=new_job_id(),
+        config=config,
+        width=48,
+        height=32,
+        created_at=now(),
+        disparity_range=RangeEstimate(8, "given").as_dict(),
+        levels_total=len(plan(config, 8)),
     )
     store.create(record, {"left": scene.left, "right": scene.right})
     orchestration.start_job(make_celery(store.settings, with_tasks=False), store, record.id)
@@ -59,11 +71,16 @@ def tick_until(watchdog: Watchdog, clock: itertools.count, job_id: str, action: 
     raise AssertionError(f"the watchdog did not {action} job {job_id}")
 
 
+@pytest.mark.parametrize(
+    ("solver", "options"),
+    [("fake-slow", PAPER_TWO_LEVELS), ("fake-routed", {"preset": "accurate"})],
+    ids=["paper", "accurate"],
+)
 def test_watchdog_resends_lost_bundles_and_the_job_finishes_identically(
-    settings, workers, lose_chords, monkeypatch
+    settings, workers, lose_chords, monkeypatch, solver, options
 ):
     store = JobStore.from_settings(settings)
-    job_id, config, (left, right) = started_job(store, "fake-slow")
+    job_id, config, (left, right) = started_job(store, solver, options=options)
     assert store.get(job_id).state is JobState.RUNNING
     assert store.solved_count(job_id, 0) == 0  # nothing was sent
 
@@ -77,7 +94,7 @@ def test_watchdog_resends_lost_bundles_and_the_job_finishes_identically(
 
     record = harness_wait(store, job_id)
     assert record.state is JobState.SUCCEEDED, record.error
-    assert len(record.levels) == 2
+    assert len(record.levels) == record.levels_total >= 2
     expected = run_pipeline(left, right, config).disparity
     assert np.array_equal(store.load_result(job_id), expected)
 

@@ -175,6 +175,7 @@ def pair():
 
 def one_level(seed: int) -> dict:
     return {
+        "preset": "paper",
         "solver": "fake-slow",
         "seed": seed,
         "levels": [LevelConfig(downsample=1, candidates=3).model_dump()],
