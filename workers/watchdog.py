@@ -6,7 +6,8 @@ Re-sending is safe because results are idempotent: solved bundles are kept in th
 row (``JobStore.save_bundles``), and the level's fan-in assembles from them and runs at most once.
 What cannot be resumed (a level that was never launched, or whose inputs are gone) restarts the
 job from its uploads; bundle seeds are per bundle, so the result is the undisturbed run's. After
-``watchdog_max_resends`` attempts without progress the job fails with a reason.
+``watchdog_max_resends`` attempts without progress the job fails with a reason. A job whose
+solver queue still holds messages and has a consumer is waiting its turn, not stalled.
 
 It runs as a thread of every worker that consumes the control queue; a Redis lock makes one of
 them act at a time. ``resend_count`` is the number of recoveries so far (for /metrics).
@@ -118,7 +119,7 @@ class Watchdog:
                 continue
             seen.since = now
             action = self.recover(record, seen.attempts + 1)
-            if action != "in-flight":
+            if action not in ("in-flight", "waiting"):
                 seen.attempts += 1
             actions.append((record.id, action))
         for job_id in set(self.seen) - running:
@@ -127,6 +128,10 @@ class Watchdog:
 
     def recover(self, record: JobRecord, attempt: int) -> str:
         settings = self.store.settings
+        solver = record.config.solver
+        consumed = self.consumed_queues()
+        if consumed is not None and solver in consumed and self.queue_length(solver) > 0:
+            return "waiting"  # its tasks may be behind others in a busy queue: not stalled
         if attempt > settings.watchdog_max_resends:
             reason = (
                 f"no progress for {self.stall:g} s even after {attempt - 1} re-sends of its "
@@ -221,14 +226,28 @@ class Watchdog:
                         rows.update(int(start) for start, _ in args[2])
         return rows
 
+    def consumed_queues(self) -> set[str] | None:
+        """Queues some live worker consumes (None when the workers cannot be asked)."""
+        try:
+            inspect = self.celery.control.inspect(timeout=self.store.settings.inspect_timeout)
+            replies = inspect.active_queues() or {}
+        except Exception:
+            return None
+        return {queue["name"] for queues in replies.values() for queue in queues}
+
+    def queue_length(self, queue: str) -> int:
+        """Messages waiting in a queue (kombu's Redis lists: the queue, and its priorities)."""
+        base = self.store.key(queue)
+        keys = [base, *(f"{base}\x06\x16{priority}" for priority in (3, 6, 9))]
+        with self.store.redis.pipeline() as pipe:
+            for key in keys:
+                pipe.llen(key)
+            return sum(pipe.execute())
+
     def queue_hint(self, solver: str) -> str:
         """Whether any worker consumes the solver's queue (the usual cause of a stall)."""
-        try:
-            replies = self.celery.control.inspect(timeout=1.0).active_queues() or {}
-        except Exception:
-            return ""
-        consumed = {queue["name"] for queues in replies.values() for queue in queues}
-        if solver not in consumed:
+        consumed = self.consumed_queues()
+        if consumed is not None and solver not in consumed:
             return f"no worker consumes the {solver!r} queue."
         return ""
 

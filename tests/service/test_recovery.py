@@ -154,3 +154,22 @@ def harness_wait(store: JobStore, job_id: str, timeout: float = 60.0) -> JobReco
             return record
         time.sleep(0.1)
     raise AssertionError(f"job {job_id} still {record.state} after {timeout} s")
+
+
+def test_watchdog_leaves_a_job_waiting_in_a_busy_queue_alone(settings, workers, lose_chords):
+    store = JobStore.from_settings(settings)
+    job_id, *_ = started_job(store, "fake-unavailable")
+    celery = make_celery(settings, with_tasks=False)
+    clock = itertools.count(step=settings.watchdog_stall_seconds + 1)
+    watchdog = Watchdog(celery, store, "test", clock=lambda: next(clock))
+    before = watchdog.queue_length("fake-unavailable")
+    celery.send_task("qhsm.solve_rows", args=("other-job", 0, [[0, 1]]), queue="fake-unavailable")
+    assert watchdog.queue_length("fake-unavailable") == before + 1  # kombu's list, by its key
+    # as if a worker consumed the queue but were busy with other jobs' tasks
+    watchdog.consumed_queues = lambda: {"fake-unavailable", settings.control_queue}
+    actions = []
+    for _ in range(settings.watchdog_max_resends + 3):
+        actions += [action for job, action in watchdog.tick() if job == job_id]
+    assert set(actions) == {"waiting"}
+    assert store.get(job_id).state is JobState.RUNNING
+    store.fail(job_id, "test over")
