@@ -275,7 +275,7 @@ def solve_chunk(
     bundle); a job whose owner's budget runs out raises ``QuotaExceeded`` (a SolverError)."""
     if store.state(job_id) is not JobState.RUNNING:
         return None
-    solved = store.solved_bundles(job_id, index)
+    solved = store.solved_rows(job_id, index)
     if all(start in solved for start, _ in row_ranges):  # a re-sent duplicate: done already
         return {"bundles": len(row_ranges)}
     inputs, config = level_for(store, job_id, index)

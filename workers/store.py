@@ -458,6 +458,12 @@ class JobStore:
         raw = self.redis.hgetall(self.key("job", job_id, "level", index, "solved"))
         return {int(row): json.loads(value) for row, value in raw.items()}
 
+    def solved_rows(self, job_id: str, index: int) -> set[int]:
+        """First rows of the level's solved bundles (without their labels)."""
+        return {
+            int(row) for row in self.redis.hkeys(self.key("job", job_id, "level", index, "solved"))
+        }
+
     def solved_count(self, job_id: str, index: int) -> int:
         return int(self.redis.hlen(self.key("job", job_id, "level", index, "solved")))
 

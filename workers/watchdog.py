@@ -156,7 +156,7 @@ class Watchdog:
         settings = self.store.settings
         config = record.config
         inputs, _ = self.store.load_level(record.id, index)
-        solved = self.store.solved_bundles(record.id, index)
+        solved = self.store.solved_rows(record.id, index)
         expected = inputs.bundle_rows(config.bundle_height)
         missing = [b for b in expected if b[0] not in solved]
         busy = self.in_flight(record.id, index)
