@@ -248,11 +248,16 @@ def _demo_scene(choice: str):
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from api.client import Client, progress_bar
-    from api.serve import ApiThread, Stack, free_port
+    from api.serve import ApiThread, PortBusy, Stack, bind_api_socket, free_port
 
     settings = _settings(args)
     if args.port is None:
         settings = settings.model_copy(update={"api_port": free_port()})
+    else:  # a busy port fails before Redis and workers start
+        try:
+            bind_api_socket(settings.api_host, settings.api_port).close()
+        except PortBusy as error:
+            raise CommandError(str(error)) from None
     name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
     stack = Stack(settings, concurrency=args.concurrency)
     api = None
