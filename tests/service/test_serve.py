@@ -35,7 +35,10 @@ HERE = Path(__file__).parent
 ROOT = HERE.parents[1]
 TOKEN = "sentinel-dwave-token-for-tests"
 STALL_SECONDS = 3
-SERVE = [sys.executable, "-m", "shared.cli", "serve"]
+#: `qhsm serve` as the console script runs it (``python -m shared.cli`` would make a second
+#: ``CommandError`` class in ``__main__``)
+QHSM = [sys.executable, "-c", "import sys; from shared.cli import main; sys.exit(main())"]
+SERVE = [*QHSM, "serve"]
 
 
 def serve_env(markers: Path) -> dict[str, str]:
@@ -350,21 +353,23 @@ def test_sigterm_of_serve_stops_everything_it_started(served):
     assert not (served.data_dir / EMBEDDED_URL_FILE).exists()
 
 
-def test_a_busy_port_fails_before_anything_starts(tmp_path):
+@pytest.mark.parametrize("command", ["serve", "demo"])
+def test_a_busy_port_fails_before_anything_starts(tmp_path, command):
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
         started = time.monotonic()
         result = subprocess.run(
-            [*SERVE, "--port", str(port), "--data-dir", str(tmp_path / "data")],
+            [*QHSM, command, "--port", str(port), "--data-dir", str(tmp_path / "data")],
             env=serve_env(tmp_path),
             capture_output=True,
             text=True,
             timeout=60,
         )
     assert result.returncode != 0
-    assert f"port {port} on 127.0.0.1 is in use" in result.stderr
+    assert f"qhsm: port {port} on 127.0.0.1 is in use" in result.stderr
+    assert "Traceback" not in result.stderr
     assert "starting Redis" not in result.stderr and "API on" not in result.stderr
     assert not (tmp_path / "data" / "redis").exists()
     assert time.monotonic() - started < 30
