@@ -277,7 +277,7 @@ def solve_chunk(
         return None
     solved = store.solved_rows(job_id, index)
     if all(start in solved for start, _ in row_ranges):  # a re-sent duplicate: done already
-        return {"bundles": len(row_ranges)}
+        return {"bundles": len(row_ranges), "duplicate": True}
     inputs, config = level_for(store, job_id, index)
     if is_metered(config.solver) and meter is not None:
         record = store.get(job_id)
@@ -308,7 +308,7 @@ def solve_chunk(
     )
     store.save_bundles(job_id, index, [encode_bundle(result) for result in results])
     store.record_chunk(job_id, row_ranges[0][0], chunk)
-    return {"bundles": len(results)}  # the labels are in the store, for whichever fan-in runs
+    return {"bundles": len(results)}  # how many; the labels are in the store for the fan-in
 
 
 def retry_delay(settings: Settings, retries: int) -> float:

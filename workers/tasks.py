@@ -142,9 +142,9 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     started = time.perf_counter()
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
-        if result is not None:
+        if result is not None and not result.get("duplicate"):
             queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
-            telemetry().task_done(queue, time.perf_counter() - started, len(result["bundles"]))
+            telemetry().task_done(queue, time.perf_counter() - started, result["bundles"])
     except SoftTimeLimitExceeded:
         return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
     except TransientSolverError as error:

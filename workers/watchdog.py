@@ -10,7 +10,8 @@ job from its uploads; bundle seeds are per bundle, so the result is the undistur
 solver queue still holds messages and has a consumer is waiting its turn, not stalled.
 
 It runs as a thread of every worker that consumes the control queue; a Redis lock makes one of
-them act at a time. ``resend_count`` is the number of recoveries so far (for /metrics).
+them act at a time. Re-sent chunks are counted by ``workers.telemetry`` (``/metrics``:
+``qhsm_watchdog_resends_total``); ``resend_count`` reads that count.
 """
 
 from __future__ import annotations
@@ -27,18 +28,19 @@ from celery import Celery
 from workers import orchestration
 from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB
 from workers.store import JobRecord, JobState, JobStore
+from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
-#: Redis keys under the service's prefix.
-RESENDS_KEY = "watchdog:resends"
+#: Redis key (under the service's prefix) of the lock that lets one watchdog act.
 LOCK_KEY = "watchdog:lock"
 PAGE = 500
 
 
 def resend_count(store: JobStore) -> int:
-    """How many times the watchdog re-sent or restarted a stalled job (all time)."""
-    return int(store.redis.get(store.key(RESENDS_KEY)) or 0)
+    """Chunks (and fan-ins, restarts) the watchdog re-sent so far, all jobs (the metric's value)."""
+    telemetry = Telemetry(store.redis, store.prefix)
+    return int(store.redis.get(telemetry.key("watchdog_resends")) or 0)
 
 
 def interval(stall_seconds: float) -> float:
@@ -60,6 +62,10 @@ class Watchdog:
     name: str
     clock: Callable[[], float] = time.monotonic
     seen: dict[str, _Seen] = field(default_factory=dict)
+
+    @property
+    def telemetry(self) -> Telemetry:
+        return Telemetry(self.store.redis, self.store.prefix)
 
     @property
     def stall(self) -> float:
@@ -146,10 +152,7 @@ class Watchdog:
             and len(record.levels) == index
             and self.store.has_level(record.id, index)
         )
-        action = self.resend(record, index) if resumable else self.restart(record)
-        if action in ("resent", "fan-in", "restarted"):
-            self.store.redis.incr(self.store.key(RESENDS_KEY))
-        return action
+        return self.resend(record, index) if resumable else self.restart(record)
 
     def resend(self, record: JobRecord, index: int) -> str:
         """Re-send the level's unsolved bundles (with a fan-in), or just the fan-in."""
@@ -172,6 +175,7 @@ class Watchdog:
             self.celery.send_task(
                 LEVEL_DONE, args=([], record.id, index), queue=settings.control_queue
             )
+            self.telemetry.resent(1)
             return "fan-in"
         chunks = orchestration.group_bundles(
             missing, config, orchestration.rows_per_task(settings, config.solver)
@@ -181,6 +185,7 @@ class Watchdog:
             record.id, self.stall, len(missing), index + 1,
         )  # fmt: skip
         orchestration.fan_out(self.celery, settings, record.id, index, config.solver, chunks)
+        self.telemetry.resent(len(chunks))
         return "resent"
 
     def restart(self, record: JobRecord) -> str:
@@ -206,6 +211,7 @@ class Watchdog:
             record.level,
         )
         self.celery.send_task(START_JOB, args=(record.id,), queue=self.store.settings.control_queue)
+        self.telemetry.resent(1)
         return "restarted"
 
     def in_flight(self, job_id: str, index: int) -> set[int] | None:
