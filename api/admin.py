@@ -7,15 +7,20 @@
     qhsm admin set-quota NAME SECONDS                          ("unlimited" lifts the limit)
     qhsm admin usage [NAME]
 
-It talks to Redis directly (QHSM_REDIS_URL / REDIS_URL or --redis-url), so it needs no API key:
-whoever can reach the service's Redis administers it anyway.
+It talks to Redis directly, so it needs no API key (whoever can reach the service's Redis
+administers it anyway): --redis-url, else QHSM_REDIS_URL / REDIS_URL, else the data directory's
+embedded Redis (--data-dir / QHSM_DATA_DIR) -- the running `qhsm serve`'s, or one started for the
+command. It always says which store it used (on stderr).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
+from collections.abc import Iterator
+from pathlib import Path
 
 from shared.cli import CommandError
 
@@ -23,44 +28,60 @@ from shared.cli import CommandError
 DEFAULT_BUDGET = "default"
 
 
-def _store(args: argparse.Namespace):
+@contextlib.contextmanager
+def _store(args: argparse.Namespace) -> Iterator:
+    """The user store of the service's Redis, saying which Redis that is.
+
+    --redis-url, else QHSM_REDIS_URL, else the data directory's embedded Redis: the running
+    `qhsm serve`'s, or one started here for this command (never a Redis that merely answers on
+    the default port)."""
     import redis
 
+    from api.serve import EMBEDDED_URL_FILE, DataDirBusy, DataDirLock, EmbeddedRedis, safe_url
     from api.users import UserStore
     from shared.config import get_settings
-    from workers.app import redis_url
 
     settings = get_settings()
-    url = args.redis_url or settings.redis_url or _embedded_url(settings) or redis_url(settings)
-    client = redis.Redis.from_url(url, socket_connect_timeout=2)
+    if args.data_dir is not None:
+        settings = settings.model_copy(update={"data_dir": args.data_dir})
+    data_dir = settings.data_dir.resolve()
+    lock, server = None, None
     try:
-        client.ping()
-    except redis.RedisError:
-        raise CommandError(
-            f"cannot reach Redis at {_safe_url(url)}: set QHSM_REDIS_URL or pass --redis-url"
-        ) from None
-    return UserStore.from_settings(settings, client)
-
-
-def _embedded_url(settings) -> str | None:
-    """The URL of `qhsm serve`'s embedded Redis, when one runs with this data directory."""
-    from api.serve import EMBEDDED_URL_FILE
-
-    try:
-        return (settings.data_dir / EMBEDDED_URL_FILE).read_text().strip() or None
-    except OSError:
-        return None
-
-
-def _safe_url(url: str) -> str:
-    """The URL without a password."""
-    from urllib.parse import urlsplit, urlunsplit
-
-    parts = urlsplit(url)
-    if parts.password:
-        netloc = parts.netloc.replace(f":{parts.password}@", ":***@")
-        return urlunsplit(parts._replace(netloc=netloc))
-    return url
+        if args.redis_url or settings.redis_url:
+            url = args.redis_url or settings.redis_url
+            source = "--redis-url" if args.redis_url else "QHSM_REDIS_URL"
+            where = f"Redis at {safe_url(url)} (from {source})"
+        elif DataDirLock(data_dir).held_by_other():
+            try:
+                url = (data_dir / EMBEDDED_URL_FILE).read_text().strip()
+            except OSError:
+                raise CommandError(
+                    f"{data_dir} is in use by a starting `qhsm serve`; try again in a moment"
+                ) from None
+            where = f"the embedded Redis of the running `qhsm serve` (data dir {data_dir})"
+        else:
+            try:
+                lock = DataDirLock(data_dir).acquire()
+            except DataDirBusy as error:
+                raise CommandError(str(error)) from None
+            server = EmbeddedRedis(data_dir / "redis").start()
+            url = server.url
+            where = f"the embedded Redis of data dir {data_dir} (started for this command)"
+        print(f"store: {where}", file=sys.stderr)
+        client = redis.Redis.from_url(url, socket_connect_timeout=2)
+        try:
+            client.ping()
+        except redis.RedisError as error:
+            raise CommandError(
+                f"cannot reach Redis at {safe_url(url)} ({error}): set QHSM_REDIS_URL, pass "
+                "--redis-url, or --data-dir for the embedded one"
+            ) from None
+        yield UserStore.from_settings(settings, client)
+    finally:
+        if server is not None:
+            server.stop()
+        if lock is not None:
+            lock.release()
 
 
 def _call(action):
@@ -99,85 +120,94 @@ def _print_key(name: str, key: str) -> None:
 
 
 def cmd_create_user(args: argparse.Namespace) -> int:
-    store = _store(args)
-    user, key = _call(
-        lambda: store.create_user(args.name, admin=args.admin, qpu_seconds=args.qpu_seconds)
-    )
-    _print_key(user.name, key)
-    return 0
+    with _store(args) as store:
+        user, key = _call(
+            lambda: store.create_user(args.name, admin=args.admin, qpu_seconds=args.qpu_seconds)
+        )
+        _print_key(user.name, key)
+        return 0
 
 
 def cmd_list_users(args: argparse.Namespace) -> int:
-    store = _store(args)
-    rows = []
-    for user in store.list_users():
-        budget = store.ledger.status(user.name)
-        rows.append({**user.model_dump(mode="json"), **budget.as_dict()})
-    if args.json:
-        print(json.dumps(rows, indent=2))
-        return 0
-    print(f"{'name':<20} {'admin':<5} {'state':<8} {'key id':<9} {'used s':>10} {'limit s':>10}")
-    for row in rows:
-        limit = "unlimited" if row["limit_seconds"] is None else f"{row['limit_seconds']:.3f}"
+    with _store(args) as store:
+        rows = []
+        for user in store.list_users():
+            budget = store.ledger.status(user.name)
+            rows.append({**user.model_dump(mode="json"), **budget.as_dict()})
+        if args.json:
+            print(json.dumps(rows, indent=2))
+            return 0
         print(
-            f"{row['name']:<20} {'yes' if row['admin'] else 'no':<5} "
-            f"{'revoked' if row['revoked'] else 'active':<8} {row['key_id'] or '-':<9} "
-            f"{row['used_seconds']:>10.3f} {limit:>10}"
+            f"{'name':<20} {'admin':<5} {'state':<8} {'key id':<9} {'used s':>10} {'limit s':>10}"
         )
-    return 0
+        for row in rows:
+            limit = "unlimited" if row["limit_seconds"] is None else f"{row['limit_seconds']:.3f}"
+            print(
+                f"{row['name']:<20} {'yes' if row['admin'] else 'no':<5} "
+                f"{'revoked' if row['revoked'] else 'active':<8} {row['key_id'] or '-':<9} "
+                f"{row['used_seconds']:>10.3f} {limit:>10}"
+            )
+        return 0
 
 
 def cmd_rotate_key(args: argparse.Namespace) -> int:
-    store = _store(args)
-    key = _call(lambda: store.rotate_key(args.name))
-    _print_key(args.name, key)
-    return 0
+    with _store(args) as store:
+        key = _call(lambda: store.rotate_key(args.name))
+        _print_key(args.name, key)
+        return 0
 
 
 def cmd_revoke(args: argparse.Namespace) -> int:
-    store = _store(args)
-    _call(lambda: store.revoke(args.name))
-    print(f"revoked the key of {args.name} (rotate-key issues a new one)")
-    return 0
+    with _store(args) as store:
+        _call(lambda: store.revoke(args.name))
+        print(f"revoked the key of {args.name} (rotate-key issues a new one)")
+        return 0
 
 
 def cmd_set_quota(args: argparse.Namespace) -> int:
-    store = _store(args)
-    _call(lambda: store.require(args.name))
-    store.ledger.set_limit(args.name, args.seconds)
-    status = store.ledger.status(args.name)
-    limit = "unlimited" if status.limit is None else f"{status.limit:g} s"
-    print(f"{args.name}: QPU budget {limit}, used {status.used:.3f} s")
-    return 0
+    with _store(args) as store:
+        _call(lambda: store.require(args.name))
+        store.ledger.set_limit(args.name, args.seconds)
+        status = store.ledger.status(args.name)
+        limit = "unlimited" if status.limit is None else f"{status.limit:g} s"
+        print(f"{args.name}: QPU budget {limit}, used {status.used:.3f} s")
+        return 0
 
 
 def cmd_usage(args: argparse.Namespace) -> int:
-    store = _store(args)
-    if args.name:
-        _call(lambda: store.require(args.name))
-        names = [args.name]
-    else:
-        names = sorted({u.name for u in store.list_users()} | set(store.ledger.users()))
-    usage = [store.ledger.usage(name).as_dict() for name in names]
-    if args.json:
-        print(json.dumps(usage, indent=2))
+    with _store(args) as store:
+        if args.name:
+            _call(lambda: store.require(args.name))
+            names = [args.name]
+        else:
+            names = sorted({u.name for u in store.list_users()} | set(store.ledger.users()))
+        usage = [store.ledger.usage(name).as_dict() for name in names]
+        if args.json:
+            print(json.dumps(usage, indent=2))
+            return 0
+        for entry in usage:
+            limit = entry["limit_seconds"]
+            print(
+                f"{entry['user']}: used {entry['used_seconds']:.3f} s of "
+                f"{'unlimited' if limit is None else f'{limit:g} s'}"
+                f" ({entry['reserved_seconds']:.3f} s reserved)"
+            )
+            for job in entry["jobs"]:
+                print(f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems")
         return 0
-    for entry in usage:
-        limit = entry["limit_seconds"]
-        print(
-            f"{entry['user']}: used {entry['used_seconds']:.3f} s of "
-            f"{'unlimited' if limit is None else f'{limit:g} s'}"
-            f" ({entry['reserved_seconds']:.3f} s reserved)"
-        )
-        for job in entry["jobs"]:
-            print(f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems")
-    return 0
 
 
 def register(subparsers) -> None:
     """Entry point of the ``qhsm.commands`` group: adds ``qhsm admin``."""
     admin = subparsers.add_parser("admin", help="manage users, API keys and QPU budgets")
-    admin.add_argument("--redis-url", help="the service's Redis (default: QHSM_REDIS_URL)")
+    admin.add_argument(
+        "--redis-url",
+        help="the service's Redis (default: QHSM_REDIS_URL, else the data directory's embedded "
+        "Redis: the running `qhsm serve`'s, or started for the command)",
+    )
+    admin.add_argument(
+        "--data-dir", type=Path, help="data directory of the embedded Redis (QHSM_DATA_DIR)"
+    )
     commands = admin.add_subparsers(dest="admin_command", required=True)
 
     create = commands.add_parser("create-user", help="add a user; prints their key once")

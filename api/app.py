@@ -4,6 +4,9 @@ the package (fastapi-offline), never from a CDN."""
 
 from __future__ import annotations
 
+import logging
+
+import redis
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
@@ -18,6 +21,8 @@ from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
 from workers.app import load_plugins, make_celery
 from workers.store import JobStore
+
+log = logging.getLogger("qhsm.api")
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -54,6 +59,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.exception_handler(UploadError)
     async def upload_error(request: Request, error: UploadError) -> JSONResponse:
         return JSONResponse({"detail": error.message}, status_code=error.status_code)
+
+    @app.exception_handler(redis.ConnectionError)
+    @app.exception_handler(redis.TimeoutError)
+    async def store_down(request: Request, error: redis.RedisError) -> JSONResponse:
+        log.warning("%s %s: Redis unavailable: %s", request.method, request.url.path, error)
+        return JSONResponse(
+            {
+                "detail": "the service's job store (Redis) is unavailable right now; nothing "
+                "was changed. Try again in a minute (running jobs resume when it is back)"
+            },
+            status_code=503,
+            headers={"Retry-After": "30"},
+        )
 
     # added last = outermost: the boundary also catches what the guard raises
     app.add_middleware(RequestGuard, settings=settings)

@@ -154,21 +154,35 @@ def cmd_api(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from api.serve import Stack
+    import logging
 
-    stack = Stack(_settings(args), concurrency=args.concurrency)
+    from api.serve import DataDirBusy, PortBusy, Stack, bind_api_socket
+
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    settings = _settings(args)
+    try:  # the port first: a busy one fails before Redis and workers start
+        sock = bind_api_socket(settings.api_host, settings.api_port)
+    except PortBusy as error:
+        raise CommandError(str(error)) from None
+    stack = Stack(settings, concurrency=args.concurrency)
     print("starting Redis and workers ...", file=sys.stderr)
     try:
-        stack.start()
+        try:
+            stack.start()
+        except DataDirBusy as error:
+            raise CommandError(str(error)) from None
         settings = stack.settings
         print(stack.describe(), file=sys.stderr)
         key = _announce_key(settings)
         url = f"http://{settings.api_host}:{settings.api_port}"
         print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
         print(f"web page: {sign_in_url(url, settings.api_host, key)}", file=sys.stderr)
-        _uvicorn_server(settings, args.log_level).run()
+        _uvicorn_server(settings, args.log_level).run(sockets=[sock])
     finally:
         stack.stop()
+        sock.close()
     return 0
 
 
@@ -234,11 +248,16 @@ def _demo_scene(choice: str):
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from api.client import Client, progress_bar
-    from api.serve import ApiThread, Stack, free_port
+    from api.serve import ApiThread, PortBusy, Stack, bind_api_socket, free_port
 
     settings = _settings(args)
     if args.port is None:
         settings = settings.model_copy(update={"api_port": free_port()})
+    else:  # a busy port fails before Redis and workers start
+        try:
+            bind_api_socket(settings.api_host, settings.api_port).close()
+        except PortBusy as error:
+            raise CommandError(str(error)) from None
     name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
     stack = Stack(settings, concurrency=args.concurrency)
     api = None

@@ -134,6 +134,11 @@ class SolverInfo(BaseModel):
 class Health(BaseModel):
     status: str
     redis: str | None = None
+    queues_without_consumer: list[str] | None = Field(
+        None,
+        description="The control queue and solver queues no worker consumes (null: unknown); "
+        "jobs for those solvers wait until one starts",
+    )
 
 
 class ErrorBody(BaseModel):

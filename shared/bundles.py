@@ -78,6 +78,15 @@ def owned_columns(segments: list[tuple[int, int]]) -> list[tuple[int, int]]:
     return list(pairwise(bounds))
 
 
+def bundle_key(spec: list[int] | tuple[int, ...]) -> str:
+    """A bundle's id within its level, from [row_start, row_stop] (whole rows) or
+    [row_start, row_stop, col_start, col_stop]: the first row for whole rows and first
+    segments (a level's bundles are all whole rows or all segments), else "row.column"."""
+    if len(spec) > 2 and spec[2]:
+        return f"{spec[0]}.{spec[2]}"
+    return str(spec[0])
+
+
 def bundle_seed(seed: int, level: int, row_start: int, col_start: int = 0) -> int:
     """A solver seed per bundle that depends only on (seed, level, first row, first column).
 

@@ -310,6 +310,15 @@ class Settings(BaseSettings):
         "so small tasks only add broker overhead",
     )
     control_queue: str = Field("control", description="Celery queue of the orchestration tasks")
+    watchdog_stall_seconds: float = Field(
+        300.0,
+        gt=0,
+        description="A running job whose progress has not moved this long gets its unsolved "
+        "bundles re-sent by the watchdog (seconds; tasks are idempotent)",
+    )
+    watchdog_max_resends: int = Field(
+        3, ge=1, description="Re-sends without progress after which the watchdog fails the job"
+    )
     task_retries: int = Field(5, ge=0, description="Retries after a transient solver error")
     retry_backoff: float = Field(
         2.0, gt=0, description="First retry delay after a transient error, seconds (doubles)"

@@ -73,6 +73,9 @@ def weighted_median(disparity: np.ndarray, guide: np.ndarray, radius: int, sigma
     disparities weighted by colour similarity to it in ``guide`` (float32 [0, 1], gray or BGR;
     ``sigma`` on the 0..255 scale), which snaps edges of the map to edges of the image."""
     guide8 = np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8)
+    # A colour guide is quantised by k-means seeded from OpenCV's global RNG: seed it, or the
+    # same pair gives a different map on every call (up to several pixels apart).
+    cv2.setRNGSeed(0)
     return cv2.ximgproc.weightedMedianFilter(
         guide8, np.asarray(disparity, np.float32), radius, sigma
     ).astype(np.float32)

@@ -120,6 +120,14 @@ class LevelInputs:
             for first, last in columns
         ]
 
+    def planned_bundles(self, config: MatchConfig) -> list[Bundle]:
+        """The bundles :func:`level_bundles` chose for this level (its width is kept in
+        ``prepared``), without searching or embedding again."""
+        width = self.prepared.get("bundle_width")
+        if width is not None and width >= self.shape[1]:
+            width = None
+        return self.bundles(config.bundle_height, width, config.bundle_margin)
+
     def as_bundle(self, spec: BundleSpec) -> Bundle:
         """A :class:`Bundle` from a bundle or a row range (whole rows)."""
         if isinstance(spec, Bundle):
@@ -261,6 +269,7 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     before = getattr(cache, "computed", 0)
     width = level_bundle_width(inputs, config)
     bundles = inputs.bundles(config.bundle_height, width, config.bundle_margin)
+    inputs.prepared = {"bundle_width": width}
     embed = getattr(solver, "embed_shapes", None)
     if embed is not None:
         shapes = sorted({bundle.shape for bundle in bundles})

@@ -23,6 +23,7 @@ import numpy as np
 from celery import Celery, chord
 
 from shared import pyramid
+from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
@@ -31,7 +32,7 @@ from shared.solve import BundleResult, LevelInputs, assemble, level_bundles, sol
 from shared.solvers.qpu_time import is_metered
 from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
-from workers.store import ChunkReport, JobRecord, JobState, JobStore, now
+from workers.store import ChunkReport, JobRecord, JobState, JobStore, LevelInputsMissing, now
 
 log = logging.getLogger(__name__)
 
@@ -67,11 +68,21 @@ def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) ->
     (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
     """
     bundles = [bundle.as_list() for bundle in level_bundles(inputs, config)]
-    segments = sum(1 for bundle in bundles if bundle[0] == bundles[0][0])
+    return group_bundles(bundles, config, rows_per_task)
+
+
+def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
+    """Bundles grouped into tasks (see ``task_chunks``; the watchdog regroups unsolved ones):
+    about ``rows_per_task`` rows each, all segments of a row in the same task."""
+    segments = max(1, sum(1 for bundle in bundles if bundle[0] == bundles[0][0])) if bundles else 1
     per_task = max(1, rows_per_task // config.bundle_height) * segments
     if is_metered(config.solver):
         per_task = 1
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
+
+
+def rows_per_task(settings: Settings, solver: str) -> int:
+    return settings.solver_rows_per_task.get(solver, settings.rows_per_task)
 
 
 def encode_bundle(result: BundleResult) -> dict:
@@ -140,8 +151,8 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     settings = store.settings
     config = record.config
     started = time.time()
-    rows_per_task = settings.solver_rows_per_task.get(config.solver, settings.rows_per_task)
-    chunks = task_chunks(inputs, config, rows_per_task)  # may embed (QPU): before the save
+    # may search a width and embed (QPU): before the save, which keeps what it chose
+    chunks = task_chunks(inputs, config, rows_per_task(settings, config.solver))
     store.save_level(record.id, inputs, started=started)
     total = sum(len(chunk) for chunk in chunks)
 
@@ -154,21 +165,28 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     if updated is None or updated.state is not JobState.RUNNING:
         store.drop_level(record.id, inputs.index)
         return
-    limits = task_time_limits(settings, config.solver)
+    fan_out(celery, settings, record.id, inputs.index, config.solver, chunks)
+
+
+def fan_out(
+    celery: Celery, settings: Settings, job_id: str, index: int, solver: str, chunks: list
+) -> None:
+    """A chord: the chunks on the solver's queue (with its time limits), then the level's
+    fan-in on the control queue."""
+    limits = task_time_limits(settings, solver)
     header = [
-        celery.signature(
-            SOLVE_ROWS, args=(record.id, inputs.index, chunk), queue=config.solver, **limits
-        )
+        celery.signature(SOLVE_ROWS, args=(job_id, index, chunk), queue=solver, **limits)
         for chunk in chunks
     ]
-    callback = celery.signature(
-        LEVEL_DONE, args=(record.id, inputs.index), queue=settings.control_queue
-    )
+    callback = celery.signature(LEVEL_DONE, args=(job_id, index), queue=settings.control_queue)
     chord(header)(callback)
 
 
 def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str, index: int):
-    """Fan-in: assemble and filter the level, then launch the next one or finish the job."""
+    """Fan-in: assemble and filter the level, then launch the next one or finish the job.
+
+    The level is assembled from the solved bundles in the store, not from ``results``: a chord
+    the watchdog re-sent for lost chunks carries only those. Runs at most once per level."""
     record = store.get(job_id)
     if record is None or record.state is not JobState.RUNNING:
         store.drop_level(job_id, index)
@@ -176,10 +194,15 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     if len(record.levels) > index:  # redelivered after a worker died having done this
         log.info("job %s: level %d already assembled; ignoring a repeated fan-in", job_id, index)
         return
-    if any("bundles" not in result for result in results):
+    config = record.config
+    try:
+        inputs, started = store.load_level(job_id, index)
+    except LevelInputsMissing:
+        record = store.get(job_id)
+        if record is None or record.state is not JobState.RUNNING or len(record.levels) > index:
+            return  # a concurrent fan-in of the same level finished it
         # tasks that fail the job or see it end return no bundles, and the state check above
-        # returns; a running job with unsolved bundles lost its level inputs (expired)
-        store.drop_level(job_id, index)
+        # returns; a running job without its level inputs lost them (expired)
         store.fail(
             job_id,
             f"some bundles of level {index + 1} were not solved because the level's inputs "
@@ -187,23 +210,31 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
             "QHSM_TASK_VISIBILITY_TIMEOUT if the queue is often this long",
         )
         return
-    config = record.config
-    inputs, started = store.load_level(job_id, index)
     width = inputs.shape[1]
-    bundles = [decode_bundle(b, width) for result in results for b in result["bundles"]]
+    solved = store.solved_bundles(job_id, index)
+    expected = [bundle_key(b.as_list()) for b in inputs.planned_bundles(config)]
+    missing = [key for key in expected if key not in solved]
+    if missing:  # lost with a worker or a Redis outage: the watchdog re-sends them
+        log.warning("job %s: level %d misses %d bundles", job_id, index, len(missing))
+        return
+    bundles = [decode_bundle(solved[key], width) for key in expected]
     solution = assemble(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = asdict(report(inputs, solution, time.time() - started))
-    store.drop_level(job_id, index)
+
+    added = False
 
     def add_report(current: JobRecord) -> JobRecord | None:
-        if current.state is not JobState.RUNNING:
+        nonlocal added
+        added = current.state is JobState.RUNNING and len(current.levels) == index
+        if not added:  # ended, or the same level assembled twice at once and the other won
             return None
         return current.model_copy(update={"levels": [*current.levels, level_report]})
 
     record = store.update(job_id, add_report)
-    if record is None or record.state is not JobState.RUNNING:
+    if record is None or not added:
         return
+    store.drop_level(job_id, index)
     left, right = job_views(store, record)
     plans = job_plans(record)
     if index + 1 < len(plans):
@@ -263,6 +294,9 @@ def solve_chunk(
     bundle); a job whose owner's budget runs out raises ``QuotaExceeded`` (a SolverError)."""
     if store.state(job_id) is not JobState.RUNNING:
         return None
+    solved = store.solved_rows(job_id, index)
+    if all(bundle_key(spec) in solved for spec in row_ranges):  # a re-sent duplicate: done
+        return {"bundles": len(row_ranges), "duplicate": True}
     inputs, config = level_for(store, job_id, index)
     if is_metered(config.solver) and meter is not None:
         record = store.get(job_id)
@@ -291,12 +325,9 @@ def solve_chunk(
         timing=timing,
         worker=worker,
     )
-    first = row_ranges[0]
-    # whole rows keep their key; a segment's first column tells it from its row's others
-    store.record_chunk(
-        job_id, f"{first[0]}.{first[2]}" if len(first) > 2 and first[2] else first[0], chunk
-    )
-    return {"bundles": [encode_bundle(result) for result in results]}
+    store.save_bundles(job_id, index, [encode_bundle(result) for result in results])
+    store.record_chunk(job_id, bundle_key(row_ranges[0]), chunk)
+    return {"bundles": len(results)}  # how many; the labels are in the store for the fan-in
 
 
 def retry_delay(settings: Settings, retries: int) -> float:

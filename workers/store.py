@@ -8,14 +8,16 @@ Keys (all under ``{key_prefix}:``):
     jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
+    job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
     job:{id}:result          .npy bytes of the full-resolution disparity
     job:{id}:tasks           set of the ids of the job's solver tasks running now
     job:{id}:view:{name}     what the web page shows next to the result: the left view (PNG) and
                              the ground truth (.npy); they outlive the uploads like the result
 
-Chunk reports are written with HSET, so a task that runs twice (a worker died after solving)
-is counted once. State changes go through :meth:`JobStore.transition`, an optimistic
-compare-and-set, so a cancel racing with the last fan-in resolves to exactly one final state.
+Chunk reports and solved bundles are written with HSET, so a task that runs twice (a worker died
+after solving, or the watchdog re-sent it) is counted once. State changes go through
+:meth:`JobStore.transition`, an optimistic compare-and-set, so a cancel racing with the last
+fan-in resolves to exactly one final state.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import numpy as np
 import redis
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs
@@ -164,6 +167,10 @@ def now() -> datetime:
 
 def new_job_id() -> str:
     return uuid.uuid4().hex
+
+
+def _text(value: bytes | str) -> str:
+    return value.decode() if isinstance(value, bytes) else value
 
 
 def _npy(array: np.ndarray) -> bytes:
@@ -436,8 +443,41 @@ class JobStore:
         )
         return inputs, float(fields[b"started"])
 
+    def has_level(self, job_id: str, index: int) -> bool:
+        return bool(self.redis.exists(self.key("job", job_id, "level", index)))
+
     def drop_level(self, job_id: str, index: int) -> None:
-        self.redis.delete(self.key("job", job_id, "level", index))
+        level = self.key("job", job_id, "level", index)
+        self.redis.delete(level, f"{level}:solved")
+
+    def save_bundles(self, job_id: str, index: int, bundles: list[dict]) -> None:
+        """Solved bundles (JSON, keyed by first row): the fan-in assembles the level from these,
+        whichever task, re-sent or redelivered, solved them (idempotent)."""
+        if not bundles:
+            return
+        key = self.key("job", job_id, "level", index, "solved")
+        with self.redis.pipeline() as pipe:
+            mapping = {
+                bundle_key([*b["rows"], *b.get("columns", [0])]): json.dumps(b) for b in bundles
+            }
+            pipe.hset(key, mapping=mapping)
+            pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
+            pipe.execute()
+
+    def solved_bundles(self, job_id: str, index: int) -> dict[str, dict]:
+        """The level's solved bundles by ``bundle_key``."""
+        raw = self.redis.hgetall(self.key("job", job_id, "level", index, "solved"))
+        return {_text(key): json.loads(value) for key, value in raw.items()}
+
+    def solved_rows(self, job_id: str, index: int) -> set[str]:
+        """``bundle_key`` of the level's solved bundles (without their labels)."""
+        return {
+            _text(key)
+            for key in self.redis.hkeys(self.key("job", job_id, "level", index, "solved"))
+        }
+
+    def solved_count(self, job_id: str, index: int) -> int:
+        return int(self.redis.hlen(self.key("job", job_id, "level", index, "solved")))
 
     # results ----------------------------------------------------------------------------------
 

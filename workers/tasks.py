@@ -3,7 +3,9 @@
 Solver errors: ``TransientSolverError`` is retried with exponential backoff, up to
 ``Settings.task_retries`` times; any other ``SolverError`` fails the job with the solver's
 message. Unexpected errors are logged with their traceback and fail the job with a short
-message; tasks never raise into the chord, so every level's fan-in runs.
+message; tasks never raise into the chord, so every level's fan-in runs. The exception is an
+unreachable Redis, which is not the job's fault: the task gives up without failing the job, and
+the watchdog (``workers/watchdog.py``) re-sends what was lost once Redis is back.
 """
 
 from __future__ import annotations
@@ -12,12 +14,13 @@ import importlib
 import logging
 import time
 
+import redis
 from celery import Task, signals
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
 from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
-from workers import orchestration
+from workers import orchestration, watchdog
 from workers.app import (
     LEVEL_DONE,
     SOLVE_ROWS,
@@ -27,11 +30,14 @@ from workers.app import (
     task_time_limits,
     terminate_tasks,
 )
+from workers.process import die_with_parent
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
 from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
+#: Errors of an unreachable Redis: the job is not at fault, so they never fail it.
+REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError)
 
 settings = get_settings()
 load_plugins(settings)
@@ -81,10 +87,19 @@ def install_embedding_store() -> None:
 @signals.worker_process_init.connect
 def _init_process(**_: object) -> None:
     global _store, _meter, _telemetry
+    die_with_parent()  # a pool process never outlives its worker (even a SIGKILLed one)
     _store = None
     _meter = None
     _telemetry = None
     install_embedding_store()
+
+
+@signals.worker_ready.connect
+def _start_watchdog(sender=None, **_: object) -> None:
+    """The worker that runs orchestration also watches for stalled jobs (workers/watchdog.py)."""
+    queues = {queue.name for queue in getattr(sender.task_consumer, "queues", [])}
+    if settings.control_queue in queues:
+        watchdog.start_thread(app, JobStore.from_settings(settings), sender.hostname)
 
 
 @app.task(name=START_JOB, bind=True, ignore_result=True)
@@ -103,6 +118,8 @@ def start_job(self, job_id: str) -> None:
 def level_done(self, results: list[dict], job_id: str, index: int) -> None:
     try:
         orchestration.level_done(app, store(), results, job_id, index)
+    except REDIS_DOWN as error:  # the watchdog re-sends the fan-in when Redis is back
+        log.warning("job %s: Redis unavailable in the fan-in of level %d: %s", job_id, index, error)
     except SolverError as error:  # preparing the next level's bundles (embedding) failed
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
@@ -131,9 +148,9 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     started = time.perf_counter()
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
-        if result is not None:
+        if result is not None and not result.get("duplicate"):
             queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
-            telemetry().task_done(queue, time.perf_counter() - started, len(result["bundles"]))
+            telemetry().task_done(queue, time.perf_counter() - started, result["bundles"])
     except SoftTimeLimitExceeded:
         return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
     except TransientSolverError as error:
@@ -153,6 +170,9 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
         return _fail(job_id, str(error), task_id)
     except (LevelInputsMissing, orchestration.JobGone):
         return {"skipped": True}
+    except REDIS_DOWN as error:  # not the job's fault: the watchdog re-sends it later
+        log.warning("job %s: Redis unavailable while solving level %d: %s", job_id, index, error)
+        raise
     except Exception:
         log.exception("job %s: bundle task of level %d failed", job_id, index)
         message = orchestration.internal_error(job_id, f"solving level {index + 1}")

@@ -32,12 +32,16 @@ constants). ``lambda_p = sum_i G_i`` plus a margin; ``global`` uses max_p lambda
 
 from __future__ import annotations
 
-import dimod
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from shared.config import Rectifier
 from shared.encodings.base import Decoded, pixel_index, repair, with_margin
 from shared.energy import Costs
+
+if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+    import dimod
 
 NAME = "domain-wall"
 
@@ -128,6 +132,8 @@ def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.Binary
     if height > 1:
         parts.append(_edge_terms(index[:-1], index[1:], m_v))
     rows, cols, data = (np.concatenate(column) for column in zip(*parts, strict=True))
+    import dimod
+
     return dimod.BinaryQuadraticModel.from_numpy_vectors(
         linear.ravel(), (rows, cols, data), offset, dimod.BINARY
     )

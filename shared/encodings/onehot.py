@@ -30,12 +30,16 @@ max_p chi_p for every pixel (larger, hence also sufficient).
 
 from __future__ import annotations
 
-import dimod
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from shared.config import Rectifier
 from shared.encodings.base import Decoded, pixel_index, repair, with_margin
 from shared.energy import Costs
+
+if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+    import dimod
 
 NAME = "one-hot"
 
@@ -89,6 +93,8 @@ def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.Binary
     if height > 1:
         parts.append(_pair_terms(index[:-1], index[1:], costs.pair_v))
     rows, cols, data = (np.concatenate(column) for column in zip(*parts, strict=True))
+    import dimod
+
     return dimod.BinaryQuadraticModel.from_numpy_vectors(
         linear, (rows, cols, data), float(chi.sum()), dimod.BINARY
     )

@@ -6,13 +6,15 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-import dimod
 import numpy as np
 
 from shared.config import MatchConfig
 from shared.energy import Costs
+
+if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+    import dimod
 
 
 @dataclass(frozen=True)

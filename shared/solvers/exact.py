@@ -9,13 +9,15 @@ brute-force ``ExactSolver``, which is only feasible for tiny problems.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import dimod
 import numpy as np
 
 from shared.energy import Costs
 from shared.solvers.base import Availability, SolverError, SolveResult, result_from_sampleset
+
+if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+    import dimod
 
 #: dimod.ExactSolver enumerates 2^n states; beyond this it is hopeless.
 BRUTE_FORCE_LIMIT = 24
@@ -83,5 +85,7 @@ class ExactSolver:
                 "row DP instead"
             )
         started = time.perf_counter()
+        import dimod
+
         sampleset = dimod.ExactSolver().sample(bqm).lowest()
         return result_from_sampleset(sampleset, bqm, started)

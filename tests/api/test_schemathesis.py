@@ -35,4 +35,8 @@ def openapi_schema(api):
 @pytest.mark.timeout(120)
 def test_no_request_ends_in_a_server_error(case, admin_headers):
     response = case.call(headers=admin_headers)
+    if case.path == "/readyz" and response.status_code == 503:
+        # its documented answer here: no worker consumes the control queue in these tests
+        assert response.json()["status"] == "unavailable" and response.json()["redis"] == "ok"
+        return
     assert response.status_code < 500, f"{case.method} {case.formatted_path}: {response.text}"

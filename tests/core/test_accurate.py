@@ -184,3 +184,12 @@ def test_the_paper_preset_on_tsukuba_is_unchanged(tsukuba):
     left, right = load_pair(tsukuba.left, tsukuba.right)
     config = MatchConfig(preset=Preset.PAPER, max_disparity=20)
     assert _digest(run_pipeline(left, right, config).disparity) == "b33a223c855eb795"
+
+
+def test_the_weighted_median_is_deterministic():
+    rng = np.random.default_rng(0)
+    disparity = rng.integers(0, 20, (60, 80)).astype(np.float32)
+    guide = rng.random((60, 80, 3)).astype(np.float32)  # colour: quantised by k-means
+    first = filters.weighted_median(disparity, guide, 9, 25.5)
+    for _ in range(3):
+        np.testing.assert_array_equal(filters.weighted_median(disparity, guide, 9, 25.5), first)

@@ -1,0 +1,20 @@
+"""Process lifetime: children die with the process that started them (Linux parent-death
+signal), so nothing ``qhsm serve`` or a Celery worker starts outlives it, even after SIGKILL."""
+
+from __future__ import annotations
+
+import ctypes
+import signal
+
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(signum: int = signal.SIGKILL) -> None:
+    """Ask Linux to send ``signum`` to this process when its parent (thread) dies.
+
+    Used as ``preexec_fn`` and in Celery pool processes; a no-op where prctl is missing."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0)
+    except (OSError, AttributeError):
+        return

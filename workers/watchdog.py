@@ -1,0 +1,279 @@
+"""The watchdog: a running job whose progress has not moved for ``watchdog_stall_seconds`` gets
+its unsolved bundles re-sent, so a job whose worker was SIGKILLed, or whose tasks were lost in a
+Redis outage, finishes within minutes instead of waiting for the 6-hour visibility timeout.
+
+Re-sending is safe because results are idempotent: solved bundles are kept in the store by first
+row (``JobStore.save_bundles``), and the level's fan-in assembles from them and runs at most once.
+What cannot be resumed (a level that was never launched, or whose inputs are gone) restarts the
+job from its uploads; bundle seeds are per bundle, so the result is the undisturbed run's. After
+``watchdog_max_resends`` attempts without progress the job fails with a reason. A job whose
+solver queue still holds messages and has a consumer is waiting its turn, not stalled.
+
+It runs as a thread of every worker that consumes the control queue; a Redis lock makes one of
+them act at a time. Re-sent chunks are counted by ``workers.telemetry`` (``/metrics``:
+``qhsm_watchdog_resends_total``); ``resend_count`` reads that count.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import redis
+from celery import Celery
+
+from shared.bundles import bundle_key
+from workers import orchestration
+from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB
+from workers.store import JobRecord, JobState, JobStore
+from workers.telemetry import Telemetry
+
+log = logging.getLogger(__name__)
+
+#: Redis key (under the service's prefix) of the lock that lets one watchdog act.
+LOCK_KEY = "watchdog:lock"
+PAGE = 500
+
+
+def resend_count(store: JobStore) -> int:
+    """Chunks (and fan-ins, restarts) the watchdog re-sent so far, all jobs (the metric's value)."""
+    telemetry = Telemetry(store.redis, store.prefix)
+    return int(store.redis.get(telemetry.key("watchdog_resends")) or 0)
+
+
+def interval(stall_seconds: float) -> float:
+    """How often the watchdog looks: a few times per stall period, at most every 30 s."""
+    return max(0.5, min(30.0, stall_seconds / 4))
+
+
+@dataclass
+class _Seen:
+    signature: tuple
+    since: float
+    attempts: int = 0
+
+
+@dataclass
+class Watchdog:
+    celery: Celery
+    store: JobStore
+    name: str
+    clock: Callable[[], float] = time.monotonic
+    seen: dict[str, _Seen] = field(default_factory=dict)
+
+    @property
+    def telemetry(self) -> Telemetry:
+        return Telemetry(self.store.redis, self.store.prefix)
+
+    @property
+    def stall(self) -> float:
+        return self.store.settings.watchdog_stall_seconds
+
+    def running(self) -> Iterator[JobRecord]:
+        """Every running job (records that fail to load are skipped)."""
+        index = self.store.key("jobs")
+        offset = 0
+        while True:
+            ids = [
+                raw.decode() for raw in self.store.redis.zrange(index, offset, offset + PAGE - 1)
+            ]
+            if not ids:
+                return
+            offset += len(ids)
+            raws = self.store.redis.mget([self.store.key("job", job_id) for job_id in ids])
+            for raw in raws:
+                if raw is None:
+                    continue
+                try:
+                    record = JobRecord.model_validate_json(raw)
+                except ValueError:
+                    continue
+                if record.state is JobState.RUNNING:
+                    yield record
+
+    def signature(self, record: JobRecord) -> tuple:
+        """What moves while a job progresses: its level, levels done, bundles solved."""
+        solved = self.store.solved_count(record.id, record.level - 1) if record.level else 0
+        return (record.level, len(record.levels), solved)
+
+    def leader(self) -> bool:
+        """Hold (or renew) the lock that lets one watchdog act at a time."""
+        key, ttl = self.store.key(LOCK_KEY), max(2, int(3 * interval(self.stall)) + 1)
+        redis_ = self.store.redis
+        if redis_.set(key, self.name, nx=True, ex=ttl):
+            return True
+        if redis_.get(key) == self.name.encode():
+            redis_.expire(key, ttl)
+            return True
+        return False
+
+    def tick(self) -> list[tuple[str, str]]:
+        """Look at every running job once; returns (job id, action) for the stalled ones."""
+        now = self.clock()
+        actions = []
+        running = set()
+        for record in self.running():
+            running.add(record.id)
+            signature = self.signature(record)
+            seen = self.seen.get(record.id)
+            if seen is None or seen.signature != signature:
+                self.seen[record.id] = _Seen(signature, now)
+                continue
+            if now - seen.since < self.stall:
+                continue
+            seen.since = now
+            action = self.recover(record, seen.attempts + 1)
+            if action not in ("in-flight", "waiting"):
+                seen.attempts += 1
+            actions.append((record.id, action))
+        for job_id in set(self.seen) - running:
+            del self.seen[job_id]
+        return actions
+
+    def recover(self, record: JobRecord, attempt: int) -> str:
+        settings = self.store.settings
+        solver = record.config.solver
+        consumed = self.consumed_queues()
+        if consumed is not None and solver in consumed and self.queue_length(solver) > 0:
+            return "waiting"  # its tasks may be behind others in a busy queue: not stalled
+        if attempt > settings.watchdog_max_resends:
+            reason = (
+                f"no progress for {self.stall:g} s even after {attempt - 1} re-sends of its "
+                f"unsolved work; {self.queue_hint(record.config.solver)} Resubmit the job"
+            )
+            self.store.fail(record.id, reason)
+            log.warning("job %s: failed by the watchdog: %s", record.id, reason)
+            return "failed"
+        index = record.level - 1
+        resumable = (
+            record.level > 0
+            and len(record.levels) == index
+            and self.store.has_level(record.id, index)
+        )
+        return self.resend(record, index) if resumable else self.restart(record)
+
+    def resend(self, record: JobRecord, index: int) -> str:
+        """Re-send the level's unsolved bundles (with a fan-in), or just the fan-in."""
+        settings = self.store.settings
+        config = record.config
+        inputs, _ = self.store.load_level(record.id, index)
+        solved = self.store.solved_rows(record.id, index)
+        expected = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
+        missing = [b for b in expected if bundle_key(b) not in solved]
+        busy = self.in_flight(record.id, index)
+        if busy is not None and missing and all(bundle_key(b) in busy for b in missing):
+            return "in-flight"  # live workers are solving them: slow, not stalled
+        missing = [b for b in missing if busy is None or bundle_key(b) not in busy]
+        if not missing:
+            log.warning(
+                "job %s: level %d solved but not assembled; re-sending its fan-in",
+                record.id,
+                index + 1,
+            )
+            self.celery.send_task(
+                LEVEL_DONE, args=([], record.id, index), queue=settings.control_queue
+            )
+            self.telemetry.resent(1)
+            return "fan-in"
+        chunks = orchestration.group_bundles(
+            missing, config, orchestration.rows_per_task(settings, config.solver)
+        )
+        log.warning(
+            "job %s: no progress for %g s; re-sending %d unsolved bundles of level %d",
+            record.id, self.stall, len(missing), index + 1,
+        )  # fmt: skip
+        orchestration.fan_out(self.celery, settings, record.id, index, config.solver, chunks)
+        self.telemetry.resent(len(chunks))
+        return "resent"
+
+    def restart(self, record: JobRecord) -> str:
+        """Start the job again from its uploads (nothing of the stalled level can be resumed)."""
+
+        def reset(current: JobRecord) -> JobRecord | None:
+            if current.state is not JobState.RUNNING or current.level != record.level:
+                return None
+            return current.model_copy(
+                update={"state": JobState.QUEUED, "level": 0, "bundles_total": 0, "levels": []}
+            )
+
+        updated = self.store.update(record.id, reset)
+        if updated is None or updated.state is not JobState.QUEUED:
+            return "none"
+        for key in self.store.redis.scan_iter(match=self.store.key("job", record.id, "level", "*")):
+            self.store.redis.delete(key)
+        self.store.redis.delete(self.store.key("job", record.id, "chunks"))
+        log.warning(
+            "job %s: no progress for %g s at level %d; restarting it",
+            record.id,
+            self.stall,
+            record.level,
+        )
+        self.celery.send_task(START_JOB, args=(record.id,), queue=self.store.settings.control_queue)
+        self.telemetry.resent(1)
+        return "restarted"
+
+    def in_flight(self, job_id: str, index: int) -> set[str] | None:
+        """``bundle_key`` of the level's bundles that live workers are solving or hold (None
+        when the workers cannot be asked)."""
+        try:
+            inspect = self.celery.control.inspect(timeout=self.store.settings.inspect_timeout)
+            replies = [inspect.active() or {}, inspect.reserved() or {}]
+        except Exception as error:
+            log.warning("watchdog: cannot ask the workers what they run: %s", error)
+            return None
+        rows: set[str] = set()
+        for reply in replies:
+            for tasks in reply.values():
+                for task in tasks:
+                    args = task.get("args") or []
+                    if task.get("name") == SOLVE_ROWS and args[:2] == [job_id, index]:
+                        rows.update(bundle_key(spec) for spec in args[2])
+        return rows
+
+    def consumed_queues(self) -> set[str] | None:
+        """Queues some live worker consumes (None when the workers cannot be asked)."""
+        try:
+            inspect = self.celery.control.inspect(timeout=self.store.settings.inspect_timeout)
+            replies = inspect.active_queues() or {}
+        except Exception:
+            return None
+        return {queue["name"] for queues in replies.values() for queue in queues}
+
+    def queue_length(self, queue: str) -> int:
+        """Messages waiting in a queue (kombu's Redis lists: the queue, and its priorities)."""
+        base = self.store.key(queue)
+        keys = [base, *(f"{base}\x06\x16{priority}" for priority in (3, 6, 9))]
+        with self.store.redis.pipeline() as pipe:
+            for key in keys:
+                pipe.llen(key)
+            return sum(pipe.execute())
+
+    def queue_hint(self, solver: str) -> str:
+        """Whether any worker consumes the solver's queue (the usual cause of a stall)."""
+        consumed = self.consumed_queues()
+        if consumed is not None and solver not in consumed:
+            return f"no worker consumes the {solver!r} queue."
+        return ""
+
+    def run(self, stop: threading.Event) -> None:
+        """Tick until ``stop``; errors (Redis down) are logged and the next tick tries again."""
+        while not stop.wait(interval(self.stall)):
+            try:
+                if self.leader():
+                    self.tick()
+            except redis.RedisError as error:
+                log.warning("watchdog: Redis unavailable (%s); trying again", error)
+            except Exception:
+                log.exception("watchdog tick failed")
+
+
+def start_thread(celery: Celery, store: JobStore, name: str) -> threading.Event:
+    """Run a watchdog in a daemon thread; set the returned event to stop it."""
+    stop = threading.Event()
+    watchdog = Watchdog(celery, store, name)
+    threading.Thread(target=watchdog.run, args=(stop,), name="qhsm-watchdog", daemon=True).start()
+    log.info("watchdog started (stall %g s)", watchdog.stall)
+    return stop
