@@ -21,7 +21,7 @@ from shared.bundles import bundle_rows, bundle_seed
 from shared.config import DataTerm, LevelConfig, MatchConfig
 from shared.data_terms import ad_census_volume, bin_minimum, gather, squared_difference
 from shared.encodings import get_codec
-from shared.energy import Costs, mrf_costs, mrf_energy
+from shared.energy import Costs, mrf_costs, mrf_energy, row_energies
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
 from shared.solvers import get_solver
@@ -227,16 +227,21 @@ def _solve_on_costs(
         first, last = block[0][0], block[-1][1]
         costs = inputs.costs(config, first, last)
         labels = solver.solve_rows(costs, config.bundle_height)
+        chains = row_energies(costs, labels) if config.bundle_height == 1 else None
         share = (time.perf_counter() - started) / len(block)
         for start, stop in block:
-            rows = costs.rows(start - first, stop - first)
             bundle_labels = labels[start - first : stop - first]
+            energy = (
+                float(chains[start - first])
+                if chains is not None
+                else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+            )
             results.append(
                 BundleResult(
                     row_start=start,
                     row_stop=stop,
                     labels=bundle_labels,
-                    energy=mrf_energy(rows, bundle_labels),
+                    energy=energy,
                     repaired=0,
                     wall_time=share,
                 )
