@@ -19,7 +19,13 @@ import numpy as np
 
 from shared.bundles import bundle_rows, bundle_seed
 from shared.config import DataTerm, LevelConfig, MatchConfig
-from shared.data_terms import ad_census_volume, bin_minimum, gather, squared_difference
+from shared.data_terms import (
+    ad_census_volume,
+    bin_minimum,
+    gather,
+    squared_difference,
+    squared_volume,
+)
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_costs, mrf_energy, row_energies
 from shared.images import to_gray
@@ -111,11 +117,12 @@ class LevelInputs:
             for v in range(self.views)
         ]
 
-    def _bin_costs(self, view: int, first: int, last: int) -> np.ndarray:
-        """AD-census cost of every label (bins, last - first, w) on rows of one view."""
+    def _bin_costs(self, data_term: DataTerm, view: int, first: int, last: int) -> np.ndarray:
+        """The data term of every label (bins, last - first, w) on rows of one view."""
         if self.volumes is None:
             left, right = self.view_images()[view]
-            volume = ad_census_volume(left, right, self.plan.max_disparity, first, last)
+            volume_of = ad_census_volume if data_term is DataTerm.AD_CENSUS else squared_volume
+            volume = volume_of(left, right, self.plan.max_disparity, first, last)
             return bin_minimum(volume, self.plan.bin_width)
         if self._binned is None:
             self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
@@ -131,10 +138,12 @@ class LevelInputs:
             left, right = self.view_images()[view]
             candidates = self.candidates[base + first : base + last]
             guide = to_gray(left[first:last])
-            if config.data_term is DataTerm.SQUARED:
+            if config.data_term is DataTerm.SQUARED and self.plan.bin_width == 1:
+                # the paper's path: evaluated at the candidates only
                 unary = squared_difference(guide, to_gray(right[first:last]), candidates)
             else:
-                unary = gather(self._bin_costs(view, first, last), candidates)
+                bin_costs = self._bin_costs(config.data_term, view, first, last)
+                unary = gather(bin_costs, candidates)
             blocks.append(
                 mrf_costs(
                     unary,

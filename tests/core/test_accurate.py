@@ -193,3 +193,21 @@ def test_the_weighted_median_is_deterministic():
     first = filters.weighted_median(disparity, guide, 9, 25.5)
     for _ in range(3):
         np.testing.assert_array_equal(filters.weighted_median(disparity, guide, 9, 25.5), first)
+
+
+def test_the_squared_difference_volume_matches_it_at_the_candidates():
+    from shared.data_terms import squared_difference, squared_volume
+
+    scene = make_scene(20, 30, max_disparity=6, seed=4)
+    volume = squared_volume(scene.left, scene.right, 6, 3, 9)
+    candidates = np.broadcast_to(np.arange(7, dtype=np.int32), (6, 30, 7))
+    expected = squared_difference(scene.left[3:9], scene.right[3:9], candidates)
+    np.testing.assert_allclose(np.moveaxis(volume, 0, -1), expected)
+
+
+def test_each_data_term_works_in_the_bin_pyramid(scene):
+    """Coarse levels' labels are bins: the squared difference too takes a bin's best disparity."""
+    config = MatchConfig(max_disparity=16, data_term="squared")
+    result = run_pipeline(scene.left, scene.right, config)
+    assert [level.bin_width for level in result.levels] == [4, 2, 1]
+    assert evaluate(result.disparity, scene.disparity).bpp < 15.0
