@@ -211,3 +211,20 @@ def test_each_data_term_works_in_the_bin_pyramid(scene):
     result = run_pipeline(scene.left, scene.right, config)
     assert [level.bin_width for level in result.levels] == [4, 2, 1]
     assert evaluate(result.disparity, scene.disparity).bpp < 15.0
+
+
+def test_subpixel_finds_the_vertex_of_a_parabolic_cost():
+    truth = np.array([[2.3, 4.75, 1.5]], np.float32)
+    d = np.arange(8, dtype=np.float32)[:, None, None]
+    volume = (d - truth[None]) ** 2  # (D + 1, 1, 3): minimum at the true sub-pixel value
+    refined = filters.subpixel(np.rint(truth), volume)
+    np.testing.assert_allclose(refined, [[2.3, 4.75, 1.5]], atol=1e-5)
+
+
+def test_subpixel_lowers_the_rmse_on_a_slanted_scene(scene):
+    plain = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=16))
+    refined = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=16, subpixel=True))
+    assert (
+        evaluate(refined.disparity, scene.disparity).rmse
+        < evaluate(plain.disparity, scene.disparity).rmse
+    )
