@@ -23,7 +23,8 @@ import maxflow
 import numpy as np
 
 from shared.config import LevelConfig, MatchConfig, Regularizer
-from shared.energy import Costs, level_costs
+from shared.energy import Costs, level_costs, row_energies
+from shared.filters import fill_from_background
 from shared.pyramid import initial_candidates
 from shared.solvers.exact import solve_chains
 
@@ -144,11 +145,11 @@ def heidari(
         block = minimum_cut_rows(costs)
         cut_seconds += time.perf_counter() - cut_started
         labels[start:stop] = block
-        block_energy = _row_energies(costs, block)
+        block_energy = row_energies(costs, block)
         energy += float(block_energy.sum())
         if cross_check:
             dp_started = time.perf_counter()
-            dp_energy = _row_energies(costs, solve_chains(costs))
+            dp_energy = row_energies(costs, solve_chains(costs))
             dp_seconds += time.perf_counter() - dp_started
             gap = np.abs(block_energy - dp_energy) / np.maximum(np.abs(dp_energy), 1e-12)
             worst_gap = max(worst_gap, float(gap.max()))
@@ -169,38 +170,7 @@ def heidari(
     return BaselineResult(disparity=disparity.astype(np.float32), seconds=seconds, info=info)
 
 
-def _row_energies(costs: Costs, labels: np.ndarray) -> np.ndarray:
-    """Energy of each row of ``labels`` under the chain (unary and horizontal) terms."""
-    height, width = labels.shape
-    rows, cols = np.ogrid[:height, :width]
-    energy = costs.unary[rows, cols, labels].sum(axis=1)
-    if width > 1:
-        energy += costs.pair_h[rows, cols[:, :-1], labels[:, :-1], labels[:, 1:]].sum(axis=1)
-    return energy
-
-
 # --- OpenCV StereoSGBM ---------------------------------------------------------------------
-
-
-def fill_invalid(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Fill invalid pixels from the nearest valid ones in their row, background first.
-
-    Each invalid pixel takes the smaller (farther) of the nearest valid disparities to its left
-    and right, the usual occlusion fill; a row with no valid pixel becomes 0.
-    """
-    height, width = disparity.shape
-    columns = np.broadcast_to(np.arange(width), (height, width))
-    left_index = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
-    right_index = np.minimum.accumulate(np.where(valid, columns, width)[:, ::-1], axis=1)[:, ::-1]
-    rows = np.arange(height)[:, None]
-    inf = np.float32(np.inf)
-    from_left = np.where(left_index >= 0, disparity[rows, np.maximum(left_index, 0)], inf)
-    from_right = np.where(
-        right_index < width, disparity[rows, np.minimum(right_index, width - 1)], inf
-    )
-    nearest = np.minimum(from_left, from_right)
-    nearest = np.where(np.isfinite(nearest), nearest, 0.0)
-    return np.where(valid, disparity, nearest).astype(np.float32)
 
 
 def sgbm(
@@ -209,7 +179,8 @@ def sgbm(
     """OpenCV semi-global block matching with the parameters of OpenCV's stereo_match sample.
 
     Disparities are searched in 0..max (rounded up to OpenCV's multiple of 16, then clipped to
-    max); invalid pixels are filled by :func:`fill_invalid`.
+    max); invalid pixels are filled by :func:`shared.filters.fill_from_background` (rows
+    without a valid pixel become 0).
     """
     started = time.perf_counter()
     num_disparities = 16 * int(np.ceil((max_disparity + 1) / 16))
@@ -228,7 +199,7 @@ def sgbm(
     to_uint8 = lambda image: np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)  # noqa: E731
     raw = matcher.compute(to_uint8(left), to_uint8(right)).astype(np.float32) / 16.0
     valid = raw >= 0
-    disparity = np.clip(fill_invalid(raw, valid), 0, max_disparity)
+    disparity = np.clip(fill_from_background(raw, valid, empty=0.0), 0, max_disparity)
     return BaselineResult(
         disparity=disparity,
         seconds=time.perf_counter() - started,

@@ -51,6 +51,7 @@ import numpy as np
 
 from shared.baselines import heidari, sgbm
 from shared.config import (
+    AUTO,
     DataTerm,
     MatchConfig,
     Preset,
@@ -189,7 +190,7 @@ class BenchOptions:
     processes: int = 0
     scale: float | None = None
     border: int | None = None
-    max_disparity: int | None = None
+    max_disparity: int | str | None = None  # None: each scene's protocol; "auto": estimated
 
 
 def parse_solver_params(items: Sequence[str]) -> dict[str, dict[str, Any]]:
@@ -254,7 +255,7 @@ def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> Match
     return MatchConfig(
         preset=variant.preset,
         solver=variant.solver,
-        max_disparity=scene.max_disparity,
+        max_disparity=AUTO if options.max_disparity == AUTO else scene.max_disparity,
         bundle_height=options.bundle_height,
         encoding=encoding_for(variant.solver, options),
         seed=options.seed,
@@ -299,7 +300,13 @@ def local_runner(processes: int = 0) -> SceneRunner:
                 result = run_pipeline(left, right, config, solve_level)
         else:
             result = run_pipeline(left, right, config)
-        return RunOutput(result.disparity, result.seconds, result.summary()["levels"])
+        summary = result.summary()
+        return RunOutput(
+            result.disparity,
+            result.seconds,
+            summary["levels"],
+            info={"disparity_range": summary["max_disparity"]},
+        )
 
     return run
 
@@ -468,7 +475,7 @@ def select_scenes(options: BenchOptions) -> list[Scene]:
         options.dataset,
         scale=options.scale,
         border=options.border,
-        max_disparity=options.max_disparity,
+        max_disparity=None if options.max_disparity == AUTO else options.max_disparity,
     )
     if not found:
         raise BenchError(
@@ -548,7 +555,11 @@ def _log_line(run: Run) -> str:
     head = f"{run.scene} {run.experiment}/{run.variant}:"
     if run.status != "ok":
         return f"{head} {run.status} ({run.reason})"
-    return f"{head} RMSE {_fmt(run.rmse)} BPP {_fmt(run.bpp)} in {_fmt(run.seconds)} s"
+    line = f"{head} RMSE {_fmt(run.rmse)} BPP {_fmt(run.bpp)} in {_fmt(run.seconds)} s"
+    found = run.info.get("disparity_range")
+    if found and found["source"] != "given":
+        line += f" (range {found['max_disparity']} px, {found['source']})"
+    return line
 
 
 # --- reporting -------------------------------------------------------------------------------

@@ -423,7 +423,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument("--scale", type=float, help="override every scene's ground-truth scale")
     bench.add_argument("--border", type=int, help="override every scene's ignored border (px)")
-    bench.add_argument("--max-disparity", type=int, help="override every scene's search range")
+    bench.add_argument(
+        "--max-disparity",
+        type=_max_disparity,
+        metavar="auto|N",
+        help="override every scene's search range (auto: estimated per scene, reported per run)",
+    )
     bench.set_defaults(handler=cmd_bench)
 
     datasets = commands.add_parser("datasets", help="fetch or inspect stereo datasets")

@@ -42,6 +42,22 @@ def squared_difference(left: np.ndarray, right: np.ndarray, candidates: np.ndarr
     return diff * diff
 
 
+def squared_volume(
+    left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+) -> np.ndarray:
+    """The squared difference of rows [start, stop) at every disparity 0..D, (D + 1, n, w)
+    float64 (what the bin pyramid needs to take a bin's minimum; whole views in, gray or colour)."""
+    left_rows = to_gray(left[start:stop]).astype(np.float64)
+    right_rows = _shifted(to_gray(right[start:stop]).astype(np.float64), max_disparity)
+    width = left_rows.shape[1]
+    return np.stack(
+        [
+            (left_rows - right_rows[:, max_disparity - d : max_disparity - d + width]) ** 2
+            for d in range(max_disparity + 1)
+        ]
+    )
+
+
 def census(gray: np.ndarray) -> np.ndarray:
     """5x5 census codes (24 bits) of the rows 2..n-3 of ``gray`` (n, w); columns replicate."""
     reach = CENSUS_WINDOW // 2

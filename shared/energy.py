@@ -146,6 +146,18 @@ def mrf_energy(costs: Costs, labels: np.ndarray) -> float:
     return float(total)
 
 
+def row_energies(costs: Costs, labels: np.ndarray) -> np.ndarray:
+    """Energy of each row of a labelling (h, w) as a chain (unary and horizontal terms): the
+    energies of single-row bundles, all at once."""
+    labels = np.asarray(labels, dtype=np.intp)
+    height, width = labels.shape
+    rows, cols = np.ogrid[:height, :width]
+    total = costs.unary[rows, cols, labels].sum(axis=1)
+    if width > 1:
+        total += costs.pair_h[rows, cols[:, :-1], labels[:, :-1], labels[:, 1:]].sum(axis=1)
+    return total
+
+
 def disparities(costs: Costs, labels: np.ndarray) -> np.ndarray:
     """The disparity each pixel's label stands for (float32, level pixels)."""
     picked = np.take_along_axis(costs.candidates, labels[:, :, None].astype(np.intp), axis=2)

@@ -50,10 +50,12 @@ def left_right_check(left: np.ndarray, right: np.ndarray, tolerance: float = 1.0
     return inside & (np.abs(left - back) <= tolerance)
 
 
-def fill_from_background(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def fill_from_background(
+    disparity: np.ndarray, valid: np.ndarray, empty: float | None = None
+) -> np.ndarray:
     """Replace invalid pixels by the smaller of the nearest valid disparities to their left and
     right on the row (occluded pixels belong to the farther surface); rows with no valid pixel
-    are left as they are."""
+    are left as they are, or set to ``empty`` when given."""
     height, width = disparity.shape
     columns = np.broadcast_to(np.arange(width), (height, width))
     left_index = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
@@ -65,6 +67,8 @@ def fill_from_background(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray
         right_index < width, disparity[rows, np.minimum(right_index, width - 1)], inf
     )
     nearest = np.minimum(from_left, from_right)
+    if empty is not None:
+        nearest = np.where(np.isfinite(nearest), nearest, np.float32(empty))
     return np.where(valid | ~np.isfinite(nearest), disparity, nearest).astype(np.float32)
 
 

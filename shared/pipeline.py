@@ -170,8 +170,9 @@ def finish(
     ``views`` is 2) and the pair's :func:`match_views`."""
     height = level_map.shape[0] // views
     disparity = level_map[:height]
-    if config.subpixel:
-        disparity = filters.subpixel(disparity, _full_volume(left, right, last, 0, height))
+    if config.subpixel:  # the cost of every disparity (ad-census: validated) around the label
+        volume = ad_census_volume(left, right, last.max_disparity, 0, height)
+        disparity = filters.subpixel(disparity, volume)
     if disparity.shape != left.shape[:2]:
         disparity = pyramid.upsample_disparity(disparity, left.shape[:2])
     if views == 2:
@@ -190,13 +191,6 @@ def finish(
             config.bilateral_sigma_space,
         )
     return disparity.astype(np.float32)
-
-
-def _full_volume(
-    left: np.ndarray, right: np.ndarray, plan: LevelPlan, start: int, stop: int
-) -> np.ndarray:
-    """The aggregated AD-census cost of every disparity (the sub-pixel fit reads it)."""
-    return ad_census_volume(left, right, plan.max_disparity, start, stop)
 
 
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:

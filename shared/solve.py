@@ -20,9 +20,15 @@ import numpy as np
 
 from shared.bundles import Bundle, bundle_rows, bundle_seed, owned_columns, segment_columns
 from shared.config import AUTO, DataTerm, LevelConfig, MatchConfig
-from shared.data_terms import ad_census_volume, bin_minimum, gather, squared_difference
+from shared.data_terms import (
+    ad_census_volume,
+    bin_minimum,
+    gather,
+    squared_difference,
+    squared_volume,
+)
 from shared.encodings import get_codec
-from shared.energy import Costs, mrf_costs, mrf_energy
+from shared.energy import Costs, mrf_costs, mrf_energy, row_energies
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
 from shared.solvers import get_solver
@@ -145,11 +151,12 @@ class LevelInputs:
             for v in range(self.views)
         ]
 
-    def _bin_costs(self, view: int, first: int, last: int) -> np.ndarray:
-        """AD-census cost of every label (bins, last - first, w) on rows of one view."""
+    def _bin_costs(self, data_term: DataTerm, view: int, first: int, last: int) -> np.ndarray:
+        """The data term of every label (bins, last - first, w) on rows of one view."""
         if self.volumes is None:
             left, right = self.view_images()[view]
-            volume = ad_census_volume(left, right, self.plan.max_disparity, first, last)
+            volume_of = ad_census_volume if data_term is DataTerm.AD_CENSUS else squared_volume
+            volume = volume_of(left, right, self.plan.max_disparity, first, last)
             return bin_minimum(volume, self.plan.bin_width)
         if self._binned is None:
             self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
@@ -165,10 +172,12 @@ class LevelInputs:
             left, right = self.view_images()[view]
             candidates = self.candidates[base + first : base + last]
             guide = to_gray(left[first:last])
-            if config.data_term is DataTerm.SQUARED:
+            if config.data_term is DataTerm.SQUARED and self.plan.bin_width == 1:
+                # the paper's path: evaluated at the candidates only
                 unary = squared_difference(guide, to_gray(right[first:last]), candidates)
             else:
-                unary = gather(self._bin_costs(view, first, last), candidates)
+                bin_costs = self._bin_costs(config.data_term, view, first, last)
+                unary = gather(bin_costs, candidates)
             blocks.append(
                 mrf_costs(
                     unary,
@@ -347,16 +356,21 @@ def _solve_on_costs(
         first, last = block[0][0], block[-1][1]
         costs = inputs.costs(config, first, last)
         labels = solver.solve_rows(costs, config.bundle_height)
+        chains = row_energies(costs, labels) if config.bundle_height == 1 else None
         share = (time.perf_counter() - started) / len(block)
         for start, stop in block:
-            rows = costs.rows(start - first, stop - first)
             bundle_labels = labels[start - first : stop - first]
+            energy = (
+                float(chains[start - first])
+                if chains is not None
+                else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+            )
             results.append(
                 BundleResult(
                     row_start=start,
                     row_stop=stop,
                     labels=bundle_labels,
-                    energy=mrf_energy(rows, bundle_labels),
+                    energy=energy,
                     repaired=0,
                     wall_time=share,
                 )

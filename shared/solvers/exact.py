@@ -31,17 +31,22 @@ def solve_chains(costs: Costs) -> np.ndarray:
     """
     unary, pair = costs.unary, costs.pair_h
     height, width, labels = unary.shape
-    back = np.empty((height, max(width - 1, 0), labels), dtype=np.int16)
-    message = unary[:, 0].copy()
+    # column-major copies: each step reads one contiguous column of every row
+    pair_columns = np.ascontiguousarray(np.moveaxis(pair, 1, 0))  # (w - 1, h, K, K)
+    unary_columns = np.ascontiguousarray(np.moveaxis(unary, 1, 0))  # (w, h, K)
+    back = np.empty((max(width - 1, 0), height, labels), dtype=np.int16)
+    message = unary_columns[0].copy()
+    total = np.empty((height, labels, labels))
     for col in range(1, width):
-        total = message[:, :, None] + pair[:, col - 1]  # (h, K_prev, K)
-        back[:, col - 1] = total.argmin(axis=1)
-        message = total.min(axis=1) + unary[:, col]
+        np.add(message[:, :, None], pair_columns[col - 1], out=total)  # (h, K_prev, K)
+        back[col - 1] = total.argmin(axis=1)
+        message = total.min(axis=1)
+        message += unary_columns[col]
     result = np.empty((height, width), dtype=np.int32)
     result[:, -1] = message.argmin(axis=1)
     rows = np.arange(height)
     for col in range(width - 1, 0, -1):
-        result[:, col - 1] = back[rows, col - 1, result[:, col]]
+        result[:, col - 1] = back[col - 1, rows, result[:, col]]
     return result
 
 

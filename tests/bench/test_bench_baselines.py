@@ -8,7 +8,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared.baselines import (
-    fill_invalid,
     heidari,
     heidari_config,
     linear_slopes,
@@ -17,6 +16,7 @@ from shared.baselines import (
 )
 from shared.config import LevelConfig, Regularizer
 from shared.energy import Costs, level_costs, mrf_energy
+from shared.filters import fill_from_background
 from shared.metrics import evaluate
 from shared.pyramid import initial_candidates
 from shared.solvers.exact import solve_chains
@@ -92,12 +92,13 @@ def test_min_cut_refuses_costs_it_cannot_represent():
         minimum_cut_rows(shifted)
 
 
-def test_fill_invalid_takes_the_farther_neighbour_along_the_row():
-    disparity = np.array([[0, 5, 0, 0, 2, 0], [0, 0, 0, 0, 0, 0]], np.float32)
+def test_fill_takes_the_farther_neighbour_along_the_row():
+    disparity = np.array([[0, 5, 0, 0, 2, 0], [7, 7, 7, 7, 7, 7]], np.float32)
     valid = np.array([[0, 1, 0, 0, 1, 0], [0, 0, 0, 0, 0, 0]], bool)
-    filled = fill_invalid(disparity, valid)
+    filled = fill_from_background(disparity, valid, empty=0.0)
     np.testing.assert_array_equal(filled[0], [5, 5, 2, 2, 2, 2])
-    np.testing.assert_array_equal(filled[1], 0)
+    np.testing.assert_array_equal(filled[1], 0)  # no valid pixel in the row: the empty value
+    np.testing.assert_array_equal(fill_from_background(disparity, valid)[1], 7)  # or untouched
 
 
 def test_sgbm_fills_every_pixel_and_matches_a_synthetic_scene(scene):

@@ -211,3 +211,19 @@ def test_a_protocol_that_leaves_no_pixel_fails_the_run_not_the_bench(tiny_datase
     assert {r["status"] for r in results["runs"]} == {"failed"}
     assert all("no pixel left" in r["reason"] for r in results["runs"])
     assert "failed: evaluation" in (tmp_path / "results.md").read_text()
+
+
+def test_an_estimated_range_is_reported_per_run(tiny_dataset, tmp_path):
+    options = BenchOptions(
+        dataset=tiny_dataset,
+        out=tmp_path,
+        scenes=["cones"],
+        experiments=["accurate"],
+        max_disparity="auto",
+    )
+    lines: list[str] = []
+    results = run_bench(options, log=lines.append)
+    full = next(r for r in results["runs"] if r["variant"] == "accurate")
+    assert full["config"]["max_disparity"] == "auto"
+    assert full["info"]["disparity_range"]["source"].startswith("auto")
+    assert any("range" in line and "auto" in line for line in lines)

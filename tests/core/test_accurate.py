@@ -193,3 +193,38 @@ def test_the_weighted_median_is_deterministic():
     first = filters.weighted_median(disparity, guide, 9, 25.5)
     for _ in range(3):
         np.testing.assert_array_equal(filters.weighted_median(disparity, guide, 9, 25.5), first)
+
+
+def test_the_squared_difference_volume_matches_it_at_the_candidates():
+    from shared.data_terms import squared_difference, squared_volume
+
+    scene = make_scene(20, 30, max_disparity=6, seed=4)
+    volume = squared_volume(scene.left, scene.right, 6, 3, 9)
+    candidates = np.broadcast_to(np.arange(7, dtype=np.int32), (6, 30, 7))
+    expected = squared_difference(scene.left[3:9], scene.right[3:9], candidates)
+    np.testing.assert_allclose(np.moveaxis(volume, 0, -1), expected)
+
+
+def test_each_data_term_works_in_the_bin_pyramid(scene):
+    """Coarse levels' labels are bins: the squared difference too takes a bin's best disparity."""
+    config = MatchConfig(max_disparity=16, data_term="squared")
+    result = run_pipeline(scene.left, scene.right, config)
+    assert [level.bin_width for level in result.levels] == [4, 2, 1]
+    assert evaluate(result.disparity, scene.disparity).bpp < 15.0
+
+
+def test_subpixel_finds_the_vertex_of_a_parabolic_cost():
+    truth = np.array([[2.3, 4.75, 1.5]], np.float32)
+    d = np.arange(8, dtype=np.float32)[:, None, None]
+    volume = (d - truth[None]) ** 2  # (D + 1, 1, 3): minimum at the true sub-pixel value
+    refined = filters.subpixel(np.rint(truth), volume)
+    np.testing.assert_allclose(refined, [[2.3, 4.75, 1.5]], atol=1e-5)
+
+
+def test_subpixel_lowers_the_rmse_on_a_slanted_scene(scene):
+    plain = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=16))
+    refined = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=16, subpixel=True))
+    assert (
+        evaluate(refined.disparity, scene.disparity).rmse
+        < evaluate(plain.disparity, scene.disparity).rmse
+    )

@@ -72,3 +72,12 @@ def test_costs_of_a_row_block_equal_the_block_of_the_level_costs():
     np.testing.assert_array_equal(block.unary, full.rows(1, 2).unary)
     np.testing.assert_array_equal(block.pair_h, full.rows(1, 2).pair_h)
     assert block.pair_v.shape[0] == 0
+
+
+def test_row_energies_are_the_single_row_bundle_energies(random_costs):
+    from shared.energy import row_energies
+
+    costs = random_costs(np.random.default_rng(0), 4, 7, 3)
+    labels = np.random.default_rng(1).integers(0, 3, (4, 7))
+    expected = [mrf_energy(costs.rows(r, r + 1), labels[r : r + 1]) for r in range(4)]
+    np.testing.assert_allclose(row_energies(costs, labels), expected, rtol=1e-12)
