@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import partial
 from itertools import pairwise
@@ -42,8 +42,8 @@ PIPELINE_PARAMS = {"warm_start"}
 
 #: A row solver takes as many rows at once as keep one block's pairwise cost arrays (float64,
 #: horizontal and vertical, K x K per pixel) within this: large enough to vectorise, small
-#: enough that memory is bounded by the block, not by the image.
-COST_BLOCK_BYTES = 64 * 2**20
+#: enough that memory is bounded by the block, not by the image (one block per core at a time).
+COST_BLOCK_BYTES = 32 * 2**20
 
 
 @dataclass
@@ -158,9 +158,14 @@ class LevelInputs:
             volume_of = ad_census_volume if data_term is DataTerm.AD_CENSUS else squared_volume
             volume = volume_of(left, right, self.plan.max_disparity, first, last)
             return bin_minimum(volume, self.plan.bin_width)
-        if self._binned is None:
+        return self.binned_volumes()[view][:, first:last]
+
+    def binned_volumes(self) -> list[np.ndarray]:
+        """The cached volumes' bin minima per view, built once (call before sharing the inputs
+        between threads)."""
+        if self._binned is None and self.volumes is not None:
             self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
-        return self._binned[view][:, first:last]
+        return self._binned or []
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
         """Costs of rows [start, stop) (a block that spans both views has no edge between)."""
@@ -350,31 +355,42 @@ def _solve_on_costs(
     bounded by :data:`COST_BLOCK_BYTES`, not by the image)."""
     width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
     rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
+    blocks = _blocks(sorted(row_ranges), rows, inputs.view_height)
+    inputs.binned_volumes()
+    # numpy releases the GIL inside its loops: threads overlap the blocks (both views)
+    with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as pool:
+        solved = pool.map(partial(_solve_block, solver, inputs, config), blocks)
+        return [result for block_results in solved for result in block_results]
+
+
+def _solve_block(
+    solver: RowSolver, inputs: LevelInputs, config: MatchConfig, block: list[tuple[int, int]]
+) -> list[BundleResult]:
+    """One block of consecutive bundles' rows: costs, the row solver, each bundle's energy."""
+    started = time.perf_counter()
+    first, last = block[0][0], block[-1][1]
+    costs = inputs.costs(config, first, last)
+    labels = solver.solve_rows(costs, config.bundle_height)
+    chains = row_energies(costs, labels) if config.bundle_height == 1 else None
+    share = (time.perf_counter() - started) / len(block)
     results = []
-    for block in _blocks(sorted(row_ranges), rows, inputs.view_height):
-        started = time.perf_counter()
-        first, last = block[0][0], block[-1][1]
-        costs = inputs.costs(config, first, last)
-        labels = solver.solve_rows(costs, config.bundle_height)
-        chains = row_energies(costs, labels) if config.bundle_height == 1 else None
-        share = (time.perf_counter() - started) / len(block)
-        for start, stop in block:
-            bundle_labels = labels[start - first : stop - first]
-            energy = (
-                float(chains[start - first])
-                if chains is not None
-                else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+    for start, stop in block:
+        bundle_labels = labels[start - first : stop - first]
+        energy = (
+            float(chains[start - first])
+            if chains is not None
+            else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+        )
+        results.append(
+            BundleResult(
+                row_start=start,
+                row_stop=stop,
+                labels=bundle_labels,
+                energy=energy,
+                repaired=0,
+                wall_time=share,
             )
-            results.append(
-                BundleResult(
-                    row_start=start,
-                    row_stop=stop,
-                    labels=bundle_labels,
-                    energy=energy,
-                    repaired=0,
-                    wall_time=share,
-                )
-            )
+        )
     return results
 
 
