@@ -160,7 +160,7 @@ class MatchConfig(BaseModel):
     max_disparity: int | Literal["auto"] = Field(
         AUTO,
         description="Largest disparity in full-resolution pixels, or auto: estimated from "
-        "feature matches between the views",
+        "a quick dense match of the two views",
     )
     max_coarse_bins: int = Field(
         8, ge=2, le=64, description="Bin pyramid: bins of the coarsest level, at most"

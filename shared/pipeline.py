@@ -1,6 +1,6 @@
 """The one pipeline: coarse-to-fine MRF stereo, one row QUBO per bundle at every level.
 
-    resolve max disparity    the given one, or estimated from feature matches (``auto``)
+    resolve max disparity    the given one, or estimated by a quick dense match (``auto``)
     plan                     the levels (:func:`shared.pyramid.plan`: image or bin pyramid)
     for each level k (coarse to fine):
         prepare_level        level images (both views stacked with the LR check), candidates
@@ -165,14 +165,17 @@ def finish(
     config: MatchConfig,
     last: LevelPlan,
     views: int,
+    left_volume: np.ndarray | None = None,
 ) -> np.ndarray:
     """The full-resolution left disparity from the finest level's map (both views stacked when
-    ``views`` is 2) and the pair's :func:`match_views`."""
+    ``views`` is 2) and the pair's :func:`match_views`; ``left_volume`` is the left view's
+    AD-census volume when already at hand (the sub-pixel fit reads it)."""
     height = level_map.shape[0] // views
     disparity = level_map[:height]
     if config.subpixel:  # the cost of every disparity (ad-census: validated) around the label
-        volume = ad_census_volume(left, right, last.max_disparity, 0, height)
-        disparity = filters.subpixel(disparity, volume)
+        if left_volume is None:
+            left_volume = ad_census_volume(left, right, last.max_disparity, 0, height)
+        disparity = filters.subpixel(disparity, left_volume)
     if disparity.shape != left.shape[:2]:
         disparity = pyramid.upsample_disparity(disparity, left.shape[:2])
     if views == 2:
@@ -241,7 +244,9 @@ def run_pipeline(
         if progress is not None:
             progress(plan.index + 1, len(plans))
     assert level_map is not None and inputs is not None  # plan() gives at least one level
-    disparity = finish(level_map, left, right, config, plans[-1], inputs.views)
+    disparity = finish(
+        level_map, left, right, config, plans[-1], inputs.views, volumes[0] if volumes else None
+    )
     return MatchResult(
         disparity=disparity,
         levels=reports,
