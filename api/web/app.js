@@ -467,13 +467,13 @@ async function resultImages(job, { withLeft = true } = {}) {
 
 function metricsBlock(job) {
   if (!job.metrics) return null;
+  // fixed decimals: an RMSE of 1.002 px must not read "1 px"
+  const metric = (value, name) => el("div", { class: "metric" },
+    el("span", { class: "metric-value" }, value), el("span", { class: "metric-name" }, name));
   return el("div", { class: "metrics", "aria-label": "metrics" },
-    el("div", { class: "metric" }, el("span", { class: "metric-value" }, `${fmt(job.metrics.rmse, 3)} px`),
-      el("span", { class: "metric-name" }, "RMSE")),
-    el("div", { class: "metric" }, el("span", { class: "metric-value" }, `${fmt(job.metrics.bpp, 3)} %`),
-      el("span", { class: "metric-name" }, "bad pixels (> 1 px)")),
-    el("div", { class: "metric" }, el("span", { class: "metric-value" }, String(job.metrics.pixels)),
-      el("span", { class: "metric-name" }, "pixels evaluated")));
+    metric(`${job.metrics.rmse.toFixed(3)} px`, "RMSE"),
+    metric(`${job.metrics.bpp.toFixed(2)} %`, "bad pixels (> 1 px)"),
+    metric(String(job.metrics.pixels), "pixels evaluated"));
 }
 
 function levelsTable(job) {
