@@ -88,10 +88,8 @@ class QpuSemaphore:
 
         Parameters
         ----------
-        user : str
-            Whose share the slot counts against.
-        ttl : float
-            Seconds after which the slot frees itself.
+        user, ttl
+            As for :meth:`try_acquire`.
         wait : float
             Longest wait in seconds.
 
