@@ -1,0 +1,50 @@
+"""Per-user QPU-time budgets and the lab-wide limit on QPU problems in flight, in Redis.
+
+One D-Wave token serves the whole lab; this package rations it per user. Before a metered bundle
+(QPU or hybrid) is sent, the worker takes a *slot* from the lab-wide semaphore and *reserves*
+the bundle's estimated time from the owner's budget; afterwards it *settles* the reservation with
+the time the sample set reports (``qpu_access_time``; hybrid: ``charge_time``) and frees the
+slot. Each step is one Lua script (the ``.lua`` files beside the modules), so concurrent workers
+see consistent budgets and the budget can only be overspent by what in-flight bundles use beyond
+their estimates. A worker killed mid-bundle cannot leak anything: its slot and its reservation
+expire after ``Settings.qpu_slot_ttl`` (+ the bundle's estimate). Times are seconds; the clock
+is Redis's (``TIME``), not the workers'.
+
+Modules:
+
+- :mod:`~workers.quota.ledger`     per-user accounting: budgets, reservations, charges, usage
+- :mod:`~workers.quota.semaphore`  the lab-wide (and per-user) limit on problems in flight
+- :mod:`~workers.quota.estimate`   what a bundle is expected to cost (the amount reserved)
+- :mod:`~workers.quota.meter`      slot + reservation + settlement around each metered bundle
+- :mod:`~workers.quota.scripts`    reads the Lua sources shipped with the package
+"""
+
+from workers.quota.estimate import bundle_estimate, live_timing_solver
+from workers.quota.ledger import (
+    LOCAL_USER,
+    JobUsage,
+    QuotaExceeded,
+    QuotaLedger,
+    QuotaStatus,
+    Reservation,
+    UserUsage,
+)
+from workers.quota.meter import Charge, QpuMeter, solve_metered
+from workers.quota.semaphore import NoQpuSlot, QpuSemaphore
+
+__all__ = [
+    "LOCAL_USER",
+    "Charge",
+    "JobUsage",
+    "NoQpuSlot",
+    "QpuMeter",
+    "QpuSemaphore",
+    "QuotaExceeded",
+    "QuotaLedger",
+    "QuotaStatus",
+    "Reservation",
+    "UserUsage",
+    "bundle_estimate",
+    "live_timing_solver",
+    "solve_metered",
+]

@@ -1,0 +1,259 @@
+"""Per-user QPU-time accounting: budgets, reservations and what each job was charged.
+
+A reservation is refused when ``limit - used - reserved < estimate``; settling replaces it with
+the time the sample set reports. The steps run as Lua scripts (``reserve.lua``, ``settle.lua``,
+``status.lua``, sharing ``now.lua`` and ``expire.lua``), so concurrent workers see consistent
+budgets. An expired reservation (its worker died) is charged at its estimate, because the problem
+may well have run; a late settlement corrects the charge to the reported time.
+
+Keys (under ``{key_prefix}:``):
+
+    quota:{user}             hash  limit (absent: unlimited), used, expired (seconds)
+    quota:{user}:held        hash  reservation id -> reserved seconds
+    quota:{user}:deadline    zset  reservation id -> expiry (Redis server time)
+    quota:{user}:lapsed      hash  reservation id -> seconds charged when it expired
+    quota:users              set   users with a budget or usage
+    usage:{user}:seconds     hash  job id -> charged seconds
+    usage:{user}:problems    hash  job id -> problems sent
+"""
+
+from __future__ import annotations
+
+import uuid
+from dataclasses import dataclass, field
+
+import redis
+
+from shared.config import Settings
+from shared.solvers import SolverError
+from workers.quota.scripts import load_script
+
+_RESERVE = load_script("now", "expire", "reserve")
+_SETTLE = load_script("settle")
+_STATUS = load_script("now", "expire", "status")
+
+#: The user every request acts as (and owns jobs) while ``Settings.auth_enabled`` is off.
+LOCAL_USER = "local"
+
+
+class QuotaExceeded(SolverError):
+    """The owner's remaining QPU budget is below what the next problem needs (not retried)."""
+
+    def __init__(self, user: str, remaining: float, needed: float, what: str = "the next bundle"):
+        self.user, self.remaining, self.needed = user, remaining, needed
+        super().__init__(
+            f"not enough QPU budget left for user {user!r}: {max(remaining, 0.0):.3f} s remaining, "
+            f"{needed:.3f} s estimated for {what}; ask an admin to raise it "
+            "(qhsm admin set-quota) or use an unmetered solver"
+        )
+
+
+@dataclass(frozen=True)
+class QuotaStatus:
+    """A user's budget in seconds; ``limit`` None means unlimited."""
+
+    user: str
+    limit: float | None
+    used: float
+    reserved: float
+
+    @property
+    def remaining(self) -> float:
+        if self.limit is None:
+            return float("inf")
+        return self.limit - self.used - self.reserved
+
+    def as_dict(self) -> dict:
+        """The budget as the API and the admin CLI show it: ``{what}_seconds``, None unlimited."""
+        remaining = None if self.limit is None else self.remaining
+        seconds = {"limit": self.limit, "used": self.used, "reserved": self.reserved}
+        return {
+            "user": self.user,
+            **{f"{what}_seconds": value for what, value in seconds.items()},
+            "remaining_seconds": remaining,
+        }
+
+
+@dataclass(frozen=True)
+class Reservation:
+    user: str
+    job_id: str
+    id: str
+    seconds: float
+
+
+@dataclass(frozen=True)
+class JobUsage:
+    job_id: str
+    seconds: float
+    problems: int
+
+
+@dataclass
+class UserUsage:
+    status: QuotaStatus
+    jobs: list[JobUsage] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {
+            **self.status.as_dict(),
+            "jobs": [
+                {"id": job.job_id, "qpu_seconds": job.seconds, "problems": job.problems}
+                for job in self.jobs
+            ],
+        }
+
+
+class QuotaLedger:
+    """Budgets, reservations and usage records of every user."""
+
+    def __init__(self, client: redis.Redis, key_prefix: str):
+        self.redis = client
+        self.prefix = key_prefix
+        self._reserve = client.register_script(_RESERVE)
+        self._settle = client.register_script(_SETTLE)
+        self._status = client.register_script(_STATUS)
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> QuotaLedger:
+        from workers.app import redis_url
+
+        return cls(redis.Redis.from_url(redis_url(settings)), settings.key_prefix)
+
+    def key(self, *parts: object) -> str:
+        return ":".join([self.prefix, *map(str, parts)])
+
+    def _keys(self, user: str) -> list[str]:
+        quota = self.key("quota", user)
+        return [
+            quota,
+            quota + ":held",
+            quota + ":deadline",
+            quota + ":lapsed",
+            self.key("usage", user, "seconds"),
+        ]
+
+    def set_limit(self, user: str, seconds: float | None) -> None:
+        """Set (or with None: remove, i.e. unlimited) a user's total budget in seconds
+        (ValueError when negative)."""
+        with self.redis.pipeline() as pipe:
+            if seconds is None:
+                pipe.hdel(self.key("quota", user), "limit")
+            else:
+                if seconds < 0:
+                    raise ValueError("a QPU budget cannot be negative")
+                pipe.hset(self.key("quota", user), "limit", repr(float(seconds)))
+            pipe.sadd(self.key("quota", "users"), user)
+            pipe.execute()
+
+    def status(self, user: str) -> QuotaStatus:
+        """The user's budget now, after charging any lapsed reservations."""
+        limit, used, reserved = (
+            value.decode() if isinstance(value, bytes) else str(value)
+            for value in self._status(keys=self._keys(user))
+        )
+        return QuotaStatus(
+            user=user,
+            limit=float(limit) if limit else None,
+            used=float(used),
+            reserved=float(reserved),
+        )
+
+    def check(self, user: str, needed: float, what: str = "this job") -> QuotaStatus:
+        """Raise :class:`QuotaExceeded` unless ``needed`` seconds fit the remaining budget.
+
+        Parameters
+        ----------
+        user : str
+            Whose budget.
+        needed : float
+            Estimated seconds (zero or less always fits) of ``what`` (for the error message).
+
+        Returns
+        -------
+        QuotaStatus
+            The budget as checked.
+        """
+        status = self.status(user)
+        if needed > 0 and status.remaining < needed:
+            raise QuotaExceeded(user, status.remaining, needed, what)
+        return status
+
+    def reserve(self, user: str, job_id: str, seconds: float, ttl: float) -> Reservation:
+        """Hold ``seconds`` of the budget for one problem, or raise :class:`QuotaExceeded`.
+
+        Parameters
+        ----------
+        user, job_id : str
+            Whose budget, and the job charged.
+        seconds : float
+            The problem's estimate.
+        ttl : float
+            Seconds after which the reservation lapses and is charged at its estimate.
+
+        Returns
+        -------
+        Reservation
+            To hand to :meth:`settle` or :meth:`release`.
+        """
+        rid = f"{job_id}#{uuid.uuid4().hex}"
+        ok, remaining = self._reserve(
+            keys=[*self._keys(user), self.key("quota", "users")],
+            args=[rid, repr(float(seconds)), repr(float(ttl)), user],
+        )
+        if not int(ok):
+            raise QuotaExceeded(user, float(remaining), seconds)
+        return Reservation(user=user, job_id=job_id, id=rid, seconds=float(seconds))
+
+    def settle(self, reservation: Reservation, actual: float, problems: int = 1) -> float:
+        """Replace the reservation with the reported time.
+
+        Parameters
+        ----------
+        reservation : Reservation
+            From :meth:`reserve` (it may have lapsed meanwhile).
+        actual : float
+            Seconds the sample set reports (negative counts as zero).
+        problems : int
+            Problems to record as sent for the job.
+
+        Returns
+        -------
+        float
+            The seconds charged now (negative when a lapsed estimate was too high).
+        """
+        keys = [*self._keys(reservation.user), self.key("usage", reservation.user, "problems")]
+        charged = self._settle(
+            keys=keys,
+            args=[reservation.id, repr(max(0.0, float(actual))), reservation.job_id, problems],
+        )
+        return float(charged)
+
+    def release(self, reservation: Reservation) -> None:
+        """Drop a reservation without charging (the problem was never sent)."""
+        self.settle(reservation, 0.0, problems=0)
+
+    def users(self) -> list[str]:
+        """Every user with a budget or usage, sorted."""
+        return sorted(member.decode() for member in self.redis.smembers(self.key("quota", "users")))
+
+    def usage(self, user: str) -> UserUsage:
+        """The user's budget and what each of their jobs was charged, by job id."""
+        seconds = self.redis.hgetall(self.key("usage", user, "seconds"))
+        problems = self.redis.hgetall(self.key("usage", user, "problems"))
+        jobs = [
+            JobUsage(job_id=job.decode(), seconds=float(value), problems=int(problems.get(job, 0)))
+            for job, value in seconds.items()
+        ]
+        jobs += [
+            JobUsage(job_id=job.decode(), seconds=0.0, problems=int(count))
+            for job, count in problems.items()
+            if job not in seconds
+        ]
+        return UserUsage(status=self.status(user), jobs=sorted(jobs, key=lambda j: j.job_id))
+
+    def job_usage(self, user: str, job_id: str) -> JobUsage:
+        """Seconds charged to and problems sent for one job (zero when it used none)."""
+        seconds = self.redis.hget(self.key("usage", user, "seconds"), job_id)
+        problems = self.redis.hget(self.key("usage", user, "problems"), job_id)
+        return JobUsage(job_id, float(seconds or 0.0), int(problems or 0))

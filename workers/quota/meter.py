@@ -1,0 +1,133 @@
+"""Metering of a job's bundles: each metered problem runs inside a lab-wide slot and a
+reservation of its estimate, and is charged the time its sample set reports."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import redis
+
+from shared.config import Settings
+from workers.quota.estimate import bundle_estimate
+from workers.quota.ledger import QuotaLedger
+from workers.quota.semaphore import QpuSemaphore
+
+
+@dataclass
+class Charge:
+    """What the caller reports after the solve: the seconds the sample set says it used."""
+
+    seconds: float = 0.0
+    sent: bool = False
+
+    def report(self, seconds: float) -> None:
+        """Record the reported seconds (negative counts as zero) and that the problem was sent."""
+        self.seconds = max(0.0, float(seconds))
+        self.sent = True
+
+
+class QpuMeter:
+    """Slot + reservation + settlement around each metered problem (what a worker uses)."""
+
+    def __init__(
+        self, ledger: QuotaLedger, semaphore: QpuSemaphore, slot_ttl: float, slot_wait: float
+    ):
+        self.ledger = ledger
+        self.semaphore = semaphore
+        self.slot_ttl = slot_ttl
+        self.slot_wait = slot_wait
+
+    @classmethod
+    def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> QpuMeter:
+        from workers.app import redis_url
+
+        client = client or redis.Redis.from_url(redis_url(settings))
+        return cls(
+            QuotaLedger(client, settings.key_prefix),
+            QpuSemaphore.from_settings(settings, client),
+            settings.qpu_slot_ttl,
+            settings.qpu_slot_wait,
+        )
+
+    @contextmanager
+    def problem(self, user: str, job_id: str, estimate: float) -> Iterator[Charge]:
+        """Take a slot, reserve ``estimate`` (QuotaExceeded when it does not fit), yield a
+        :class:`Charge` for the caller to fill in, then settle and free the slot.
+
+        If the body raises before reporting, the reservation is released uncharged (failed
+        problems are not billed by D-Wave either).
+
+        Parameters
+        ----------
+        user, job_id : str
+            Whose budget, and the job charged.
+        estimate : float
+            Seconds to reserve; the slot and the reservation lapse ``slot_ttl`` after it.
+
+        Returns
+        -------
+        Iterator[Charge]
+            One :class:`Charge`, for the ``with`` body to :meth:`Charge.report` on.
+        """
+        ttl = self.slot_ttl + estimate
+        with self.semaphore.slot(user, ttl, self.slot_wait):
+            reservation = self.ledger.reserve(user, job_id, estimate, ttl)
+            charge = Charge()
+            try:
+                yield charge
+            finally:
+                if charge.sent:
+                    self.ledger.settle(reservation, charge.seconds)
+                else:
+                    self.ledger.release(reservation)
+
+
+def solve_metered(
+    meter: QpuMeter,
+    owner: str,
+    job_id: str,
+    inputs,
+    config,
+    bundles: list,
+    still_running=lambda: True,
+):
+    """``solve_bundles`` for a metered solver: one bundle at a time, each inside a lab-wide
+    slot and a reservation of its estimate, charged what its sample set reports.
+
+    Parameters
+    ----------
+    meter : QpuMeter
+        Slots and the ledger.
+    owner, job_id : str
+        Whose budget, and the job charged.
+    inputs, config
+        The level's inputs and the job's ``MatchConfig``, as for ``shared.solve.solve_bundles``.
+    bundles : list
+        The bundle specs to solve, in order.
+    still_running : callable
+        Checked before each bundle; false stops the job (cancelled or failed).
+
+    Returns
+    -------
+    list or None
+        The results, or None when ``still_running()`` turned false: the remaining bundles are
+        then not sent. Raises :class:`~workers.quota.ledger.QuotaExceeded` when the owner's
+        budget cannot cover the next bundle.
+    """
+    from shared.solve import solve_bundles
+    from shared.solvers.qpu_time import charged_seconds
+
+    results = []
+    for spec in bundles:
+        if not still_running():
+            return None
+        bundle = inputs.as_bundle(spec)
+        start, stop, first, last = bundle.as_list()
+        estimate = bundle_estimate(inputs, config, start, stop, last - first)
+        with meter.problem(owner, job_id, estimate) as charge:
+            [result] = solve_bundles(inputs, config, [bundle])
+            charge.report(charged_seconds(result.timing))
+        results.append(result)
+    return results
