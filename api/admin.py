@@ -37,9 +37,15 @@ def _store(args: argparse.Namespace) -> Iterator:
     the default port)."""
     import redis
 
-    from api.serve import EMBEDDED_URL_FILE, DataDirBusy, DataDirLock, EmbeddedRedis, safe_url
     from api.users import UserStore
     from shared.config import get_settings
+    from workers.embedded_redis import (
+        EMBEDDED_URL_FILE,
+        DataDirBusy,
+        DataDirLock,
+        EmbeddedRedis,
+        safe_url,
+    )
 
     settings = get_settings()
     if args.data_dir is not None:

@@ -156,7 +156,9 @@ def cmd_api(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     import logging
 
-    from api.serve import DataDirBusy, PortBusy, Stack, bind_api_socket
+    from api.server import PortBusy, bind_api_socket
+    from workers.embedded_redis import DataDirBusy
+    from workers.supervisor import Stack
 
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
@@ -248,7 +250,9 @@ def _demo_scene(choice: str):
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from api.client import Client, progress_bar
-    from api.serve import ApiThread, PortBusy, Stack, bind_api_socket, free_port
+    from api.server import ApiThread, PortBusy, bind_api_socket
+    from workers.embedded_redis import free_port
+    from workers.supervisor import Stack
 
     settings = _settings(args)
     if args.port is None:

@@ -34,19 +34,14 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from api.client import Client
-from api.serve import (
-    ApiThread,
-    EmbeddedRedis,
-    WorkerProcess,
-    free_port,
-    wait_for_workers,
-    worker_env,
-)
+from api.server import ApiThread
 from api.users import UserStore, ensure_local_admin
 from shared.config import MatchConfig, Settings, get_settings
 from shared.datasets import default_middlebury_dir, load_scene
 from shared.pipeline import run_pipeline
 from workers.app import make_celery
+from workers.embedded_redis import EmbeddedRedis, free_port
+from workers.supervisor import WorkerProcess, wait_for_workers, worker_env
 
 EXACT = {"solver": "exact", "max_disparity": 16}
 SA = {

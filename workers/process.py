@@ -3,7 +3,9 @@ signal), so nothing ``qhsm serve`` or a Celery worker starts outlives it, even a
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import os
 import signal
 
 PR_SET_PDEATHSIG = 1
@@ -18,3 +20,9 @@ def die_with_parent(signum: int = signal.SIGKILL) -> None:
         libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0)
     except (OSError, AttributeError):
         return
+
+
+def kill_now(pid: int) -> None:
+    """SIGKILL ``pid``; one that has already exited is fine."""
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, signal.SIGKILL)

@@ -83,7 +83,7 @@ class LiveApi:
 @pytest.fixture(scope="session")
 def live_api(api_settings):
     """A uvicorn server in a thread; ``log_config=None`` leaves logging to pytest (caplog)."""
-    from api.serve import free_port
+    from workers.embedded_redis import free_port
 
     app = create_app(api_settings)
     port = free_port()

@@ -137,7 +137,7 @@ def test_health_and_readiness(api, make_client):
     ready = api.get("/readyz")
     assert ready.status_code == 503, ready.text
     assert ready.json()["redis"] == "ok" and "control" in ready.json()["queues_without_consumer"]
-    from api.serve import free_port
+    from workers.embedded_redis import free_port
 
     down = make_client(redis_url=f"redis://127.0.0.1:{free_port()}/0")
     response = down.get("/readyz")

@@ -412,7 +412,7 @@ def test_errors_raised_before_the_routes_get_the_apps_handlers(api_settings, adm
     from fastapi.testclient import TestClient
 
     from api.app import create_app
-    from api.serve import free_port
+    from workers.embedded_redis import free_port
 
     app = create_app(
         api_settings.model_copy(update={"redis_url": f"redis://127.0.0.1:{free_port()}/0"})

@@ -22,9 +22,9 @@ import harness
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from api.serve import WorkerProcess, wait_for_workers
 from shared.config import Settings
 from workers.app import make_celery
+from workers.supervisor import WorkerProcess, wait_for_workers
 
 PLUGIN = "qhsm_test_plugin"
 ROWS_PER_TASK = 4
@@ -85,7 +85,7 @@ def markers(service_dir) -> Path:
 @pytest.fixture(scope="session")
 def workers(settings, markers, service_dir):
     """The two workers, started once per session (about 5 s)."""
-    from api.serve import worker_env
+    from workers.supervisor import worker_env
 
     env = worker_env(settings, settings.redis_url, dwave=False)
     env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parent), env.get("PYTHONPATH", "")])

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import redis
 
-from api.serve import EmbeddedRedis
+from workers.embedded_redis import EmbeddedRedis
 
 LOCAL_REDIS = "redis://127.0.0.1:6379/13"
 TERMINAL = {"succeeded", "failed", "cancelled"}

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 import redis
 
-from api.serve import ApiThread, EmbeddedRedis, free_port
+from api.server import ApiThread
 from shared.cli import main
 from shared.config import MatchConfig
 from shared.images import load_pair
 from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
+from workers.embedded_redis import EmbeddedRedis, free_port
 
 pytestmark = pytest.mark.service
 

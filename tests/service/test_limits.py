@@ -134,8 +134,8 @@ def test_orchestration_runs_while_every_solver_process_is_busy(client, pair, sto
 
 def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_path):
     """What `qhsm serve` starts: the control queue is consumed by one worker, and only that."""
-    from api.serve import Stack
     from workers.app import make_celery
+    from workers.supervisor import Stack
 
     own = settings.model_copy(
         update={"key_prefix": harness.unique_prefix(), "data_dir": tmp_path, "plugins": ""}

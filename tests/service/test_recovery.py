@@ -11,7 +11,6 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from api.serve import free_port
 from shared.config import LevelConfig, MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.pipeline import run_pipeline
@@ -19,6 +18,7 @@ from shared.pyramid import plan
 from shared.synthetic import make_scene
 from workers import orchestration
 from workers.app import load_plugins, make_celery
+from workers.embedded_redis import free_port
 from workers.store import JobRecord, JobState, JobStore, new_job_id, now
 from workers.watchdog import Watchdog, resend_count
 

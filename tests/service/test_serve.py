@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 import redis
 
-from api.serve import EMBEDDED_URL_FILE, PID_FILE, EmbeddedRedis, free_port
 from shared.cli import main
 from shared.config import LevelConfig, MatchConfig, Settings
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
+from workers.embedded_redis import EMBEDDED_URL_FILE, PID_FILE, EmbeddedRedis, free_port
 from workers.store import JobStore
 from workers.watchdog import resend_count
 

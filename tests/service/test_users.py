@@ -60,8 +60,8 @@ def users(settings) -> UserStore:
 @pytest.fixture(scope="module")
 def qpu_worker(settings, service_dir):
     """One worker for qpu-sim and hybrid-sim, two processes, the sentinel as its token."""
-    from api.serve import WorkerProcess, wait_for_workers, worker_env
     from workers.app import make_celery
+    from workers.supervisor import WorkerProcess, wait_for_workers, worker_env
 
     env = worker_env(settings, settings.redis_url, dwave=True)
     env["DWAVE_API_TOKEN"] = SENTINEL

@@ -23,7 +23,7 @@ import pytest
 
 pytest.importorskip("playwright", reason="playwright is not installed (pip install -e '.[dev]')")
 
-from api.serve import free_port
+from workers.embedded_redis import free_port
 
 CHROMIUM = Path("/usr/bin/chromium")
 SERVICE_TESTS = Path(__file__).parents[1] / "service"
@@ -46,8 +46,8 @@ class Server:
         """The QPU ledger in the server's embedded Redis (to charge time without a QPU)."""
         import redis
 
-        from api.serve import EMBEDDED_URL_FILE
         from shared.config import Settings
+        from workers.embedded_redis import EMBEDDED_URL_FILE
         from workers.quota import QuotaLedger
 
         url = (self.data_dir / EMBEDDED_URL_FILE).read_text().strip()
