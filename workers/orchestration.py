@@ -187,20 +187,46 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
 
     The level is assembled from the solved bundles in the store, not from ``results``: a chord
     the watchdog re-sent for lost chunks carries only those. Runs at most once per level."""
+    record = _running_record(store, job_id, index)
+    if record is None:
+        return
+    level = _level_inputs(store, job_id, index)
+    if level is None:
+        return
+    inputs, started = level
+    bundles = _solved_bundles(store, job_id, index, inputs, record.config)
+    if bundles is None:
+        return
+    level_map, level_report = _assemble_level(inputs, bundles, record.config, started)
+    record = _add_level_report(store, job_id, index, level_report)
+    if record is None:
+        return
+    store.drop_level(job_id, index)
+    _next_level_or_finish(celery, store, record, index, inputs, level_map)
+
+
+def _running_record(store: JobStore, job_id: str, index: int) -> JobRecord | None:
+    """The running job's record; None when it ended or is gone (its level inputs are dropped)
+    or this level was already assembled (a redelivered fan-in)."""
     record = store.get(job_id)
     if record is None or record.state is not JobState.RUNNING:
         store.drop_level(job_id, index)
-        return
+        return None
     if len(record.levels) > index:  # redelivered after a worker died having done this
         log.info("job %s: level %d already assembled; ignoring a repeated fan-in", job_id, index)
-        return
-    config = record.config
+        return None
+    return record
+
+
+def _level_inputs(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, float] | None:
+    """The level's inputs and when it started; None when they are gone: a concurrent fan-in
+    finished the level, or they expired in the queue (the job is failed saying so)."""
     try:
-        inputs, started = store.load_level(job_id, index)
+        return store.load_level(job_id, index)
     except LevelInputsMissing:
         record = store.get(job_id)
         if record is None or record.state is not JobState.RUNNING or len(record.levels) > index:
-            return  # a concurrent fan-in of the same level finished it
+            return None  # a concurrent fan-in of the same level finished it
         # tasks that fail the job or see it end return no bundles, and the state check above
         # returns; a running job without its level inputs lost them (expired)
         store.fail(
@@ -209,19 +235,39 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
             "expired while they waited in the queue; resubmit the job, or raise "
             "QHSM_TASK_VISIBILITY_TIMEOUT if the queue is often this long",
         )
-        return
+        return None
+
+
+def _solved_bundles(
+    store: JobStore, job_id: str, index: int, inputs: LevelInputs, config: MatchConfig
+) -> list[BundleResult] | None:
+    """Every planned bundle of the level, decoded from the store, in plan order; None while
+    some are missing."""
     width = inputs.shape[1]
     solved = store.solved_bundles(job_id, index)
     expected = [bundle_key(b.as_list()) for b in inputs.planned_bundles(config)]
     missing = [key for key in expected if key not in solved]
     if missing:  # lost with a worker or a Redis outage: the watchdog re-sends them
         log.warning("job %s: level %d misses %d bundles", job_id, index, len(missing))
-        return
-    bundles = [decode_bundle(solved[key], width) for key in expected]
+        return None
+    return [decode_bundle(solved[key], width) for key in expected]
+
+
+def _assemble_level(
+    inputs: LevelInputs, bundles: list[BundleResult], config: MatchConfig, started: float
+) -> tuple[np.ndarray, dict]:
+    """The level's filtered disparity map (``finish_level``) and its report for the record."""
     solution = assemble(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = asdict(report(inputs, solution, time.time() - started))
+    return level_map, level_report
 
+
+def _add_level_report(
+    store: JobStore, job_id: str, index: int, level_report: dict
+) -> JobRecord | None:
+    """Append the level's report to the running job; None when the job ended, or the same
+    level was assembled twice at once and the other fan-in won."""
     added = False
 
     def add_report(current: JobRecord) -> JobRecord | None:
@@ -233,8 +279,20 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
 
     record = store.update(job_id, add_report)
     if record is None or not added:
-        return
-    store.drop_level(job_id, index)
+        return None
+    return record
+
+
+def _next_level_or_finish(
+    celery: Celery,
+    store: JobStore,
+    record: JobRecord,
+    index: int,
+    inputs: LevelInputs,
+    level_map: np.ndarray,
+) -> None:
+    """Launch the next level's chord from this level's map, or finish the job after the last."""
+    config = record.config
     left, right = job_views(store, record)
     plans = job_plans(record)
     if index + 1 < len(plans):
@@ -242,23 +300,31 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
         launch_level(celery, store, record, next_inputs)
         return
     result = finish(level_map, left, right, config, plans[-1], inputs.views)
-    metrics, warning = None, None
-    if record.ground_truth is not None:
-        try:
-            scores = evaluate(
-                result,
-                store.load_upload(job_id, "ground_truth"),
-                scale=record.ground_truth.scale,
-                border=record.ground_truth.border,
-            )
-            metrics = scores.as_dict()
-        except ValueError as error:
-            warning = f"ground truth not evaluated: {error}"
-    store.save_result(job_id, result)
+    metrics, warning = _evaluate_result(store, record, result)
+    store.save_result(record.id, result)
     updates = {"metrics": metrics}
     if warning:
         updates["error"] = warning
-    store.transition(job_id, JobState.SUCCEEDED, {JobState.RUNNING}, **updates)
+    store.transition(record.id, JobState.SUCCEEDED, {JobState.RUNNING}, **updates)
+
+
+def _evaluate_result(
+    store: JobStore, record: JobRecord, result: np.ndarray
+) -> tuple[dict | None, str | None]:
+    """The job's metrics against its ground truth (None without one), and a warning saying why
+    a ground truth that does not fit was not evaluated."""
+    if record.ground_truth is None:
+        return None, None
+    try:
+        scores = evaluate(
+            result,
+            store.load_upload(record.id, "ground_truth"),
+            scale=record.ground_truth.scale,
+            border=record.ground_truth.border,
+        )
+        return scores.as_dict(), None
+    except ValueError as error:
+        return None, f"ground truth not evaluated: {error}"
 
 
 # --- solver queues ---------------------------------------------------------------------------
