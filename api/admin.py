@@ -231,13 +231,13 @@ def register(subparsers) -> None:
     listing.add_argument("--json", action="store_true")
     listing.set_defaults(handler=cmd_list_users)
 
-    rotate = commands.add_parser("rotate-key", help="replace a user's key; prints it once")
-    rotate.add_argument("name", help="user whose key is replaced")
-    rotate.set_defaults(handler=cmd_rotate_key)
-
-    revoke = commands.add_parser("revoke", help="disable a user's key")
-    revoke.add_argument("name", help="user whose key is disabled")
-    revoke.set_defaults(handler=cmd_revoke)
+    for command, about, whose, handler in (
+        ("rotate-key", "replace a user's key; prints it once", "replaced", cmd_rotate_key),
+        ("revoke", "disable a user's key", "disabled", cmd_revoke),
+    ):
+        keyed = commands.add_parser(command, help=about)
+        keyed.add_argument("name", help=f"user whose key is {whose}")
+        keyed.set_defaults(handler=handler)
 
     quota = commands.add_parser("set-quota", help="set a user's total QPU budget")
     quota.add_argument("name", help="user whose budget is set")

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Depends, File, Form, UploadFile
 
 from api.auth import Principal, current_principal
 from api.deps import Services, services
-from api.routes.jobs import check_solver_name, disparity_range_of, estimate_job
+from api.routes.jobs import UPLOAD_ERRORS, check_solver_name, disparity_range_of, estimate_job
 from api.schemas import Estimate
 from api.uploads import decode_pair, parse_config, read_upload
 from api.users import UserStore, user_store
@@ -21,9 +21,7 @@ router = APIRouter(prefix="/v1", tags=["jobs"])
     "/estimate",
     response_model=Estimate,
     responses={
-        400: {"description": "params is not JSON"},
-        413: {"description": "File or image too large"},
-        415: {"description": "Not a supported image format"},
+        **UPLOAD_ERRORS,
         422: {"description": "Invalid parameters, sizes, or solver"},
     },
 )

@@ -54,6 +54,12 @@ MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
 NOT_FOUND = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
+#: Errors of the upload form (POST /v1/jobs and /v1/estimate) for the OpenAPI docs.
+UPLOAD_ERRORS = {
+    400: {"description": "params is not JSON"},
+    413: {"description": "File or image too large"},
+    415: {"description": "Not a supported image format"},
+}
 
 
 #: Response header of colour-mapped images: the value (pixels) the top colour stands for.
@@ -210,9 +216,7 @@ def check_budget(
     status_code=http.HTTP_202_ACCEPTED,
     response_model=JobCreated,
     responses={
-        400: {"description": "params is not JSON"},
-        413: {"description": "File or image too large"},
-        415: {"description": "Not a supported image format"},
+        **UPLOAD_ERRORS,
         403: {"description": "QPU budget too small for the job's estimate"},
         429: {"description": "Too many of the user's jobs are queued or running"},
         422: {
