@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import redis
 
+from shared.config import LevelConfig
 from workers.embedded_redis import EmbeddedRedis
 
 LOCAL_REDIS = "redis://127.0.0.1:6379/13"
@@ -59,6 +60,19 @@ def npy(array: np.ndarray) -> bytes:
     stream = io.BytesIO()
     np.save(stream, array)
     return stream.getvalue()
+
+
+def one_level(candidates: int = 3, **extra) -> dict:
+    """Job params of a single full-resolution level without filters: every bundle of the job is
+    in one chord."""
+    return {
+        "preset": "paper",
+        "levels": [LevelConfig(downsample=1, candidates=candidates).model_dump()],
+        "max_disparity": 8,
+        "median": False,
+        "bilateral": False,
+        **extra,
+    }
 
 
 def submit(client, left: bytes, right: bytes, params: dict | None = None, **files) -> str:

@@ -11,7 +11,7 @@ import harness
 import numpy as np
 import pytest
 
-from shared.config import LevelConfig, MatchConfig
+from shared.config import MatchConfig
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
 from shared.solvers import get_solver, solver_names
@@ -28,18 +28,6 @@ def pair():
     scene = make_scene(**SMALL, seed=3)
     left, right = harness.png(scene.left), harness.png(scene.right)
     return left, right, decode_image(left, "left"), decode_image(right, "right"), scene.disparity
-
-
-def one_level(**extra) -> dict:
-    """A single full-resolution level: every bundle of the job is in one chord."""
-    return {
-        "preset": "paper",
-        "levels": [LevelConfig(downsample=1, candidates=3).model_dump()],
-        "max_disparity": 8,
-        "median": False,
-        "bilateral": False,
-        **extra,
-    }
 
 
 def reference(pair, params: dict) -> np.ndarray:
@@ -91,7 +79,7 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
 
 def test_cancel_stops_unsolved_bundles(client, pair):
     left, right, *_ = pair
-    job_id = harness.submit(client, left, right, one_level(solver="fake-slow"))
+    job_id = harness.submit(client, left, right, harness.one_level(solver="fake-slow"))
     running = wait_for_progress(client, job_id, at_least=1)
     assert running["state"] == "running"
 
@@ -117,7 +105,7 @@ def test_permanent_solver_error_fails_the_job_with_its_message(client, pair):
     assert "single-row bundles" in status["error"] and "bundle height 2" in status["error"]
     assert "Traceback" not in status["error"]
 
-    job_id = harness.submit(client, left, right, one_level(solver="fake-broken"))
+    job_id = harness.submit(client, left, right, harness.one_level(solver="fake-broken"))
     status = harness.wait_for(client, job_id)
     assert status["state"] == "failed"
     assert "the device is on fire; use another solver" in status["error"]
@@ -126,7 +114,7 @@ def test_permanent_solver_error_fails_the_job_with_its_message(client, pair):
 
 def test_transient_solver_error_is_retried(client, pair):
     left, right, *_ = pair
-    params = one_level(solver="fake-flaky", seed=11)
+    params = harness.one_level(solver="fake-flaky", seed=11)
     job_id = harness.submit(client, left, right, params)
     status = harness.wait_for(client, job_id)
     assert status["state"] == "succeeded", status["error"]
@@ -152,7 +140,7 @@ def test_jobs_run_only_on_workers_consuming_their_queue(client, pair, settings, 
 
 def test_job_survives_a_worker_process_killed_mid_level(client, pair, workers, markers):
     left, right, *_ = pair
-    params = one_level(solver="fake-slow", seed=3)
+    params = harness.one_level(solver="fake-slow", seed=3)
     job_id = harness.submit(client, left, right, params)
     victim = busy_pool_process(markers, workers["main"].children())
     os.kill(victim, signal.SIGKILL)

@@ -9,7 +9,6 @@ import time
 import harness
 import pytest
 
-from shared.config import LevelConfig
 from shared.synthetic import make_scene
 from workers.store import JobStore
 
@@ -23,15 +22,8 @@ def pair():
 
 
 def one_level(solver: str, **extra) -> dict:
-    return {
-        "preset": "paper",
-        "levels": [LevelConfig(downsample=1, candidates=8).model_dump()],
-        "max_disparity": 8,
-        "median": False,
-        "bilateral": False,
-        "solver": solver,
-        **extra,
-    }
+    """One level with eight candidates for ``solver`` (see ``harness.one_level``)."""
+    return harness.one_level(candidates=8, solver=solver, **extra)
 
 
 #: The most a user may ask of sa (native code, no fixing): about 20 s per bundle here, so a task

@@ -61,6 +61,13 @@ def started_job(
     return record.id, config, (scene.left, scene.right)
 
 
+def fast_watchdog(store: JobStore) -> tuple[Watchdog, itertools.count]:
+    """A watchdog whose clock passes the stall time at each reading (``next(clock)`` too)."""
+    clock = itertools.count(step=store.settings.watchdog_stall_seconds + 1)
+    celery = make_celery(store.settings, with_tasks=False)
+    return Watchdog(celery, store, "test", clock=lambda: next(clock)), clock
+
+
 def tick_until(watchdog: Watchdog, clock: itertools.count, job_id: str, action: str) -> None:
     """Advance the fake clock past the stall time until the watchdog does ``action``."""
     for _ in range(4):
@@ -85,9 +92,7 @@ def test_watchdog_resends_lost_bundles_and_the_job_finishes_identically(
     assert store.solved_count(job_id, 0) == 0  # nothing was sent
 
     monkeypatch.undo()  # from now on chords reach the workers
-    celery = make_celery(settings, with_tasks=False)
-    clock = itertools.count(step=settings.watchdog_stall_seconds + 1)
-    watchdog = Watchdog(celery, store, "test", clock=lambda: next(clock))
+    watchdog, clock = fast_watchdog(store)
     before = resend_count(store)
     tick_until(watchdog, clock, job_id, "resent")
     assert resend_count(store) > before  # counted for /metrics
@@ -102,9 +107,7 @@ def test_watchdog_resends_lost_bundles_and_the_job_finishes_identically(
 def test_watchdog_fails_a_job_no_worker_can_run_with_a_reason(settings, workers, lose_chords):
     store = JobStore.from_settings(settings)
     job_id, *_ = started_job(store, "fake-unavailable")
-    celery = make_celery(settings, with_tasks=False)
-    clock = itertools.count(step=settings.watchdog_stall_seconds + 1)
-    watchdog = Watchdog(celery, store, "test", clock=lambda: next(clock))
+    watchdog, _ = fast_watchdog(store)
     actions = []
     for _ in range(settings.watchdog_max_resends + 2):
         actions += [action for job, action in watchdog.tick() if job == job_id]
@@ -159,11 +162,11 @@ def harness_wait(store: JobStore, job_id: str, timeout: float = 60.0) -> JobReco
 def test_watchdog_leaves_a_job_waiting_in_a_busy_queue_alone(settings, workers, lose_chords):
     store = JobStore.from_settings(settings)
     job_id, *_ = started_job(store, "fake-unavailable")
-    celery = make_celery(settings, with_tasks=False)
-    clock = itertools.count(step=settings.watchdog_stall_seconds + 1)
-    watchdog = Watchdog(celery, store, "test", clock=lambda: next(clock))
+    watchdog, _ = fast_watchdog(store)
     before = watchdog.queue_length("fake-unavailable")
-    celery.send_task("qhsm.solve_rows", args=("other-job", 0, [[0, 1]]), queue="fake-unavailable")
+    watchdog.celery.send_task(
+        "qhsm.solve_rows", args=("other-job", 0, [[0, 1]]), queue="fake-unavailable"
+    )
     assert watchdog.queue_length("fake-unavailable") == before + 1  # kombu's list, by its key
     # as if a worker consumed the queue but were busy with other jobs' tasks
     watchdog.consumed_queues = lambda: {"fake-unavailable", settings.control_queue}

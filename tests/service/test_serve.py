@@ -21,7 +21,7 @@ import pytest
 import redis
 
 from shared.cli import main
-from shared.config import LevelConfig, MatchConfig, Settings
+from shared.config import MatchConfig, Settings
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
@@ -176,18 +176,6 @@ def pair():
     return left, right
 
 
-def one_level(seed: int) -> dict:
-    return {
-        "preset": "paper",
-        "solver": "fake-slow",
-        "seed": seed,
-        "levels": [LevelConfig(downsample=1, candidates=3).model_dump()],
-        "max_disparity": 8,
-        "median": False,
-        "bilateral": False,
-    }
-
-
 def reference(pair, params: dict) -> np.ndarray:
     import qhsm_test_plugin  # noqa: F401 - registers fake-slow in this process
 
@@ -262,7 +250,7 @@ def test_embedded_redis_needs_its_password_and_keeps_its_files_private(served):
 
 
 def test_a_sigkilled_worker_is_restarted_and_its_job_finishes_identically(served, pair):
-    params = one_level(seed=21)
+    params = harness.one_level(solver="fake-slow", seed=21)
     job_id = submit_and_wait_for_progress(served, pair, params)
     before = resend_count(served.store())
     victim = served.cpu_worker()
@@ -278,7 +266,7 @@ def test_a_sigkilled_worker_is_restarted_and_its_job_finishes_identically(served
 
 
 def test_a_redis_outage_gives_503_then_the_job_finishes(served, pair):
-    params = one_level(seed=22)
+    params = harness.one_level(solver="fake-slow", seed=22)
     job_id = submit_and_wait_for_progress(served, pair, params)
     os.kill(served.redis_pid(), signal.SIGKILL)
     codes = set()
