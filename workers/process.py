@@ -23,6 +23,11 @@ def die_with_parent(signum: int = signal.SIGKILL) -> None:
 
 
 def kill_now(pid: int) -> None:
-    """SIGKILL ``pid``; one that has already exited is fine."""
+    """SIGKILL ``pid``; one that has already exited is fine.
+
+    Parameters
+    ----------
+    pid : int
+        The process to kill (a worker's pool process, a stale redis-server)."""
     with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGKILL)

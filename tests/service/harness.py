@@ -64,7 +64,19 @@ def npy(array: np.ndarray) -> bytes:
 
 def one_level(candidates: int = 3, **extra) -> dict:
     """Job params of a single full-resolution level without filters: every bundle of the job is
-    in one chord."""
+    in one chord.
+
+    Parameters
+    ----------
+    candidates : int
+        Candidate disparities per pixel of the level.
+    **extra
+        More job params (solver, seed, solver_params ...).
+
+    Returns
+    -------
+    dict
+        The ``params`` form field of a job."""
     return {
         "preset": "paper",
         "levels": [LevelConfig(downsample=1, candidates=candidates).model_dump()],

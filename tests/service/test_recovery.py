@@ -62,7 +62,17 @@ def started_job(
 
 
 def fast_watchdog(store: JobStore) -> tuple[Watchdog, itertools.count]:
-    """A watchdog whose clock passes the stall time at each reading (``next(clock)`` too)."""
+    """A watchdog whose clock passes the stall time at each reading (``next(clock)`` too).
+
+    Parameters
+    ----------
+    store : JobStore
+        The store the watchdog watches.
+
+    Returns
+    -------
+    tuple of (Watchdog, itertools.count)
+        The watchdog and its clock."""
     clock = itertools.count(step=store.settings.watchdog_stall_seconds + 1)
     celery = make_celery(store.settings, with_tasks=False)
     return Watchdog(celery, store, "test", clock=lambda: next(clock)), clock
