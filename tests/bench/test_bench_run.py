@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from shared import bench
-from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench
+from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench, scene_runners
+from shared.bench.report import fmt
 from shared.cli import main
 from shared.pipeline import run_pipeline
 
@@ -58,13 +59,18 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
     }
 
 
-def test_ablations_change_what_they_claim(bench_result):
-    results, _, _ = bench_result
-    configs = {
+def _configs(results: dict, experiment: str, scene: str = "cones") -> dict[str, dict]:
+    """Each variant's pipeline configuration in ``experiment`` on ``scene``."""
+    return {
         r["variant"]: r["config"]
         for r in results["runs"]
-        if r["experiment"] == "ablations" and r["scene"] == "cones"
+        if r["experiment"] == experiment and r["scene"] == scene
     }
+
+
+def test_ablations_change_what_they_claim(bench_result):
+    results, _, _ = bench_result
+    configs = _configs(results, "ablations")
     assert configs["no-regularizer"]["regularizer"] == "none"
     assert configs["linear-regularizer"]["regularizer"] == "linear"
     assert not configs["no-bilateral"]["bilateral"] and configs["no-bilateral"]["median"]
@@ -78,11 +84,7 @@ def test_ablations_change_what_they_claim(bench_result):
 
 def test_accurate_ablations_switch_one_step_each(bench_result):
     results, _, _ = bench_result
-    configs = {
-        r["variant"]: r["config"]
-        for r in results["runs"]
-        if r["experiment"] == "accurate" and r["scene"] == "cones"
-    }
+    configs = _configs(results, "accurate")
     full = configs["accurate"]
     assert full["preset"] == "accurate" and full["lr_check"] and full["weighted_median"]
     changed = {
@@ -101,7 +103,6 @@ def test_accurate_ablations_switch_one_step_each(bench_result):
 def test_table_and_json_carry_every_figure(bench_result):
     results, _, table = bench_result
     rows = {line for line in table.splitlines() if line.startswith("| ")}
-    fmt = bench._fmt
     for run in results["runs"]:
         row = next(r for r in rows if r.startswith(f"| {run['scene']} | {run['variant']} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]
@@ -157,7 +158,7 @@ def test_url_runs_go_through_the_registered_runner(tiny_dataset, tmp_path, monke
         def load(self):
             return fake_runner
 
-    monkeypatch.setattr(bench, "entry_points", lambda group, name: [EntryPoint()])
+    monkeypatch.setattr(scene_runners, "entry_points", lambda group, name: [EntryPoint()])
     options = BenchOptions(
         dataset=tiny_dataset,
         out=tmp_path / "remote",
@@ -174,7 +175,7 @@ def test_url_runs_go_through_the_registered_runner(tiny_dataset, tmp_path, monke
 
 
 def test_url_without_a_runner_says_what_to_install(tiny_dataset, tmp_path, monkeypatch):
-    monkeypatch.setattr(bench, "entry_points", lambda group, name: [])
+    monkeypatch.setattr(scene_runners, "entry_points", lambda group, name: [])
     options = BenchOptions(dataset=tiny_dataset, out=tmp_path, url="http://localhost:8000")
     with pytest.raises(bench.BenchError, match="needs the service package installed"):
         run_bench(options, log=lambda line: None)
