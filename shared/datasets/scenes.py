@@ -92,14 +92,21 @@ LAYOUT_BY_LEFT: dict[str, Layout] = {
 
 @dataclass
 class Scene:
+    """A stereo pair on disk with its ground truth, masks and evaluation protocol."""
+
     name: str
     left: Path
     right: Path
-    gt: Path | None
+    #: The ground-truth disparity file (values are disparities times ``scale``), if any.
+    gt: Path | None = None
+    #: Ground-truth scale: stored value / disparity in pixels.
     scale: float = 1.0
+    #: Pixels ignored along every image edge when scoring.
     border: int = 0
+    #: The v2 evaluation masks found, by name (``all``, ``nonocc``, ``disc``).
     masks: dict[str, Path] = field(default_factory=dict)
     max_disparity: int = DEFAULT_MAX_DISPARITY
+    #: The :class:`Layout` name the files were recognised by.
     layout: str = "shared"
 
     def load(self) -> tuple[np.ndarray, np.ndarray]:
