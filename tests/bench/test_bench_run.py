@@ -59,6 +59,11 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
     }
 
 
+def _cones(dataset: Path, out: Path, **changes) -> BenchOptions:
+    """Bench options for the tiny dataset's ``cones`` scene alone."""
+    return BenchOptions(dataset=dataset, out=out, scenes=["cones"], **changes)
+
+
 def _configs(results: dict, experiment: str, scene: str = "cones") -> dict[str, dict]:
     """Each variant's pipeline configuration in ``experiment`` on ``scene``."""
     return {
@@ -159,10 +164,9 @@ def test_url_runs_go_through_the_registered_runner(tiny_dataset, tmp_path, monke
             return fake_runner
 
     monkeypatch.setattr(scene_runners, "entry_points", lambda group, name: [EntryPoint()])
-    options = BenchOptions(
-        dataset=tiny_dataset,
-        out=tmp_path / "remote",
-        scenes=["cones"],
+    options = _cones(
+        tiny_dataset,
+        tmp_path / "remote",
         solvers=["exact"],
         experiments=["solvers", "baselines"],
         url="http://localhost:8000",
@@ -185,7 +189,7 @@ def test_a_failing_run_is_recorded_and_the_bench_goes_on(tiny_dataset, tmp_path)
     def broken(scene, left, right, config):
         raise RuntimeError("solver exploded")
 
-    options = BenchOptions(dataset=tiny_dataset, out=tmp_path, scenes=["cones"], solvers=["exact"])
+    options = _cones(tiny_dataset, tmp_path, solvers=["exact"])
     variant = bench.variants(options)[0]
     scene = bench.select_scenes(options)[0]
     run = bench.run_one(variant, scene, scene.load(), scene.ground_truth(), options, broken)
@@ -201,13 +205,7 @@ def test_bench_rejects_unknown_scenes_and_experiments(tiny_dataset, tmp_path, ca
 
 
 def test_a_protocol_that_leaves_no_pixel_fails_the_run_not_the_bench(tiny_dataset, tmp_path):
-    options = BenchOptions(
-        dataset=tiny_dataset,
-        out=tmp_path,
-        scenes=["cones"],
-        experiments=["baselines"],
-        border=100,
-    )
+    options = _cones(tiny_dataset, tmp_path, experiments=["baselines"], border=100)
     results = run_bench(options, log=lambda line: None)
     assert {r["status"] for r in results["runs"]} == {"failed"}
     assert all("no pixel left" in r["reason"] for r in results["runs"])
@@ -215,13 +213,7 @@ def test_a_protocol_that_leaves_no_pixel_fails_the_run_not_the_bench(tiny_datase
 
 
 def test_an_estimated_range_is_reported_per_run(tiny_dataset, tmp_path):
-    options = BenchOptions(
-        dataset=tiny_dataset,
-        out=tmp_path,
-        scenes=["cones"],
-        experiments=["accurate"],
-        max_disparity="auto",
-    )
+    options = _cones(tiny_dataset, tmp_path, experiments=["accurate"], max_disparity="auto")
     lines: list[str] = []
     results = run_bench(options, log=lines.append)
     full = next(r for r in results["runs"] if r["variant"] == "accurate")
