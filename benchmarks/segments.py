@@ -24,31 +24,18 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scenes import level_inputs, load, quoted_range
 
 from shared.bundles import owned_columns, segment_columns
 from shared.config import Encoding, MatchConfig
-from shared.datasets import default_middlebury_dir, load_scene
+from shared.datasets import default_middlebury_dir
 from shared.energy import Costs, mrf_energy
 from shared.metrics import evaluate
 from shared.pipeline import run_pipeline
-from shared.solve import LevelInputs, solve_bundles, solve_level_in_process
+from shared.solve import solve_bundles
 from shared.solvers.exact import solve_chains
 
-#: The ranges the targets are quoted for (PROVENANCE.md; Cones' disparities reach 55 px).
-MAX_DISPARITY = {"tsukuba": 16, "venus": 20, "cones": 60}
 MARGIN = 12
-
-
-def level_inputs(left, right, config: MatchConfig) -> list[LevelInputs]:
-    """Each level's inputs as an ``exact`` run prepares them."""
-    captured: list[LevelInputs] = []
-
-    def solve_level(inputs: LevelInputs, cfg: MatchConfig):
-        captured.append(inputs)
-        return solve_level_in_process(inputs, cfg)
-
-    run_pipeline(left, right, config.model_copy(update={"solver": "exact"}), solve_level)
-    return captured
 
 
 def stitch(segments: list[tuple[int, int]], parts: list[np.ndarray], width: int) -> np.ndarray:
@@ -92,10 +79,9 @@ def price(args: argparse.Namespace) -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for name in args.scenes.split(","):
-        scene = load_scene(args.data / name)
-        left, right = scene.load()
+        scene, left, right = load(name, args.data)
         gt = scene.ground_truth()
-        base = MatchConfig(max_disparity=MAX_DISPARITY[name], seed=args.seed)
+        base = MatchConfig(max_disparity=quoted_range(scene), seed=args.seed)
         levels = level_inputs(left, right, base)
         costs = [inputs.costs(base) for inputs in levels]
         optima = [solve_chains(c) for c in costs]
@@ -151,9 +137,8 @@ def gaps(args: argparse.Namespace) -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for name in args.scenes.split(","):
-        scene = load_scene(args.data / name)
-        left, right = scene.load()
-        base = MatchConfig(max_disparity=MAX_DISPARITY[name], seed=args.seed)
+        scene, left, right = load(name, args.data)
+        base = MatchConfig(max_disparity=quoted_range(scene), seed=args.seed)
         for inputs in level_inputs(left, right, base):
             height = inputs.shape[0]
             sample = np.linspace(0, height - 1, args.rows).round().astype(int).tolist()
