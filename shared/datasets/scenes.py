@@ -110,18 +110,43 @@ class Scene:
     layout: str = "shared"
 
     def load(self) -> tuple[np.ndarray, np.ndarray]:
-        """The left and right views as :func:`shared.images.load_pair` reads them."""
+        """Read the two views.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            Left and right view as :func:`shared.images.load_pair` reads them.
+        """
         return load_pair(self.left, self.right)
 
     def ground_truth(self) -> np.ndarray:
-        """The ground truth as stored (divide by ``scale`` for pixels); raises if there is none."""
+        """Read the ground truth (``FileNotFoundError`` where the scene has none).
+
+        Returns
+        -------
+        numpy.ndarray
+            The stored values: disparities in pixels times ``scale``, 0 where unknown.
+        """
         if self.gt is None:
             raise FileNotFoundError(f"scene {self.name} has no ground truth")
         return load_disparity_values(self.gt)
 
     def mask(self, name: str) -> np.ndarray | None:
-        """Pixels of v2 mask ``name`` (bool). ``disc`` holds 255 near discontinuities and 128
-        elsewhere in nonocc, so only its 255 pixels count; the other masks are non-zero ones."""
+        """Pixels of a v2 evaluation mask.
+
+        ``disc`` holds 255 near discontinuities and 128 elsewhere in nonocc, so only its 255
+        pixels count; the other masks are their non-zero pixels.
+
+        Parameters
+        ----------
+        name
+            ``all``, ``nonocc`` or ``disc``.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            A boolean mask, or None where the scene has no such mask.
+        """
         if name not in self.masks:
             return None
         if name == "disc":
@@ -132,7 +157,14 @@ class Scene:
         return load_mask(self.masks[name])
 
     def protocol(self) -> dict:
-        """The evaluation protocol as plain data (for results files)."""
+        """The evaluation protocol as plain data.
+
+        Returns
+        -------
+        dict
+            ``layout``, ``scale``, ``border``, ``max_disparity`` and the ``masks`` found (for
+            results files and ``qhsm datasets list``).
+        """
         fields = ("layout", "scale", "border", "max_disparity")
         return {**{key: getattr(self, key) for key in fields}, "masks": sorted(self.masks)}
 
