@@ -181,7 +181,9 @@ class _Downloader:
         self.timeout = timeout
         self.sha256 = ""
 
-    def __call__(self, url: str, output_file: str, pooch_: pooch.Pooch, check_only=False) -> None:
+    def __call__(
+        self, url: str, output_file: str, pooch_: pooch.Pooch, check_only: bool = False
+    ) -> None:
         if url.startswith("file:"):
             with open(output_file, "wb") as out, urlopen(url, timeout=self.timeout) as response:
                 shutil.copyfileobj(response, out)
