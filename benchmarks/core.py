@@ -20,14 +20,13 @@ import tempfile
 import time
 from pathlib import Path
 
+from scenes import load, quoted_range
+
 from shared.config import Encoding, MatchConfig, Preset
-from shared.datasets import default_middlebury_dir, load_scene
+from shared.datasets import default_middlebury_dir
 from shared.encodings import get_codec
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
-
-#: The ranges the targets are quoted for (Cones' disparities reach 55 px).
-MAX_DISPARITY = {"tsukuba": 16, "venus": 20, "cones": 60}
 
 
 def command_seconds(scene, options: list[str], repeats: int) -> float:
@@ -81,9 +80,8 @@ def main() -> None:
     sizes: dict[str, list[str]] = {}
     walls: dict[tuple[str, str], float] = {}
     for name in args.scenes.split(","):
-        scene = load_scene(args.data / name)
-        left, right = scene.load()
-        max_disparity = MAX_DISPARITY.get(name, scene.max_disparity)
+        scene, left, right = load(name, args.data)
+        max_disparity = quoted_range(scene)
         for preset in Preset:
             options = {"preset": preset, "max_disparity": max_disparity, "solver": args.solver}
             if args.encoding:

@@ -21,34 +21,22 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+from scenes import level_inputs, load, quoted_range
 
 from shared.bundles import owned_columns, segment_columns
 from shared.config import Encoding, MatchConfig
-from shared.datasets import default_middlebury_dir, load_scene
+from shared.datasets import Scene, default_middlebury_dir
 from shared.energy import Costs, mrf_energy
 from shared.metrics import evaluate
 from shared.pipeline import run_pipeline
-from shared.solve import LevelInputs, solve_bundles, solve_level_in_process
+from shared.solve import solve_bundles
 from shared.solvers.exact import solve_chains
 
-#: The ranges the targets are quoted for (PROVENANCE.md; Cones' disparities reach 55 px).
-MAX_DISPARITY = {"tsukuba": 16, "venus": 20, "cones": 60}
 MARGIN = 12
-
-
-def level_inputs(left, right, config: MatchConfig) -> list[LevelInputs]:
-    """Each level's inputs as an ``exact`` run prepares them."""
-    captured: list[LevelInputs] = []
-
-    def solve_level(inputs: LevelInputs, cfg: MatchConfig):
-        captured.append(inputs)
-        return solve_level_in_process(inputs, cfg)
-
-    run_pipeline(left, right, config.model_copy(update={"solver": "exact"}), solve_level)
-    return captured
 
 
 def stitch(segments: list[tuple[int, int]], parts: list[np.ndarray], width: int) -> np.ndarray:
@@ -84,18 +72,33 @@ def cut_columns(width: int, bundle_width: int | None) -> list[int]:
     return [start for start, _ in owned[1:]]
 
 
+def table_head(columns: str) -> None:
+    """Print a Markdown table's header: ``columns`` are the titles separated by `` | ``."""
+    print(f"| {columns} |")
+    print("|" + "---|" * len(columns.split(" | ")))
+
+
+def scenes_of(args: argparse.Namespace) -> Iterator[tuple[str, Scene, tuple, MatchConfig]]:
+    """Each scene of ``--scenes``: its name, itself, its views and the default configuration at
+    the range its targets are quoted for."""
+    for name in args.scenes.split(","):
+        scene, left, right = load(name, args.data)
+        yield (
+            name,
+            scene,
+            (left, right),
+            MatchConfig(max_disparity=quoted_range(scene), seed=args.seed),
+        )
+
+
 def price(args: argparse.Namespace) -> None:
     widths = [int(w) for w in args.widths.split(",")]
-    print(
-        "| scene | width | energy gap median (%) | energy gap worst (%) | RMSE | BPP (%) | "
-        "RMSE vs whole | BPP near cuts / elsewhere (%) | sa s |"
+    table_head(
+        "scene | width | energy gap median (%) | energy gap worst (%) | RMSE | BPP (%) | "
+        "RMSE vs whole | BPP near cuts / elsewhere (%) | sa s"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
-    for name in args.scenes.split(","):
-        scene = load_scene(args.data / name)
-        left, right = scene.load()
+    for name, scene, (left, right), base in scenes_of(args):
         gt = scene.ground_truth()
-        base = MatchConfig(max_disparity=MAX_DISPARITY[name], seed=args.seed)
         levels = level_inputs(left, right, base)
         costs = [inputs.costs(base) for inputs in levels]
         optima = [solve_chains(c) for c in costs]
@@ -145,15 +148,10 @@ def price(args: argparse.Namespace) -> None:
 
 def gaps(args: argparse.Namespace) -> None:
     widths = [int(w) for w in args.widths.split(",")]
-    print(
-        "| scene | level | K | solver | encoding | width | gap median (%) | gap worst (%) | "
-        "s per row |"
+    table_head(
+        "scene | level | K | solver | encoding | width | gap median (%) | gap worst (%) | s per row"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
-    for name in args.scenes.split(","):
-        scene = load_scene(args.data / name)
-        left, right = scene.load()
-        base = MatchConfig(max_disparity=MAX_DISPARITY[name], seed=args.seed)
+    for name, _, (left, right), base in scenes_of(args):
         for inputs in level_inputs(left, right, base):
             height = inputs.shape[0]
             sample = np.linspace(0, height - 1, args.rows).round().astype(int).tolist()

@@ -29,14 +29,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scenes import level_inputs, load
 
 from shared.bundles import bundle_rows, bundle_seed
 from shared.config import MatchConfig
-from shared.datasets import default_middlebury_dir, load_scene
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.pipeline import finish_level, match_views, plan_run, prepare_level
-from shared.solve import LevelInputs, solve_level_in_process
 from shared.solvers import SolverError, get_solver, solver_names
 from shared.solvers.exact import solve_chains
 from shared.solvers.gurobi import PIP_LICENCE_VARIABLES
@@ -62,20 +60,6 @@ class Outcome:
     seconds: float = 0.0
     error: str | None = None
     info: dict = field(default_factory=dict)
-
-
-def level_inputs(scene_name: str, config: MatchConfig) -> list[LevelInputs]:
-    """Every level's real inputs, each built on the exact solver's coarser estimate."""
-    left, right = load_scene(default_middlebury_dir() / scene_name).load()
-    exact = config.model_copy(update={"solver": "exact", "bundle_height": 1})
-    left, right = match_views(left, right, exact)
-    _, plans = plan_run(left, right, exact)
-    levels, previous = [], None
-    for plan in plans:
-        inputs = prepare_level(left, right, exact, plan, previous)
-        previous = finish_level(inputs, solve_level_in_process(inputs, exact), exact)
-        levels.append(inputs)
-    return levels
 
 
 def sample_bundles(height: int, bundle_height: int, count: int) -> list[tuple[int, int]]:
@@ -309,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
 
     started = time.perf_counter()
     config = MatchConfig(preset=args.preset, max_disparity=args.max_disparity)
-    levels = level_inputs(args.scene, config)
+    _, left, right = load(args.scene)
+    levels = level_inputs(left, right, config.model_copy(update={"bundle_height": 1}))
     print(f"levels ready ({time.perf_counter() - started:.1f} s)", file=sys.stderr)
     outcomes: list[Outcome] = []
     references: dict = {}

@@ -110,6 +110,57 @@ def test_fetch_verifies_known_checksums_and_reports_unknown_ones(mirror, tmp_pat
     assert again["im2.ppm"] == "present"
 
 
+def test_fetch_downloads_unverified_files_again_and_drops_a_corrupt_copy(mirror, tmp_path):
+    url, root = mirror
+    target = tmp_path / "out"
+    fetch("toy", target, mirror=url)
+    (root / "x/one/disp2.pgm").write_bytes(b"newer gt")
+    (target / "one" / "im6.ppm").write_bytes(b"stale")
+    (root / "x/one/im6.ppm").write_bytes(b"tampered")
+    with pytest.raises(ChecksumMismatch, match="differs"):
+        fetch("toy", target, mirror=url)
+    assert not (target / "one" / "im6.ppm").exists()  # neither the stale nor the bad copy
+    (root / "x/one/im6.ppm").write_bytes(b"right")
+    statuses = {f.path.name: (f.status, f.sha256) for f in fetch("toy", target, mirror=url)}
+    assert statuses["disp2.pgm"] == ("unverified", _sha(b"newer gt"))
+    assert (target / "one" / "disp2.pgm").read_bytes() == b"newer gt"
+    assert statuses["im6.ppm"] == ("verified", _sha(b"right"))
+    assert sorted(p.name for p in (target / "one").iterdir()) == ["disp2.pgm", "im2.ppm", "im6.ppm"]
+
+
+def test_http_downloads_go_through_pooch_and_are_retried(mirror, tmp_path, monkeypatch):
+    """Served from the file mirror by a stand-in for pooch's HTTP downloader that fails once."""
+    import pooch
+    import requests
+
+    _, root = mirror
+    calls: list[str] = []
+
+    class FlakyHTTP:
+        failures = 1  # the first this many calls fail
+
+        def __init__(self, **kwargs):
+            assert kwargs == {"timeout": 60.0}
+
+        def __call__(self, url, output_file, pooch_, check_only=False):
+            calls.append(url)
+            if len(calls) <= self.failures:
+                raise requests.ConnectionError("connection reset")
+            relative = url.removeprefix("https://example.invalid/")
+            Path(output_file).write_bytes((root / relative).read_bytes())
+
+    monkeypatch.setattr(pooch, "HTTPDownloader", FlakyHTTP)
+    monkeypatch.setattr(pooch.core.time, "sleep", lambda seconds: None)
+    fetched = fetch("toy", tmp_path / "out")
+    assert [f.status for f in fetched] == ["verified", "verified", "unverified"]
+    assert calls[:2] == ["https://example.invalid/x/one/im2.ppm"] * 2  # retried once
+    calls.clear()
+    FlakyHTTP.failures = 99
+    with pytest.raises(ConnectionError, match=r"could not download https://example\.invalid/"):
+        fetch("toy", tmp_path / "other")
+    assert len(calls) == 3  # RETRIES more attempts, then the error
+
+
 def test_fetch_rejects_a_corrupt_file_and_keeps_nothing(mirror, tmp_path: Path):
     url, root = mirror
     (root / "x/one/im6.ppm").write_bytes(b"tampered")
@@ -134,6 +185,7 @@ def test_cli_fetch_reads_the_mirror_from_the_environment(mirror, tmp_path, monke
     assert main(["datasets", "fetch", "toy", str(tmp_path / "out")]) == 0
     captured = capsys.readouterr()
     assert "unverified" in captured.out and "no known checksum" in captured.err
+    assert "Downloading" not in captured.err  # pooch's own log lines stay quiet
     assert main(["datasets", "fetch", "toy", str(tmp_path / "o2"), "--mirror", "file:///no"]) == 1
 
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from shared import bench
-from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench
+from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench, scene_runners
+from shared.bench.report import fmt
 from shared.cli import main
 from shared.pipeline import run_pipeline
 
@@ -58,13 +59,23 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
     }
 
 
-def test_ablations_change_what_they_claim(bench_result):
-    results, _, _ = bench_result
-    configs = {
+def _cones(dataset: Path, out: Path, **changes) -> BenchOptions:
+    """Bench options for the tiny dataset's ``cones`` scene alone."""
+    return BenchOptions(dataset=dataset, out=out, scenes=["cones"], **changes)
+
+
+def _configs(results: dict, experiment: str, scene: str = "cones") -> dict[str, dict]:
+    """Each variant's pipeline configuration in ``experiment`` on ``scene``."""
+    return {
         r["variant"]: r["config"]
         for r in results["runs"]
-        if r["experiment"] == "ablations" and r["scene"] == "cones"
+        if r["experiment"] == experiment and r["scene"] == scene
     }
+
+
+def test_ablations_change_what_they_claim(bench_result):
+    results, _, _ = bench_result
+    configs = _configs(results, "ablations")
     assert configs["no-regularizer"]["regularizer"] == "none"
     assert configs["linear-regularizer"]["regularizer"] == "linear"
     assert not configs["no-bilateral"]["bilateral"] and configs["no-bilateral"]["median"]
@@ -78,11 +89,7 @@ def test_ablations_change_what_they_claim(bench_result):
 
 def test_accurate_ablations_switch_one_step_each(bench_result):
     results, _, _ = bench_result
-    configs = {
-        r["variant"]: r["config"]
-        for r in results["runs"]
-        if r["experiment"] == "accurate" and r["scene"] == "cones"
-    }
+    configs = _configs(results, "accurate")
     full = configs["accurate"]
     assert full["preset"] == "accurate" and full["lr_check"] and full["weighted_median"]
     changed = {
@@ -101,7 +108,6 @@ def test_accurate_ablations_switch_one_step_each(bench_result):
 def test_table_and_json_carry_every_figure(bench_result):
     results, _, table = bench_result
     rows = {line for line in table.splitlines() if line.startswith("| ")}
-    fmt = bench._fmt
     for run in results["runs"]:
         row = next(r for r in rows if r.startswith(f"| {run['scene']} | {run['variant']} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]
@@ -157,11 +163,10 @@ def test_url_runs_go_through_the_registered_runner(tiny_dataset, tmp_path, monke
         def load(self):
             return fake_runner
 
-    monkeypatch.setattr(bench, "entry_points", lambda group, name: [EntryPoint()])
-    options = BenchOptions(
-        dataset=tiny_dataset,
-        out=tmp_path / "remote",
-        scenes=["cones"],
+    monkeypatch.setattr(scene_runners, "entry_points", lambda group, name: [EntryPoint()])
+    options = _cones(
+        tiny_dataset,
+        tmp_path / "remote",
         solvers=["exact"],
         experiments=["solvers", "baselines"],
         url="http://localhost:8000",
@@ -174,7 +179,7 @@ def test_url_runs_go_through_the_registered_runner(tiny_dataset, tmp_path, monke
 
 
 def test_url_without_a_runner_says_what_to_install(tiny_dataset, tmp_path, monkeypatch):
-    monkeypatch.setattr(bench, "entry_points", lambda group, name: [])
+    monkeypatch.setattr(scene_runners, "entry_points", lambda group, name: [])
     options = BenchOptions(dataset=tiny_dataset, out=tmp_path, url="http://localhost:8000")
     with pytest.raises(bench.BenchError, match="needs the service package installed"):
         run_bench(options, log=lambda line: None)
@@ -184,7 +189,7 @@ def test_a_failing_run_is_recorded_and_the_bench_goes_on(tiny_dataset, tmp_path)
     def broken(scene, left, right, config):
         raise RuntimeError("solver exploded")
 
-    options = BenchOptions(dataset=tiny_dataset, out=tmp_path, scenes=["cones"], solvers=["exact"])
+    options = _cones(tiny_dataset, tmp_path, solvers=["exact"])
     variant = bench.variants(options)[0]
     scene = bench.select_scenes(options)[0]
     run = bench.run_one(variant, scene, scene.load(), scene.ground_truth(), options, broken)
@@ -200,13 +205,7 @@ def test_bench_rejects_unknown_scenes_and_experiments(tiny_dataset, tmp_path, ca
 
 
 def test_a_protocol_that_leaves_no_pixel_fails_the_run_not_the_bench(tiny_dataset, tmp_path):
-    options = BenchOptions(
-        dataset=tiny_dataset,
-        out=tmp_path,
-        scenes=["cones"],
-        experiments=["baselines"],
-        border=100,
-    )
+    options = _cones(tiny_dataset, tmp_path, experiments=["baselines"], border=100)
     results = run_bench(options, log=lambda line: None)
     assert {r["status"] for r in results["runs"]} == {"failed"}
     assert all("no pixel left" in r["reason"] for r in results["runs"])
@@ -214,13 +213,7 @@ def test_a_protocol_that_leaves_no_pixel_fails_the_run_not_the_bench(tiny_datase
 
 
 def test_an_estimated_range_is_reported_per_run(tiny_dataset, tmp_path):
-    options = BenchOptions(
-        dataset=tiny_dataset,
-        out=tmp_path,
-        scenes=["cones"],
-        experiments=["accurate"],
-        max_disparity="auto",
-    )
+    options = _cones(tiny_dataset, tmp_path, experiments=["accurate"], max_disparity="auto")
     lines: list[str] = []
     results = run_bench(options, log=lines.append)
     full = next(r for r in results["runs"] if r["variant"] == "accurate")
