@@ -19,8 +19,14 @@ import time
 from dataclasses import dataclass, field
 
 import cv2
-import maxflow
 import numpy as np
+
+try:
+    import maxflow
+except ImportError as exc:  # PyMaxflow is in the optional `bench` extra
+    raise ImportError(
+        "the baselines of `qhsm bench` need PyMaxflow: pip install 'qhsm[bench]'"
+    ) from exc
 
 from shared.config import LevelConfig, MatchConfig, Regularizer
 from shared.energy import Costs, level_costs, row_energies
