@@ -57,15 +57,18 @@ def heidari_config(max_disparity: int, level: LevelConfig | None = None) -> Matc
     filtering. ``level`` supplies the slope (default: the paper's full-resolution level).
     """
     base = level or LevelConfig()
-    return MatchConfig(
-        preset="paper",
-        levels=[base.model_copy(update={"downsample": 1, "candidates": max_disparity + 1})],
-        max_disparity=max_disparity,
-        regularizer=Regularizer.LINEAR,
-        median=False,
-        bilateral=False,
-        solver="exact",
-        bundle_height=1,
+    # model_validate: the preset fills the fields this leaves out, which a type checker cannot see
+    return MatchConfig.model_validate(
+        {
+            "preset": "paper",
+            "levels": [base.model_copy(update={"downsample": 1, "candidates": max_disparity + 1})],
+            "max_disparity": max_disparity,
+            "regularizer": Regularizer.LINEAR,
+            "median": False,
+            "bilateral": False,
+            "solver": "exact",
+            "bundle_height": 1,
+        }
     )
 
 
@@ -143,7 +146,8 @@ def heidari(
     labels = np.empty(left.shape, dtype=np.int32)
     energy = cut_seconds = dp_seconds = worst_gap = 0.0
     started = time.perf_counter()
-    for start, stop in _row_blocks(*left.shape, level.candidates):
+    height, width = left.shape
+    for start, stop in _row_blocks(height, width, level.candidates):
         costs = level_costs(
             left[start:stop], right[start:stop], candidates[start:stop], level, config.regularizer
         )
@@ -190,7 +194,7 @@ def sgbm(
     """
     started = time.perf_counter()
     num_disparities = 16 * int(np.ceil((max_disparity + 1) / 16))
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM.create(
         minDisparity=0,
         numDisparities=num_disparities,
         blockSize=block_size,

@@ -80,8 +80,9 @@ def weighted_median(disparity: np.ndarray, guide: np.ndarray, radius: int, sigma
     # A colour guide is quantised by k-means seeded from OpenCV's global RNG: seed it, or the
     # same pair gives a different map on every call (up to several pixels apart).
     cv2.setRNGSeed(0)
+    # sigma by keyword: the fourth positional parameter is ``dst``, which ignored it (always 25.5)
     return cv2.ximgproc.weightedMedianFilter(
-        guide8, np.asarray(disparity, np.float32), radius, sigma
+        guide8, np.asarray(disparity, np.float32), radius, sigma=sigma
     ).astype(np.float32)
 
 
