@@ -55,6 +55,17 @@ def heidari_config(max_disparity: int, level: LevelConfig | None = None) -> Matc
     One full-resolution level whose candidates are all disparities 0..max (hence at most 63:
     ``LevelConfig`` allows 64 candidates), the linear regulariser, no median or bilateral
     filtering. ``level`` supplies the slope (default: the paper's full-resolution level).
+
+    Parameters
+    ----------
+    max_disparity : int
+        Largest disparity, px (at most 63).
+    level : LevelConfig, optional
+        The MRF parameters to take the slope from.
+
+    Returns
+    -------
+    MatchConfig
     """
     base = level or LevelConfig()
     # model_validate: the preset fills the fields this leaves out, which a type checker cannot see
@@ -77,6 +88,21 @@ def linear_slopes(costs: Costs) -> np.ndarray:
 
     Raises ``ValueError`` unless the candidates are 0..K-1 at every pixel and the horizontal
     pairwise costs are linear in the label difference (what the min-cut construction needs).
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF of a block of rows.
+
+    Returns
+    -------
+    numpy.ndarray
+        Slopes (h, w - 1), float64.
+
+    Raises
+    ------
+    ValueError
+        If the costs are not of the form the min-cut construction needs.
     """
     height, width, labels = costs.unary.shape
     if not np.array_equal(
@@ -100,6 +126,16 @@ def minimum_cut_rows(costs: Costs) -> np.ndarray:
 
     Vertical edges are ignored, exactly as in the row DP. Rows share the graph but no edges, so
     the cut of the graph is the sum of the rows' optimal cuts.
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF of a block of rows (linear pairwise term, see :func:`linear_slopes`).
+
+    Returns
+    -------
+    numpy.ndarray
+        Candidate index (h, w), int32, of every pixel.
     """
     slopes = linear_slopes(costs)
     unary = costs.unary
@@ -139,6 +175,24 @@ def heidari(
     With ``cross_check`` every block of rows is also solved by the row DP and the two optima are
     compared; a disagreement beyond float round-off raises ``AssertionError`` (a bug, not data).
     ``info`` holds the total energy, the cut time alone and the largest DP gap seen.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The views (h, w), float32 gray in [0, 1].
+    max_disparity : int
+        Largest disparity, px (at most 63).
+    cross_check : bool, optional
+        Also solve every block by the row DP and compare the energies.
+
+    Returns
+    -------
+    BaselineResult
+
+    Raises
+    ------
+    AssertionError
+        If ``cross_check`` finds the two optima apart beyond round-off.
     """
     config = heidari_config(max_disparity)
     level = config.levels[0]
@@ -191,6 +245,19 @@ def sgbm(
     Disparities are searched in 0..max (rounded up to OpenCV's multiple of 16, then clipped to
     max); invalid pixels are filled by :func:`shared.filters.fill_from_background` (rows
     without a valid pixel become 0).
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The views (h, w) or (h, w, 3), float32 in [0, 1].
+    max_disparity : int
+        Largest disparity, px.
+    block_size : int, optional
+        OpenCV's matched block size (odd).
+
+    Returns
+    -------
+    BaselineResult
     """
     started = time.perf_counter()
     num_disparities = 16 * int(np.ceil((max_disparity + 1) / 16))
