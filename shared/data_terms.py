@@ -131,11 +131,11 @@ def ad_census_volume(
     Parameters
     ----------
     left, right : numpy.ndarray
-        Whole views (h, w) or (h, w, 3) in [0, 1].
+        Whole views, gray or BGR in [0, 1]; the rows around the block are context.
     max_disparity : int
-        Largest disparity D of the volume.
+        D: the volume holds the disparities 0..D.
     start, stop : int
-        The rows [start, stop) to cost.
+        The block of rows costed.
 
     Returns
     -------

@@ -104,7 +104,7 @@ def estimate_max_disparity(left: np.ndarray, right: np.ndarray) -> RangeEstimate
     Parameters
     ----------
     left, right : numpy.ndarray
-        A rectified pair (h, w) or (h, w, 3) in [0, 1].
+        The rectified views, gray or BGR, float in [0, 1].
 
     Returns
     -------

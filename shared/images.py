@@ -41,7 +41,7 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
+        The view, float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
 
     Raises
     ------
@@ -69,7 +69,7 @@ def load_view(path: str | Path) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
+        The view, as from :func:`decode_image`.
 
     Raises
     ------
@@ -88,7 +88,7 @@ def load_image(path: str | Path) -> np.ndarray:
     Parameters
     ----------
     path : str or Path
-        The image file.
+        Any image file :func:`load_view` reads.
 
     Returns
     -------
@@ -111,7 +111,7 @@ def to_unit_range(raw: np.ndarray, name: str = "image") -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
+        float32 in [0, 1]: (h, w) from one channel, (h, w, 3) BGR from three or four.
 
     Raises
     ------

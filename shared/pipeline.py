@@ -181,7 +181,7 @@ def prepare_level(
     Parameters
     ----------
     left, right : numpy.ndarray
-        The pair's :func:`match_views`.
+        The pair's :func:`match_views` at full resolution.
     config : MatchConfig
         The run's configuration.
     plan : LevelPlan

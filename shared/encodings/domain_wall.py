@@ -52,7 +52,7 @@ def variables_per_pixel(num_labels: int) -> int:
     Parameters
     ----------
     num_labels : int
-        Candidates K per pixel.
+        Candidates K per pixel (K - 1 wall bits each).
 
     Returns
     -------
@@ -67,9 +67,9 @@ def variable_index(shape: tuple[int, int], num_labels: int) -> np.ndarray:
     Parameters
     ----------
     shape : tuple of int
-        (height, width) of the bundle.
+        (height, width) of the bundle's pixels.
     num_labels : int
-        Candidates K per pixel.
+        Candidates K per pixel (K - 1 wall bits each).
 
     Returns
     -------
@@ -204,7 +204,7 @@ def encode_labels(labels: np.ndarray, num_labels: int) -> np.ndarray:
     labels : numpy.ndarray
         Candidate index (h, w) of every pixel.
     num_labels : int
-        Candidates K per pixel.
+        Candidates K per pixel (K - 1 wall bits each).
 
     Returns
     -------
@@ -221,7 +221,7 @@ def decode(costs: Costs, sample: np.ndarray) -> Decoded:
     Parameters
     ----------
     costs : Costs
-        The bundle's MRF (for shapes and repairs).
+        The bundle's MRF: its shape, and its costs to repair broken walls.
     sample : numpy.ndarray
         h * w * (K - 1) bits in variable order.
 
