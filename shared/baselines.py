@@ -21,13 +21,6 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-try:
-    import maxflow
-except ImportError as exc:  # PyMaxflow is in the optional `bench` extra
-    raise ImportError(
-        "the baselines of `qhsm bench` need PyMaxflow: pip install 'qhsm[bench]'"
-    ) from exc
-
 from shared.config import LevelConfig, MatchConfig, Regularizer
 from shared.energy import Costs, level_costs, row_energies
 from shared.filters import fill_from_background
@@ -143,6 +136,13 @@ def minimum_cut_rows(costs: Costs) -> np.ndarray:
     if labels == 1:
         return np.zeros((height, width), dtype=np.int32)
     infinite = float(unary.sum() + slopes.sum() * labels + 1.0)
+    try:
+        import maxflow
+    except ImportError as exc:  # PyMaxflow is in the optional `bench` extra
+        raise ImportError(
+            "the Heidari baseline needs PyMaxflow: pip install 'qhsm[bench]'"
+        ) from exc
+
     graph = maxflow.GraphFloat()
     nodes = graph.add_grid_nodes((height, width, labels - 1))  # node i: "label >= i + 1"
     graph.add_grid_tedges(nodes[:, :, 0], unary[:, :, 0], np.zeros((height, width)))
