@@ -14,7 +14,7 @@ COPY pyproject.toml README.md ./
 COPY shared ./shared
 COPY api ./api
 COPY workers ./workers
-RUN pip install ".[monitoring]" \
+RUN pip install ".[gurobi,monitoring]" \
     && useradd --create-home --uid 10001 qhsm \
     && mkdir -p /data \
     && chown qhsm /data

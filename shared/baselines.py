@@ -19,7 +19,6 @@ import time
 from dataclasses import dataclass, field
 
 import cv2
-import maxflow
 import numpy as np
 
 from shared.config import LevelConfig, MatchConfig, Regularizer
@@ -49,17 +48,31 @@ def heidari_config(max_disparity: int, level: LevelConfig | None = None) -> Matc
     One full-resolution level whose candidates are all disparities 0..max (hence at most 63:
     ``LevelConfig`` allows 64 candidates), the linear regulariser, no median or bilateral
     filtering. ``level`` supplies the slope (default: the paper's full-resolution level).
+
+    Parameters
+    ----------
+    max_disparity : int
+        Largest disparity, px (at most 63).
+    level : LevelConfig, optional
+        The MRF parameters to take the slope from.
+
+    Returns
+    -------
+    MatchConfig
     """
     base = level or LevelConfig()
-    return MatchConfig(
-        preset="paper",
-        levels=[base.model_copy(update={"downsample": 1, "candidates": max_disparity + 1})],
-        max_disparity=max_disparity,
-        regularizer=Regularizer.LINEAR,
-        median=False,
-        bilateral=False,
-        solver="exact",
-        bundle_height=1,
+    # model_validate: the preset fills the fields this leaves out, which a type checker cannot see
+    return MatchConfig.model_validate(
+        {
+            "preset": "paper",
+            "levels": [base.model_copy(update={"downsample": 1, "candidates": max_disparity + 1})],
+            "max_disparity": max_disparity,
+            "regularizer": Regularizer.LINEAR,
+            "median": False,
+            "bilateral": False,
+            "solver": "exact",
+            "bundle_height": 1,
+        }
     )
 
 
@@ -68,6 +81,21 @@ def linear_slopes(costs: Costs) -> np.ndarray:
 
     Raises ``ValueError`` unless the candidates are 0..K-1 at every pixel and the horizontal
     pairwise costs are linear in the label difference (what the min-cut construction needs).
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF of a block of rows.
+
+    Returns
+    -------
+    numpy.ndarray
+        Slopes (h, w - 1), float64.
+
+    Raises
+    ------
+    ValueError
+        If the costs are not of the form the min-cut construction needs.
     """
     height, width, labels = costs.unary.shape
     if not np.array_equal(
@@ -91,6 +119,16 @@ def minimum_cut_rows(costs: Costs) -> np.ndarray:
 
     Vertical edges are ignored, exactly as in the row DP. Rows share the graph but no edges, so
     the cut of the graph is the sum of the rows' optimal cuts.
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF of a block of rows (linear pairwise term, see :func:`linear_slopes`).
+
+    Returns
+    -------
+    numpy.ndarray
+        Candidate index (h, w), int32, of every pixel.
     """
     slopes = linear_slopes(costs)
     unary = costs.unary
@@ -98,6 +136,13 @@ def minimum_cut_rows(costs: Costs) -> np.ndarray:
     if labels == 1:
         return np.zeros((height, width), dtype=np.int32)
     infinite = float(unary.sum() + slopes.sum() * labels + 1.0)
+    try:
+        import maxflow
+    except ImportError as exc:  # PyMaxflow is in the optional `bench` extra
+        raise ImportError(
+            "the Heidari baseline needs PyMaxflow: pip install 'qhsm[bench]'"
+        ) from exc
+
     graph = maxflow.GraphFloat()
     nodes = graph.add_grid_nodes((height, width, labels - 1))  # node i: "label >= i + 1"
     graph.add_grid_tedges(nodes[:, :, 0], unary[:, :, 0], np.zeros((height, width)))
@@ -130,6 +175,24 @@ def heidari(
     With ``cross_check`` every block of rows is also solved by the row DP and the two optima are
     compared; a disagreement beyond float round-off raises ``AssertionError`` (a bug, not data).
     ``info`` holds the total energy, the cut time alone and the largest DP gap seen.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The views (h, w), float32 gray in [0, 1].
+    max_disparity : int
+        Largest disparity, px (at most 63).
+    cross_check : bool, optional
+        Also solve every block by the row DP and compare the energies.
+
+    Returns
+    -------
+    BaselineResult
+
+    Raises
+    ------
+    AssertionError
+        If ``cross_check`` finds the two optima apart beyond round-off.
     """
     config = heidari_config(max_disparity)
     level = config.levels[0]
@@ -137,7 +200,8 @@ def heidari(
     labels = np.empty(left.shape, dtype=np.int32)
     energy = cut_seconds = dp_seconds = worst_gap = 0.0
     started = time.perf_counter()
-    for start, stop in _row_blocks(*left.shape, level.candidates):
+    height, width = left.shape
+    for start, stop in _row_blocks(height, width, level.candidates):
         costs = level_costs(
             left[start:stop], right[start:stop], candidates[start:stop], level, config.regularizer
         )
@@ -181,10 +245,23 @@ def sgbm(
     Disparities are searched in 0..max (rounded up to OpenCV's multiple of 16, then clipped to
     max); invalid pixels are filled by :func:`shared.filters.fill_from_background` (rows
     without a valid pixel become 0).
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The views (h, w) or (h, w, 3), float32 in [0, 1].
+    max_disparity : int
+        Largest disparity, px.
+    block_size : int, optional
+        OpenCV's matched block size (odd).
+
+    Returns
+    -------
+    BaselineResult
     """
     started = time.perf_counter()
     num_disparities = 16 * int(np.ceil((max_disparity + 1) / 16))
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM.create(
         minDisparity=0,
         numDisparities=num_disparities,
         blockSize=block_size,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import itertools
 from enum import StrEnum
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 from pydantic import (
     AliasChoices,
@@ -140,7 +140,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
     },
 }
 
-AUTO = "auto"
+AUTO: Final = "auto"
 
 
 class MatchConfig(BaseModel):

@@ -33,7 +33,20 @@ HALO = CENSUS_WINDOW // 2 + AGGREGATION_WINDOW // 2
 
 
 def squared_difference(left: np.ndarray, right: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """(I_L(y, x) - I_R(y, x - d))^2 for every candidate d of (h, w, K) gray images' pixels."""
+    """(I_L(y, x) - I_R(y, x - d))^2 for every candidate d of (h, w, K) gray images' pixels.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        Gray views (h, w) in [0, 1].
+    candidates : numpy.ndarray
+        Integer disparities (h, w, K) of every pixel; columns left of the image read column 0.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (h, w, K), float64.
+    """
     height, width, _ = candidates.shape
     columns = np.arange(width)[None, :, None] - candidates
     np.clip(columns, 0, width - 1, out=columns)
@@ -46,7 +59,22 @@ def squared_volume(
     left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
 ) -> np.ndarray:
     """The squared difference of rows [start, stop) at every disparity 0..D, (D + 1, n, w)
-    float64 (what the bin pyramid needs to take a bin's minimum; whole views in, gray or colour)."""
+    float64 (what the bin pyramid needs to take a bin's minimum; whole views in, gray or colour).
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        Whole views (h, w) or (h, w, 3) in [0, 1].
+    max_disparity : int
+        Largest disparity D of the volume.
+    start, stop : int
+        The rows [start, stop) to cost.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (D + 1, stop - start, w), float64.
+    """
     left_rows = to_gray(left[start:stop]).astype(np.float64)
     right_rows = _shifted(to_gray(right[start:stop]).astype(np.float64), max_disparity)
     width = left_rows.shape[1]
@@ -59,7 +87,18 @@ def squared_volume(
 
 
 def census(gray: np.ndarray) -> np.ndarray:
-    """5x5 census codes (24 bits) of the rows 2..n-3 of ``gray`` (n, w); columns replicate."""
+    """5x5 census codes (24 bits) of the rows 2..n-3 of ``gray`` (n, w); columns replicate.
+
+    Parameters
+    ----------
+    gray : numpy.ndarray
+        Gray rows (n, w), n > 4.
+
+    Returns
+    -------
+    numpy.ndarray
+        Census codes (n - 4, w), uint32: one bit per neighbour, set where it is darker.
+    """
     reach = CENSUS_WINDOW // 2
     rows, width = gray.shape
     padded = np.pad(gray, ((0, 0), (reach, reach)), mode="edge")
@@ -88,6 +127,20 @@ def ad_census_volume(
 
     ``left`` and ``right`` are one whole view each (h, w) gray or (h, w, 3) colour in [0, 1];
     rows outside [start, stop) are read as context.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        Whole views, gray or BGR in [0, 1]; the rows around the block are context.
+    max_disparity : int
+        D: the volume holds the disparities 0..D.
+    start, stop : int
+        The block of rows costed.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (D + 1, stop - start, w), float32.
     """
     height, width = left.shape[:2]
     rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
@@ -120,14 +173,40 @@ def ad_census_volume(
 
 
 def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:
-    """(bins, n, w): each bin's cost is the least cost over its ``bin_width`` disparities."""
+    """(bins, n, w): each bin's cost is the least cost over its ``bin_width`` disparities.
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        Costs (D + 1, n, w) per disparity.
+    bin_width : int
+        Disparities per bin; the last bin may be narrower.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (ceil((D + 1) / bin_width), n, w) per bin (``volume`` itself for width 1).
+    """
     if bin_width == 1:
         return volume
     return np.minimum.reduceat(volume, np.arange(0, volume.shape[0], bin_width), axis=0)
 
 
 def gather(per_label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """(n, w, K) costs of the candidate labels from a (labels, n, w) stack."""
+    """(n, w, K) costs of the candidate labels from a (labels, n, w) stack.
+
+    Parameters
+    ----------
+    per_label : numpy.ndarray
+        Costs (labels, n, w) of every label.
+    candidates : numpy.ndarray
+        Labels (n, w, K) to pick at every pixel.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (n, w, K), float64.
+    """
     return np.take_along_axis(
         np.moveaxis(per_label, 0, -1), candidates.astype(np.intp), axis=2
     ).astype(np.float64)

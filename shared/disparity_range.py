@@ -43,12 +43,34 @@ class RangeEstimate:
     note: str = ""
 
     def as_dict(self) -> dict:
+        """The estimate as a JSON-friendly dict (run reports, API responses).
+
+        Returns
+        -------
+        dict
+            The dataclass's fields by name.
+        """
         return asdict(self)
 
 
 def confirmed_disparities(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, int, int]:
     """Positive disparities (full-resolution px) of the pixels whose quick dense match is
-    unambiguous and left-right consistent, with the shrink factor and the pixels examined."""
+    unambiguous and left-right consistent, with the shrink factor and the pixels examined.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        A rectified pair (h, w) or (h, w, 3) in [0, 1].
+
+    Returns
+    -------
+    disparities : numpy.ndarray
+        The confirmed pixels' disparities, full-resolution px (1-D, int).
+    factor : int
+        How much the views were shrunk before matching.
+    examined : int
+        Pixels of the shrunk views.
+    """
     left, right = to_gray(left), to_gray(right)
     height, width = left.shape
     factor = max(1, math.ceil(width / TARGET_WIDTH))
@@ -77,7 +99,19 @@ def confirmed_disparities(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarr
 
 
 def estimate_max_disparity(left: np.ndarray, right: np.ndarray) -> RangeEstimate:
-    """The maximum disparity of a rectified pair, estimated without any ground truth."""
+    """The maximum disparity of a rectified pair, estimated without any ground truth.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The rectified views, gray or BGR, float in [0, 1].
+
+    Returns
+    -------
+    RangeEstimate
+        Source ``"auto"``, or ``"auto-fallback"`` (a quarter of the width, with a note saying why)
+        when too few pixels matched reliably.
+    """
     width = left.shape[1]
     ceiling = max(1, min(LIMIT, width - 1))
     values, _, examined = confirmed_disparities(left, right)
@@ -100,7 +134,20 @@ def estimate_max_disparity(left: np.ndarray, right: np.ndarray) -> RangeEstimate
 def resolve_max_disparity(
     left: np.ndarray, right: np.ndarray, max_disparity: int | str
 ) -> RangeEstimate:
-    """The run's maximum disparity: the given one, or the estimate when it is ``auto``."""
+    """The run's maximum disparity: the given one, or the estimate when it is ``auto``.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        A rectified pair (h, w) or (h, w, 3) in [0, 1].
+    max_disparity : int or str
+        Full-resolution px, or ``"auto"``.
+
+    Returns
+    -------
+    RangeEstimate
+        Source ``"given"`` for an int, else :func:`estimate_max_disparity`'s.
+    """
     if isinstance(max_disparity, int):
         return RangeEstimate(max_disparity, "given")
     return estimate_max_disparity(left, right)

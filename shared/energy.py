@@ -44,7 +44,18 @@ class Costs:
 
     @staticmethod
     def stack(blocks: list[Costs]) -> Costs:
-        """Blocks of rows one below the other, with no vertical edge between two blocks."""
+        """Blocks of rows one below the other, with no vertical edge between two blocks.
+
+        Parameters
+        ----------
+        blocks : list of Costs
+            Blocks of the same width and label count, top to bottom.
+
+        Returns
+        -------
+        Costs
+            The stacked costs (the block itself when there is one).
+        """
         if len(blocks) == 1:
             return blocks[0]
         seam = np.zeros((1, *blocks[0].pair_v.shape[1:]), dtype=blocks[0].pair_v.dtype)
@@ -57,7 +68,18 @@ class Costs:
         )
 
     def rows(self, start: int, stop: int) -> Costs:
-        """The costs of rows [start, stop): edges leaving the block are dropped."""
+        """The costs of rows [start, stop): edges leaving the block are dropped.
+
+        Parameters
+        ----------
+        start, stop : int
+            The rows to keep.
+
+        Returns
+        -------
+        Costs
+            Views into this object's arrays.
+        """
         return Costs(
             candidates=self.candidates[start:stop],
             unary=self.unary[start:stop],
@@ -66,7 +88,18 @@ class Costs:
         )
 
     def columns(self, start: int, stop: int) -> Costs:
-        """The costs of columns [start, stop): edges leaving the block are dropped."""
+        """The costs of columns [start, stop): edges leaving the block are dropped.
+
+        Parameters
+        ----------
+        start, stop : int
+            The columns to keep.
+
+        Returns
+        -------
+        Costs
+            Views into this object's arrays.
+        """
         return Costs(
             candidates=self.candidates[:, start:stop],
             unary=self.unary[:, start:stop],
@@ -78,7 +111,24 @@ class Costs:
 def smoothness(
     delta: np.ndarray, intensity_step: np.ndarray, level: LevelConfig, regularizer: Regularizer
 ) -> np.ndarray:
-    """R(|delta|) times the edge weight; ``intensity_step`` broadcasts against ``delta``."""
+    """R(|delta|) times the edge weight; ``intensity_step`` broadcasts against ``delta``.
+
+    Parameters
+    ----------
+    delta : numpy.ndarray
+        Disparity differences of the edge's two ends, any shape.
+    intensity_step : numpy.ndarray
+        Gray-level steps across the edges (for the truncated regulariser's edge weight).
+    level : LevelConfig
+        Slope, truncation, edge threshold and edge factor.
+    regularizer : Regularizer
+        ``none``, ``linear`` or ``truncated``.
+
+    Returns
+    -------
+    numpy.ndarray
+        Pairwise costs, float64, of the broadcast shape.
+    """
     if regularizer is Regularizer.NONE:
         return np.zeros(delta.shape, dtype=np.float64)
     penalty = np.abs(delta).astype(np.float64)
@@ -100,7 +150,28 @@ def mrf_costs(
 ) -> Costs:
     """The cost arrays of a block of rows from its unary term and its gray ``guide`` image
     (whose steps decide where the smoothness weight drops to m). Without ``vertical`` the
-    vertical edges are left at zero: single-row bundles never read them."""
+    vertical edges are left at zero: single-row bundles never read them.
+
+    Parameters
+    ----------
+    unary : numpy.ndarray
+        Data costs (h, w, K).
+    candidates : numpy.ndarray
+        Disparities (h, w, K) the labels stand for.
+    guide : numpy.ndarray
+        Gray rows (h, w) in [0, 1].
+    level : LevelConfig
+        The level's regulariser parameters.
+    regularizer : Regularizer
+        ``none``, ``linear`` or ``truncated``.
+    vertical : bool, optional
+        Compute the vertical edges' costs (default) or leave them zero.
+
+    Returns
+    -------
+    Costs
+        Unary and pairwise costs of the block.
+    """
     candidates = np.asarray(candidates, dtype=np.int32)
     step_h = np.abs(guide[:, 1:] - guide[:, :-1])[:, :, None, None]
     delta_h = candidates[:, :-1, :, None] - candidates[:, 1:, None, :]
@@ -127,14 +198,44 @@ def level_costs(
     regularizer: Regularizer,
 ) -> Costs:
     """The paper's level costs: squared gray difference at the candidate disparities (a block
-    of rows: pass the rows' image slices)."""
+    of rows: pass the rows' image slices).
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        Gray rows (h, w) of the two views in [0, 1].
+    candidates : numpy.ndarray
+        Disparities (h, w, K) the labels stand for.
+    level : LevelConfig
+        The level's regulariser parameters.
+    regularizer : Regularizer
+        ``none``, ``linear`` or ``truncated``.
+
+    Returns
+    -------
+    Costs
+        Unary and pairwise costs of the block.
+    """
     candidates = np.asarray(candidates, dtype=np.int32)
     unary = squared_difference(left, right, candidates)
     return mrf_costs(unary, candidates, left, level, regularizer)
 
 
 def mrf_energy(costs: Costs, labels: np.ndarray) -> float:
-    """Energy of a labelling (h, w) of candidate indices under ``costs``."""
+    """Energy of a labelling (h, w) of candidate indices under ``costs``.
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF.
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel.
+
+    Returns
+    -------
+    float
+        Sum of the unary, horizontal and vertical terms.
+    """
     labels = np.asarray(labels, dtype=np.intp)
     height, width = labels.shape
     rows, cols = np.ogrid[:height, :width]
@@ -148,7 +249,20 @@ def mrf_energy(costs: Costs, labels: np.ndarray) -> float:
 
 def row_energies(costs: Costs, labels: np.ndarray) -> np.ndarray:
     """Energy of each row of a labelling (h, w) as a chain (unary and horizontal terms): the
-    energies of single-row bundles, all at once."""
+    energies of single-row bundles, all at once.
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF (its vertical terms are not read).
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel.
+
+    Returns
+    -------
+    numpy.ndarray
+        One energy (float64) per row, shape (h,).
+    """
     labels = np.asarray(labels, dtype=np.intp)
     height, width = labels.shape
     rows, cols = np.ogrid[:height, :width]
@@ -159,6 +273,19 @@ def row_energies(costs: Costs, labels: np.ndarray) -> np.ndarray:
 
 
 def disparities(costs: Costs, labels: np.ndarray) -> np.ndarray:
-    """The disparity each pixel's label stands for (float32, level pixels)."""
+    """The disparity each pixel's label stands for (float32, level pixels).
+
+    Parameters
+    ----------
+    costs : Costs
+        The MRF whose ``candidates`` the labels index.
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel.
+
+    Returns
+    -------
+    numpy.ndarray
+        Disparities (h, w), float32.
+    """
     picked = np.take_along_axis(costs.candidates, labels[:, :, None].astype(np.intp), axis=2)
     return picked[:, :, 0].astype(np.float32)

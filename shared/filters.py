@@ -13,6 +13,18 @@ def median(disparity: np.ndarray, size: int = 7) -> np.ndarray:
 
     Level disparities are integers; OpenCV's fast median needs uint8 above size 5, so maps that
     fit in uint8 take that path and anything else (fractions, > 255) goes through SciPy.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    size : int, optional
+        Odd window side; 1 or less returns the map unchanged.
+
+    Returns
+    -------
+    numpy.ndarray
+        Filtered map (h, w), float32.
     """
     if size <= 1:
         return disparity
@@ -30,7 +42,24 @@ def median(disparity: np.ndarray, size: int = 7) -> np.ndarray:
 def bilateral(
     disparity: np.ndarray, diameter: int, sigma_color: float, sigma_space: float
 ) -> np.ndarray:
-    """Edge-preserving smoothing of the disparity map (sigma_color in disparity pixels)."""
+    """Edge-preserving smoothing of the disparity map (sigma_color in disparity pixels).
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    diameter : int
+        Pixel neighbourhood diameter.
+    sigma_color : float
+        Range sigma, disparity pixels.
+    sigma_space : float
+        Spatial sigma, pixels.
+
+    Returns
+    -------
+    numpy.ndarray
+        Filtered map (h, w), float32.
+    """
     return cv2.bilateralFilter(
         np.asarray(disparity, np.float32), diameter, sigma_color, sigma_space
     )
@@ -41,6 +70,18 @@ def left_right_check(left: np.ndarray, right: np.ndarray, tolerance: float = 1.0
 
     Left pixel (y, x) with disparity d matches right pixel (y, x - d); it passes when that pixel
     lies inside the image and its own disparity differs from d by at most ``tolerance``.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        Disparity maps (h, w) of the left and the right view.
+    tolerance : float, optional
+        Largest accepted difference, pixels.
+
+    Returns
+    -------
+    numpy.ndarray
+        Mask (h, w), True where the left disparity is confirmed.
     """
     height, width = left.shape
     target = np.arange(width)[None, :] - np.rint(left).astype(np.int64)
@@ -55,7 +96,22 @@ def fill_from_background(
 ) -> np.ndarray:
     """Replace invalid pixels by the smaller of the nearest valid disparities to their left and
     right on the row (occluded pixels belong to the farther surface); rows with no valid pixel
-    are left as they are, or set to ``empty`` when given."""
+    are left as they are, or set to ``empty`` when given.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    valid : numpy.ndarray
+        Mask (h, w) of the pixels to keep.
+    empty : float, optional
+        Value for rows without a valid pixel; ``None`` keeps them.
+
+    Returns
+    -------
+    numpy.ndarray
+        Filled map (h, w), float32.
+    """
     height, width = disparity.shape
     columns = np.broadcast_to(np.arange(width), (height, width))
     left_index = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
@@ -72,23 +128,56 @@ def fill_from_background(
     return np.where(valid | ~np.isfinite(nearest), disparity, nearest).astype(np.float32)
 
 
-def weighted_median(disparity: np.ndarray, guide: np.ndarray, radius: int, sigma: float):
+def weighted_median(
+    disparity: np.ndarray, guide: np.ndarray, radius: int, sigma: float
+) -> np.ndarray:
     """Colour-weighted median (OpenCV ximgproc): each pixel takes the median of its window's
     disparities weighted by colour similarity to it in ``guide`` (float32 [0, 1], gray or BGR;
-    ``sigma`` on the 0..255 scale), which snaps edges of the map to edges of the image."""
+    ``sigma`` on the 0..255 scale), which snaps edges of the map to edges of the image.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    guide : numpy.ndarray
+        The view (h, w) or (h, w, 3), float32 in [0, 1].
+    radius : int
+        Window radius, pixels.
+    sigma : float
+        Colour similarity scale on 0..255.
+
+    Returns
+    -------
+    numpy.ndarray
+        Filtered map (h, w), float32.
+    """
     guide8 = np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8)
     # A colour guide is quantised by k-means seeded from OpenCV's global RNG: seed it, or the
     # same pair gives a different map on every call (up to several pixels apart).
     cv2.setRNGSeed(0)
+    # sigma by keyword: the fourth positional parameter is ``dst``, which ignored it (always 25.5)
     return cv2.ximgproc.weightedMedianFilter(
-        guide8, np.asarray(disparity, np.float32), radius, sigma
+        guide8, np.asarray(disparity, np.float32), radius, sigma=sigma
     ).astype(np.float32)
 
 
 def subpixel(disparity: np.ndarray, volume: np.ndarray) -> np.ndarray:
     """Refine integer disparities by the vertex of the parabola through the costs at d - 1, d,
     d + 1 of ``volume`` (D + 1, h, w); pixels at the ends of the range or without a convex fit
-    keep their value. The offset is at most half a pixel."""
+    keep their value. The offset is at most half a pixel.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Integer-valued disparities (h, w).
+    volume : numpy.ndarray
+        Costs (D + 1, h, w) at every disparity 0..D.
+
+    Returns
+    -------
+    numpy.ndarray
+        Refined disparities (h, w), float32.
+    """
     top = volume.shape[0] - 1
     d = np.clip(np.rint(disparity).astype(np.intp), 0, top)
     inner = (d > 0) & (d < top)

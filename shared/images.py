@@ -30,6 +30,23 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
 
     Colour is kept (the accurate data term and the weighted median read it); alpha is dropped.
     ``name`` is only used in errors.
+
+    Parameters
+    ----------
+    data : bytes
+        The encoded file.
+    name : str
+        What to call the file in errors.
+
+    Returns
+    -------
+    numpy.ndarray
+        The view, float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
+
+    Raises
+    ------
+    ImageError
+        If the bytes are empty, not an image, or of an unsupported type or layout.
     """
     if not data:
         raise ImageError(f"{name}: the file is empty")
@@ -42,7 +59,23 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
 
 
 def load_view(path: str | Path) -> np.ndarray:
-    """Read an image file as a float32 view in [0, 1], colour kept (see :func:`decode_image`)."""
+    """Read an image file as a float32 view in [0, 1], colour kept (see :func:`decode_image`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The image file.
+
+    Returns
+    -------
+    numpy.ndarray
+        The view, as from :func:`decode_image`.
+
+    Raises
+    ------
+    ImageError
+        If the file is missing or not a usable image.
+    """
     path = Path(path)
     if not path.is_file():
         raise ImageError(f"{path}: no such file")
@@ -50,12 +83,41 @@ def load_view(path: str | Path) -> np.ndarray:
 
 
 def load_image(path: str | Path) -> np.ndarray:
-    """Read an image file as float32 grayscale in [0, 1]."""
+    """Read an image file as float32 grayscale in [0, 1].
+
+    Parameters
+    ----------
+    path : str or Path
+        Any image file :func:`load_view` reads.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float32 in [0, 1].
+    """
     return to_gray(load_view(path))
 
 
 def to_unit_range(raw: np.ndarray, name: str = "image") -> np.ndarray:
-    """An OpenCV-decoded array (BGR order, any depth) as float32 in [0, 1], gray or BGR."""
+    """An OpenCV-decoded array (BGR order, any depth) as float32 in [0, 1], gray or BGR.
+
+    Parameters
+    ----------
+    raw : numpy.ndarray
+        uint8, uint16 or float pixels, 1, 3 or 4 channels.
+    name : str, optional
+        What to call the image in errors.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 in [0, 1]: (h, w) from one channel, (h, w, 3) BGR from three or four.
+
+    Raises
+    ------
+    ImageError
+        If the image is empty or of an unsupported type or layout.
+    """
     if raw.size == 0 or raw.shape[0] == 0 or raw.shape[1] == 0:
         raise ImageError(f"{name}: the image has no pixels")
     if raw.dtype == np.uint8:
@@ -80,21 +142,58 @@ def to_unit_range(raw: np.ndarray, name: str = "image") -> np.ndarray:
 
 
 def to_gray(view: np.ndarray) -> np.ndarray:
-    """Rec. 709 luma of a BGR view (gray views are returned as they are)."""
+    """Rec. 709 luma of a BGR view (gray views are returned as they are).
+
+    Parameters
+    ----------
+    view : numpy.ndarray
+        (h, w) or (h, w, 3) BGR.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float32.
+    """
     if view.ndim == 2:
         return view
     return np.ascontiguousarray(view @ REC709[::-1], dtype=np.float32)
 
 
 def as_pair_of_same_kind(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both views in colour, or both gray when either is gray."""
+    """Both views in colour, or both gray when either is gray.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The two views.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(left, right)``, both colour or both gray.
+    """
     if left.ndim != right.ndim:
         return to_gray(left), to_gray(right)
     return left, right
 
 
-def check_pair(left: np.ndarray, right: np.ndarray, names: tuple[str, str] = ("left", "right")):
-    """Raise ``ImageError`` unless the two views have the same size."""
+def check_pair(
+    left: np.ndarray, right: np.ndarray, names: tuple[str, str] = ("left", "right")
+) -> None:
+    """Raise ``ImageError`` unless the two views have the same size.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The two views.
+    names : tuple of str, optional
+        What to call them in the error.
+
+    Raises
+    ------
+    ImageError
+        If their heights or widths differ.
+    """
     if left.shape[:2] != right.shape[:2]:
         raise ImageError(
             f"{names[0]} is {left.shape[1]}x{left.shape[0]} but {names[1]} is "
@@ -103,14 +202,46 @@ def check_pair(left: np.ndarray, right: np.ndarray, names: tuple[str, str] = ("l
 
 
 def load_pair(left: str | Path, right: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a rectified stereo pair as two float32 views of the same size (colour kept)."""
+    """Read a rectified stereo pair as two float32 views of the same size (colour kept).
+
+    Parameters
+    ----------
+    left, right : str or Path
+        The two image files.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(left, right)`` views, both colour or both gray.
+
+    Raises
+    ------
+    ImageError
+        If a file is missing or unusable, or the sizes differ.
+    """
     left_image, right_image = load_view(left), load_view(right)
     check_pair(left_image, right_image, (str(left), str(right)))
     return as_pair_of_same_kind(left_image, right_image)
 
 
 def load_mask(path: str | Path) -> np.ndarray:
-    """Read a mask (palette PNGs decoded through their palette); True where the value is > 0."""
+    """Read a mask (palette PNGs decoded through their palette); True where the value is > 0.
+
+    Parameters
+    ----------
+    path : str or Path
+        The mask image.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) bool.
+
+    Raises
+    ------
+    ImageError
+        If the file cannot be read as an image.
+    """
     raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if raw is None:
         raise ImageError(f"{path}: not a readable mask image")
@@ -121,6 +252,21 @@ def load_disparity_values(path: str | Path) -> np.ndarray:
     """Read raw disparity/ground-truth values as float32 without rescaling (scale applied later).
 
     ``.npy`` and ``.pfm`` carry real disparities; integer images carry their stored values.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.npy``, ``.pfm`` or an integer image.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float32, non-finite values as 0.
+
+    Raises
+    ------
+    ImageError
+        If the file cannot be read as an image.
     """
     path = Path(path)
     if path.suffix.lower() == ".npy":
@@ -135,7 +281,25 @@ def load_disparity_values(path: str | Path) -> np.ndarray:
 
 
 def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
-    """Encode a disparity map as ``pfm``, ``png`` (16-bit, x256) or ``npy`` bytes."""
+    """Encode a disparity map as ``pfm``, ``png`` (16-bit, x256) or ``npy`` bytes.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    fmt : str
+        ``pfm``, ``png`` or ``npy`` (a leading dot is accepted).
+
+    Returns
+    -------
+    bytes
+        The encoded file.
+
+    Raises
+    ------
+    ValueError
+        If the format is unknown.
+    """
     fmt = fmt.lower().lstrip(".")
     disparity = np.asarray(disparity, dtype=np.float32)
     if fmt == "pfm":
@@ -157,7 +321,25 @@ def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
 
 
 def save_disparity(disparity: np.ndarray, path: str | Path) -> Path:
-    """Write a disparity map; the format follows the extension (.pfm, .png, .npy)."""
+    """Write a disparity map; the format follows the extension (.pfm, .png, .npy).
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    path : str or Path
+        Output file; its parent directories are created.
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Raises
+    ------
+    ValueError
+        If the extension is not one of ``.pfm``, ``.png``, ``.npy``.
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in DISPARITY_SUFFIXES:
@@ -168,7 +350,18 @@ def save_disparity(disparity: np.ndarray, path: str | Path) -> Path:
 
 
 def load_disparity(path: str | Path) -> np.ndarray:
-    """Read a disparity map written by :func:`save_disparity` (PNG is divided by 256)."""
+    """Read a disparity map written by :func:`save_disparity` (PNG is divided by 256).
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.pfm``, ``.png`` or ``.npy`` disparity map.
+
+    Returns
+    -------
+    numpy.ndarray
+        Disparities (h, w), float32, pixels.
+    """
     path = Path(path)
     values = load_disparity_values(path)
     if path.suffix.lower() == ".png":
@@ -177,14 +370,40 @@ def load_disparity(path: str | Path) -> np.ndarray:
 
 
 def colorize(disparity: np.ndarray, max_disparity: float | None = None) -> np.ndarray:
-    """Colour-map a disparity map (near = warm) as an 8-bit BGR image for previews."""
+    """Colour-map a disparity map (near = warm) as an 8-bit BGR image for previews.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    max_disparity : float, optional
+        The value shown as the warmest colour; default: the map's maximum.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w, 3) uint8 BGR.
+    """
     top = float(max_disparity if max_disparity else max(float(np.max(disparity)), 1.0))
     scaled = np.clip(np.asarray(disparity, dtype=np.float32) / top, 0.0, 1.0)
     return cv2.applyColorMap((scaled * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
 
 
 def preview_png(disparity: np.ndarray, max_disparity: float | None = None) -> bytes:
-    """PNG bytes of :func:`colorize`."""
+    """PNG bytes of :func:`colorize`.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        Disparity map (h, w).
+    max_disparity : float, optional
+        As in :func:`colorize`.
+
+    Returns
+    -------
+    bytes
+        The PNG file.
+    """
     ok, buf = cv2.imencode(".png", colorize(disparity, max_disparity))
     if not ok:
         raise RuntimeError("OpenCV could not encode the preview")

@@ -21,13 +21,40 @@ class Scores:
     pixels: int
 
     def as_dict(self) -> dict[str, float]:
+        """The scores as a JSON-friendly dict (CLI output, job results, bench tables).
+
+        Returns
+        -------
+        dict
+            ``rmse`` (px), ``bpp`` (percent) and ``pixels`` (how many were evaluated).
+        """
         return asdict(self)
 
 
 def evaluation_mask(
     gt_values: np.ndarray, border: int = 0, mask: np.ndarray | None = None
 ) -> np.ndarray:
-    """Pixels that count: known ground truth, outside the border, inside the mask."""
+    """Pixels that count: known ground truth, outside the border, inside the mask.
+
+    Parameters
+    ----------
+    gt_values : numpy.ndarray
+        Stored ground truth (h, w); 0 means unknown.
+    border : int, optional
+        Width of the ignored frame, pixels.
+    mask : numpy.ndarray, optional
+        (h, w); only its non-zero pixels count.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) bool, True where a pixel is scored.
+
+    Raises
+    ------
+    ValueError
+        If the mask's shape is not the ground truth's.
+    """
     keep = np.asarray(gt_values) > 0
     if border > 0:
         frame = np.zeros_like(keep)
@@ -48,7 +75,32 @@ def evaluate(
     mask: np.ndarray | None = None,
     threshold: float = BAD_PIXEL_THRESHOLD,
 ) -> Scores:
-    """Scores of ``disparity`` against stored ground truth ``gt_values`` (disparity x scale)."""
+    """Scores of ``disparity`` against stored ground truth ``gt_values`` (disparity x scale).
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        The map to score (h, w), px.
+    gt_values : numpy.ndarray
+        Stored ground truth (h, w), disparity x ``scale``; 0 means unknown.
+    scale : float, optional
+        Stored value per pixel of disparity.
+    border : int, optional
+        Width of the ignored frame, pixels.
+    mask : numpy.ndarray, optional
+        (h, w); only its non-zero pixels count.
+    threshold : float, optional
+        Error above which a pixel is bad, px.
+
+    Returns
+    -------
+    Scores
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ or no pixel is left to evaluate.
+    """
     disparity = np.asarray(disparity, dtype=np.float64)
     if disparity.shape != gt_values.shape:
         raise ValueError(
@@ -73,7 +125,26 @@ def error_map(
     border: int = 0,
     mask: np.ndarray | None = None,
 ) -> np.ndarray:
-    """|d - gt| in pixels where evaluated, NaN elsewhere (for error-map images)."""
+    """|d - gt| in pixels where evaluated, NaN elsewhere (for error-map images).
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        The map (h, w), px.
+    gt_values : numpy.ndarray
+        Stored ground truth (h, w), disparity x ``scale``.
+    scale : float, optional
+        Stored value per pixel of disparity.
+    border : int, optional
+        Ignored frame, pixels.
+    mask : numpy.ndarray, optional
+        Pixels to show (non-zero).
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float32.
+    """
     keep = evaluation_mask(gt_values, border, mask)
     error = np.abs(np.asarray(disparity, np.float32) - gt_values.astype(np.float32) / scale)
     return np.where(keep, error, np.nan).astype(np.float32)

@@ -69,6 +69,13 @@ class MatchResult:
     max_disparity: RangeEstimate
 
     def summary(self) -> dict:
+        """The run without its map, JSON-friendly (the CLI's ``--json``, job results).
+
+        Returns
+        -------
+        dict
+            ``seconds``, ``max_disparity`` (:meth:`RangeEstimate.as_dict`) and one dict per level.
+        """
         return {
             "seconds": self.seconds,
             "max_disparity": self.max_disparity.as_dict(),
@@ -80,7 +87,25 @@ def match_views(
     left: np.ndarray, right: np.ndarray, config: MatchConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """The views the data term reads: gray for the squared difference (the paper converts before
-    downsampling), colour otherwise when both views have it."""
+    downsampling), colour otherwise when both views have it.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        A rectified pair, float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
+    config : MatchConfig
+        The run's configuration (its data term).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(left, right)`` as the data term reads them.
+
+    Raises
+    ------
+    ImageError
+        If the views differ in size.
+    """
     check_pair(left, right)
     if config.data_term is DataTerm.SQUARED:
         return to_gray(left), to_gray(right)
@@ -90,7 +115,22 @@ def match_views(
 def plan_run(
     left: np.ndarray, right: np.ndarray, config: MatchConfig
 ) -> tuple[RangeEstimate, list[LevelPlan]]:
-    """The run's disparity range (given or estimated) and its levels, from the match views."""
+    """The run's disparity range (given or estimated) and its levels, from the match views.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The pair's :func:`match_views`.
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    estimate : RangeEstimate
+        The maximum disparity and how it was found.
+    plans : list of LevelPlan
+        The levels, coarsest first.
+    """
     estimate = resolve_max_disparity(left, right, config.max_disparity)
     return estimate, pyramid.plan(config, estimate.max_disparity)
 
@@ -99,7 +139,24 @@ def level_views(
     left: np.ndarray, right: np.ndarray, config: MatchConfig, plan: LevelPlan
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """The level's images and view count: with the left-right check the mirrored pair (both
-    images flipped, roles swapped) is stacked below the pair, so its left view is the right one."""
+    images flipped, roles swapped) is stacked below the pair, so its left view is the right one.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The pair's :func:`match_views`.
+    config : MatchConfig
+        The run's configuration (its left-right check).
+    plan : LevelPlan
+        The level (its downsampling factor).
+
+    Returns
+    -------
+    left, right : numpy.ndarray
+        The level's images, ``views`` pairs stacked top to bottom.
+    views : int
+        1, or 2 with the left-right check.
+    """
     left_k = pyramid.downsample(left, plan.downsample)
     right_k = pyramid.downsample(right, plan.downsample)
     if not config.lr_check:
@@ -119,7 +176,24 @@ def prepare_level(
     previous: np.ndarray | None = None,
 ) -> LevelInputs:
     """Inputs of one level from the :func:`match_views` of the pair; ``previous`` is the coarser
-    level's finished map (:func:`finish_level`)."""
+    level's finished map (:func:`finish_level`).
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        The pair's :func:`match_views` at full resolution.
+    config : MatchConfig
+        The run's configuration.
+    plan : LevelPlan
+        The level to prepare.
+    previous : numpy.ndarray, optional
+        The coarser level's finished map; ``None`` at the coarsest level.
+
+    Returns
+    -------
+    LevelInputs
+        Images, candidates and warm-start labels (``None`` at the coarsest level) of the level.
+    """
     left_k, right_k, views = level_views(left, right, config, plan)
     shape = left_k.shape[:2]
     if previous is None:
@@ -147,7 +221,22 @@ def prepare_level(
 
 def finish_level(inputs: LevelInputs, solution: LevelSolution, config: MatchConfig) -> np.ndarray:
     """The level's map (labels of the level: disparities or bins) from its solution, median-
-    filtered view by view if enabled."""
+    filtered view by view if enabled.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level's inputs.
+    solution : LevelSolution
+        Its solution (candidate index per pixel).
+    config : MatchConfig
+        The run's configuration (median filter and its size).
+
+    Returns
+    -------
+    numpy.ndarray
+        The level map (views * h, w), float32.
+    """
     picked = np.take_along_axis(inputs.candidates, solution.labels[:, :, None], axis=2)[:, :, 0]
     level_map = picked.astype(np.float32)
     if config.median:
@@ -169,7 +258,28 @@ def finish(
 ) -> np.ndarray:
     """The full-resolution left disparity from the finest level's map (both views stacked when
     ``views`` is 2) and the pair's :func:`match_views`; ``left_volume`` is the left view's
-    AD-census volume when already at hand (the sub-pixel fit reads it)."""
+    AD-census volume when already at hand (the sub-pixel fit reads it).
+
+    Parameters
+    ----------
+    level_map : numpy.ndarray
+        The finest level's :func:`finish_level` map.
+    left, right : numpy.ndarray
+        The pair's :func:`match_views`.
+    config : MatchConfig
+        The run's configuration (which filters run).
+    last : LevelPlan
+        The finest level.
+    views : int
+        Views stacked in ``level_map`` (1 or 2).
+    left_volume : numpy.ndarray, optional
+        The left view's AD-census volume (D + 1, h, w), if already computed.
+
+    Returns
+    -------
+    numpy.ndarray
+        The left view's disparity (h, w), float32, full-resolution px.
+    """
     height = level_map.shape[0] // views
     disparity = level_map[:height]
     if config.subpixel:  # the cost of every disparity (ad-census: validated) around the label
@@ -197,6 +307,21 @@ def finish(
 
 
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:
+    """One level's :class:`LevelReport` from its inputs and solution.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level's inputs.
+    solution : LevelSolution
+        Its solution.
+    seconds : float
+        Wall time of the level.
+
+    Returns
+    -------
+    LevelReport
+    """
     height, width = inputs.view_height, inputs.shape[1]
     return LevelReport(
         index=inputs.index,
@@ -224,7 +349,24 @@ def run_pipeline(
     progress: Progress | None = None,
 ) -> MatchResult:
     """Match a rectified pair (float32 in [0, 1], gray or BGR); returns the left view's
-    disparity in full-resolution pixels."""
+    disparity in full-resolution pixels.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        A rectified pair, float32 in [0, 1], (h, w) gray or (h, w, 3) BGR.
+    config : MatchConfig
+        The run's configuration.
+    solve_level : callable, optional
+        ``(LevelInputs, MatchConfig) -> LevelSolution``; default: in process.
+    progress : callable, optional
+        Called with (levels done, levels) after every level.
+
+    Returns
+    -------
+    MatchResult
+        The disparity, per-level reports, wall time and the disparity range used.
+    """
     started = time.perf_counter()
     left, right = match_views(left, right, config)
     estimate, plans = plan_run(left, right, config)

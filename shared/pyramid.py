@@ -48,7 +48,20 @@ class LevelPlan(BaseModel):
 
 
 def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
-    """The levels of a run, coarse to fine, for a resolved ``max_disparity`` (full-res px)."""
+    """The levels of a run, coarse to fine, for a resolved ``max_disparity`` (full-res px).
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration (pyramid kind, levels, coarse bin limit).
+    max_disparity : int
+        The run's resolved maximum disparity, full-resolution px.
+
+    Returns
+    -------
+    list of LevelPlan
+        One plan per level, coarsest first.
+    """
     if config.pyramid is PyramidKind.IMAGE:
         return [
             LevelPlan(
@@ -83,7 +96,20 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
 
 
 def bin_widths(max_disparity: int, max_coarse_bins: int) -> list[int]:
-    """Bin widths coarse to fine: powers of two from the coarsest that fits, down to 1."""
+    """Bin widths coarse to fine: powers of two from the coarsest that fits, down to 1.
+
+    Parameters
+    ----------
+    max_disparity : int
+        The run's maximum disparity, px.
+    max_coarse_bins : int
+        Most bins the coarsest level may have.
+
+    Returns
+    -------
+    list of int
+        Widths, e.g. ``[8, 4, 2, 1]``.
+    """
     width = 1
     while bin_count(max_disparity, width) > max_coarse_bins:
         width *= 2
@@ -94,25 +120,79 @@ def bin_widths(max_disparity: int, max_coarse_bins: int) -> list[int]:
 
 
 def bin_count(max_disparity: int, width: int) -> int:
-    """Bins of ``width`` disparities covering 0..max_disparity (the last one may be partial)."""
+    """Bins of ``width`` disparities covering 0..max_disparity (the last one may be partial).
+
+    Parameters
+    ----------
+    max_disparity : int
+        The run's maximum disparity, px.
+    width : int
+        Disparities per bin.
+
+    Returns
+    -------
+    int
+        Number of bins.
+    """
     return max_disparity // width + 1
 
 
 def refined_bins(coarse_bins: np.ndarray, count: int, max_bin: int) -> np.ndarray:
-    """Candidate bins (h, w, count) of the next finer level from the coarser bin map (h, w)."""
+    """Candidate bins (h, w, count) of the next finer level from the coarser bin map (h, w).
+
+    Parameters
+    ----------
+    coarse_bins : numpy.ndarray
+        The coarser level's bin map (h, w).
+    count : int
+        Candidates per pixel at the finer level.
+    max_bin : int
+        Largest bin of the finer level.
+
+    Returns
+    -------
+    numpy.ndarray
+        Consecutive candidate bins (h, w, count), int32, within [0, max_bin].
+    """
     start = 2 * np.rint(coarse_bins).astype(np.int32) - (count // 2 - 1)
     start = np.clip(start, 0, max(0, max_bin + 1 - count))
     return start[:, :, None] + np.arange(count, dtype=np.int32)
 
 
 def level_shape(shape: tuple[int, int], downsample: int) -> tuple[int, int]:
-    """(height, width) of an image of ``shape`` downsampled by an integer factor."""
+    """(height, width) of an image of ``shape`` downsampled by an integer factor.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (height, width) at full resolution.
+    downsample : int
+        The factor.
+
+    Returns
+    -------
+    tuple of int
+        (height, width), each at least 1.
+    """
     height, width = shape
     return max(1, round(height / downsample)), max(1, round(width / downsample))
 
 
 def downsample(image: np.ndarray, factor: int) -> np.ndarray:
-    """Anti-aliased downsampling (area averaging) by an integer factor."""
+    """Anti-aliased downsampling (area averaging) by an integer factor.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        (h, w) or (h, w, 3).
+    factor : int
+        Downsampling factor; 1 returns the image itself.
+
+    Returns
+    -------
+    numpy.ndarray
+        The image at :func:`level_shape`.
+    """
     if factor == 1:
         return image
     height, width = level_shape(image.shape[:2], factor)
@@ -120,7 +200,20 @@ def downsample(image: np.ndarray, factor: int) -> np.ndarray:
 
 
 def level_max_disparity(max_disparity: int, downsample_factor: int) -> int:
-    """Largest disparity of a level, in that level's pixels."""
+    """Largest disparity of a level, in that level's pixels.
+
+    Parameters
+    ----------
+    max_disparity : int
+        Full-resolution px.
+    downsample_factor : int
+        The level's factor.
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
     return max(1, max_disparity // downsample_factor)
 
 
@@ -129,6 +222,20 @@ def initial_candidates(shape: tuple[int, int], count: int, max_disparity: int) -
 
     With the paper's defaults (max 20 px, 1/4 resolution, 6 candidates) these are 0..5.
     Returns an int32 array of shape (h, w, count).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (height, width) of the level.
+    count : int
+        Candidates per pixel.
+    max_disparity : int
+        Largest disparity of the level, level px.
+
+    Returns
+    -------
+    numpy.ndarray
+        The same candidates at every pixel.
     """
     values = np.rint(np.linspace(0, max_disparity, count)).astype(np.int32)
     if max_disparity + 1 < count:  # fewer distinct disparities than candidates: repeat the top
@@ -143,6 +250,22 @@ def refined_candidates(
 
     The coarse map is upsampled to ``shape`` (nearest neighbour) and doubled; the window
     starts at 2d - 2 (for 4 candidates: {2d-2, ..., 2d+1}) and is shifted into [0, max].
+
+    Parameters
+    ----------
+    coarse_disparity : numpy.ndarray
+        The coarser level's disparity map (h', w'), its px.
+    shape : tuple of int
+        (height, width) of the finer level.
+    count : int
+        Candidates per pixel.
+    max_disparity : int
+        Largest disparity of the finer level, its px.
+
+    Returns
+    -------
+    numpy.ndarray
+        Candidates (h, w, count), int32, consecutive and within [0, max_disparity].
     """
     height, width = shape
     upsampled = cv2.resize(
@@ -157,7 +280,20 @@ def refined_candidates(
 
 
 def upsample_disparity(disparity: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Scale a level's disparity map to ``shape`` and to that resolution's pixel units."""
+    """Scale a level's disparity map to ``shape`` and to that resolution's pixel units.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray
+        A level's map (h', w'), level px.
+    shape : tuple of int
+        Target (height, width).
+
+    Returns
+    -------
+    numpy.ndarray
+        (height, width) float32, target px (nearest neighbour, scaled by the width ratio).
+    """
     height, width = shape
     factor = width / disparity.shape[1]
     resized = cv2.resize(

@@ -89,7 +89,18 @@ class LevelInputs:
         return self.left.shape[0] // self.views
 
     def view_parts(self, start: int, stop: int) -> list[tuple[int, int, int]]:
-        """Rows [start, stop) split by view, as (view, first row, stop row) in view rows."""
+        """Rows [start, stop) split by view, as (view, first row, stop row) in view rows.
+
+        Parameters
+        ----------
+        start, stop : int
+            Rows of the stacked views.
+
+        Returns
+        -------
+        list of tuple of int
+            ``(view, first, stop)`` per view the range touches, rows counted within that view.
+        """
         parts = []
         height = self.view_height
         for view in range(self.views):
@@ -100,14 +111,38 @@ class LevelInputs:
 
     def starting_labels(self, costs: Costs, start: int, stop: int) -> np.ndarray:
         """A warm start for rows [start, stop): the coarser level's estimate, or on the coarsest
-        level the data term's winner-takes-all (``costs`` are those rows' costs)."""
+        level the data term's winner-takes-all (``costs`` are those rows' costs).
+
+        Parameters
+        ----------
+        costs : Costs
+            The costs of rows [start, stop).
+        start, stop : int
+            Rows of the stacked views.
+
+        Returns
+        -------
+        numpy.ndarray
+            Candidate index (stop - start, w), int32.
+        """
         if self.initial_labels is not None:
             return self.initial_labels[start:stop]
         return costs.unary.argmin(axis=2).astype(np.int32)
 
     def bundle_rows(self, bundle_height: int) -> list[tuple[int, int]]:
         """The level's bundles as row ranges: each view tiled on its own, so that no bundle
-        spans the seam between the two views."""
+        spans the seam between the two views.
+
+        Parameters
+        ----------
+        bundle_height : int
+            Rows per bundle.
+
+        Returns
+        -------
+        list of tuple of int
+            ``(start, stop)`` in rows of the stacked views.
+        """
         height = self.view_height
         return [
             (view * height + start, view * height + stop)
@@ -118,7 +153,22 @@ class LevelInputs:
     def bundles(self, bundle_height: int, bundle_width: int | None, margin: int) -> list[Bundle]:
         """The level's bundles: :meth:`bundle_rows`, each cut into row segments of
         ``bundle_width`` pixels overlapping by ``margin`` (:func:`shared.bundles.segment_columns`;
-        None: whole rows)."""
+        None: whole rows).
+
+        Parameters
+        ----------
+        bundle_height : int
+            Rows per bundle.
+        bundle_width : int or None
+            Columns per segment; ``None`` for whole rows.
+        margin : int
+            Least overlap of neighbouring segments, pixels.
+
+        Returns
+        -------
+        list of Bundle
+            Row by row, segments left to right.
+        """
         columns = segment_columns(self.shape[1], bundle_width, margin)
         return [
             Bundle(start, stop, first, last)
@@ -128,14 +178,34 @@ class LevelInputs:
 
     def planned_bundles(self, config: MatchConfig) -> list[Bundle]:
         """The bundles :func:`level_bundles` chose for this level (its width is kept in
-        ``prepared``), without searching or embedding again."""
+        ``prepared``), without searching or embedding again.
+
+        Parameters
+        ----------
+        config : MatchConfig
+            The run's configuration (bundle height and margin).
+
+        Returns
+        -------
+        list of Bundle
+        """
         width = self.prepared.get("bundle_width")
         if width is not None and width >= self.shape[1]:
             width = None
         return self.bundles(config.bundle_height, width, config.bundle_margin)
 
     def as_bundle(self, spec: BundleSpec) -> Bundle:
-        """A :class:`Bundle` from a bundle or a row range (whole rows)."""
+        """A :class:`Bundle` from a bundle or a row range (whole rows).
+
+        Parameters
+        ----------
+        spec : Bundle or sequence of int
+            A bundle, ``[row_start, row_stop, col_start, col_stop]`` or ``[row_start, row_stop]``.
+
+        Returns
+        -------
+        Bundle
+        """
         if isinstance(spec, Bundle):
             return spec
         if len(spec) == 4:
@@ -144,7 +214,13 @@ class LevelInputs:
         return Bundle(start, stop, 0, self.shape[1])
 
     def view_images(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """(left, right) image of each view."""
+        """(left, right) image of each view.
+
+        Returns
+        -------
+        list of tuple of numpy.ndarray
+            One ``(left, right)`` per view, each (view_height, w) or (view_height, w, 3).
+        """
         height = self.view_height
         return [
             (self.left[v * height : (v + 1) * height], self.right[v * height : (v + 1) * height])
@@ -162,13 +238,34 @@ class LevelInputs:
 
     def binned_volumes(self) -> list[np.ndarray]:
         """The cached volumes' bin minima per view, built once (call before sharing the inputs
-        between threads)."""
+        between threads).
+
+        Returns
+        -------
+        list of numpy.ndarray
+            (bins, view_height, w) per view; empty without cached volumes.
+        """
         if self._binned is None and self.volumes is not None:
             self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
         return self._binned or []
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
-        """Costs of rows [start, stop) (a block that spans both views has no edge between)."""
+        """Costs of rows [start, stop) (a block that spans both views has no edge between).
+
+        Parameters
+        ----------
+        config : MatchConfig
+            The run's configuration.
+        start : int, optional
+            First row of the stacked views.
+        stop : int, optional
+            Row after the last; default: all rows.
+
+        Returns
+        -------
+        Costs
+            Vertical edges only when ``config.bundle_height`` > 1.
+        """
         stop = self.shape[0] if stop is None else stop
         height = self.view_height
         blocks = []
@@ -236,7 +333,23 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
     says what to change.
 
     Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
-    whole rows (None) otherwise; the row DP always solves whole rows."""
+    whole rows (None) otherwise; the row DP always solves whole rows.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    int, str or None
+        Pixels, ``"auto"``, or ``None`` for whole rows.
+
+    Raises
+    ------
+    ValueError
+        If the width cannot apply to the solver (a row solver, or ``auto`` without an embedding).
+    """
     solver = get_solver(config.solver)
     width = config.bundle_width
     finder = getattr(solver, "widest_bundle", None)
@@ -259,7 +372,20 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
 
 def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
     """The segment width of this level's bundles (None: whole rows); ``auto`` asks the solver
-    for the widest segment that embeds (searched once per shape and target, then cached)."""
+    for the widest segment that embeds (searched once per shape and target, then cached).
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level (its width and candidate count).
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    int or None
+        Segment width in pixels; ``None`` for whole rows.
+    """
     width = bundle_width_setting(config)
     if width == AUTO:
         return get_solver(config.solver).widest_bundle(
@@ -276,7 +402,19 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     """Every bundle of the level (segments of the level's :func:`level_bundle_width`).
 
     Solvers that embed on a QPU graph embed each bundle shape here, once, before the bundles
-    fan out; ``inputs.prepared`` then records the width and the embeddings computed for it."""
+    fan out; ``inputs.prepared`` then records the width and the embeddings computed for it.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level; its ``prepared`` is set here.
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    list of Bundle
+    """
     solver = get_solver(config.solver)
     started = time.perf_counter()
     cache = getattr(solver, "cache", None)
@@ -300,7 +438,27 @@ def solve_bundles(
     inputs: LevelInputs, config: MatchConfig, bundles: list[BundleSpec]
 ) -> list[BundleResult]:
     """Solve the given bundles (:class:`Bundle` or row ranges) of a level with
-    ``config.solver``."""
+    ``config.solver``.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level, as prepared by :func:`level_bundles`.
+    config : MatchConfig
+        The run's configuration.
+    bundles : list of Bundle or tuple of int
+        The bundles to solve, e.g. one task's share of the level.
+
+    Returns
+    -------
+    list of BundleResult
+        One per bundle, in the given order.
+
+    Raises
+    ------
+    ValueError
+        If a row solver is given segments rather than whole rows.
+    """
     if not bundles:
         return []
     items = [inputs.as_bundle(spec) for spec in bundles]
@@ -422,6 +580,24 @@ def assemble(
     Row segments are stitched (:func:`shared.bundles.owned_columns`: each pixel from the segment
     in which it lies farthest from a cut). The level's energy is the sum of the bundles' own;
     for stitched rows it is that of the stitched labels, which needs ``config`` for the costs.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level.
+    results : list of BundleResult
+        Every bundle's result, in any order.
+    config : MatchConfig, optional
+        Needed to price stitched rows.
+
+    Returns
+    -------
+    LevelSolution
+
+    Raises
+    ------
+    ValueError
+        If a pixel is covered by no bundle or by several (other than segments of one row).
     """
     height, width = inputs.shape
     labels = np.full((height, width), -1, dtype=np.int32)
@@ -480,7 +656,20 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
     """Per level: minor embeddings computed (while preparing the level, including the widths
     ``auto`` tried, and by the bundles) vs reused by bundles (from memory or the shared store),
     and the qubits and longest chain of the embeddings used; empty for solvers that do not
-    embed."""
+    embed.
+
+    Parameters
+    ----------
+    results : list of BundleResult
+        The level's bundle results.
+    prepared : dict, optional
+        What :func:`level_bundles` recorded (``LevelInputs.prepared``).
+
+    Returns
+    -------
+    dict
+        ``prepared`` plus embedding counts, bundle shapes, qubits and longest chain.
+    """
     prepared = prepared or {}
     embedded = [r.info for r in results if "embedding_cache" in r.info]
     if not embedded:
@@ -498,7 +687,19 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
 
 
 def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
-    """The in-process ``solve_level``: every bundle of the level, one after another."""
+    """The in-process ``solve_level``: every bundle of the level, one after another.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The prepared level.
+    config : MatchConfig
+        The run's configuration (solver, encoding, seed).
+
+    Returns
+    -------
+    LevelSolution
+    """
     return assemble(inputs, solve_bundles(inputs, config, level_bundles(inputs, config)), config)
 
 

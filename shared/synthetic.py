@@ -24,7 +24,18 @@ class SyntheticScene:
     right_disparity: np.ndarray  # float32, right view: right pixel x matches left x + d
 
     def ground_truth_values(self, scale: float = 1.0) -> np.ndarray:
-        """Ground truth as stored values (disparity x scale), Middlebury style."""
+        """Ground truth as stored values (disparity x scale), Middlebury style.
+
+        Parameters
+        ----------
+        scale : float, optional
+            Stored value per pixel of disparity (Middlebury's GT PNGs: e.g. 16 for Tsukuba).
+
+        Returns
+        -------
+        numpy.ndarray
+            (h, w) float32.
+        """
         return (self.disparity * scale).astype(np.float32)
 
 
@@ -82,6 +93,24 @@ def make_scene(
 
     The background is a slanted plane (or fronto-parallel with ``slanted=False``) at small
     disparities; ``layers`` rectangles float in front of it at larger integer disparities.
+
+    Parameters
+    ----------
+    height, width : int, optional
+        Size of the views.
+    max_disparity : int, optional
+        Largest disparity, px.
+    slanted : bool, optional
+        Slanted (default) or fronto-parallel background.
+    layers : int, optional
+        Rectangles in front of the background.
+    seed : int, optional
+        Seed of the textures and the layout.
+
+    Returns
+    -------
+    SyntheticScene
+        Both views and both views' ground truth.
     """
     rng = np.random.default_rng(seed)
     margin = 2 * max_disparity + 4

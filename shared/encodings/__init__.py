@@ -16,7 +16,23 @@ CODECS: dict[Encoding, ModuleType] = {
 
 
 def get_codec(encoding: Encoding | str) -> ModuleType:
-    """The codec module for an encoding name (``one-hot`` or ``domain-wall``)."""
+    """The codec module for an encoding name (``one-hot`` or ``domain-wall``).
+
+    Parameters
+    ----------
+    encoding : Encoding or str
+        ``one-hot`` or ``domain-wall``.
+
+    Returns
+    -------
+    module
+        :mod:`shared.encodings.onehot` or :mod:`shared.encodings.domain_wall`.
+
+    Raises
+    ------
+    ValueError
+        If the name is not an encoding.
+    """
     return CODECS[Encoding(encoding)]
 
 

@@ -14,7 +14,18 @@ PENALTY_FLOOR = 1e-9
 
 
 def with_margin(bound: np.ndarray) -> np.ndarray:
-    """A penalty strictly above ``bound`` (the proofs need a strict inequality)."""
+    """A penalty strictly above ``bound`` (the proofs need a strict inequality).
+
+    Parameters
+    ----------
+    bound : numpy.ndarray
+        Sufficient penalty weights, any shape.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``bound`` raised by a relative margin and an absolute floor.
+    """
     return bound * (1.0 + PENALTY_MARGIN) + PENALTY_FLOOR
 
 
@@ -27,7 +38,22 @@ class Decoded:
 
 
 def conditional_costs(costs: Costs, labels: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Cost (h, w, K) of each label of each pixel given the labels of its *known* neighbours."""
+    """Cost (h, w, K) of each label of each pixel given the labels of its *known* neighbours.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF.
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel.
+    known : numpy.ndarray
+        Mask (h, w) of the pixels whose labels count; the others' edges are left out.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (h, w, K): unary plus the pairwise terms to known neighbours.
+    """
     height, width = labels.shape
     total = costs.unary.copy()
     rows, cols = np.ogrid[:height, :width]
@@ -47,7 +73,22 @@ def conditional_costs(costs: Costs, labels: np.ndarray, known: np.ndarray) -> np
 
 
 def repair(costs: Costs, labels: np.ndarray, valid: np.ndarray) -> Decoded:
-    """Give each invalid pixel its cheapest label given its valid neighbours' labels."""
+    """Give each invalid pixel its cheapest label given its valid neighbours' labels.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF.
+    labels : numpy.ndarray
+        Decoded candidate index (h, w) of every pixel (any value where invalid).
+    valid : numpy.ndarray
+        Mask (h, w) of the pixels whose bits were a valid code.
+
+    Returns
+    -------
+    Decoded
+        The repaired labels (int32) and the number of repaired pixels.
+    """
     invalid = ~valid
     count = int(invalid.sum())
     if count == 0:
@@ -57,5 +98,16 @@ def repair(costs: Costs, labels: np.ndarray, valid: np.ndarray) -> Decoded:
 
 
 def pixel_index(shape: tuple[int, int]) -> np.ndarray:
-    """Flat pixel numbers (h, w) in raster order."""
+    """Flat pixel numbers (h, w) in raster order.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (height, width).
+
+    Returns
+    -------
+    numpy.ndarray
+        0 .. h*w - 1 as an (h, w) array.
+    """
     return np.arange(shape[0] * shape[1]).reshape(shape)

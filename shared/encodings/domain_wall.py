@@ -47,11 +47,35 @@ NAME = "domain-wall"
 
 
 def variables_per_pixel(num_labels: int) -> int:
+    """Binary variables per pixel: one per wall position, K - 1.
+
+    Parameters
+    ----------
+    num_labels : int
+        Candidates K per pixel (K - 1 wall bits each).
+
+    Returns
+    -------
+    int
+    """
     return num_labels - 1
 
 
 def variable_index(shape: tuple[int, int], num_labels: int) -> np.ndarray:
-    """Variable numbers (h, w, K-1) of b_1..b_{K-1}."""
+    """Variable numbers (h, w, K-1) of b_1..b_{K-1}.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (height, width) of the bundle's pixels.
+    num_labels : int
+        Candidates K per pixel (K - 1 wall bits each).
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w, K - 1), pixel-major.
+    """
     bits = num_labels - 1
     return pixel_index(shape)[:, :, None] * bits + np.arange(bits)
 
@@ -101,6 +125,20 @@ def _penalty_weights(
 
 
 def rectifier_weights(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> np.ndarray:
+    """The wall-breaking penalty lambda_p (h, w) of every pixel.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF.
+    rectifier : Rectifier, optional
+        ``local`` (per pixel) or ``global`` (the largest for all).
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float64, above the module docstring's bound.
+    """
     linear, _, m_h, m_v = _terms(costs)
     return _penalty_weights(linear, m_h, m_v, rectifier)
 
@@ -113,7 +151,26 @@ def _edge_terms(first: np.ndarray, second: np.ndarray, m: np.ndarray):
 
 
 def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.BinaryQuadraticModel:
-    """The QUBO of one bundle, built from arrays."""
+    """The QUBO of one bundle, built from arrays.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF, at least 2 candidates.
+    rectifier : Rectifier, optional
+        How the wall penalty is chosen (:func:`rectifier_weights`).
+
+    Returns
+    -------
+    dimod.BinaryQuadraticModel
+        Binary, variables numbered as :func:`variable_index`; on valid walls its energy equals the
+        MRF energy.
+
+    Raises
+    ------
+    ValueError
+        If the bundle has fewer than 2 candidates per pixel.
+    """
     height, width, labels = costs.unary.shape
     if labels < 2:
         raise ValueError("domain-wall encoding needs at least 2 candidates")
@@ -140,13 +197,38 @@ def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.Binary
 
 
 def encode_labels(labels: np.ndarray, num_labels: int) -> np.ndarray:
-    """The wall bits (in variable order) of a labelling: b_i = 1 for i <= label."""
+    """The wall bits (in variable order) of a labelling: b_i = 1 for i <= label.
+
+    Parameters
+    ----------
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel.
+    num_labels : int
+        Candidates K per pixel (K - 1 wall bits each).
+
+    Returns
+    -------
+    numpy.ndarray
+        h * w * (K - 1) bits, int8.
+    """
     return (labels[:, :, None] >= np.arange(1, num_labels)).astype(np.int8).ravel()
 
 
 def decode(costs: Costs, sample: np.ndarray) -> Decoded:
     """Labels from a sample in variable order; broken walls are repaired given valid
-    neighbours."""
+    neighbours.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF: its shape, and its costs to repair broken walls.
+    sample : numpy.ndarray
+        h * w * (K - 1) bits in variable order.
+
+    Returns
+    -------
+    Decoded
+    """
     height, width, labels = costs.unary.shape
     bits = np.asarray(sample).reshape(height, width, labels - 1)
     valid = np.all(bits[:, :, :-1] >= bits[:, :, 1:], axis=2)

@@ -45,16 +45,53 @@ NAME = "one-hot"
 
 
 def variables_per_pixel(num_labels: int) -> int:
+    """Binary variables per pixel: one indicator per candidate, K.
+
+    Parameters
+    ----------
+    num_labels : int
+        Candidates K per pixel.
+
+    Returns
+    -------
+    int
+    """
     return num_labels
 
 
 def variable_index(shape: tuple[int, int], num_labels: int) -> np.ndarray:
-    """Variable numbers (h, w, K): pixel-major, then label."""
+    """Variable numbers (h, w, K): pixel-major, then label.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        (height, width) of the bundle.
+    num_labels : int
+        Candidates K per pixel.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w, K) variable numbers.
+    """
     return pixel_index(shape)[:, :, None] * num_labels + np.arange(num_labels)
 
 
 def rectifier_weights(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> np.ndarray:
-    """chi_p (h, w) from the docstring's bound."""
+    """chi_p (h, w) from the docstring's bound.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF.
+    rectifier : Rectifier, optional
+        ``local`` (chi per pixel) or ``global`` (the largest chi for every pixel).
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float64.
+    """
     worst = costs.unary.copy()
     if costs.pair_h.size:
         worst[:, :-1] += costs.pair_h.max(axis=3)  # p's right neighbour
@@ -76,7 +113,21 @@ def _pair_terms(first: np.ndarray, second: np.ndarray, pair: np.ndarray):
 
 
 def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.BinaryQuadraticModel:
-    """The QUBO of one bundle, built from arrays (no per-term Python loop)."""
+    """The QUBO of one bundle, built from arrays (no per-term Python loop).
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF.
+    rectifier : Rectifier, optional
+        How the one-hot penalty chi is chosen (:func:`rectifier_weights`).
+
+    Returns
+    -------
+    dimod.BinaryQuadraticModel
+        Binary, variables numbered as :func:`variable_index`; on one-hot samples its energy equals
+        the MRF energy.
+    """
     height, width, labels = costs.unary.shape
     index = variable_index((height, width), labels)
     chi = rectifier_weights(costs, rectifier)
@@ -101,13 +152,38 @@ def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.Binary
 
 
 def encode_labels(labels: np.ndarray, num_labels: int) -> np.ndarray:
-    """The one-hot bits (in variable order) of a labelling (h, w)."""
+    """The one-hot bits (in variable order) of a labelling (h, w).
+
+    Parameters
+    ----------
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel.
+    num_labels : int
+        Candidates K per pixel.
+
+    Returns
+    -------
+    numpy.ndarray
+        h * w * K indicator bits, int8.
+    """
     return (labels[:, :, None] == np.arange(num_labels)).astype(np.int8).ravel()
 
 
 def decode(costs: Costs, sample: np.ndarray) -> Decoded:
     """Labels from a sample in variable order; pixels with zero or several active bits are
-    repaired to their cheapest label given their valid neighbours."""
+    repaired to their cheapest label given their valid neighbours.
+
+    Parameters
+    ----------
+    costs : Costs
+        The bundle's MRF (for shapes and repairs).
+    sample : numpy.ndarray
+        h * w * K bits in variable order.
+
+    Returns
+    -------
+    Decoded
+    """
     height, width, labels = costs.unary.shape
     bits = np.asarray(sample).reshape(height, width, labels)
     valid = bits.sum(axis=2) == 1

@@ -85,7 +85,7 @@ class GurobiSolver:
         try:
             import gurobipy  # noqa: F401
         except ImportError:
-            return Availability(False, "gurobipy is not installed (pip install gurobipy)")
+            return Availability(False, "gurobipy is not installed (pip install 'qhsm[gurobi]')")
         kind = licence_kind(get_settings())
         if kind == "wls":
             return Availability(True, "full licence (Gurobi Web License Service)")

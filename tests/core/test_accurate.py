@@ -195,6 +195,14 @@ def test_the_weighted_median_is_deterministic():
         np.testing.assert_array_equal(filters.weighted_median(disparity, guide, 9, 25.5), first)
 
 
+def test_the_weighted_median_uses_its_sigma():
+    rng = np.random.default_rng(0)
+    disparity = rng.integers(0, 20, (60, 80)).astype(np.float32)
+    guide = rng.random((60, 80, 3)).astype(np.float32)
+    wide = filters.weighted_median(disparity, guide, 9, 25.5)
+    assert not np.array_equal(filters.weighted_median(disparity, guide, 9, 5.0), wide)
+
+
 def test_the_squared_difference_volume_matches_it_at_the_candidates():
     from shared.data_terms import squared_difference, squared_volume
 
