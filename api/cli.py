@@ -14,8 +14,18 @@ import json
 import sys
 from pathlib import Path
 
-from shared.cli import CommandError, add_match_options, config_from_args, match_params
-from shared.config import Settings, get_settings
+from shared.cli import (
+    CommandError,
+    add_json_option,
+    add_match_options,
+    config_from_args,
+    match_params,
+    model_default,
+    model_option,
+    setting_option,
+    settings_from_args,
+)
+from shared.config import MatchConfig, Settings
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -26,7 +36,10 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     demo = commands.add_parser("demo", help="start the service, run one demo job, stop")
     _stack_options(demo, port_help="API port (default: a free port, printed at start)")
-    demo.add_argument("--solver", default="exact", help="solver of the demo job")
+    model_option(
+        demo, MatchConfig, "solver", default=model_default(MatchConfig, "solver"),
+        help="solver of the demo job",
+    )  # fmt: skip
     demo.add_argument(
         "--scene",
         choices=["auto", "tsukuba", "synthetic"],
@@ -37,8 +50,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     demo.set_defaults(handler=cmd_demo)
 
     api = commands.add_parser("api", help="run the HTTP API only (uvicorn)")
-    api.add_argument("--host", help="bind address (QHSM_API_HOST)")
-    api.add_argument("--port", type=int, help="port (QHSM_API_PORT)")
+    setting_option(api, "api_host", "--host")
+    setting_option(api, "api_port", "--port")
     _log_level_option(api)
     api.set_defaults(handler=cmd_api)
 
@@ -46,9 +59,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
     submit.add_argument("right", help="right view, same size, rectified")
     add_match_options(submit)
-    submit.add_argument(
-        "--url", help=f"API address (QHSM_API_URL; default: {get_settings().api_url})"
-    )
+    setting_option(submit, "api_url", "--url")
     submit.add_argument(
         "--wait",
         action="store_true",
@@ -57,8 +68,12 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument("-o", "--output", help="OUT.pfm, .png or .npy (implies --wait)")
     submit.add_argument("--preview", help="also download a colour preview PNG here")
     submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
-    submit.add_argument("--gt-scale", type=float, default=1.0, help="stored value per pixel")
-    submit.add_argument("--gt-border", type=int, default=0, help="ignored frame, pixels")
+    submit.add_argument(
+        "--gt-scale", type=float, help="stored value per pixel (default: the service's)"
+    )
+    submit.add_argument(
+        "--gt-border", type=int, help="ignored frame, pixels (default: the service's)"
+    )
     submit.add_argument(
         "--json",
         action="store_true",
@@ -76,7 +91,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     estimate.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")
     estimate.add_argument("right", help="right view, same size")
     add_match_options(estimate)
-    estimate.add_argument("--url", help="API address (QHSM_API_URL, default http://127.0.0.1:8000)")
+    setting_option(estimate, "api_url", "--url")
     estimate.add_argument("--key", help="API key (QHSM_API_KEY; default: the local admin key)")
     estimate.add_argument(
         "--local",
@@ -84,7 +99,7 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="estimate in this process, without a service (embeddings known to this machine's "
         "cache in QHSM_DATA_DIR; no budget check)",
     )
-    estimate.add_argument("--json", action="store_true", help="print the estimate as JSON")
+    add_json_option(estimate, "the estimate")
     estimate.set_defaults(handler=cmd_estimate)
 
 
@@ -99,38 +114,10 @@ def _log_level_option(parser: argparse.ArgumentParser) -> None:
 
 def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None) -> None:
     """Options of serve and demo; the defaults shown are the settings' (environment included)."""
-    settings = get_settings()
-    parser.add_argument(
-        "--host", help=f"API bind address (QHSM_API_HOST; default: {settings.api_host})"
-    )
-    parser.add_argument(
-        "--port",
-        type=int,
-        help=port_help or f"API port (QHSM_API_PORT; default: {settings.api_port})",
-    )
-    parser.add_argument(
-        "--data-dir",
-        type=Path,
-        help=f"uploads, logs, Redis files (QHSM_DATA_DIR; default: {settings.data_dir})",
-    )
-    parser.add_argument(
-        "--concurrency",
-        type=int,
-        help="CPU worker processes (QHSM_WORKER_CONCURRENCY; default: "
-        f"{settings.worker_concurrency or 'one per CPU'})",
-    )
-
-
-def _settings(args: argparse.Namespace) -> Settings:
-    settings = get_settings()
-    changes = {}
-    if getattr(args, "host", None):
-        changes["api_host"] = args.host
-    if getattr(args, "port", None) is not None:
-        changes["api_port"] = args.port
-    if getattr(args, "data_dir", None):
-        changes["data_dir"] = args.data_dir
-    return settings.model_copy(update=changes)
+    setting_option(parser, "api_host", "--host")
+    setting_option(parser, "api_port", "--port", **({"help": port_help} if port_help else {}))
+    setting_option(parser, "data_dir")
+    setting_option(parser, "worker_concurrency", "--concurrency")
 
 
 # --- serve / api / demo ----------------------------------------------------------------------
@@ -149,7 +136,7 @@ def _uvicorn_server(settings: Settings, log_level: str = "info"):
 
 
 def cmd_api(args: argparse.Namespace) -> int:
-    _uvicorn_server(_settings(args), args.log_level).run()
+    _uvicorn_server(settings_from_args(args), args.log_level).run()
     return 0
 
 
@@ -163,12 +150,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
-    settings = _settings(args)
+    settings = settings_from_args(args)
     try:  # the port first: a busy one fails before Redis and workers start
         sock = bind_api_socket(settings.api_host, settings.api_port)
     except PortBusy as error:
         raise CommandError(str(error)) from None
-    stack = Stack(settings, concurrency=args.concurrency)
+    stack = Stack(settings, concurrency=args.worker_concurrency)
     print("starting Redis and workers ...", file=sys.stderr)
     try:
         try:
@@ -254,8 +241,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from workers.embedded_redis import free_port
     from workers.supervisor import Stack
 
-    settings = _settings(args)
-    if args.port is None:
+    settings = settings_from_args(args)
+    if args.api_port is None:
         settings = settings.model_copy(update={"api_port": free_port()})
     else:  # a busy port fails before Redis and workers start
         try:
@@ -263,7 +250,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         except PortBusy as error:
             raise CommandError(str(error)) from None
     name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
-    stack = Stack(settings, concurrency=args.concurrency)
+    stack = Stack(settings, concurrency=args.worker_concurrency)
     api = None
     print("starting Redis, workers and the API ...", file=sys.stderr)
     try:
@@ -312,7 +299,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
     config_from_args(args)  # refuse bad options before uploading anything
     params = match_params(args)
-    url = args.url or get_settings().api_url
+    url = settings_from_args(args).api_url
     files = [Path(args.left), Path(args.right)]
     if args.ground_truth:
         files.append(Path(args.ground_truth))
@@ -375,7 +362,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     else:
         from api.client import Client, ClientError
 
-        url = args.url or get_settings().api_url
+        url = settings_from_args(args).api_url
         client = Client(url, key=args.key)
         params = match_params(args)
         try:

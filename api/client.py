@@ -94,16 +94,18 @@ class Client:
         right: bytes,
         params: dict[str, Any] | None = None,
         ground_truth: bytes | None = None,
-        gt_scale: float = 1.0,
-        gt_border: int = 0,
+        gt_scale: float | None = None,
+        gt_border: int | None = None,
         names: tuple[str, str] = ("left.png", "right.png"),
     ) -> dict:
-        """POST /v1/jobs; returns ``{id, state, links}``."""
+        """POST /v1/jobs; returns ``{id, state, links}``. ``gt_scale`` and ``gt_border`` not
+        given: the service's defaults."""
         files = {"left": (names[0], left), "right": (names[1], right)}
         data = {"params": json.dumps(params or {})}
         if ground_truth is not None:
             files["ground_truth"] = ("ground_truth", ground_truth)
-            data.update(gt_scale=str(gt_scale), gt_border=str(gt_border))
+            given = {"gt_scale": gt_scale, "gt_border": gt_border}
+            data.update({name: str(value) for name, value in given.items() if value is not None})
         return self._request("POST", "/v1/jobs", files=files, data=data).json()
 
     def estimate(

@@ -11,17 +11,12 @@ from collections.abc import Sequence
 from enum import Enum
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import Any, Literal, get_args, get_origin
 
-from shared.config import (
-    AUTO,
-    DataTerm,
-    Encoding,
-    MatchConfig,
-    Preset,
-    PyramidKind,
-    Rectifier,
-    Regularizer,
-)
+from pydantic import AliasChoices, BaseModel
+from pydantic.fields import FieldInfo
+
+from shared.config import AUTO, Encoding, MatchConfig, Settings, get_settings
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
@@ -60,19 +55,51 @@ class Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
 
-def _field_help(name: str, text: str = "") -> str:
-    """Help of a ``MatchConfig`` option with its default, read from the model (never repeated)."""
-    field = MatchConfig.model_fields[name]
-    text = text or field.description or ""
+def _default_text(field: FieldInfo) -> str | None:
+    """A field's default as help shows it: None when unset (the text says what unset means)."""
     if field.is_required():  # filled by the preset
-        return f"{text} (default: from --preset)"
-    if field.default is None:  # the text says what unset means
+        return "from --preset"
+    default = field.get_default(call_default_factory=True)
+    if default is None:
+        return None
+    if isinstance(default, bool):
+        return "on" if default else "off"
+    return str(default.value if isinstance(default, Enum) else default)
+
+
+def _plain(description: str | None) -> str:
+    """A field's description without the "(from preset)" remark the help states as a default."""
+    return (description or "").replace(" (from preset)", "")
+
+
+def field_help(model: type[BaseModel], name: str, text: str = "") -> str:
+    """Help of option ``name`` of ``model``: its description (or ``text``) and its default,
+    both read from the model, never repeated.
+
+    Parameters
+    ----------
+    model : type[BaseModel]
+        The pydantic model that declares the option (``MatchConfig``, ``Settings``, ...).
+    name : str
+        The field's name.
+    text : str, optional
+        Help text to use instead of the field's description.
+
+    Returns
+    -------
+    str
+        The help text, ending in ``(default: ...)`` unless the default is unset or the text
+        already speaks of it.
+    """
+    field = model.model_fields[name]
+    text = text or _plain(field.description)
+    default = _default_text(field)
+    if default is None or "default" in text.lower():
         return text
-    default = field.default.value if isinstance(field.default, Enum) else field.default
     return f"{text} (default: {default})"
 
 
-def _max_disparity(text: str) -> int | str:
+def _int_or_auto(text: str) -> int | str:
     if text == AUTO:
         return AUTO
     try:
@@ -81,76 +108,141 @@ def _max_disparity(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"expected auto or an integer, got {text!r}") from None
 
 
-#: Boolean ``MatchConfig`` options offered as ``--NAME`` / ``--no-NAME``.
-SWITCHES = {
-    "median": "median filter of every level's result",
-    "bilateral": "bilateral filter of the final map (paper)",
-    "lr_check": "match the right view too and check left against right (accurate)",
-    "weighted_median": "colour-weighted median of the final map (accurate)",
-    "warm_start": "start bundles from the coarser estimate (default: the solver's choice)",
-    "subpixel": "parabola fit of the final cost: lower RMSE on slants, more 1-px errors",
-}
+def _option_kind(annotation: Any) -> dict[str, Any]:
+    """argparse keywords for a field's type: a switch for a bool, the values of an enum, ..."""
+    kinds = {kind for kind in get_args(annotation) or (annotation,) if kind is not type(None)}
+    if bool in kinds:
+        return {"action": argparse.BooleanOptionalAction}
+    for kind in kinds:
+        if isinstance(kind, type) and issubclass(kind, Enum):
+            return {"choices": [member.value for member in kind]}
+    if int in kinds and any(get_origin(kind) is Literal for kind in kinds):
+        return {"type": _int_or_auto, "metavar": "auto|N"}
+    for kind in (int, float, Path):
+        if kind in kinds:
+            return {"type": kind}
+    return {}
 
 
-def add_match_options(parser: argparse.ArgumentParser) -> None:
-    """Options that map onto ``MatchConfig`` (shared with ``qhsm submit``). Every default is
-    ``None`` here: an option not given is left to the preset and ``MatchConfig``."""
-    parser.add_argument(
-        "--preset",
-        choices=[p.value for p in Preset],
-        help="accurate: disparity-bin pyramid at full resolution, AD-census cost, both views "
-        "with a left-right check, weighted median, domain-wall bundles; paper: the "
-        "publication's image pyramid, squared difference, median + bilateral, one-hot bundles "
-        f"(default: {MatchConfig.model_fields['preset'].default.value})",
-    )
-    parser.add_argument("--solver", help=_field_help("solver", "solver name, see `qhsm solvers`"))
-    parser.add_argument(
-        "--max-disparity",
-        type=_max_disparity,
-        metavar="auto|N",
-        help=_field_help("max_disparity"),
-    )
-    parser.add_argument("--bundle-height", type=int, help=_field_help("bundle_height"))
-    parser.add_argument(
-        "--bundle-width",
-        type=_max_disparity,
-        metavar="auto|N",
-        help=_field_help(
-            "bundle_width",
-            "pixels per bundle along the row (overlapping row segments), or auto: the widest "
-            "segment that embeds on the QPU graph (default: auto for qpu and qpu-sim, whole "
-            "rows otherwise)",
-        ),
-    )
-    parser.add_argument("--bundle-margin", type=int, help=_field_help("bundle_margin"))
-    for name, enum in (
-        ("regularizer", Regularizer),
-        ("encoding", Encoding),
-        ("rectifier", Rectifier),
-        ("data_term", DataTerm),
-        ("pyramid", PyramidKind),
-    ):
-        parser.add_argument(
-            "--" + name.replace("_", "-"),
-            choices=[e.value for e in enum],
-            help=_field_help(name, name.replace("_", " ")),
-        )
-    for name, text in SWITCHES.items():
-        parser.add_argument(
-            "--" + name.replace("_", "-"),
-            action=argparse.BooleanOptionalAction,
-            help=_field_help(name, text),
-        )
-    parser.add_argument("--seed", type=int, help=_field_help("seed", "random seed"))
-    parser.add_argument(
-        "--param",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="solver parameter, e.g. --param num_reads=50 (JSON values)",
-    )
+def model_option(
+    parser: argparse.ArgumentParser,
+    model: type[BaseModel],
+    name: str,
+    *flags: str,
+    **kwargs: Any,
+) -> argparse.Action:
+    """Add an option for field ``name`` of ``model``: type, choices and help come from the
+    field. Its default is ``None`` (not given: the model decides) unless ``default`` is passed.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        Where the option goes.
+    model : type[BaseModel]
+        The pydantic model that declares the option.
+    name : str
+        The field's name; also the option's ``dest``.
+    *flags : str
+        The option strings (default: ``--name-with-dashes``).
+    **kwargs
+        ``argparse`` keywords that override the derived ones (``help``, ``default``, ...).
+
+    Returns
+    -------
+    argparse.Action
+        The added option.
+    """
+    field = model.model_fields[name]
+    options: dict[str, Any] = {"dest": name, **_option_kind(field.annotation)}
+    options["help"] = field_help(model, name, kwargs.pop("help", ""))
+    options.update(kwargs)
+    return parser.add_argument(*(flags or ("--" + name.replace("_", "-"),)), **options)
 
 
+def setting_option(
+    parser: argparse.ArgumentParser, name: str, *flags: str, **kwargs: Any
+) -> argparse.Action:
+    """Add an option that overrides ``Settings.name``: help names its environment variable and
+    the value in force (the environment included); not given, the settings decide.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        Where the option goes.
+    name : str
+        The ``Settings`` field; also the option's ``dest`` (:func:`settings_from_args` reads it).
+    *flags : str
+        The option strings (default: ``--name-with-dashes``).
+    **kwargs
+        ``argparse`` keywords that override the derived ones (``help``, ...).
+
+    Returns
+    -------
+    argparse.Action
+        The added option.
+    """
+    field = Settings.model_fields[name]
+    alias = field.validation_alias
+    env = alias.choices[0] if isinstance(alias, AliasChoices) else alias
+    env = env or (Settings.model_config.get("env_prefix", "") + name).upper()
+    text = kwargs.pop("help", "") or field.description or ""
+    value = getattr(get_settings(), name)
+    if value is not None and "default" not in text.lower():
+        text = f"{text} ({env}; default: {value})"
+    elif env not in text:
+        text = f"{text} ({env})"
+    flags = flags or ("--" + name.replace("_", "-"),)
+    options: dict[str, Any] = {"dest": name, **_option_kind(field.annotation), "help": text}
+    if "choices" not in options and "action" not in options:  # --port PORT, not API_PORT
+        options["metavar"] = flags[-1].lstrip("-").replace("-", "_").upper()
+    return parser.add_argument(*flags, **options, **kwargs)
+
+
+def settings_from_args(args: argparse.Namespace) -> Settings:
+    """The settings of the environment with the options of :func:`setting_option` given.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed arguments; attributes named like ``Settings`` fields and not None override them.
+
+    Returns
+    -------
+    Settings
+        A copy of :func:`shared.config.get_settings` with the overrides.
+    """
+    changes = {
+        name: getattr(args, name)
+        for name in Settings.model_fields
+        if getattr(args, name, None) is not None
+    }
+    return get_settings().model_copy(update=changes)
+
+
+def model_default(model: type[BaseModel], name: str) -> Any:
+    """The default of field ``name`` of ``model`` (for options whose value is always passed on).
+
+    Parameters
+    ----------
+    model : type[BaseModel]
+        The pydantic model that declares the field.
+    name : str
+        The field's name.
+
+    Returns
+    -------
+    Any
+        The field's default (its factory called).
+    """
+    return model.model_fields[name].get_default(call_default_factory=True)
+
+
+def add_json_option(parser: argparse.ArgumentParser, what: str = "the result") -> None:
+    """``--json``: print ``what`` as JSON (every command that has it says the same)."""
+    parser.add_argument("--json", action="store_true", help=f"print {what} as JSON")
+
+
+#: ``MatchConfig`` options of ``qhsm match``, ``submit`` and ``estimate`` (``--param`` aside).
 MATCH_OPTIONS = (
     "preset",
     "solver",
@@ -163,9 +255,29 @@ MATCH_OPTIONS = (
     "rectifier",
     "data_term",
     "pyramid",
-    *SWITCHES,
+    "median",
+    "bilateral",
+    "lr_check",
+    "weighted_median",
+    "warm_start",
+    "subpixel",
     "seed",
 )
+
+
+def add_match_options(parser: argparse.ArgumentParser) -> None:
+    """Options that map onto ``MatchConfig`` (shared with ``qhsm submit``), built from its
+    fields. Every default is ``None`` here: an option not given is left to the preset and
+    ``MatchConfig``."""
+    for name in MATCH_OPTIONS:
+        model_option(parser, MatchConfig, name)
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="solver parameter, e.g. --param num_reads=50 (JSON values)",
+    )
 
 
 def _parse_param(text: str) -> tuple[str, object]:
@@ -379,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(handler=cmd_eval)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
-    solvers.add_argument("--json", action="store_true", help="print the list as JSON")
+    add_json_option(solvers, "the list")
     solvers.set_defaults(handler=cmd_solvers)
 
     bench = commands.add_parser(
@@ -398,10 +510,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="comma-separated subset of accurate (the default preset and its ablations), "
         "solvers and ablations (the paper's tables, preset paper), baselines",
     )
-    bench.add_argument("--ablation-solver", default="exact", help="solver of the ablations")
+    model_option(
+        bench, MatchConfig, "solver", "--ablation-solver", dest="ablation_solver",
+        default=model_default(MatchConfig, "solver"), help="solver of the ablations",
+    )  # fmt: skip
     bench.add_argument("--url", help="run the pipeline through the service at this URL")
     bench.add_argument("--out", default="out/bench", help="output folder")
-    bench.add_argument("--bundle-height", type=int, default=1, help="rows per QUBO bundle")
+    model_option(
+        bench, MatchConfig, "bundle_height", default=model_default(MatchConfig, "bundle_height")
+    )
     bench.add_argument(
         "--encoding",
         choices=[AUTO_ENCODING, *(e.value for e in Encoding)],
@@ -410,7 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
         "steepest-descent, qpu, hybrid and their -sim stand-ins), else each run's preset's "
         "(domain-wall for accurate, one-hot for paper)",
     )
-    bench.add_argument("--seed", type=int, default=0, help="seeds every bundle's solver")
+    model_option(bench, MatchConfig, "seed", default=model_default(MatchConfig, "seed"))
     bench.add_argument(
         "--param",
         action="append",
@@ -425,7 +542,7 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--border", type=int, help="override every scene's ignored border (px)")
     bench.add_argument(
         "--max-disparity",
-        type=_max_disparity,
+        type=_int_or_auto,
         metavar="auto|N",
         help="override every scene's search range (auto: estimated per scene, reported per run)",
     )
@@ -443,7 +560,7 @@ def build_parser() -> argparse.ArgumentParser:
     fetch.set_defaults(handler=cmd_datasets_fetch)
     listing = dataset_commands.add_parser("list", help="show the scenes found and their protocol")
     listing.add_argument("directory", help="folder of scene folders")
-    listing.add_argument("--json", action="store_true", help="print the scenes as JSON")
+    add_json_option(listing, "the scenes")
     listing.set_defaults(handler=cmd_datasets_list)
 
     for entry in entry_points(group="qhsm.commands"):

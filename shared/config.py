@@ -153,7 +153,12 @@ class MatchConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
-    preset: Preset = Field(Preset.ACCURATE, description="accurate (default) or paper")
+    preset: Preset = Field(
+        Preset.ACCURATE,
+        description="accurate: disparity-bin pyramid at full resolution, AD-census cost, both "
+        "views with a left-right check, weighted median, domain-wall bundles; paper: the "
+        "publication's image pyramid, squared difference, median + bilateral, one-hot bundles",
+    )
     levels: list[LevelConfig] = Field(min_length=1, description="Pyramid levels (from preset)")
     pyramid: PyramidKind = Field(description="image or bins (from preset)")
     data_term: DataTerm = Field(description="squared or ad-census (from preset)")
@@ -170,14 +175,19 @@ class MatchConfig(BaseModel):
         None,
         description="Pixels per QUBO bundle along the row: an integer cuts rows into overlapping "
         "segments of that width, auto takes the widest segment whose QUBO embeds on the QPU "
-        "graph; None = the solver's default (auto for qpu and qpu-sim, whole rows otherwise)",
+        "graph; unset: the solver's default (auto for qpu and qpu-sim, whole rows otherwise)",
     )
     bundle_margin: int = Field(
         12, ge=0, le=256, description="Pixels by which neighbouring row segments overlap"
     )
-    regularizer: Regularizer = Regularizer.TRUNCATED
+    regularizer: Regularizer = Field(
+        Regularizer.TRUNCATED,
+        description="Smoothness term: the paper's truncated linear, its linear ablation, or none",
+    )
     encoding: Encoding = Field(description="one-hot or domain-wall (from preset)")
-    rectifier: Rectifier = Rectifier.LOCAL
+    rectifier: Rectifier = Field(
+        Rectifier.LOCAL, description="Encoding penalty weights: one per pixel, or one per bundle"
+    )
     median: bool = Field(True, description="Median filter of every level's result")
     median_size: int = Field(ge=1, le=31, description="Its window (from preset)")
     bilateral: bool = Field(description="Final bilateral filter (from preset)")
@@ -196,15 +206,15 @@ class MatchConfig(BaseModel):
     weighted_median_sigma: float = Field(25.5, gt=0, description="On the 0..255 colour scale")
     warm_start: bool | None = Field(
         description="Start every bundle from the best guess at hand (the coarser level's "
-        "estimate; on the coarsest level the data term's minimum): None = the solver's default "
+        "estimate; on the coarsest level the data term's minimum): unset: the solver's default "
         "(on for the classical annealers and local searches, off for QPU and cloud solvers) "
         "(from preset)"
     )
     subpixel: bool = Field(
         False, description="Parabola fit on the final cost (bin pyramid): lower RMSE on slants"
     )
-    solver: str = "exact"
-    seed: int = Field(0, ge=0, lt=2**32)
+    solver: str = Field("exact", description="Solver name, see `qhsm solvers`")
+    seed: int = Field(0, ge=0, lt=2**32, description="Seeds every bundle's solver")
     solver_params: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="before")
