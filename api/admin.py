@@ -20,12 +20,8 @@ import contextlib
 import json
 import sys
 from collections.abc import Iterator
-from pathlib import Path
 
-from shared.cli import CommandError
-
-#: Same value as ``api.users.DEFAULT_BUDGET`` (not imported: keeps `qhsm --help` light).
-DEFAULT_BUDGET = "default"
+from shared.cli import CommandError, add_json_option, setting_option
 
 
 @contextlib.contextmanager
@@ -100,9 +96,7 @@ def _call(action):
         raise CommandError(str(error)) from None
 
 
-def _seconds(value: str) -> float | str | None:
-    if value == DEFAULT_BUDGET:  # argparse passes string defaults through ``type``
-        return value
+def _seconds(value: str) -> float | None:
     if value.lower() in ("unlimited", "none", "inf"):
         return None
     try:
@@ -127,9 +121,10 @@ def _print_key(name: str, key: str) -> None:
 
 def cmd_create_user(args: argparse.Namespace) -> int:
     with _store(args) as store:
-        user, key = _call(
-            lambda: store.create_user(args.name, admin=args.admin, qpu_seconds=args.qpu_seconds)
-        )
+        budget = (
+            {"qpu_seconds": args.qpu_seconds} if "qpu_seconds" in args else {}
+        )  # else: new users'
+        user, key = _call(lambda: store.create_user(args.name, admin=args.admin, **budget))
         _print_key(user.name, key)
         return 0
 
@@ -206,14 +201,13 @@ def cmd_usage(args: argparse.Namespace) -> int:
 def register(subparsers) -> None:
     """Entry point of the ``qhsm.commands`` group: adds ``qhsm admin``."""
     admin = subparsers.add_parser("admin", help="manage users, API keys and QPU budgets")
-    admin.add_argument(
-        "--redis-url",
+    setting_option(
+        admin,
+        "redis_url",
         help="the service's Redis (default: QHSM_REDIS_URL, else the data directory's embedded "
         "Redis: the running `qhsm serve`'s, or started for the command)",
     )
-    admin.add_argument(
-        "--data-dir", type=Path, help="data directory of the embedded Redis (QHSM_DATA_DIR)"
-    )
+    setting_option(admin, "data_dir", help="data directory of the embedded Redis")
     commands = admin.add_subparsers(dest="admin_command", required=True)
 
     create = commands.add_parser("create-user", help="add a user; prints their key once")
@@ -221,14 +215,14 @@ def register(subparsers) -> None:
     create.add_argument(
         "--qpu-seconds",
         type=_seconds,
-        default=DEFAULT_BUDGET,
+        default=argparse.SUPPRESS,  # not given: api.users' default budget of new users
         help="QPU/hybrid budget in seconds or 'unlimited' (default: QHSM_DEFAULT_QPU_SECONDS)",
     )
     create.add_argument("--admin", action="store_true", help="may see every job and all usage")
     create.set_defaults(handler=cmd_create_user)
 
     listing = commands.add_parser("list-users", help="users, key ids, budgets")
-    listing.add_argument("--json", action="store_true")
+    add_json_option(listing, "the users")
     listing.set_defaults(handler=cmd_list_users)
 
     for command, about, whose, handler in (
@@ -246,5 +240,5 @@ def register(subparsers) -> None:
 
     usage = commands.add_parser("usage", help="QPU time used, per user and job")
     usage.add_argument("name", nargs="?", help="one user (default: every user)")
-    usage.add_argument("--json", action="store_true")
+    add_json_option(usage, "the usage")
     usage.set_defaults(handler=cmd_usage)
