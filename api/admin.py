@@ -121,9 +121,8 @@ def _print_key(name: str, key: str) -> None:
 
 def cmd_create_user(args: argparse.Namespace) -> int:
     with _store(args) as store:
-        budget = (
-            {"qpu_seconds": args.qpu_seconds} if "qpu_seconds" in args else {}
-        )  # else: new users'
+        # --qpu-seconds not given: the store's default budget of new users
+        budget = {"qpu_seconds": args.qpu_seconds} if "qpu_seconds" in args else {}
         user, key = _call(lambda: store.create_user(args.name, admin=args.admin, **budget))
         _print_key(user.name, key)
         return 0
