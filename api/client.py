@@ -150,36 +150,40 @@ class Client:
         return self._request("DELETE", f"/v1/jobs/{job_id}").json()
 
 
-def progress_bar(stream: IO[str] | None = None, width: int = 30) -> Callable[[dict], None]:
-    """A one-line progress bar over levels and bundles for :meth:`Client.wait` (default: on
-    the ``sys.stderr`` of the call, so stdout stays free for ``--json``)."""
+def progress_bar(stream: IO[str] | None = None) -> Callable[[dict], None]:
+    """A tqdm bar over the bundles of the level being solved, for :meth:`Client.wait`
+    (default: on the ``sys.stderr`` of the call, so stdout stays free for ``--json``); it is
+    redrawn only when something changed."""
+    from tqdm import tqdm
 
-    stream = stream or sys.stderr
-    last = ""
-    interactive = stream.isatty()
+    from workers.store import Progress
+
+    bar: tqdm | None = None
+    shown = None
 
     def show(status: dict) -> None:
-        nonlocal last
-        progress = status["progress"]
-        levels = max(progress["levels"], 1)
-        level_done = progress["bundles_done"] / max(progress["bundles_total"], 1)
-        fraction = (max(progress["level"] - 1, 0) + level_done) / levels
-        if status["state"] == "succeeded":
-            fraction = 1.0
-        filled = round(fraction * width)
-        bar = "#" * filled + "." * (width - filled)
-        line = (
-            f"[{bar}] {status['state']:<9} level {progress['level']}/{progress['levels']} "
-            f"bundles {progress['bundles_done']}/{progress['bundles_total']}"
-        )
-        if line == last:
+        nonlocal bar, shown
+        progress = Progress.model_validate(status["progress"])
+        state = status["state"]
+        done = progress.bundles_total if state == "succeeded" else progress.bundles_done
+        now = (state, progress.level, done, progress.bundles_total)
+        if now == shown:
             return
-        last = line
-        if interactive:
-            stream.write("\r" + line + ("\n" if status["state"] in TERMINAL else ""))
+        shown = now
+        description = f"{state:<9} level {progress.level}/{progress.levels}"
+        if bar is None:
+            bar = tqdm(
+                file=stream or sys.stderr,
+                desc=description,
+                total=progress.bundles_total,
+                initial=done,
+                bar_format="{desc} |{bar}| {n}/{total} bundles",
+            )
         else:
-            stream.write(line + "\n")
-        stream.flush()
+            bar.total, bar.n = progress.bundles_total, done
+            bar.set_description_str(description, refresh=state not in TERMINAL)
+        if state in TERMINAL:
+            bar.close()  # draws the final state
 
     return show
 

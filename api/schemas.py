@@ -8,7 +8,7 @@ from datetime import datetime
 from pydantic import BaseModel, Field
 
 from shared.config import MatchConfig
-from workers.store import JobState
+from workers.store import JobState, Progress
 
 
 class Links(BaseModel):
@@ -21,13 +21,6 @@ class JobCreated(BaseModel):
     id: str
     state: JobState
     links: Links
-
-
-class Progress(BaseModel):
-    level: int = Field(description="1-based level being solved (0: not started)")
-    levels: int
-    bundles_done: int = Field(description="Bundles of the current level solved so far")
-    bundles_total: int
 
 
 class LevelTiming(BaseModel):

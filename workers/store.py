@@ -151,9 +151,11 @@ class ChunkReport(BaseModel):
 
 
 class Progress(BaseModel):
-    level: int
+    """How far a job is (the API's job status and the client's progress bar read this model)."""
+
+    level: int = Field(description="1-based level being solved (0: not started)")
     levels: int
-    bundles_done: int
+    bundles_done: int = Field(description="Bundles of the current level solved so far")
     bundles_total: int
 
 
