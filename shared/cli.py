@@ -89,12 +89,12 @@ def field_help(model: type[BaseModel], name: str, text: str = "") -> str:
     -------
     str
         The help text, ending in ``(default: ...)`` unless the default is unset or the text
-        already speaks of it.
+        already speaks of it (an option the preset fills always says so).
     """
     field = model.model_fields[name]
     text = text or _plain(field.description)
     default = _default_text(field)
-    if default is None or "default" in text.lower():
+    if default is None or ("default" in text.lower() and not field.is_required()):
         return text
     return f"{text} (default: {default})"
 

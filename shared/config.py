@@ -206,7 +206,7 @@ class MatchConfig(BaseModel):
     weighted_median_sigma: float = Field(25.5, gt=0, description="On the 0..255 colour scale")
     warm_start: bool | None = Field(
         description="Start every bundle from the best guess at hand (the coarser level's "
-        "estimate; on the coarsest level the data term's minimum): unset: the solver's default "
+        "estimate; on the coarsest level the data term's minimum); unset: the solver's choice "
         "(on for the classical annealers and local searches, off for QPU and cloud solvers) "
         "(from preset)"
     )

@@ -59,41 +59,23 @@ def test_console_script_matches_and_reports_json(pair, tmp_path, scene):
     assert (tmp_path / "p.png").stat().st_size > 0
 
 
+def match(pair, out, *options: str) -> int:
+    """``qhsm match`` of the test pair with a 16 px range."""
+    left, right = str(pair / "left.png"), str(pair / "right.png")
+    return main(["match", left, right, "-o", str(out), "--max-disparity", "16", *options])
+
+
 @pytest.mark.parametrize("suffix", [".png", ".npy"])
 def test_output_format_follows_the_extension(pair, tmp_path, suffix):
     out = tmp_path / f"d{suffix}"
-    assert (
-        main(
-            [
-                "match",
-                str(pair / "left.png"),
-                str(pair / "right.png"),
-                "-o",
-                str(out),
-                "--max-disparity",
-                "16",
-                "--no-bilateral",
-            ]
-        )
-        == 0
-    )
+    assert match(pair, out, "--no-bilateral") == 0
     disparity = load_disparity(out)
     assert disparity.shape == (96, 128) and disparity.max() > 8
 
 
 def test_eval_prints_rmse_and_bpp(pair, tmp_path, capsys):
     out = tmp_path / "d.pfm"
-    main(
-        [
-            "match",
-            str(pair / "left.png"),
-            str(pair / "right.png"),
-            "-o",
-            str(out),
-            "--max-disparity",
-            "16",
-        ]
-    )
+    match(pair, out)
     capsys.readouterr()
     assert main(["eval", str(out), str(pair / "gt.png"), "--scale", "4", "--border", "2"]) == 0
     scores = json.loads(capsys.readouterr().out)

@@ -70,3 +70,61 @@ def test_bench_defaults_follow_the_readme_recommendation():
     asked = bench.BenchOptions(Path("d"), Path("o"), encoding="one-hot")
     assert bench.encoding_for("sa", asked) == "one-hot"
     assert "`--solver sa --encoding domain-wall`" in README  # what the README recommends
+
+
+# --- issue 13, item 4: one source of defaults --------------------------------------------------
+
+
+def test_match_options_leave_every_default_to_the_model_and_state_it():
+    """Not given, an option is None (the preset and MatchConfig decide); its help states the
+    model's default, so a changed default in MatchConfig changes the help with it."""
+    from shared.cli import MATCH_OPTIONS, config_from_args, match_params
+    from shared.config import MatchConfig
+
+    for command in ("match", "submit", "estimate"):
+        parser = dict(parsers(build_parser()))[f"qhsm {command}"]
+        args = parser.parse_args(["L", "R", "-o", "O"] if command != "estimate" else ["L", "R"])
+        assert match_params(args) == {}, command
+        assert config_from_args(args) == MatchConfig()
+        helps = {a.dest: " ".join((a.help or "").split()) for a in parser._actions}
+        for name in MATCH_OPTIONS:
+            field = MatchConfig.model_fields[name]
+            assert getattr(args, name) is None, (command, name)
+            if field.is_required():
+                assert helps[name].endswith("(default: from --preset)"), name
+            elif isinstance(field.default, bool):
+                assert helps[name].endswith(f"(default: {'on' if field.default else 'off'})")
+            elif field.default is not None:
+                default = getattr(field.default, "value", field.default)
+                assert helps[name].endswith(f"(default: {default})"), (name, helps[name])
+
+
+def test_service_options_show_and_override_the_settings(monkeypatch):
+    from shared.cli import settings_from_args
+
+    monkeypatch.setenv("QHSM_API_PORT", "8123")
+    monkeypatch.setenv("QHSM_API_URL", "http://127.0.0.1:8123")
+    tree = dict(parsers(build_parser()))
+    serve = " ".join(tree["qhsm serve"].format_help().split())
+    assert "--port PORT `qhsm serve` / `qhsm api` port (QHSM_API_PORT; default: 8123)" in serve
+    submit = " ".join(tree["qhsm submit"].format_help().split())
+    assert "(QHSM_API_URL; default: http://127.0.0.1:8123)" in submit
+    estimate = " ".join(tree["qhsm estimate"].format_help().split())
+    assert "(QHSM_API_URL; default: http://127.0.0.1:8123)" in estimate
+
+    settings = settings_from_args(tree["qhsm serve"].parse_args(["--port", "9001"]))
+    assert (settings.api_port, settings.api_host) == (9001, "127.0.0.1")
+    assert settings_from_args(tree["qhsm serve"].parse_args([])).api_port == 8123
+    submit_args = tree["qhsm submit"].parse_args(["L", "R", "--url", "http://h:1"])
+    assert settings_from_args(submit_args).api_url == "http://h:1"
+
+
+def test_bench_and_demo_defaults_are_the_models():
+    from shared.config import MatchConfig
+
+    tree = dict(parsers(build_parser()))
+    bench_args = tree["qhsm bench"].parse_args(["DATA"])
+    default = MatchConfig()
+    assert (bench_args.bundle_height, bench_args.seed) == (default.bundle_height, default.seed)
+    assert bench_args.ablation_solver == default.solver
+    assert tree["qhsm demo"].parse_args([]).solver == default.solver
