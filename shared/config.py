@@ -278,6 +278,24 @@ class MatchConfig(BaseModel):
         return self
 
 
+def seconds_field(default: float, description: str) -> Any:
+    """A setting that is a positive duration in seconds (every timeout and delay here).
+
+    Parameters
+    ----------
+    default : float
+        Its default, seconds.
+    description : str
+        What it times.
+
+    Returns
+    -------
+    Any
+        The pydantic ``Field`` (positive, described).
+    """
+    return Field(default, gt=0, description=description)
+
+
 class Settings(BaseSettings):
     """Deployment settings, read from the environment (prefix ``QHSM_``).
 
@@ -303,11 +321,10 @@ class Settings(BaseSettings):
     max_image_pixels: int = Field(4_000_000, ge=1)
     rows_per_task: int = Field(8, ge=1, description="Bundles' rows grouped into one Celery task")
     task_visibility_timeout: int = Field(6 * 3600, ge=60)
-    embedding_timeout: float = Field(300.0, gt=0, description="minorminer time limit, seconds")
-    embedding_search_timeout: float = Field(
+    embedding_timeout: float = seconds_field(300.0, "minorminer time limit, seconds")
+    embedding_search_timeout: float = seconds_field(
         30.0,
-        gt=0,
-        description="minorminer time limit per width tried by --bundle-width auto, seconds "
+        "minorminer time limit per width tried by --bundle-width auto, seconds "
         "(the widest segment that embeds within it wins)",
     )
     dataset_mirror: str | None = Field(
@@ -320,32 +337,33 @@ class Settings(BaseSettings):
         "so small tasks only add broker overhead",
     )
     control_queue: str = Field("control", description="Celery queue of the orchestration tasks")
-    watchdog_stall_seconds: float = Field(
+    watchdog_stall_seconds: float = seconds_field(
         300.0,
-        gt=0,
-        description="A running job whose progress has not moved this long gets its unsolved "
+        "A running job whose progress has not moved this long gets its unsolved "
         "bundles re-sent by the watchdog (seconds; tasks are idempotent)",
     )
     watchdog_max_resends: int = Field(
         3, ge=1, description="Re-sends without progress after which the watchdog fails the job"
     )
     task_retries: int = Field(5, ge=0, description="Retries after a transient solver error")
-    retry_backoff: float = Field(
-        2.0, gt=0, description="First retry delay after a transient error, seconds (doubles)"
+    retry_backoff: float = seconds_field(
+        2.0, "First retry delay after a transient error, seconds (doubles)"
     )
-    retry_backoff_max: float = Field(300.0, gt=0, description="Longest retry delay, seconds")
+    retry_backoff_max: float = seconds_field(300.0, "Longest retry delay, seconds")
     max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
     api_host: str = Field("127.0.0.1", description="`qhsm serve` / `qhsm api` bind address")
     api_port: int = Field(8000, ge=0, le=65535, description="`qhsm serve` / `qhsm api` port")
-    api_url: str = Field("http://127.0.0.1:8000", description="Where `qhsm submit` sends jobs")
+    api_url: str = Field(
+        default_factory=lambda: _local_api_url(), description="Where `qhsm submit` sends jobs"
+    )
     worker_concurrency: int | None = Field(
         None, ge=1, description="Processes per `qhsm serve` CPU worker (default: CPU count)"
     )
     control_concurrency: int = Field(
         2, ge=1, description="Processes of the worker that runs only the control queue"
     )
-    inspect_timeout: float = Field(
-        1.0, gt=0, description="Seconds to wait for workers to report their queues"
+    inspect_timeout: float = seconds_field(
+        1.0, "Seconds to wait for workers to report their queues"
     )
     max_active_jobs_per_user: int | None = Field(
         8,
@@ -353,20 +371,18 @@ class Settings(BaseSettings):
         description="Jobs one user may have queued or running at once; more is a 429 "
         "(0 or None: no limit)",
     )
-    task_soft_time_limit: float = Field(
+    task_soft_time_limit: float = seconds_field(
         900.0,
-        gt=0,
-        description="Seconds one solver task may run before it is stopped and its job fails "
+        "Seconds one solver task may run before it is stopped and its job fails "
         "(per solver: QHSM_SOLVER_TIME_LIMITS)",
     )
     solver_time_limits: dict[str, float] = Field(
         default_factory=dict,
         description='Per-solver soft time limit of a task, seconds (JSON, e.g. {"gurobi": 3600})',
     )
-    task_time_limit_grace: float = Field(
+    task_time_limit_grace: float = seconds_field(
         30.0,
-        gt=0,
-        description="Seconds after the soft limit at which a task that ignores it is killed",
+        "Seconds after the soft limit at which a task that ignores it is killed",
     )
     plugins: str = Field(
         "", description="Comma-separated modules imported at start-up (register extra solvers)"
@@ -385,14 +401,13 @@ class Settings(BaseSettings):
     qpu_max_in_flight_per_user: int | None = Field(
         None, ge=1, description="Per-user share of those slots (unset: no per-user limit)"
     )
-    qpu_slot_ttl: float = Field(
+    qpu_slot_ttl: float = seconds_field(
         900.0,
-        gt=0,
-        description="Seconds after which a QPU slot or budget reservation of a dead worker "
+        "Seconds after which a QPU slot or budget reservation of a dead worker "
         "expires (added to the bundle's estimate; must exceed the longest QPU/hybrid call)",
     )
-    qpu_slot_wait: float = Field(
-        30.0, gt=0, description="Seconds a worker waits for a free QPU slot before retrying later"
+    qpu_slot_wait: float = seconds_field(
+        30.0, "Seconds a worker waits for a free QPU slot before retrying later"
     )
     api_key: SecretStr | None = Field(
         None, description="The API key `qhsm submit` (and other clients) send (QHSM_API_KEY)"
@@ -407,6 +422,12 @@ class Settings(BaseSettings):
     grb_wls_access_id: SecretStr | None = Field(None, validation_alias="GRB_WLSACCESSID")
     grb_wls_secret: SecretStr | None = Field(None, validation_alias="GRB_WLSSECRET")
     grb_license_id: int | None = Field(None, validation_alias="GRB_LICENSEID")
+
+
+def _local_api_url() -> str:
+    """`qhsm serve`'s address with the default host and port (written once, in their fields)."""
+    fields = Settings.model_fields
+    return f"http://{fields['api_host'].default}:{fields['api_port'].default}"
 
 
 def get_settings() -> Settings:
