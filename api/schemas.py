@@ -4,10 +4,12 @@
 from __future__ import annotations
 
 from datetime import datetime
+from typing import Any
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, create_model
 
 from shared.config import MatchConfig
+from shared.metrics import Scores
 from workers.store import JobState, Progress
 
 
@@ -50,12 +52,22 @@ class DisparityRange(BaseModel):
     note: str = ""
 
 
-class Metrics(BaseModel):
-    """Scores against the uploaded ground truth; null where a score is not a finite number."""
+def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:
+    """The wire form of ``model``: the same fields (descriptions included), each of them null
+    where the value is not a finite number (JSON has no Infinity or NaN)."""
+    fields: dict[str, Any] = {
+        field_name: (field.annotation | None, Field(description=field.description))
+        for field_name, field in model.model_fields.items()
+    }
+    return create_model(name, __doc__=doc, __module__=__name__, **fields)
 
-    rmse: float | None
-    bpp: float | None = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
-    pixels: int | None
+
+Metrics = nullable(
+    Scores,
+    "Metrics",
+    "Scores against the uploaded ground truth (``shared.metrics.Scores``); null where a score "
+    "is not a finite number.",
+)
 
 
 class JobSummary(BaseModel):

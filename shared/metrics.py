@@ -7,20 +7,25 @@ Conventions (see the scenes' PROVENANCE.md): stored ground-truth values are disp
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 BAD_PIXEL_THRESHOLD = 1.0
 
 
-@dataclass(frozen=True)
-class Scores:
-    rmse: float
-    bpp: float
-    pixels: int
+class Scores(BaseModel):
+    """Scores of a disparity map: the one definition (``qhsm eval``, the bench and, with
+    numbers that are not finite as null, the API's job metrics)."""
 
-    def as_dict(self) -> dict[str, float]:
+    model_config = ConfigDict(frozen=True)
+
+    rmse: float = Field(description="Root-mean-square error, pixels")
+    bpp: float = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
+    pixels: int = Field(description="Pixels evaluated")
+
+    def as_dict(self) -> dict[str, Any]:
         """The scores as a JSON-friendly dict (CLI output, job results, bench tables).
 
         Returns
@@ -28,7 +33,7 @@ class Scores:
         dict
             ``rmse`` (px), ``bpp`` (percent) and ``pixels`` (how many were evaluated).
         """
-        return asdict(self)
+        return self.model_dump()
 
 
 def evaluation_mask(
@@ -101,21 +106,27 @@ def evaluate(
     ValueError
         If the shapes differ or no pixel is left to evaluate.
     """
-    disparity = np.asarray(disparity, dtype=np.float64)
-    if disparity.shape != gt_values.shape:
+    if np.shape(disparity) != np.shape(gt_values):
         raise ValueError(
-            f"disparity is {disparity.shape[::-1]} (w x h), ground truth is {gt_values.shape[::-1]}"
+            f"disparity is {np.shape(disparity)[::-1]} (w x h), ground truth is "
+            f"{np.shape(gt_values)[::-1]}"
         )
-    keep = evaluation_mask(gt_values, border, mask)
-    count = int(keep.sum())
-    if count == 0:
+    error = _errors(disparity, gt_values, scale, evaluation_mask(gt_values, border, mask))
+    if error.size == 0:
         raise ValueError("no pixel left to evaluate (check border, mask and scale)")
-    error = np.abs(disparity[keep] - gt_values[keep].astype(np.float64) / scale)
     return Scores(
         rmse=float(np.sqrt(np.mean(error**2))),
         bpp=float(100.0 * np.mean(error > threshold)),
-        pixels=count,
+        pixels=error.size,
     )
+
+
+def _errors(
+    disparity: np.ndarray, gt_values: np.ndarray, scale: float, keep: np.ndarray, dtype=np.float64
+) -> np.ndarray:
+    """|d - gt| in pixels of the kept pixels (one formula for the scores and the error map)."""
+    truth = np.asarray(gt_values)[keep].astype(dtype) / scale
+    return np.abs(np.asarray(disparity, dtype)[keep] - truth)
 
 
 def error_map(
@@ -146,5 +157,6 @@ def error_map(
         (h, w) float32.
     """
     keep = evaluation_mask(gt_values, border, mask)
-    error = np.abs(np.asarray(disparity, np.float32) - gt_values.astype(np.float32) / scale)
-    return np.where(keep, error, np.nan).astype(np.float32)
+    errors = np.full(keep.shape, np.nan, np.float32)
+    errors[keep] = _errors(disparity, gt_values, scale, keep, np.float32)
+    return errors
