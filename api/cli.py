@@ -236,7 +236,7 @@ def _demo_scene(choice: str):
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from api.client import Client, progress_bar
+    from api.client import Client, progress_bar, scores_text
     from api.server import ApiThread, PortBusy, bind_api_socket
     from workers.embedded_redis import free_port
     from workers.supervisor import Stack
@@ -270,12 +270,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         (out / "disparity.pfm").write_bytes(client.disparity(job["id"], "pfm"))
         (out / "preview.png").write_bytes(client.preview(job["id"]))
         seconds = sum(level["seconds"] for level in status["levels"])
-        metrics = status["metrics"] or {}
-        print(
-            f"done in {seconds:.2f} s over {len(status['levels'])} levels; "
-            f"RMSE {metrics.get('rmse', float('nan')):.2f} px, "
-            f"bad pixels {metrics.get('bpp', float('nan')):.1f} %"
-        )
+        scores = scores_text(status) or "no ground truth"
+        print(f"done in {seconds:.2f} s over {len(status['levels'])} levels; {scores}")
         print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
         if args.keep_running:
             print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
@@ -295,7 +291,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
-    from api.client import Client, ClientError, progress_bar, write_result
+    from api.client import Client, ClientError, progress_bar, scores_text, write_result
 
     config_from_args(args)  # refuse bad options before uploading anything
     params = match_params(args)
@@ -335,8 +331,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
         raise CommandError(str(error)) from None
     finally:
         client.close()
-    metrics = status.get("metrics")
-    scores = f"; RMSE {metrics['rmse']:.3f}, BPP {metrics['bpp']:.2f} %" if metrics else ""
+    scores = f"; {scores_text(status)}" if status.get("metrics") else ""
     where = "" if args.output else " (no -o given: named after the job, in this directory)"
     line = f"wrote {output}{where}{scores}"
     if args.json:

@@ -188,6 +188,21 @@ def progress_bar(stream: IO[str] | None = None) -> Callable[[dict], None]:
     return show
 
 
+def scores_text(status: dict) -> str | None:
+    """A finished job's metrics as ``RMSE 1.234 px, BPP 5.67 %`` (n/a for a score that is not
+    a finite number); None when the job had no ground truth."""
+    from api.schemas import Metrics
+
+    if not status.get("metrics"):
+        return None
+    metrics = Metrics.model_validate(status["metrics"])
+
+    def text(value: float | None, digits: int) -> str:
+        return "n/a" if value is None else f"{value:.{digits}f}"
+
+    return f"RMSE {text(metrics.rmse, 3)} px, BPP {text(metrics.bpp, 2)} %"
+
+
 def write_result(client: Client, job_id: str, output: Path) -> Path:
     """Download the disparity in the format ``output``'s extension names."""
     fmt = output.suffix.lower().lstrip(".")

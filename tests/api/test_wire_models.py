@@ -1,0 +1,65 @@
+"""The API's wire models are the core's results, not copies that drift (issue 13, item 4), and
+the client reads them through the same models."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+
+import pytest
+
+from api.client import progress_bar, scores_text
+from api.schemas import DisparityRange, JobStatus, LevelTiming, Metrics
+from shared.disparity_range import RangeEstimate
+from shared.metrics import Scores, evaluate
+from shared.pipeline import LevelReport
+from workers.store import Progress
+
+
+def test_metrics_are_the_core_scores_with_null_for_non_finite_numbers():
+    assert set(Metrics.model_fields) == set(Scores.model_fields)
+    for name, field in Scores.model_fields.items():
+        assert Metrics.model_fields[name].description == field.description
+    assert Metrics(rmse=None, bpp=None, pixels=None).rmse is None
+    scores = evaluate([[1.0, 2.0]], [[1.0, 4.0]])
+    assert Metrics.model_validate(scores.as_dict()).model_dump() == scores.as_dict()
+    assert JobStatus.model_fields["metrics"].annotation == Metrics | None
+
+
+def test_level_and_range_schemas_follow_the_core_records():
+    """LevelTiming is the JSON form of LevelReport (less the solver's ``info``), DisparityRange
+    that of RangeEstimate: a field added to the core must be added to the wire form too."""
+    core = {field.name for field in dataclasses.fields(LevelReport)} - {"info"}
+    assert set(LevelTiming.model_fields) == core
+    assert set(DisparityRange.model_fields) == {f.name for f in dataclasses.fields(RangeEstimate)}
+
+
+def test_progress_is_one_model_for_the_store_the_api_and_the_client():
+    assert JobStatus.model_fields["progress"].annotation is Progress
+
+
+def test_scores_text_reads_null_scores():
+    assert scores_text({"metrics": None}) is None
+    status = {"metrics": {"rmse": 1.23456, "bpp": None, "pixels": 10}}
+    assert scores_text(status) == "RMSE 1.235 px, BPP n/a %"
+
+
+def states(*rows):
+    for state, level, done, total in rows:
+        progress = {"level": level, "levels": 2, "bundles_done": done, "bundles_total": total}
+        yield {"state": state, "progress": progress}
+
+
+@pytest.mark.parametrize("final", ["succeeded", "failed"])
+def test_progress_bar_redraws_changes_and_ends_on_the_final_state(final):
+    stream = io.StringIO()
+    show = progress_bar(stream)
+    rows = [("queued", 0, 0, 0), ("running", 1, 2, 4), ("running", 1, 2, 4), ("running", 2, 1, 8)]
+    for status in states(*rows, (final, 2, 5, 8)):
+        show(status)
+    frames = [" ".join(frame.split()) for frame in stream.getvalue().split("\r") if frame]
+    assert frames[0].startswith("queued level 0/2")
+    assert sum(frame.startswith("running level 1/2") for frame in frames) == 1  # no redraw
+    done = 8 if final == "succeeded" else 5
+    assert frames[-1].startswith(f"{final} level 2/2") and frames[-1].endswith(f"{done}/8 bundles")
+    assert stream.getvalue().endswith("\n")  # the bar is closed: the next line starts clean
