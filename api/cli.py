@@ -20,7 +20,6 @@ from shared.cli import (
     add_match_options,
     config_from_args,
     match_params,
-    model_default,
     model_option,
     setting_option,
     settings_from_args,
@@ -36,10 +35,7 @@ def register(commands: argparse._SubParsersAction) -> None:
 
     demo = commands.add_parser("demo", help="start the service, run one demo job, stop")
     _stack_options(demo, port_help="API port (default: a free port, printed at start)")
-    model_option(
-        demo, MatchConfig, "solver", default=model_default(MatchConfig, "solver"),
-        help="solver of the demo job",
-    )  # fmt: skip
+    model_option(demo, MatchConfig, "solver", with_default=True, help="solver of the demo job")
     demo.add_argument(
         "--scene",
         choices=["auto", "tsukuba", "synthetic"],
@@ -123,7 +119,7 @@ def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None
 # --- serve / api / demo ----------------------------------------------------------------------
 
 
-def _uvicorn_server(settings: Settings, log_level: str = "info"):
+def _uvicorn_server(settings: Settings, log_level: str):
     """The API in this thread (uvicorn handles Ctrl-C and SIGTERM)."""
     import uvicorn
 

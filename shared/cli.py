@@ -129,10 +129,12 @@ def model_option(
     model: type[BaseModel],
     name: str,
     *flags: str,
+    with_default: bool = False,
     **kwargs: Any,
 ) -> argparse.Action:
     """Add an option for field ``name`` of ``model``: type, choices and help come from the
-    field. Its default is ``None`` (not given: the model decides) unless ``default`` is passed.
+    field. Its default is ``None`` (not given: the model decides), or with ``with_default`` the
+    model's default (for commands that always pass the value on).
 
     Parameters
     ----------
@@ -144,8 +146,10 @@ def model_option(
         The field's name; also the option's ``dest``.
     *flags : str
         The option strings (default: ``--name-with-dashes``).
+    with_default : bool, optional
+        Parse to the model's default when the option is not given.
     **kwargs
-        ``argparse`` keywords that override the derived ones (``help``, ``default``, ...).
+        ``argparse`` keywords that override the derived ones (``help``, ``dest``, ...).
 
     Returns
     -------
@@ -154,6 +158,8 @@ def model_option(
     """
     field = model.model_fields[name]
     options: dict[str, Any] = {"dest": name, **_option_kind(field.annotation)}
+    if with_default:
+        options["default"] = field.get_default(call_default_factory=True)
     options["help"] = field_help(model, name, kwargs.pop("help", ""))
     options.update(kwargs)
     return parser.add_argument(*(flags or ("--" + name.replace("_", "-"),)), **options)
@@ -219,27 +225,19 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     return get_settings().model_copy(update=changes)
 
 
-def model_default(model: type[BaseModel], name: str) -> Any:
-    """The default of field ``name`` of ``model`` (for options whose value is always passed on).
-
-    Parameters
-    ----------
-    model : type[BaseModel]
-        The pydantic model that declares the field.
-    name : str
-        The field's name.
-
-    Returns
-    -------
-    Any
-        The field's default (its factory called).
-    """
-    return model.model_fields[name].get_default(call_default_factory=True)
-
-
 def add_json_option(parser: argparse.ArgumentParser, what: str = "the result") -> None:
     """``--json``: print ``what`` as JSON (every command that has it says the same)."""
     parser.add_argument("--json", action="store_true", help=f"print {what} as JSON")
+
+
+def add_processes_option(parser: argparse.ArgumentParser) -> None:
+    """``--processes``: local processes that solve the bundles (``qhsm match`` and ``bench``)."""
+    parser.add_argument(
+        "--processes",
+        type=int,
+        default=0,
+        help="local worker processes for the bundles (0: one per core)",
+    )
 
 
 #: ``MatchConfig`` options of ``qhsm match``, ``submit`` and ``estimate`` (``--param`` aside).
@@ -469,12 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")
     match.add_argument("--json", action="store_true", help="print a JSON summary")
-    match.add_argument(
-        "--processes",
-        type=int,
-        default=0,
-        help="local worker processes for the bundles (0: one per core)",
-    )
+    add_processes_option(match)
     match.set_defaults(handler=cmd_match)
 
     evaluate = commands.add_parser("eval", help="score a disparity map against ground truth")
@@ -511,14 +504,17 @@ def build_parser() -> argparse.ArgumentParser:
         "solvers and ablations (the paper's tables, preset paper), baselines",
     )
     model_option(
-        bench, MatchConfig, "solver", "--ablation-solver", dest="ablation_solver",
-        default=model_default(MatchConfig, "solver"), help="solver of the ablations",
-    )  # fmt: skip
+        bench,
+        MatchConfig,
+        "solver",
+        "--ablation-solver",
+        with_default=True,
+        dest="ablation_solver",
+        help="solver of the ablations",
+    )
     bench.add_argument("--url", help="run the pipeline through the service at this URL")
     bench.add_argument("--out", default="out/bench", help="output folder")
-    model_option(
-        bench, MatchConfig, "bundle_height", default=model_default(MatchConfig, "bundle_height")
-    )
+    model_option(bench, MatchConfig, "bundle_height", with_default=True)
     bench.add_argument(
         "--encoding",
         choices=[AUTO_ENCODING, *(e.value for e in Encoding)],
@@ -527,7 +523,7 @@ def build_parser() -> argparse.ArgumentParser:
         "steepest-descent, qpu, hybrid and their -sim stand-ins), else each run's preset's "
         "(domain-wall for accurate, one-hot for paper)",
     )
-    model_option(bench, MatchConfig, "seed", default=model_default(MatchConfig, "seed"))
+    model_option(bench, MatchConfig, "seed", with_default=True)
     bench.add_argument(
         "--param",
         action="append",
@@ -535,9 +531,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="[SOLVER:]KEY=VALUE",
         help="solver parameter (JSON value), e.g. --param sa:num_reads=10",
     )
-    bench.add_argument(
-        "--processes", type=int, default=0, help="local processes for the bundles (0: one per core)"
-    )
+    add_processes_option(bench)
     bench.add_argument("--scale", type=float, help="override every scene's ground-truth scale")
     bench.add_argument("--border", type=int, help="override every scene's ignored border (px)")
     bench.add_argument(
