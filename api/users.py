@@ -82,7 +82,7 @@ class UserStore:
         key_prefix: str,
         *,
         auth_enabled: bool = True,
-        default_qpu_seconds: float = 60.0,
+        default_qpu_seconds: float = Settings.model_fields["default_qpu_seconds"].default,
     ):
         self.redis = client
         self.prefix = key_prefix

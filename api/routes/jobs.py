@@ -245,10 +245,10 @@ def create_job(
             allow_inf_nan=False,
             description="Stored value per disparity pixel (e.g. 1, 4, 16, 256)",
         ),
-    ] = 1.0,
+    ] = GroundTruth.model_fields["scale"].default,
     gt_border: Annotated[
         int, Form(ge=0, le=MAX_GT_BORDER, description="Ignored frame, pixels")
-    ] = 0,
+    ] = GroundTruth.model_fields["border"].default,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     settings = svc.settings
