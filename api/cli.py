@@ -111,7 +111,10 @@ def _log_level_option(parser: argparse.ArgumentParser) -> None:
 def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None) -> None:
     """Options of serve and demo; the defaults shown are the settings' (environment included)."""
     setting_option(parser, "api_host", "--host")
-    setting_option(parser, "api_port", "--port", **({"help": port_help} if port_help else {}))
+    if port_help:  # demo: not the settings' port
+        parser.add_argument("--port", dest="api_port", type=int, metavar="PORT", help=port_help)
+    else:
+        setting_option(parser, "api_port", "--port")
     setting_option(parser, "data_dir")
     setting_option(parser, "worker_concurrency", "--concurrency")
 
