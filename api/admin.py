@@ -21,7 +21,7 @@ import json
 import sys
 from collections.abc import Iterator
 
-from shared.cli import CommandError, add_json_option, setting_option
+from shared.cli import CommandError, setting_option
 
 
 @contextlib.contextmanager
@@ -221,7 +221,7 @@ def register(subparsers) -> None:
     create.set_defaults(handler=cmd_create_user)
 
     listing = commands.add_parser("list-users", help="users, key ids, budgets")
-    add_json_option(listing, "the users")
+    listing.add_argument("--json", action="store_true")
     listing.set_defaults(handler=cmd_list_users)
 
     for command, about, whose, handler in (
@@ -239,5 +239,5 @@ def register(subparsers) -> None:
 
     usage = commands.add_parser("usage", help="QPU time used, per user and job")
     usage.add_argument("name", nargs="?", help="one user (default: every user)")
-    add_json_option(usage, "the usage")
+    usage.add_argument("--json", action="store_true")
     usage.set_defaults(handler=cmd_usage)
