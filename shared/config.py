@@ -211,7 +211,9 @@ class MatchConfig(BaseModel):
         "(from preset)"
     )
     subpixel: bool = Field(
-        False, description="Parabola fit on the final cost (bin pyramid): lower RMSE on slants"
+        False,
+        description="Parabola fit on the final cost (bin pyramid): lower RMSE on slants, more "
+        "1-px errors on integer ground truth",
     )
     solver: str = Field("exact", description="Solver name, see `qhsm solvers`")
     seed: int = Field(0, ge=0, lt=2**32, description="Seeds every bundle's solver")
