@@ -9,6 +9,7 @@ from typing import Any
 from pydantic import BaseModel, Field, create_model
 
 from shared.config import MatchConfig
+from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
 from workers.store import JobState, Progress
 
@@ -41,15 +42,6 @@ class LevelTiming(BaseModel):
     seconds: float
     solver_seconds: float
     timing: dict[str, float | None] = Field(default_factory=dict)
-
-
-class DisparityRange(BaseModel):
-    """``shared.disparity_range.RangeEstimate``."""
-
-    max_disparity: int
-    source: str = Field(description="given, auto or auto-fallback")
-    confirmed: float = Field(0.0, description="Share of pixels the estimate's quick match kept")
-    note: str = ""
 
 
 def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:
@@ -109,7 +101,7 @@ class JobStatus(JobSummary):
     metrics: Metrics | None = None
     error: str | None = None
     config: MatchConfig
-    disparity_range: DisparityRange | None = Field(
+    disparity_range: RangeEstimate | None = Field(
         None, description="The disparity range used: given, or estimated (max_disparity auto)"
     )
 

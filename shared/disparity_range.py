@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
+from pydantic import Field
 
 from shared.data_terms import ad_census_volume
 from shared.images import to_gray
@@ -35,11 +37,14 @@ LIMIT = 1024
 
 @dataclass(frozen=True)
 class RangeEstimate:
-    """The chosen maximum disparity (full-resolution px) and how it was found."""
+    """The chosen maximum disparity (full-resolution px) and how it was found; also the job
+    status's ``disparity_range`` (the descriptions are the API's)."""
 
-    max_disparity: int
-    source: str  # "given", "auto" or "auto-fallback"
-    confirmed: float = 0.0  # share of pixels whose quick match passed both checks
+    max_disparity: Annotated[int, Field(description="Largest disparity, full-resolution px")]
+    source: Annotated[str, Field(description="given, auto or auto-fallback")]
+    confirmed: Annotated[
+        float, Field(description="Share of pixels whose quick match passed both checks")
+    ] = 0.0
     note: str = ""
 
     def as_dict(self) -> dict:

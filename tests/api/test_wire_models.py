@@ -7,9 +7,10 @@ import dataclasses
 import io
 
 import pytest
+from pydantic import TypeAdapter
 
 from api.client import progress_bar, scores_text
-from api.schemas import DisparityRange, JobStatus, LevelTiming, Metrics
+from api.schemas import JobStatus, LevelTiming, Metrics
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores, evaluate
 from shared.pipeline import LevelReport
@@ -26,12 +27,19 @@ def test_metrics_are_the_core_scores_with_null_for_non_finite_numbers():
     assert JobStatus.model_fields["metrics"].annotation == Metrics | None
 
 
-def test_level_and_range_schemas_follow_the_core_records():
-    """LevelTiming is the JSON form of LevelReport (less the solver's ``info``), DisparityRange
-    that of RangeEstimate: a field added to the core must be added to the wire form too."""
+def test_level_schema_follows_the_core_record():
+    """LevelTiming is the JSON form of LevelReport (less the solver's ``info``): a field added
+    to the core must be added to the wire form too."""
     core = {field.name for field in dataclasses.fields(LevelReport)} - {"info"}
     assert set(LevelTiming.model_fields) == core
-    assert set(DisparityRange.model_fields) == {f.name for f in dataclasses.fields(RangeEstimate)}
+
+
+def test_the_disparity_range_is_the_core_estimate():
+    assert JobStatus.model_fields["disparity_range"].annotation == RangeEstimate | None
+    stored = dataclasses.asdict(RangeEstimate(8, "given"))  # what a job record keeps
+    status = JobStatus.model_json_schema()["$defs"]["RangeEstimate"]
+    assert status["properties"]["source"]["description"] == "given, auto or auto-fallback"
+    assert TypeAdapter(RangeEstimate).validate_python(stored) == RangeEstimate(8, "given")
 
 
 def test_progress_is_one_model_for_the_store_the_api_and_the_client():
