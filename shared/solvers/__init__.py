@@ -1,29 +1,37 @@
-"""Solver adapters behind one registry (see :mod:`shared.solvers.registry`)."""
+"""QUBO solvers as dimod samplers behind one registry (see :mod:`shared.solvers.registry`)."""
 
 from shared.solvers.base import (
     Availability,
-    Solver,
+    Sampler,
     SolverError,
     SolveResult,
     SolverUnavailable,
     TransientSolverError,
+    solve,
 )
 from shared.solvers.params import InvalidSolverParams
 from shared.solvers.registry import (
+    SolverSpec,
     UnknownSolver,
     check_params,
     get_solver,
     params_schema,
     register,
     solver_names,
+    spec,
 )
+
+#: The type of a registered solver (a ``dimod.Sampler`` with availability and a name).
+Solver = Sampler
 
 __all__ = [
     "Availability",
     "InvalidSolverParams",
+    "Sampler",
     "SolveResult",
     "Solver",
     "SolverError",
+    "SolverSpec",
     "SolverUnavailable",
     "TransientSolverError",
     "UnknownSolver",
@@ -31,5 +39,7 @@ __all__ = [
     "get_solver",
     "params_schema",
     "register",
+    "solve",
     "solver_names",
+    "spec",
 ]

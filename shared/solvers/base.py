@@ -1,20 +1,25 @@
-"""The solver contract: dimod's. A bundle is a ``dimod.BinaryQuadraticModel``; a solver returns
-its best sample (as an array in variable order 0..n-1), that sample's BQM energy, the wall time,
-the solver's own timing and whatever else it reports (chain breaks, QPU access time)."""
+"""The solver contract: dimod's. A bundle is a ``dimod.BinaryQuadraticModel``, a QUBO solver a
+``dimod.Sampler`` whose ``sample(bqm, seed=..., initial_states=..., **params)`` returns a
+``dimod.SampleSet`` with its timing (seconds, under ``info["timing"]``) and what else it
+reports (chain breaks, QPU access time) in ``info``. Pre- and post-processing are composites
+(:mod:`shared.solvers.composites`).
+
+:func:`solve` is the one place that runs a sampler for the pipeline: it passes the seed and the
+warm start the dimod way, times the call, turns the sample set into a :class:`SolveResult` (best
+sample as an int8 array, its energy, wall time, timing, info) and maps errors to ours.
+"""
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
+import dimod
 import numpy as np
 
 from shared.config import MatchConfig
 from shared.energy import Costs
-
-if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
-    import dimod
 
 
 @dataclass(frozen=True)
@@ -27,11 +32,10 @@ class Availability:
 
 @dataclass
 class SolveResult:
-    """Outcome of one ``solve`` call.
+    """Outcome of one :func:`solve` call.
 
-    ``timing`` holds seconds (D-Wave's microseconds are converted in the adapter); the key
-    ``qpu_access_time`` is what the service charges to a user. ``simulated`` marks timing that
-    an offline stand-in produced.
+    ``timing`` holds seconds; the key ``qpu_access_time`` is what the service charges to a user.
+    ``info["simulated"]`` marks timing that an offline stand-in produced.
     """
 
     sample: np.ndarray
@@ -54,22 +58,49 @@ class TransientSolverError(SolverError):
     """A failure worth retrying later (rate limit, timeout, solver offline)."""
 
 
-@runtime_checkable
-class Solver(Protocol):
-    """Adapter interface every solver implements."""
+class Sampler(dimod.Sampler):
+    """What every registered QUBO solver adds to ``dimod.Sampler``: its registry name, whether
+    it can run here, how its errors read, and the registry's record of its capabilities."""
 
-    name: str
-    description: str
-    #: True where results come from an offline stand-in for a cloud service.
-    offline: bool
-    #: True where the solver spends metered D-Wave time (needs the token and a quota).
-    uses_qpu_time: bool
-    #: Whether bundles start from the best guess at hand unless the config says otherwise
-    #: (``MatchConfig.warm_start``): classical local searches refine one far more cheaply than
-    #: they find a minimum from scratch; QPU and cloud solvers start cold unless asked.
-    warm_start_default: bool = False
+    name: str = ""
 
-    def available(self) -> Availability: ...
+    def available(self) -> Availability:
+        return Availability(True, "always available (CPU)")
+
+    def translate(self, error: Exception) -> SolverError | None:
+        """Our error for one the sampler raised (None: let it through unchanged)."""
+        if isinstance(error, TypeError | ValueError):
+            return SolverError(f"{self.name}: invalid parameters: {error}")
+        return None
+
+    @property
+    def spec(self):
+        from shared.solvers.registry import spec
+
+        return spec(self.name)
+
+    @property
+    def description(self) -> str:
+        return self.spec.description
+
+    @property
+    def offline(self) -> bool:
+        return self.spec.offline
+
+    @property
+    def uses_qpu_time(self) -> bool:
+        return self.spec.uses_qpu_time
+
+    @property
+    def warm_start_default(self) -> bool:
+        return self.spec.warm_start_default
+
+    @property
+    def defaults(self) -> dict[str, Any]:
+        """Default parameters: those the registry's schema states."""
+        from shared.solvers.params import schema_defaults
+
+        return schema_defaults(self.spec.params)
 
     def solve(
         self,
@@ -78,7 +109,33 @@ class Solver(Protocol):
         seed: int | None = None,
         initial_state: np.ndarray | None = None,
         **params: Any,
-    ) -> SolveResult: ...
+    ) -> SolveResult:
+        """:func:`solve` with this sampler."""
+        return solve(self, bqm, seed=seed, initial_state=initial_state, **params)
+
+
+def seconds(timing: dict[str, Any]) -> dict[str, float]:
+    """A sample set's timing in seconds: ``*_ns`` fields (dwave-samplers) converted, other
+    numeric fields taken as seconds already (our samplers convert D-Wave's microseconds)."""
+    out = {}
+    for key, value in timing.items():
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            if key.endswith("_ns"):
+                out[key.removesuffix("_ns")] = value * 1e-9
+            else:
+                out[key] = float(value)
+    return out
+
+
+def _plain(value: Any) -> bool:
+    """Whether ``value`` survives JSON (results travel between workers as JSON)."""
+    if isinstance(value, str | int | float | bool) or value is None:
+        return True
+    if isinstance(value, list | tuple):
+        return all(_plain(item) for item in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    return False
 
 
 def sample_array(sample: dict[Any, int] | dimod.SampleView, num_variables: int) -> np.ndarray:
@@ -89,22 +146,82 @@ def sample_array(sample: dict[Any, int] | dimod.SampleView, num_variables: int) 
     return out
 
 
-def result_from_sampleset(
-    sampleset: dimod.SampleSet,
+def initial_states(
+    initial_state: np.ndarray | None, bqm: dimod.BinaryQuadraticModel
+) -> tuple[np.ndarray, list[int]] | None:
+    """A warm start as dimod's ``initial_states`` (samples-like, the BQM's variables 0..n-1)."""
+    if initial_state is None:
+        return None
+    state = np.asarray(initial_state, dtype=np.int8).reshape(1, -1)
+    if state.shape[1] != bqm.num_variables:
+        raise SolverError(
+            f"initial state has {state.shape[1]} values, the bundle has {bqm.num_variables} "
+            "variables"
+        )
+    return state, list(range(bqm.num_variables))
+
+
+def solve(
+    sampler: dimod.Sampler,
     bqm: dimod.BinaryQuadraticModel,
-    started: float,
-    timing: dict[str, float] | None = None,
-    info: dict[str, Any] | None = None,
+    *,
+    seed: int | None = None,
+    initial_state: np.ndarray | None = None,
+    **params: Any,
 ) -> SolveResult:
-    """Build a :class:`SolveResult` from a resolved sample set (its lowest-energy sample)."""
-    best = sampleset.first
-    sample = sample_array(best.sample, bqm.num_variables)
+    """Sample ``bqm`` once for the pipeline and keep the lowest-energy sample.
+
+    Parameters
+    ----------
+    sampler
+        A registered solver (or any ``dimod.Sampler``).
+    bqm
+        The bundle's QUBO on the variables 0..n-1.
+    seed
+        The bundle's seed, passed when the sampler takes a ``seed`` parameter.
+    initial_state
+        A warm start (n values), passed as ``initial_states`` when the sampler takes them.
+    **params
+        The solver's parameters.
+
+    Returns
+    -------
+    SolveResult
+        Best sample (int8, variable order 0..n-1), its BQM energy, the wall time, the timing in
+        seconds and the rest of the sample set's info.
+
+    Raises
+    ------
+    SolverError
+        With what to do; ``SolverUnavailable`` and ``TransientSolverError`` where they apply.
+    """
+    accepted = getattr(sampler, "parameters", {})
+    started = time.perf_counter()
+    if seed is not None and "seed" in accepted:
+        params["seed"] = seed
+    states = initial_states(initial_state, bqm)
+    if states is not None and "initial_states" in accepted:
+        params["initial_states"] = states
+    try:
+        sampleset = sampler.sample(bqm, **params)
+        sampleset.resolve()
+    except SolverError:
+        raise
+    except Exception as error:  # samplers raise many types; translate what we know
+        translate = getattr(sampler, "translate", Sampler.translate.__get__(sampler))
+        mapped = translate(error)
+        if mapped is None:
+            raise
+        raise mapped from None
+    sample = sample_array(sampleset.first.sample, bqm.num_variables)
+    info = dict(sampleset.info)
+    timing = seconds(info.pop("timing", None) or {})
     return SolveResult(
         sample=sample,
         energy=float(bqm.energy(sample)),
         wall_time=time.perf_counter() - started,
-        timing=dict(timing or {}),
-        info=dict(info or {}),
+        timing=timing,
+        info={key: value for key, value in info.items() if _plain(value)},
         sampleset=sampleset,
     )
 
@@ -127,6 +244,6 @@ def uses_warm_start(config: MatchConfig) -> bool:
         return bool(config.solver_params["warm_start"])
     if config.warm_start is not None:
         return config.warm_start
-    from shared.solvers.registry import get_solver
+    from shared.solvers.registry import spec
 
-    return bool(getattr(get_solver(config.solver), "warm_start_default", False))
+    return spec(config.solver).warm_start_default

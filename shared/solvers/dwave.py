@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-import time
 from typing import Any
 
 import dimod
@@ -29,24 +28,23 @@ import numpy as np
 from shared.config import get_settings
 from shared.solvers.base import (
     Availability,
+    Sampler,
     SolverError,
-    SolveResult,
     SolverUnavailable,
     TransientSolverError,
-    sample_array,
 )
+from shared.solvers.composites import EMBEDDING_INFO, EmbeddingCacheComposite
 from shared.solvers.embedding_cache import (
     EmbeddingCache,
-    EmbeddingSize,
     default_cache,
     graph_fingerprint,
 )
+from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 
 log = logging.getLogger(__name__)
 
 #: The paper's chain-strength prefactor for uniform torque compensation.
 CHAIN_STRENGTH_PREFACTOR = 1.414
-DEFAULT_NUM_READS = 500
 #: Reverse anneal used for warm starts on the QPU: back to s = 0.45, pause, forward again (us).
 WARM_START_SCHEDULE = [[0.0, 1.0], [5.0, 0.45], [15.0, 0.45], [20.0, 1.0]]
 MOCK_TOPOLOGY = ("pegasus", [16])
@@ -94,20 +92,31 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-class _EmbeddedQPU:
-    """The shared code path; subclasses supply the base sampler."""
+class _EmbeddedQPU(Sampler):
+    """The shared code path; subclasses supply the base sampler. The work is done by
+    :class:`~shared.solvers.composites.EmbeddingCacheComposite` on the base sampler; this adds
+    the paper's chain strength, majority-vote chains, warm starts as reverse anneals and the
+    timing in seconds."""
 
-    name: str
-    description: str
-    offline: bool
-    uses_qpu_time: bool
     simulated: bool
+    parameters: dict[str, list] = {  # noqa: RUF012 (dimod's interface; others go to SAPI)
+        "num_reads": [],
+        "chain_strength": [],
+        "annealing_time": [],
+        "anneal_schedule": [],
+        "seed": [],
+        "initial_states": [],
+    }
 
     def __init__(self, cache: EmbeddingCache | None = None) -> None:
         self._cache = cache
         self._sampler = None
         self._target: str | None = None
         self._lock = threading.Lock()
+
+    @property
+    def properties(self) -> dict[str, Any]:
+        return {"simulated": self.simulated}
 
     @property
     def cache(self) -> EmbeddingCache:
@@ -134,6 +143,11 @@ class _EmbeddedQPU:
                 )
                 self._sampler = sampler
             return self._sampler
+
+    def composite(self) -> EmbeddingCacheComposite:
+        """The base sampler inside the cached-embedding composite."""
+        base = self.sampler()
+        return EmbeddingCacheComposite(base, self.cache, self._target, self.name)
 
     def widest_bundle(
         self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int
@@ -164,104 +178,73 @@ class _EmbeddedQPU:
         so that no two workers compute the same embedding at the same time."""
         from shared.solvers.qpu_time import shape_bqm
 
-        base = self.sampler()
-        for height, width in shapes:
-            bqm = shape_bqm(str(encoding), height, width, candidates)
-            try:
-                self.cache.lookup(bqm, base.edgelist, self._target, seed=0, solver=self.name)
-            except SolverError:
-                raise
-            except Exception as error:
-                raise self._translate(error) from None
+        try:
+            composite = self.composite()
+            for height, width in shapes:
+                composite.embedding(shape_bqm(str(encoding), height, width, candidates))
+        except SolverError:
+            raise
+        except Exception as error:
+            raise self.translate(error) from None
 
-    def solve(
+    def sample(
         self,
         bqm: dimod.BinaryQuadraticModel,
         *,
         seed: int | None = None,
-        initial_state: np.ndarray | None = None,
+        initial_states: Any = None,
         **params: Any,
-    ) -> SolveResult:
+    ) -> dimod.SampleSet:
         from dwave.embedding.chain_breaks import majority_vote
-        from dwave.system import FixedEmbeddingComposite
 
-        started = time.perf_counter()
-        try:
-            base = self.sampler()
-            # Seed 0, not the bundle's: the embedding must depend on the structure only, so
-            # whichever worker computes it first, every run gets the same one.
-            embedding, source, key = self.cache.lookup(
-                bqm, base.edgelist, self._target, seed=0, solver=self.name
+        composite = self.composite()
+        strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
+        settings: dict[str, Any] = {**self.defaults, **params}
+        if initial_states is not None:
+            states, labels = dimod.as_samples(initial_states)
+            settings.update(
+                initial_state=dict(zip(labels, states[0].tolist(), strict=True)),
+                anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
+                reinitialize_state=True,
             )
-            strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
-            settings: dict[str, Any] = {"num_reads": DEFAULT_NUM_READS, **params}
-            if initial_state is not None:
-                state = np.asarray(initial_state, dtype=np.int8)
-                settings.update(
-                    initial_state=dict(enumerate(state.tolist())),
-                    anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
-                    reinitialize_state=True,
-                )
-                # the schedule sets the anneal's length; SAPI refuses both (the estimate's view)
-                settings.pop("annealing_time", None)
-            composite = FixedEmbeddingComposite(base, embedding)
-            # The mock's seed is sampler state, so simulated calls are serialised.
-            with self._lock if self.simulated else contextlib.nullcontext():
-                self._seed_sampler(base, seed)
-                sampleset = composite.sample(
-                    bqm,
-                    chain_strength=strength,
-                    chain_break_method=majority_vote,
-                    return_embedding=False,
-                    **settings,
-                )
-                sampleset.resolve()
-        except SolverError:
-            raise
-        except Exception as error:  # Ocean raises many types; translate them all
-            raise self._translate(error) from None
+            # the schedule sets the anneal's length; SAPI refuses both (the estimate's view)
+            settings.pop("annealing_time", None)
+        # The mock's seed is sampler state, so simulated calls are serialised.
+        with self._lock if self.simulated else contextlib.nullcontext():
+            self._seed_sampler(composite.children[0], seed)
+            sampleset = composite.sample(
+                bqm, chain_strength=strength, chain_break_method=majority_vote, **settings
+            )
         best = sampleset.first
-        sample = sample_array(best.sample, bqm.num_variables)
         record = sampleset.record
         breaks = np.asarray(record.chain_break_fraction, dtype=float)
         weights = np.asarray(record.num_occurrences, dtype=float)
-        size = EmbeddingSize.of(embedding)
-        timing = self._timing(sampleset, size, settings)
-        info = {
-            "chain_strength": strength,
-            "chain_break_fraction": float(best.chain_break_fraction),
-            "mean_chain_break_fraction": float(np.average(breaks, weights=weights)),
-            "num_reads": int(weights.sum()),
-            "embedding_cache": source,
-            "embedding_cache_hit": source != "computed",
-            "embedding_key": key,
-            "qubits": size.qubits,
-            "chains": size.chains,
-            "longest_chain": size.longest_chain,
-            "qpu_access_time": timing.get("qpu_access_time", 0.0),
-            "simulated": self.simulated,
-            "warm_start": initial_state is not None,
-        }
+        info = sampleset.info
+        timing = self._timing(info, info["qubits"], settings)
+        for key in [key for key in info if key not in EMBEDDING_INFO]:
+            del info[key]  # D-Wave's own timing (microseconds) and problem metadata
+        sampleset.info.update(
+            timing=timing,
+            chain_strength=strength,
+            chain_break_fraction=float(best.chain_break_fraction),
+            mean_chain_break_fraction=float(np.average(breaks, weights=weights)),
+            num_reads=int(weights.sum()),
+            qpu_access_time=timing.get("qpu_access_time", 0.0),
+            simulated=self.simulated,
+            warm_start=initial_states is not None,
+        )
         if self.simulated:
-            info["note"] = (
+            sampleset.info["note"] = (
                 "offline MockDWaveSampler: qpu_access_time is the Advantage timing model's value "
                 "for this embedding and these parameters, not a measurement"
             )
-        return SolveResult(
-            sample=sample,
-            energy=float(bqm.energy(sample)),
-            wall_time=time.perf_counter() - started,
-            timing=timing,
-            info=info,
-        )
+        return sampleset
 
-    def _timing(
-        self, sampleset: dimod.SampleSet, size: EmbeddingSize, settings: dict[str, Any]
-    ) -> dict[str, float]:
+    def _timing(self, info: dict, qubits: int, settings: dict[str, Any]) -> dict[str, float]:
         """The QPU's own timing, in seconds."""
-        return _seconds(sampleset.info.get("timing", {}))
+        return _seconds(info.get("timing", {}))
 
-    def _translate(self, error: Exception) -> SolverError:
+    def translate(self, error: Exception) -> SolverError:
         """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
         from dwave.cloud import exceptions as cloud
         from dwave.cloud.api import exceptions as api
@@ -335,9 +318,6 @@ class QPUSolver(_EmbeddedQPU):
     """
 
     name = "qpu"
-    description = "D-Wave QPU (Leap) with a cached fixed embedding"
-    offline = False
-    uses_qpu_time = True
     simulated = False
 
     def available(self) -> Availability:
@@ -376,9 +356,6 @@ class SimulatedQPUSolver(_EmbeddedQPU):
     """
 
     name = "qpu-sim"
-    description = "Offline simulator of the qpu path (MockDWaveSampler, Pegasus P16)"
-    offline = True
-    uses_qpu_time = False
     simulated = True
 
     def available(self) -> Availability:
@@ -387,15 +364,13 @@ class SimulatedQPUSolver(_EmbeddedQPU):
     def _seed_sampler(self, sampler, seed: int | None) -> None:
         sampler.substitute_kwargs["seed"] = None if seed is None else seed % 2**32
 
-    def _timing(
-        self, sampleset: dimod.SampleSet, size: EmbeddingSize, settings: dict[str, Any]
-    ) -> dict[str, float]:
+    def _timing(self, info: dict, qubits: int, settings: dict[str, Any]) -> dict[str, float]:
         """What a real QPU would take for this embedding and these parameters (the model the
         estimates use), instead of the mock's fixed demonstration timing."""
         from shared.solvers.qpu_time import qpu_access_seconds
 
         try:
-            return {"qpu_access_time": qpu_access_seconds(size.qubits, settings)}
+            return {"qpu_access_time": qpu_access_seconds(qubits, settings)}
         except ValueError as error:  # what SAPI would refuse, e.g. a schedule and a time
             raise SolverError(f"{self.name}: invalid sampling parameters: {error}") from None
 

@@ -8,16 +8,13 @@ brute-force ``ExactSolver``, which is only feasible for tiny problems.
 
 from __future__ import annotations
 
-import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import dimod
 import numpy as np
 
 from shared.energy import Costs
-from shared.solvers.base import Availability, SolverError, SolveResult, result_from_sampleset
-
-if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
-    import dimod
+from shared.solvers.base import Sampler, SolverError
 
 #: dimod.ExactSolver enumerates 2^n states; beyond this it is hopeless.
 BRUTE_FORCE_LIMIT = 24
@@ -50,16 +47,13 @@ def solve_chains(costs: Costs) -> np.ndarray:
     return result
 
 
-class ExactSolver:
-    """Row-chain DP for the pipeline; dimod's brute force for small generic BQMs."""
+class ExactSolver(Sampler):
+    """Row-chain DP for the pipeline (a row solver); as a ``dimod.Sampler``, dimod's brute
+    force for small generic BQMs."""
 
     name = "exact"
-    description = "Exact MAP of single-row bundles (dynamic programming on the MRF costs)"
-    offline = False
-    uses_qpu_time = False
-
-    def available(self) -> Availability:
-        return Availability(True, "always available (CPU)")
+    parameters: dict[str, list] = {}  # noqa: RUF012 (dimod's interface)
+    properties: dict[str, Any] = {}  # noqa: RUF012
 
     @staticmethod
     def check_bundle_height(bundle_height: int) -> None:
@@ -75,22 +69,11 @@ class ExactSolver:
         self.check_bundle_height(bundle_height)
         return solve_chains(costs)
 
-    def solve(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_state: np.ndarray | None = None,
-        **params: Any,
-    ) -> SolveResult:
+    def sample(self, bqm: dimod.BinaryQuadraticModel, **params: Any) -> dimod.SampleSet:
         if bqm.num_variables > BRUTE_FORCE_LIMIT:
             raise SolverError(
                 f"exact solves a generic BQM by enumeration only up to {BRUTE_FORCE_LIMIT} "
                 f"variables (this one has {bqm.num_variables}); stereo rows go through the "
                 "row DP instead"
             )
-        started = time.perf_counter()
-        import dimod
-
-        sampleset = dimod.ExactSolver().sample(bqm).lowest()
-        return result_from_sampleset(sampleset, bqm, started)
+        return dimod.ExactSolver().sample(bqm).lowest()

@@ -10,7 +10,6 @@ a quadratic term, which is a few pixels of a stereo row.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import dimod
@@ -19,11 +18,10 @@ import numpy as np
 from shared.config import Settings, get_settings
 from shared.solvers.base import (
     Availability,
+    Sampler,
     SolverError,
-    SolveResult,
     SolverUnavailable,
     TransientSolverError,
-    sample_array,
 )
 
 #: Largest model with quadratic terms the size-limited pip licence accepts.
@@ -34,7 +32,6 @@ PIP_LICENCE_VARIABLES = 200
 OBJECTIVE_SCALE = 100.0
 #: Friendly parameter names -> Gurobi parameter names (raw Gurobi names are accepted too).
 PARAM_NAMES = {"time_limit": "TimeLimit", "mip_gap": "MIPGap", "threads": "Threads"}
-DEFAULT_PARAMS: dict[str, Any] = {"TimeLimit": 60.0, "Threads": 1, "MIPGap": 0.0}
 
 LICENCE_HELP = (
     "configure a full licence: set GRB_LICENSE_FILE to a gurobi.lic file, or a Web License "
@@ -65,21 +62,21 @@ def _environment(settings: Settings):
 
 
 def _gurobi_params(params: dict[str, Any]) -> dict[str, Any]:
-    merged = dict(DEFAULT_PARAMS)
-    for key, value in params.items():
-        merged[PARAM_NAMES.get(key, key)] = value
-    return merged
+    return {PARAM_NAMES.get(key, key): value for key, value in params.items()}
 
 
-class GurobiSolver:
-    """Binary quadratic program with Gurobi (MIQP); parameters ``time_limit`` (s, default 60),
-    ``mip_gap`` (default 0: prove optimality), ``threads`` (default 1) or any raw Gurobi
-    parameter name."""
+class GurobiSampler(Sampler, dimod.Initialized):
+    """Binary quadratic program with Gurobi (MIQP); parameters ``time_limit`` (s), ``mip_gap``
+    (0: prove optimality), ``threads`` (defaults in ``GurobiParams``) or any raw Gurobi
+    parameter name. The first of ``initial_states`` is Gurobi's MIP start."""
 
     name = "gurobi"
-    description = "Gurobi MIQP on the QUBO (exact up to MIPGap / TimeLimit)"
-    offline = False
-    uses_qpu_time = False
+    parameters: dict[str, list] = {  # noqa: RUF012 (dimod's interface)
+        **{key: [] for key in PARAM_NAMES},
+        "seed": [],
+        "initial_states": [],
+    }
+    properties: dict[str, Any] = {}  # noqa: RUF012
 
     def available(self) -> Availability:
         try:
@@ -98,19 +95,22 @@ class GurobiSolver:
             "GRB_LICENSEID for a full licence)",
         )
 
-    def solve(
+    def sample(
         self,
         bqm: dimod.BinaryQuadraticModel,
         *,
         seed: int | None = None,
-        initial_state: np.ndarray | None = None,
+        initial_states: Any = None,
         **params: Any,
-    ) -> SolveResult:
+    ) -> dimod.SampleSet:
         import gurobipy as gp
         import scipy.sparse as sp
 
-        started = time.perf_counter()
         settings = get_settings()
+        start = None
+        if initial_states is not None:
+            parsed = self.parse_initial_states(bqm, initial_states, num_reads=1)
+            start = parsed.initial_states.record.sample[0]
         binary = bqm.change_vartype(dimod.BINARY, inplace=False)
         n = binary.num_variables
         linear, (rows, cols, quadratic), offset = binary.to_numpy_vectors(variable_order=range(n))
@@ -119,7 +119,7 @@ class GurobiSolver:
         q_matrix = sp.csr_matrix((quadratic * scale, (rows, cols)), shape=(n, n))
         try:
             with _environment(settings) as env, gp.Model(env=env) as model:
-                for key, value in _gurobi_params(params).items():
+                for key, value in _gurobi_params({**self.defaults, **params}).items():
                     model.setParam(key, value)
                 if seed is not None:
                     model.setParam("Seed", int(seed) % 2_000_000_000)
@@ -127,8 +127,8 @@ class GurobiSolver:
                 model.setMObjective(
                     q_matrix, linear * scale, float(offset) * scale, sense=gp.GRB.MINIMIZE
                 )
-                if initial_state is not None:
-                    x.Start = np.asarray(initial_state, dtype=float)
+                if start is not None:
+                    x.Start = np.asarray(start, dtype=float)
                 model.optimize()
                 status = model.Status
                 if model.SolCount == 0:
@@ -143,17 +143,10 @@ class GurobiSolver:
                     "bound": float(model.ObjBound) / scale,
                     "licence": licence_kind(settings),
                 }
-                runtime = float(model.Runtime)
+                info["timing"] = {"solver": float(model.Runtime)}
         except gp.GurobiError as error:
             raise _translate(error, n, bool(quadratic.size)) from None
-        sample = sample_array(dict(zip(range(n), values.tolist(), strict=True)), n)
-        return SolveResult(
-            sample=sample,
-            energy=float(bqm.energy(sample)),
-            wall_time=time.perf_counter() - started,
-            timing={"solver": runtime},
-            info=info,
-        )
+        return dimod.SampleSet.from_samples_bqm((values.reshape(1, -1), range(n)), bqm, info=info)
 
 
 def _translate(error, num_variables: int, quadratic: bool) -> SolverError:

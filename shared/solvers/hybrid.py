@@ -10,51 +10,24 @@ the ``charge_time`` Leap's hybrid solver would bill for a problem of its size
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import dimod
 import numpy as np
 
 from shared.config import get_settings
-from shared.solvers.base import (
-    Availability,
-    SolverError,
-    SolveResult,
-    SolverUnavailable,
-    result_from_sampleset,
-)
+from shared.solvers.base import Availability, Sampler, SolverError, SolverUnavailable
 from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver, scrub_cloud_logs
-
-#: Kerberos settings sized for stereo bundles (its own defaults run 100 iterations of 10k sweeps).
-KERBEROS_DEFAULTS: dict[str, Any] = {
-    "max_iter": 10,
-    "convergence": 3,
-    "sa_reads": 1,
-    "sa_sweeps": 1000,
-    "tabu_timeout": 100,
-    "qpu_reads": 100,
-    "max_subproblem_size": 50,
-}
-
-
-def _initial_sampleset(bqm: dimod.BinaryQuadraticModel, initial_state: np.ndarray | None):
-    if initial_state is None:
-        return None
-    state = np.asarray(initial_state, dtype=np.int8).reshape(1, -1)
-    return dimod.SampleSet.from_samples_bqm((state, list(range(bqm.num_variables))), bqm)
 
 
 class LeapHybridSolver(QPUSolver):
     """``hybrid``: ``LeapHybridSampler`` (needs ``DWAVE_API_TOKEN``); ``time_limit`` in seconds
     (Leap's minimum for the problem size when unset). Warm starts are not supported by Leap's
-    BQM solver, so ``initial_state`` is ignored and reported as such."""
+    BQM solver, so ``initial_states`` are ignored and reported as such."""
 
     name = "hybrid"
-    description = "D-Wave Leap hybrid BQM solver (cloud)"
-    offline = False
-    uses_qpu_time = True
     simulated = False
+    parameters: dict[str, list] = {"time_limit": [], "initial_states": []}  # noqa: RUF012
 
     def _make_sampler(self):
         from dwave.system import LeapHybridSampler
@@ -72,39 +45,32 @@ class LeapHybridSolver(QPUSolver):
         scrub_cloud_logs(options["token"])
         return sampler
 
-    def solve(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_state: np.ndarray | None = None,
-        **params: Any,
-    ) -> SolveResult:
-        started = time.perf_counter()
-        try:
-            with self._lock:
-                if self._sampler is None:
-                    self._sampler = self._make_sampler()
-            self._check_size(bqm)
-            sampleset = self._sampler.sample(bqm, **params)
-            sampleset.resolve()
-        except SolverError:
-            raise
-        except Exception as error:
-            raise self._translate(error) from None
+    def sample(
+        self, bqm: dimod.BinaryQuadraticModel, *, initial_states: Any = None, **params: Any
+    ) -> dimod.SampleSet:
+        with self._lock:
+            if self._sampler is None:
+                self._sampler = self._make_sampler()
+        self._check_size(bqm)
+        sampleset = self._sampler.sample(bqm, **{**self.defaults, **params})
+        sampleset.resolve()
         # Leap reports microseconds, like the QPU
         timing = {
             key: float(value) * 1e-6
             for key, value in sampleset.info.items()
             if key in ("qpu_access_time", "run_time", "charge_time")
         }
-        info = {
-            "qpu_access_time": timing.get("qpu_access_time", 0.0),
-            "simulated": False,
-            "warm_start": False,
-            "warm_start_ignored": initial_state is not None,
-        }
-        return result_from_sampleset(sampleset, bqm, started, timing, info)
+        sampleset.info.clear()
+        sampleset.info.update(
+            {
+                "timing": timing,
+                "qpu_access_time": timing.get("qpu_access_time", 0.0),
+                "simulated": False,
+                "warm_start": False,
+                "warm_start_ignored": initial_states is not None,
+            }
+        )
+        return sampleset
 
     def _check_size(self, bqm: dimod.BinaryQuadraticModel) -> None:
         """Refuse what the solver would refuse after a long upload (its size limits)."""
@@ -117,18 +83,17 @@ class LeapHybridSolver(QPUSolver):
             )
 
 
-class KerberosSolver:
+class KerberosSolver(Sampler):
     """``hybrid-sim``: dwave-hybrid's Kerberos workflow with ``MockDWaveSampler`` as its QPU.
 
     Parameters: those of ``hybrid.reference.kerberos.Kerberos`` (``max_iter``, ``max_time``,
     ``convergence``, ``sa_sweeps``, ``tabu_timeout``, ``qpu_reads``, ``max_subproblem_size``);
-    defaults in :data:`KERBEROS_DEFAULTS`. ``initial_state`` becomes Kerberos' initial sample.
+    defaults in ``KerberosParams``. The first of ``initial_states`` is Kerberos' initial sample.
     """
 
     name = "hybrid-sim"
-    description = "Offline stand-in for hybrid: dwave-hybrid Kerberos with MockDWaveSampler"
-    offline = True
-    uses_qpu_time = False
+    parameters: dict[str, list] = {"seed": [], "initial_states": []}  # noqa: RUF012
+    properties: dict[str, Any] = {"simulated": True}  # noqa: RUF012
 
     def __init__(self) -> None:
         self._qpu = None
@@ -136,43 +101,41 @@ class KerberosSolver:
     def available(self) -> Availability:
         return Availability(True, "offline simulator (dwave-hybrid Kerberos, MockDWaveSampler)")
 
-    def solve(
+    def sample(
         self,
         bqm: dimod.BinaryQuadraticModel,
         *,
         seed: int | None = None,
-        initial_state: np.ndarray | None = None,
+        initial_states: Any = None,
         **params: Any,
-    ) -> SolveResult:
+    ) -> dimod.SampleSet:
         from dwave.system.testing import MockDWaveSampler
         from hybrid.reference.kerberos import KerberosSampler
+
+        from shared.solvers.qpu_time import hybrid_charge_seconds
 
         if self._qpu is None:
             topology_type, shape = MOCK_TOPOLOGY
             self._qpu = MockDWaveSampler(
                 topology_type=topology_type, topology_shape=shape, parameter_warnings=False
             )
-        settings = {**KERBEROS_DEFAULTS, **params}
-        started = time.perf_counter()
         if seed is not None:
             np.random.seed(seed % 2**32)  # dwave-hybrid's samplers draw from numpy's global RNG
-        try:
-            sampleset = KerberosSampler().sample(
-                bqm,
-                init_sample=_initial_sampleset(bqm, initial_state),
-                qpu_sampler=self._qpu,
-                **settings,
-            )
-        except (TypeError, ValueError) as error:
-            raise SolverError(f"hybrid-sim: invalid parameters: {error}") from None
-        from shared.solvers.qpu_time import hybrid_charge_seconds
-
+        init = None
+        if initial_states is not None:
+            init = dimod.SampleSet.from_samples_bqm(initial_states, bqm)
+        sampleset = KerberosSampler().sample(
+            bqm, init_sample=init, qpu_sampler=self._qpu, **{**self.defaults, **params}
+        )
         charge = hybrid_charge_seconds(bqm.num_variables, params)
-        info = {
-            "simulated": True,
-            "warm_start": initial_state is not None,
-            "note": "offline Kerberos: charge_time is what Leap's hybrid solver would bill for "
-            "this problem size (its minimum time limit), not a measurement",
-        }
-        timing = {"charge_time": charge, "run_time": charge}
-        return result_from_sampleset(sampleset, bqm, started, timing, info)
+        sampleset.info.clear()
+        sampleset.info.update(
+            {
+                "timing": {"charge_time": charge, "run_time": charge},
+                "simulated": True,
+                "warm_start": initial_states is not None,
+                "note": "offline Kerberos: charge_time is what Leap's hybrid solver would bill for "
+                "this problem size (its minimum time limit), not a measurement",
+            }
+        )
+        return sampleset

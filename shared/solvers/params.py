@@ -142,6 +142,17 @@ class QPUParams(SolverParams):
     auto_scale: bool | None = None
 
 
+#: Reads per QPU call when ``num_reads`` is not given (the estimates use it too).
+DEFAULT_NUM_READS: int = QPUParams.model_fields["num_reads"].default
+
+
+class AnyParams(SolverParams):
+    """``dimod:`` samplers: any keyword the sampler takes (it checks them itself; the task time
+    limits bound the time spent)."""
+
+    model_config = ConfigDict(extra="allow")
+
+
 class LeapHybridParams(SolverParams):
     """``hybrid``: Leap's hybrid BQM solver."""
 
@@ -159,6 +170,27 @@ class KerberosParams(SolverParams):
     tabu_timeout: int = Field(100, ge=1, le=60_000, description="Milliseconds")
     qpu_reads: int = Field(100, ge=1, le=10_000)
     max_subproblem_size: int = Field(50, ge=1, le=1000)
+
+
+def schema_defaults(model: type[SolverParams]) -> dict[str, Any]:
+    """The sampler defaults a schema states (fields with a non-None default, ``warm_start``
+    excluded): the one place a solver's default parameters are written.
+
+    Parameters
+    ----------
+    model
+        A solver's parameter schema.
+
+    Returns
+    -------
+    dict
+        Parameter name -> default value.
+    """
+    return {
+        name: field.default
+        for name, field in model.model_fields.items()
+        if name != "warm_start" and field.default is not None and not field.is_required()
+    }
 
 
 class InvalidSolverParams(ValueError):

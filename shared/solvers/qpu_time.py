@@ -54,6 +54,8 @@ from shared.energy import Costs
 from shared.pyramid import level_shape, plan
 from shared.solvers.base import uses_warm_start
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
+from shared.solvers.params import DEFAULT_NUM_READS
+from shared.solvers.registry import UnknownSolver, names_metered_by, spec
 
 log = logging.getLogger(__name__)
 
@@ -103,13 +105,11 @@ HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
 QUBITS_PER_VARIABLE = 2.0
 #: Working qubits of an Advantage (Pegasus P16) QPU: no embedding uses more.
 MAX_QUBITS = 5627
-#: Reads the QPU adapters use when ``num_reads`` is not given (shared/solvers/dwave.py).
-DEFAULT_NUM_READS = 500
-
-#: Solvers whose use is charged to a user's budget. The offline stand-ins are charged what the
-#: model says the real service would take, so the accounting can be exercised without a token.
-QPU_SOLVERS = frozenset({"qpu", "qpu-sim"})
-HYBRID_SOLVERS = frozenset({"hybrid", "hybrid-sim"})
+#: Solvers whose use is charged to a user's budget, as the registry declares them
+#: (``SolverSpec.meter``). The offline stand-ins are charged what the model says the real
+#: service would take, so the accounting can be exercised without a token.
+QPU_SOLVERS = names_metered_by("qpu")
+HYBRID_SOLVERS = names_metered_by("hybrid")
 METERED_SOLVERS = QPU_SOLVERS | HYBRID_SOLVERS
 
 #: The QPU parameters the timing model reads (others do not change the access time).
@@ -125,8 +125,12 @@ _QPU_TIMING_PARAMS = (
 
 
 def is_metered(solver_name: str) -> bool:
-    """Whether jobs on this solver spend (real or simulated) D-Wave time from a budget."""
-    return solver_name in METERED_SOLVERS
+    """Whether jobs on this solver spend (real or simulated) D-Wave time from a budget (the
+    registry's ``SolverSpec.metered``; False for unknown names)."""
+    try:
+        return spec(solver_name).metered
+    except UnknownSolver:
+        return False
 
 
 def charged_seconds(timing: dict[str, float]) -> float:

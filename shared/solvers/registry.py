@@ -1,85 +1,294 @@
-"""The one registry of solver adapters. The CLI, the API's validation and the worker queues all
-read it. Adapters are built lazily, so importing the registry does not import Ocean or Gurobi."""
+"""The one registry of solvers: one :class:`SolverSpec` per solver declares everything the rest
+of the code asks about it (factory, parameter schema, metering, offline stand-in, worker queue,
+row solver, warm-start default, recommended encoding). The CLI, the API's validation, the quota,
+the worker queues and the docs all read it. Samplers are built lazily, so importing the registry
+does not import Ocean or Gurobi.
+
+Two ways to add solvers without editing this file:
+
+* ``dimod:PACKAGE.MODULE.CLASS``: any installed ``dimod.Sampler`` class, run through the same
+  composites as the built-in samplers (:mod:`shared.solvers.plugins`), on the ``dimod`` queue;
+* the ``qhsm.solvers`` entry-point group: a package names a :class:`SolverSpec` (or a sampler
+  factory, registered under the entry point's name) in its metadata.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import logging
+import sys
 from collections.abc import Callable
-from importlib import import_module
-from typing import Any
+from dataclasses import dataclass, replace
+from importlib import import_module, metadata
+from typing import Any, Literal
 
 from shared.solvers import params as schemas
-from shared.solvers.base import Solver
 
-#: name -> "module:attribute" of a zero-argument factory (usually the adapter class).
-_FACTORIES: dict[str, str] = {
-    "exact": "shared.solvers.exact:ExactSolver",
-    "sa": "shared.solvers.anneal:SimulatedAnnealingSolver",
-    "tabu": "shared.solvers.anneal:TabuSolver",
-    "steepest-descent": "shared.solvers.anneal:SteepestDescentSolver",
-    "gurobi": "shared.solvers.gurobi:GurobiSolver",
-    "qpu": "shared.solvers.dwave:QPUSolver",
-    "qpu-sim": "shared.solvers.dwave:SimulatedQPUSolver",
-    "hybrid": "shared.solvers.hybrid:LeapHybridSolver",
-    "hybrid-sim": "shared.solvers.hybrid:KerberosSolver",
-}
-#: name -> the schema of its ``solver_params`` (bounds checked at submit).
-_PARAMS: dict[str, type[schemas.SolverParams]] = {
-    "exact": schemas.NoParams,
-    "sa": schemas.AnnealParams,
-    "tabu": schemas.TabuParams,
-    "steepest-descent": schemas.DescentParams,
-    "gurobi": schemas.GurobiParams,
-    "qpu": schemas.QPUParams,
-    "qpu-sim": schemas.QPUParams,
-    "hybrid": schemas.LeapHybridParams,
-    "hybrid-sim": schemas.KerberosParams,
-}
-#: Solvers that sample the QUBO heuristically: domain-wall rows are far easier for them
-#: (README, "Solvers"; docs/benchmarks.md). The exact ones have no preference.
-_DOMAIN_WALL_SOLVERS = frozenset(
-    {"sa", "tabu", "steepest-descent", "qpu", "qpu-sim", "hybrid", "hybrid-sim"}
-)
-_INSTANCES: dict[str, Solver] = {}
+log = logging.getLogger(__name__)
+
+#: Entry-point group through which packages register named solvers.
+ENTRY_POINT_GROUP = "qhsm.solvers"
+#: Prefix of solver names that name an installed dimod sampler class.
+DIMOD_PREFIX = "dimod:"
+#: The Celery queue of every ``dimod:`` solver.
+DIMOD_QUEUE = "dimod"
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """Everything declared about one solver, once.
+
+    ``factory`` is ``"module:attribute"`` of a zero-argument callable (or the callable itself)
+    returning the sampler. ``meter`` says how a job on it is charged to its owner's budget
+    (``"qpu"``: the QPU timing model, ``"hybrid"``: Leap's hybrid charge; None: not metered);
+    ``offline`` marks a stand-in for a cloud service (charged what the real one would take).
+    """
+
+    name: str
+    factory: str | Callable[[], Any]
+    description: str = ""
+    params: type[schemas.SolverParams] = schemas.NoParams
+    meter: Literal["qpu", "hybrid"] | None = None
+    offline: bool = False
+    #: The Celery queue its bundles go to (None: the solver's name).
+    queue: str | None = None
+    #: Works on the MRF costs of whole rows instead of a QUBO (shared.solve hands it rows).
+    row_solver: bool = False
+    #: Whether bundles start from the best guess at hand unless the config says otherwise:
+    #: local searches refine one far more cheaply than they find a minimum from scratch.
+    warm_start_default: bool = False
+    #: Label encoding to use when none is asked for (None: no preference, the preset decides).
+    encoding: str | None = None
+
+    @property
+    def metered(self) -> bool:
+        """Jobs on it spend (real or simulated) D-Wave time from a budget."""
+        return self.meter is not None
+
+    @property
+    def uses_qpu_time(self) -> bool:
+        """It spends real D-Wave time (needs the token; the stand-ins do not)."""
+        return self.metered and not self.offline
+
+    @property
+    def queue_name(self) -> str:
+        return self.queue or self.name
+
+
+def _spec(name: str, factory: str, description: str, params, **capabilities) -> SolverSpec:
+    return SolverSpec(name, f"shared.solvers.{factory}", description, params, **capabilities)
+
+
+_LOCAL = {"warm_start_default": True, "encoding": "domain-wall"}
+_BUILTIN = [
+    _spec(
+        "exact",
+        "exact:ExactSolver",
+        "Exact MAP of single-row bundles (dynamic programming on the MRF costs)",
+        schemas.NoParams,
+        row_solver=True,
+    ),
+    _spec(
+        "sa",
+        "anneal:simulated_annealing",
+        "Simulated annealing (dwave-samplers) after roof-duality fixing, classical CPU",
+        schemas.AnnealParams,
+        **_LOCAL,
+    ),
+    _spec(
+        "tabu",
+        "anneal:tabu",
+        "Tabu search (dwave-samplers), classical CPU",
+        schemas.TabuParams,
+        **_LOCAL,
+    ),
+    _spec(
+        "steepest-descent",
+        "anneal:steepest_descent",
+        "Steepest descent (dwave-samplers): local minimum, baseline / polisher",
+        schemas.DescentParams,
+        **_LOCAL,
+    ),
+    _spec(
+        "gurobi",
+        "gurobi:GurobiSampler",
+        "Gurobi MIQP on the QUBO (exact up to MIPGap / TimeLimit)",
+        schemas.GurobiParams,
+    ),
+    _spec(
+        "qpu",
+        "dwave:QPUSolver",
+        "D-Wave QPU (Leap) with a cached fixed embedding",
+        schemas.QPUParams,
+        meter="qpu",
+        encoding="domain-wall",
+    ),
+    _spec(
+        "qpu-sim",
+        "dwave:SimulatedQPUSolver",
+        "Offline simulator of the qpu path (MockDWaveSampler, Pegasus P16)",
+        schemas.QPUParams,
+        meter="qpu",
+        offline=True,
+        encoding="domain-wall",
+    ),
+    _spec(
+        "hybrid",
+        "hybrid:LeapHybridSolver",
+        "D-Wave Leap hybrid BQM solver (cloud)",
+        schemas.LeapHybridParams,
+        meter="hybrid",
+        encoding="domain-wall",
+    ),
+    _spec(
+        "hybrid-sim",
+        "hybrid:KerberosSolver",
+        "Offline stand-in for hybrid: dwave-hybrid Kerberos with MockDWaveSampler",
+        schemas.KerberosParams,
+        meter="hybrid",
+        offline=True,
+        encoding="domain-wall",
+    ),
+]
+_SPECS: dict[str, SolverSpec] = {spec.name: spec for spec in _BUILTIN}
+_INSTANCES: dict[str, Any] = {}
+_scanned_path: tuple[str, ...] | None = None
 
 
 class UnknownSolver(KeyError):
     def __str__(self) -> str:
-        return f"unknown solver {self.args[0]!r}; known solvers: {', '.join(solver_names())}"
+        name = self.args[0]
+        if isinstance(name, str) and name.startswith(DIMOD_PREFIX):
+            return f"{name!r}: {self.args[1] if len(self.args) > 1 else 'not a dimod sampler'}"
+        return (
+            f"unknown solver {name!r}; known solvers: {', '.join(solver_names())}, or "
+            f"{DIMOD_PREFIX}PACKAGE.MODULE.CLASS for an installed dimod.Sampler"
+        )
 
 
 def register(
-    name: str,
-    factory: str | Callable[[], Solver],
+    spec: SolverSpec | str,
+    factory: str | Callable[[], Any] | None = None,
     params: type[schemas.SolverParams] = schemas.NoParams,
-) -> None:
-    """Add an adapter with the schema of its parameters (tests register fakes this way)."""
-    if callable(factory):
-        _INSTANCES[name] = factory()
-    _FACTORIES[name] = factory if isinstance(factory, str) else f"<instance>:{name}"
-    _PARAMS[name] = params
+    **capabilities: Any,
+) -> SolverSpec:
+    """Add a solver: a :class:`SolverSpec`, or its name, factory, schema and capabilities.
+
+    Parameters
+    ----------
+    spec
+        The solver's record, or its name (then ``factory`` is required).
+    factory
+        ``"module:attribute"`` of a zero-argument callable returning the sampler, or the
+        callable.
+    params
+        The schema of its ``solver_params``.
+    **capabilities
+        Further :class:`SolverSpec` fields (``meter``, ``offline``, ``queue``, ...).
+
+    Returns
+    -------
+    SolverSpec
+        The registered record.
+    """
+    if not isinstance(spec, SolverSpec):
+        if factory is None:
+            raise TypeError("register(name, factory, ...) needs a factory")
+        spec = SolverSpec(spec, factory, params=params, **capabilities)
+    _SPECS[spec.name] = spec
+    _INSTANCES.pop(spec.name, None)
+    return spec
+
+
+def load_entry_points() -> None:
+    """Register the solvers that installed packages declare in the ``qhsm.solvers`` group.
+
+    Scanned again whenever ``sys.path`` changed since the last scan (tests add a folder with
+    a ``*.dist-info``); a name registered already is kept, and a broken entry point is logged,
+    not raised, so one bad plugin cannot take the service down.
+    """
+    global _scanned_path
+    path = tuple(sys.path)
+    if path == _scanned_path:
+        return
+    _scanned_path = path
+    for entry in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if entry.name in _SPECS:
+            continue
+        try:
+            target = entry.load()
+        except Exception as error:
+            log.warning("solver plugin %s (%s) failed to load: %s", entry.name, entry.value, error)
+            continue
+        if isinstance(target, SolverSpec):
+            register(replace(target, name=entry.name))
+        else:
+            register(entry.name, target)
 
 
 def solver_names() -> list[str]:
-    return list(_FACTORIES)
+    """Names of the registered solvers (``dimod:`` names are accepted besides these)."""
+    load_entry_points()
+    return list(_SPECS)
 
 
-def get_solver(name: str) -> Solver:
-    """The adapter registered under ``name``; ``UnknownSolver`` lists the valid names."""
+def spec(name: str) -> SolverSpec:
+    """The record of solver ``name``; ``UnknownSolver`` lists the valid names.
+
+    Parameters
+    ----------
+    name
+        A registered name or ``dimod:PACKAGE.MODULE.CLASS``.
+
+    Returns
+    -------
+    SolverSpec
+        What is declared about the solver.
+    """
+    if name not in _SPECS:
+        load_entry_points()
+    if name in _SPECS:
+        return _SPECS[name]
+    if name.startswith(DIMOD_PREFIX):
+        from shared.solvers.plugins import dimod_spec
+
+        try:
+            return dimod_spec(name)
+        except ValueError as error:
+            raise UnknownSolver(name, str(error)) from None
+    raise UnknownSolver(name)
+
+
+def get_solver(name: str) -> Any:
+    """The sampler registered under ``name`` (built once per process).
+
+    Parameters
+    ----------
+    name
+        A registered name or ``dimod:PACKAGE.MODULE.CLASS``.
+
+    Returns
+    -------
+    Any
+        A ``dimod.Sampler`` for every QUBO solver (``exact`` is also a row solver).
+    """
     if name in _INSTANCES:
         return _INSTANCES[name]
-    if name not in _FACTORIES:
-        raise UnknownSolver(name)
-    module_name, attribute = _FACTORIES[name].split(":")
-    solver = getattr(import_module(module_name), attribute)()
+    record = spec(name)
+    factory = record.factory
+    if isinstance(factory, str):
+        module_name, attribute = factory.split(":")
+        factory = getattr(import_module(module_name), attribute)
+    solver = factory()
+    with contextlib.suppress(AttributeError):  # a read-only name is the sampler's own
+        solver.name = name
     _INSTANCES[name] = solver
     return solver
 
 
 def params_schema(name: str) -> type[schemas.SolverParams]:
     """The pydantic model bounding ``name``'s ``solver_params``."""
-    if name not in _FACTORIES:
-        raise UnknownSolver(name)
-    return _PARAMS.get(name, schemas.NoParams)
+    return spec(name).params
 
 
 def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
@@ -90,4 +299,20 @@ def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
 def recommended_encoding(name: str) -> str | None:
     """The label encoding to use with ``name`` when none is asked for (``qhsm bench``); None:
     no preference (the preset decides)."""
-    return "domain-wall" if name in _DOMAIN_WALL_SOLVERS else None
+    return spec(name).encoding
+
+
+def queue_of(name: str) -> str:
+    """The Celery queue the bundles of solver ``name`` go to."""
+    return spec(name).queue_name
+
+
+def queue_names() -> list[str]:
+    """Every solver queue a worker may consume (the registered solvers' and ``dimod``)."""
+    queues = dict.fromkeys(spec(name).queue_name for name in solver_names())
+    return [*queues, DIMOD_QUEUE]
+
+
+def names_metered_by(meter: str) -> frozenset[str]:
+    """The registered solvers charged with the given model (``"qpu"`` or ``"hybrid"``)."""
+    return frozenset(name for name, record in _SPECS.items() if record.meter == meter)
