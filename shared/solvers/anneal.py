@@ -20,7 +20,7 @@ import dimod
 import numpy as np
 
 from shared.solvers.base import SolverError
-from shared.solvers.composites import RoofDualityComposite, SolverComposite
+from shared.solvers.composites import PREPROCESSORS, RoofDualityComposite, SolverComposite
 
 #: Named SA settings. ``default`` was chosen by measurement (benchmarks/solvers.py); ``paper`` is
 #: the setting of the 3DV 2024 paper (500 reads, the sampler's default 1000 sweeps and schedule).
@@ -146,7 +146,11 @@ class SimulatedAnnealing(SolverComposite):
         if preset not in SA_PRESETS:
             raise SolverError(f"unknown sa preset {preset!r}; presets: {', '.join(SA_PRESETS)}")
         settings = {**SA_PRESETS[preset], **params}
-        settings.setdefault("preprocess", "roof-duality")
+        preprocess = settings.setdefault("preprocess", "roof-duality")
+        if preprocess not in PREPROCESSORS:
+            raise SolverError(
+                f"unknown sa preprocess {preprocess!r}; choose from {', '.join(PREPROCESSORS)}"
+            )
         return settings, {"preset": preset}
 
 

@@ -15,7 +15,8 @@ from shared.energy import mrf_energy
 from shared.pyramid import LevelPlan
 from shared.solve import LevelInputs, solve_bundles
 from shared.solvers import SolverError, get_solver
-from shared.solvers.anneal import SA_PRESETS, beta_range, fix_variables
+from shared.solvers.anneal import SA_PRESETS, beta_range
+from shared.solvers.composites import fix_variables
 
 GLOBAL_SOLVERS = ["sa", "tabu", "gurobi"]
 ENCODINGS = ["one-hot", "domain-wall"]

@@ -87,7 +87,7 @@ def test_sentinel_token_never_appears_in_errors_logs_or_results(monkeypatch, cap
     # Errors that carry the library's text are scrubbed too.
     qpu = get_solver("qpu")
     for error in (cloud.SolverFailureError(f"bad {SENTINEL}"), ValueError(SENTINEL)):
-        translated = qpu._translate(error)
+        translated = qpu.translate(error)
         assert isinstance(translated, SolverError)
         assert SENTINEL not in str(translated) and "***" in str(translated)
 

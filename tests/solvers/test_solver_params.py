@@ -20,15 +20,15 @@ def test_every_registered_solver_has_a_schema():
 
 
 def test_adapter_defaults_and_presets_are_inside_their_schemas():
-    from shared.solvers.anneal import SA_PRESETS, SteepestDescentSolver, TabuSolver
-    from shared.solvers.hybrid import KERBEROS_DEFAULTS
+    from shared.solvers import get_solver
+    from shared.solvers.anneal import SA_PRESETS
 
     for preset, values in SA_PRESETS.items():
         assert check_params("sa", {"preset": preset, **values})["preset"] == preset
     assert set(AnnealParams.model_fields["preset"].annotation.__args__) == set(SA_PRESETS)
-    check_params("tabu", TabuSolver.defaults)
-    check_params("steepest-descent", SteepestDescentSolver.defaults)
-    check_params("hybrid-sim", KERBEROS_DEFAULTS)
+    for name in ("tabu", "steepest-descent", "hybrid-sim", "gurobi", "qpu", "hybrid"):
+        assert check_params(name, get_solver(name).defaults) == get_solver(name).defaults
+    assert get_solver("tabu").defaults == {"num_reads": 4, "timeout": 25}
     check_params("gurobi", {"time_limit": 60, "mip_gap": 0, "threads": 1})
     check_params("qpu", {"num_reads": 500, "annealing_time": 20, "warm_start": True})
     # other DWaveSampler parameters pass on to the sampler, which checks them itself
