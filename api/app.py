@@ -19,7 +19,7 @@ from api.routes import estimate, health, jobs, metrics, solvers, usage, users, v
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
-from workers.app import load_plugins, make_celery
+from workers.app import make_celery
 from workers.store import JobStore
 
 log = logging.getLogger("qhsm.api")
@@ -28,7 +28,6 @@ log = logging.getLogger("qhsm.api")
 def create_app(settings: Settings | None = None) -> FastAPI:
     """An app bound to ``settings`` (read from the environment when omitted)."""
     settings = settings or get_settings()
-    load_plugins(settings)
     celery = make_celery(settings, with_tasks=False)
     app: FastAPI = FastAPIOffline(
         title="qhsm",

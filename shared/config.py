@@ -386,9 +386,6 @@ class Settings(BaseSettings):
         30.0,
         "Seconds after the soft limit at which a task that ignores it is killed",
     )
-    plugins: str = Field(
-        "", description="Comma-separated modules imported at start-up (register extra solvers)"
-    )
 
     # users, API keys and QPU quotas (issue 5)
     auth_enabled: bool = Field(

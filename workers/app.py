@@ -5,12 +5,15 @@ visibility timeout above the longest task) make a killed worker's task run again
 Start a worker bound to the solvers a machine can run, e.g.::
 
     celery -A workers worker -Q control,exact,sa -c 2
+    celery -A workers worker -Q dimod -c 2        # every dimod:PACKAGE.MODULE.CLASS solver
     celery -A workers worker -Q qpu -c 1          # the only kind that needs DWAVE_API_TOKEN
+
+Each solver's queue is declared in the registry (``shared.solvers.registry.SolverSpec.queue``);
+solvers of installed packages' ``qhsm.solvers`` entry points are found there without any setting.
 """
 
 from __future__ import annotations
 
-import importlib
 import logging
 
 from celery import Celery
@@ -85,13 +88,6 @@ def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) ->
     celery = Celery("qhsm", include=include)
     celery.conf.update(celery_config(settings))
     return celery
-
-
-def load_plugins(settings: Settings) -> None:
-    """Import the modules named in ``Settings.plugins`` (they register extra solvers)."""
-    for name in filter(None, (part.strip() for part in settings.plugins.split(","))):
-        importlib.import_module(name)
-        log.info("loaded plugin %s", name)
 
 
 app = make_celery()

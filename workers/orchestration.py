@@ -30,6 +30,7 @@ from shared.pipeline import finish, finish_level, match_views, prepare_level, re
 from shared.pyramid import LevelPlan
 from shared.solve import BundleResult, LevelInputs, assemble, level_bundles, solve_bundles
 from shared.solvers.qpu_time import is_metered
+from shared.solvers.registry import queue_of
 from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.store import ChunkReport, JobRecord, JobState, JobStore, LevelInputsMissing, now
@@ -171,11 +172,11 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
 def fan_out(
     celery: Celery, settings: Settings, job_id: str, index: int, solver: str, chunks: list
 ) -> None:
-    """A chord: the chunks on the solver's queue (with its time limits), then the level's
+    """A chord: the chunks on the solver's queue (the registry's; with its time limits), then the level's
     fan-in on the control queue."""
     limits = task_time_limits(settings, solver)
     header = [
-        celery.signature(SOLVE_ROWS, args=(job_id, index, chunk), queue=solver, **limits)
+        celery.signature(SOLVE_ROWS, args=(job_id, index, chunk), queue=queue_of(solver), **limits)
         for chunk in chunks
     ]
     callback = celery.signature(LEVEL_DONE, args=(job_id, index), queue=settings.control_queue)

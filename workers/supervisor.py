@@ -126,8 +126,6 @@ def worker_env(settings: Settings, redis_url: str, *, dwave: bool) -> dict[str, 
     env["QHSM_ROWS_PER_TASK"] = str(settings.rows_per_task)
     env["QHSM_SOLVER_ROWS_PER_TASK"] = json.dumps(settings.solver_rows_per_task)
     env["QHSM_CONTROL_QUEUE"] = settings.control_queue
-    if settings.plugins:
-        env["QHSM_PLUGINS"] = settings.plugins
     if not dwave:
         for name in DWAVE_SECRETS:
             env.pop(name, None)
@@ -247,7 +245,8 @@ class Stack:
 
     def start(self, wait: bool = True) -> Stack:
         from shared.solvers import get_solver, solver_names
-        from workers.app import load_plugins, make_celery
+        from shared.solvers.registry import DIMOD_QUEUE, queue_of
+        from workers.app import make_celery
 
         stop_on_sigterm()
         settings = self.settings
@@ -258,8 +257,7 @@ class Stack:
             settings = self.settings = settings.model_copy(update={"redis_url": self.redis.url})
             # where `qhsm admin` finds the embedded Redis while it runs (with its password)
             write_private(settings.data_dir / EMBEDDED_URL_FILE, self.redis.url + "\n")
-        load_plugins(settings)
-        cpu, dwave = [], []
+        cpu, dwave = [DIMOD_QUEUE], []
         for name in solver_names():
             try:
                 solver = get_solver(name)
@@ -268,7 +266,7 @@ class Stack:
                 log.warning("solver %s cannot load here: %s", name, error)
                 continue
             if runs_here:
-                (dwave if solver.uses_qpu_time else cpu).append(name)
+                (dwave if solver.uses_qpu_time else cpu).append(queue_of(name))
         logs = settings.data_dir / "logs"
         count = self.concurrency or settings.worker_concurrency or os.cpu_count() or 1
         url = settings.redis_url

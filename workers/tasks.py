@@ -26,7 +26,6 @@ from workers.app import (
     SOLVE_ROWS,
     START_JOB,
     app,
-    load_plugins,
     task_time_limits,
     terminate_tasks,
 )
@@ -40,7 +39,6 @@ log = logging.getLogger(__name__)
 REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError)
 
 settings = get_settings()
-load_plugins(settings)
 _store: JobStore | None = None
 _meter: QpuMeter | None = None
 _telemetry: Telemetry | None = None

@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 
 from api.deps import Services, services
 from api.schemas import Health
-from shared.solvers import solver_names
+from shared.solvers.registry import queue_names
 
 router = APIRouter(tags=["health"])
 
@@ -34,7 +34,7 @@ def readyz(svc: Annotated[Services, Depends(services)]):
     if consumers is None:  # the workers could not be asked
         return Health(status="ok", redis="ok")
     control = svc.settings.control_queue
-    idle = [queue for queue in [control, *solver_names()] if not consumers.get(queue)]
+    idle = [queue for queue in [control, *queue_names()] if not consumers.get(queue)]
     if control in idle:
         body = Health(status="unavailable", redis="ok", queues_without_consumer=idle)
         return JSONResponse(body.model_dump(), status_code=503)

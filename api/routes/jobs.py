@@ -29,6 +29,7 @@ from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.solve import bundle_width_setting
 from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
+from shared.solvers.registry import queue_of
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
 from workers import embedding_store
@@ -135,13 +136,14 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     if availability.ok:
         return
     consumers = svc.queues.consumers() or {}
-    if consumers.get(config.solver):
+    queue = queue_of(config.solver)
+    if consumers.get(queue):
         return
     raise UploadError(
         http.HTTP_422_UNPROCESSABLE_CONTENT,
         f"solver {config.solver!r} is not available: {availability.reason}; and no worker "
         f"consumes its queue (start one where it can run: "
-        f"celery -A workers worker -Q {config.solver})",
+        f"celery -A workers worker -Q {queue})",
     )
 
 

@@ -14,7 +14,7 @@ from prometheus_client import CONTENT_TYPE_LATEST
 
 from api.auth import admin_user
 from api.deps import Services, services
-from shared.solvers import solver_names
+from shared.solvers.registry import queue_names
 from workers.telemetry import exposition
 
 router = APIRouter(tags=["metrics"])
@@ -29,6 +29,6 @@ router = APIRouter(tags=["metrics"])
 def metrics(svc: Annotated[Services, Depends(services)]) -> Response:
     """Jobs by state, bundles solved and task times per solver, queue depths, QPU seconds per
     user and watchdog re-sends, in Prometheus' text format."""
-    queues = [svc.settings.control_queue, *solver_names()]
+    queues = [svc.settings.control_queue, *queue_names()]
     body = exposition(svc.settings, svc.store.redis, queues)
     return Response(body, media_type=CONTENT_TYPE_LATEST)

@@ -30,7 +30,6 @@ def api_settings(tmp_path_factory):
         redis_url=url,
         key_prefix=harness.unique_prefix(),
         data_dir=folder / "data",
-        plugins="qhsm_test_plugin",
         inspect_timeout=0.3,
         max_active_jobs_per_user=None,  # no worker runs here: accepted jobs stay queued
     )

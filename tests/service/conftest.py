@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))  # the harness and the QHSM_PLUGINS test plugin
+sys.path.insert(0, str(Path(__file__).parent))  # the harness and the test plugin (entry points)
 
 import harness
 from fastapi.testclient import TestClient
@@ -26,7 +26,6 @@ from shared.config import Settings
 from workers.app import make_celery
 from workers.supervisor import WorkerProcess, wait_for_workers
 
-PLUGIN = "qhsm_test_plugin"
 ROWS_PER_TASK = 4
 SLOW_SECONDS = 0.25
 TIME_LIMIT = 1.0
@@ -63,7 +62,6 @@ def settings(redis_url, service_dir) -> Settings:
         redis_url=redis_url,
         key_prefix=prefix,
         data_dir=service_dir / "data",
-        plugins=PLUGIN,
         rows_per_task=ROWS_PER_TASK,
         solver_rows_per_task={},
         retry_backoff=0.1,

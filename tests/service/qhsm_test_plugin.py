@@ -1,4 +1,6 @@
-"""Fake solvers for the service tests, loaded by workers and the API through QHSM_PLUGINS.
+"""Fake solvers for the service tests, registered through the ``qhsm.solvers`` entry-point
+group: ``qhsm_test_plugin-0.dist-info`` beside this file declares them, so any process with this
+folder on ``sys.path`` / ``PYTHONPATH`` (the API and workers of the tests) finds them.
 
 They return the all-zero sample, which every codec decodes by repair to the cheapest label
 given no valid neighbour: deterministic, so distributed and in-process runs can be compared.
@@ -11,32 +13,24 @@ import time
 from pathlib import Path
 from typing import Any
 
+import dimod
 import numpy as np
 
-from shared.solvers import Availability, SolverError, SolveResult, TransientSolverError, register
+from shared.solvers import Availability, Sampler, SolverError, SolverSpec, TransientSolverError
 
 
-class _Fake:
-    description = "test fake"
-    offline = True
-    uses_qpu_time = False
-
-    def __init__(self, name: str):
-        self.name = name
+class _Fake(Sampler):
+    parameters: dict[str, list] = {"seed": []}  # noqa: RUF012
+    properties: dict[str, Any] = {}  # noqa: RUF012
 
     def available(self) -> Availability:
         return Availability(True, "test fake")
 
-    def solve(self, bqm, *, seed=None, initial_state=None, **params: Any) -> SolveResult:
-        started = time.perf_counter()
+    def sample(self, bqm, *, seed=None, **params: Any) -> dimod.SampleSet:
         self.act(seed)
-        sample = np.zeros(bqm.num_variables, dtype=np.int8)
-        return SolveResult(
-            sample=sample,
-            energy=float(bqm.energy(sample)),
-            wall_time=time.perf_counter() - started,
-            timing={"fake_access_time": 0.001},
-        )
+        zeros = np.zeros((1, bqm.num_variables), dtype=np.int8)
+        info = {"timing": {"fake_access_time": 0.001}}
+        return dimod.SampleSet.from_samples_bqm((zeros, range(bqm.num_variables)), bqm, info=info)
 
     def act(self, seed: int | None) -> None:
         pass
@@ -113,11 +107,15 @@ class _Unavailable(_Fake):
         return Availability(False, "fake-unavailable needs hardware this machine lacks")
 
 
-register("fake-slow", lambda: _Slow("fake-slow"))
-register("fake-flaky", lambda: _Flaky("fake-flaky"))
-register("fake-broken", lambda: _Broken("fake-broken"))
-register("fake-routed", lambda: _Fake("fake-routed"))
-register("fake-sleepy", lambda: _Sleepy("fake-sleepy"))
-register("fake-hung", lambda: _Hung("fake-hung"))
-register("fake-split", lambda: _Split("fake-split"))
-register("fake-unavailable", lambda: _Unavailable("fake-unavailable"))
+def _spec(name: str, kind: type[_Fake]) -> SolverSpec:
+    return SolverSpec(name, kind, description="test fake", offline=True)
+
+
+SLOW = _spec("fake-slow", _Slow)
+FLAKY = _spec("fake-flaky", _Flaky)
+BROKEN = _spec("fake-broken", _Broken)
+ROUTED = _spec("fake-routed", _Fake)
+SLEEPY = _spec("fake-sleepy", _Sleepy)
+HUNG = _spec("fake-hung", _Hung)
+SPLIT = _spec("fake-split", _Split)
+UNAVAILABLE = _spec("fake-unavailable", _Unavailable)

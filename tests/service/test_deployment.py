@@ -13,7 +13,7 @@ import yaml
 
 from shared.cli import build_parser
 from shared.config import Settings
-from shared.solvers import solver_names
+from shared.solvers.registry import queue_names
 
 ROOT = Path(__file__).resolve().parents[2]
 SERVICES = {
@@ -48,7 +48,7 @@ def test_compose_declares_every_role(compose):
 
 def test_every_command_is_a_real_entry_point_on_real_queues(compose):
     subcommands = build_parser()._subparsers._group_actions[0].choices
-    queues = set(solver_names()) | {Settings().control_queue}
+    queues = set(queue_names()) | {Settings().control_queue}
     consumed = set()
     for name, service in compose["services"].items():
         if name == "redis":
@@ -66,7 +66,7 @@ def test_every_command_is_a_real_entry_point_on_real_queues(compose):
         consumed |= set(service_queues)
         assert "container_name" not in service and "ports" not in service  # scalable
     assert Settings().control_queue in consumed
-    assert {"exact", "sa", "gurobi", "qpu", "hybrid"} <= consumed
+    assert {"exact", "sa", "gurobi", "qpu", "hybrid", "dimod"} <= consumed
     assert option(compose["services"]["worker-qpu"]["command"], "-c") == "1"
 
 

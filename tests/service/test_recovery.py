@@ -17,7 +17,7 @@ from shared.pipeline import run_pipeline
 from shared.pyramid import plan
 from shared.synthetic import make_scene
 from workers import orchestration
-from workers.app import load_plugins, make_celery
+from workers.app import make_celery
 from workers.embedded_redis import free_port
 from workers.store import JobRecord, JobState, JobStore, new_job_id, now
 from workers.watchdog import Watchdog, resend_count
@@ -43,7 +43,6 @@ def started_job(
     store: JobStore, solver: str, seed: int = 4, options: dict | None = None
 ) -> tuple[str, MatchConfig, tuple]:
     """A job started in process whose first level's tasks were lost (never reached a worker)."""
-    load_plugins(store.settings)
     scene = make_scene(32, 48, max_disparity=8, seed=seed)
     options = PAPER_TWO_LEVELS if options is None else options
     config = MatchConfig(solver=solver, max_disparity=8, seed=seed, **options)

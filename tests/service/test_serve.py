@@ -45,7 +45,6 @@ def serve_env(markers: Path) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if k not in ("QHSM_REDIS_URL", "REDIS_URL")}
     env.update(
         PYTHONPATH=os.pathsep.join([str(HERE), str(ROOT), env.get("PYTHONPATH", "")]),
-        QHSM_PLUGINS="qhsm_test_plugin",
         QHSM_ROWS_PER_TASK="4",
         QHSM_WATCHDOG_STALL_SECONDS=str(STALL_SECONDS),
         QHSM_TEST_SLOW_SECONDS="0.25",

@@ -65,7 +65,7 @@ def qpu_worker(settings, service_dir):
 
     env = worker_env(settings, settings.redis_url, dwave=True)
     env["DWAVE_API_TOKEN"] = SENTINEL
-    here = str(Path(__file__).parent)  # the test plugin named in QHSM_PLUGINS
+    here = str(Path(__file__).parent)  # the test plugin (its entry points)
     env["PYTHONPATH"] = os.pathsep.join([here, env.get("PYTHONPATH", "")])
     env["QHSM_QPU_MAX_IN_FLIGHT"] = str(QPU_SLOTS)
     log = service_dir / "logs" / "qpu.log"

@@ -85,7 +85,6 @@ def server(tmp_path_factory) -> Server:
         env.pop(name, None)
     root = str(Path(__file__).parents[2])
     env["PYTHONPATH"] = os.pathsep.join([root, str(SERVICE_TESTS), env.get("PYTHONPATH", "")])
-    env["QHSM_PLUGINS"] = "qhsm_test_plugin"
     env["QHSM_TEST_SLOW_SECONDS"] = str(SLOW_SECONDS)
     env["QHSM_INSPECT_TIMEOUT"] = "0.5"
     log = folder / "serve.log"
