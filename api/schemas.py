@@ -115,13 +115,17 @@ class JobPage(BaseModel):
 
 
 class SolverInfo(BaseModel):
+    """One solver as the registry declares it (``shared.solvers.registry.SolverSpec``)."""
+
     name: str
     description: str
     available: bool = Field(description="Usable by a job: runnable here or a worker consumes it")
     available_here: bool = Field(description="The solver can run in the API's environment")
     reason: str
-    offline: bool
-    uses_qpu_time: bool
+    offline: bool = Field(description="An offline stand-in for a cloud service")
+    metered: bool = Field(description="Jobs spend (real or simulated) QPU/hybrid budget")
+    uses_qpu_time: bool = Field(description="Spends real D-Wave time (needs the token)")
+    row_solver: bool = Field(description="Solves whole rows on the MRF costs, not a QUBO")
     queue: str
     workers: list[str] | None = Field(
         description="Workers consuming the queue (None: the workers did not answer in time)"

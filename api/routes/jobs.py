@@ -29,9 +29,9 @@ from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.solve import bundle_width_setting
 from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
-from shared.solvers.registry import queue_of
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
+from shared.solvers.registry import queue_of
 from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.quota import QuotaExceeded

@@ -1,4 +1,5 @@
-"""/v1/solvers: the registry, and which queues have workers."""
+"""/v1/solvers: the registry, and which queues have workers. Any installed dimod sampler is a
+solver too (``dimod:PACKAGE.MODULE.CLASS``, queue ``dimod``), though not listed here."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from fastapi import APIRouter, Depends
 
 from api.deps import Services, load_solver, services
 from api.schemas import SolverInfo
-from shared.solvers import solver_names
+from shared.solvers import solver_names, spec
 
 router = APIRouter(prefix="/v1/solvers", tags=["solvers"])
 
@@ -19,18 +20,21 @@ def list_solvers(svc: Annotated[Services, Depends(services)]):
     consumers = svc.queues.consumers()
     infos = []
     for name in solver_names():
-        solver, availability = load_solver(name)
-        workers = None if consumers is None else sorted(consumers.get(name, []))
+        _, availability = load_solver(name)
+        record = spec(name)
+        workers = None if consumers is None else sorted(consumers.get(record.queue_name, []))
         infos.append(
             SolverInfo(
                 name=name,
-                description=solver.description if solver else "",
+                description=record.description,
                 available=availability.ok or bool(workers),
                 available_here=availability.ok,
                 reason=availability.reason,
-                offline=bool(solver and solver.offline),
-                uses_qpu_time=bool(solver and solver.uses_qpu_time),
-                queue=name,
+                offline=record.offline,
+                metered=record.metered,
+                uses_qpu_time=record.uses_qpu_time,
+                row_solver=record.row_solver,
+                queue=record.queue_name,
                 workers=workers,
             )
         )

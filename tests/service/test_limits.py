@@ -129,9 +129,7 @@ def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_pa
     from workers.app import make_celery
     from workers.supervisor import Stack
 
-    own = settings.model_copy(
-        update={"key_prefix": harness.unique_prefix(), "data_dir": tmp_path}
-    )
+    own = settings.model_copy(update={"key_prefix": harness.unique_prefix(), "data_dir": tmp_path})
     stack = Stack(own, concurrency=1).start()
     started = len(stack.workers)
     try:
