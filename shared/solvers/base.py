@@ -97,10 +97,14 @@ class Sampler(dimod.Sampler):
 
     @property
     def defaults(self) -> dict[str, Any]:
-        """Default parameters: those the registry's schema states."""
+        """Default parameters: those the registry's schema states (none when unregistered)."""
         from shared.solvers.params import schema_defaults
+        from shared.solvers.registry import UnknownSolver
 
-        return schema_defaults(self.spec.params)
+        try:
+            return schema_defaults(self.spec.params)
+        except UnknownSolver:
+            return {}
 
     def solve(
         self,

@@ -1,0 +1,171 @@
+"""Every QUBO solver is a dimod sampler; the composites do what they say; any installed dimod
+sampler runs by name (``dimod:PACKAGE.MODULE.CLASS``); plugins come from entry points."""
+
+from __future__ import annotations
+
+import sys
+
+import dimod
+import numpy as np
+import pytest
+from dwave.samplers import SteepestDescentSolver
+from solver_helpers import optimum, random_bqm, stereo_costs
+
+from shared.config import MatchConfig
+from shared.encodings import get_codec
+from shared.energy import mrf_energy
+from shared.pipeline import run_pipeline
+from shared.solvers import SolverError, SolverSpec, UnknownSolver, get_solver, registry, solve
+from shared.solvers.base import sample_array
+from shared.solvers.composites import (
+    EmbeddingCacheComposite,
+    RoofDualityComposite,
+    SolverComposite,
+)
+from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.qpu_time import METERED_SOLVERS, is_metered
+from shared.synthetic import make_scene
+
+SD = "dimod:dwave.samplers.SteepestDescentSolver"
+
+
+@pytest.mark.parametrize("name", registry.solver_names())
+def test_every_registered_qubo_solver_is_a_dimod_sampler(name):
+    solver = get_solver(name)
+    assert isinstance(solver, dimod.Sampler), name
+    assert isinstance(solver.parameters, dict) and isinstance(solver.properties, dict)
+    assert registry.spec(name).row_solver == hasattr(solver, "solve_rows")
+
+
+def test_capabilities_are_declared_once_in_the_registry():
+    assert {"qpu", "qpu-sim", "hybrid", "hybrid-sim"} == METERED_SOLVERS
+    assert is_metered("qpu-sim") and not get_solver("qpu-sim").uses_qpu_time
+    assert get_solver("qpu").uses_qpu_time and not is_metered(SD)
+    assert [n for n in registry.solver_names() if registry.spec(n).row_solver] == ["exact"]
+    assert registry.queue_of(SD) == "dimod" and "dimod" in registry.queue_names()
+    assert get_solver("sa").description == registry.spec("sa").description
+
+
+def test_the_sample_set_carries_timing_in_seconds_and_the_solver_info():
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 6))
+    sampleset = get_solver("tabu").sample(bqm, seed=1, timeout=5)
+    assert isinstance(sampleset, dimod.SampleSet) and sampleset.info["num_reads"] == 4
+    result = solve(get_solver("sa"), bqm, seed=1, preprocess="none")  # dwave-samplers: ns
+    assert result.timing and all(0 <= value < 60 for value in result.timing.values())
+    assert result.energy == pytest.approx(bqm.energy(result.sample))
+
+
+def test_roof_duality_composite_fixes_variables_and_completes_every_sample():
+    costs = stereo_costs(1, 8)
+    bqm = get_codec("domain-wall").encode(costs)
+    sampleset = RoofDualityComposite(SteepestDescentSolver()).sample(bqm, num_reads=3, seed=0)
+    assert sampleset.info["fixed_fraction"] > 0
+    assert len(sampleset.variables) == bqm.num_variables
+    energies = bqm.energies((sampleset.record.sample, list(sampleset.variables)))
+    np.testing.assert_allclose(sampleset.record.energy, energies)
+    best = sample_array(sampleset.first.sample, bqm.num_variables)
+    labels = get_codec("domain-wall").decode(costs, best).labels
+    assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)
+    none = RoofDualityComposite(SteepestDescentSolver()).sample(bqm, preprocess="none")
+    assert none.info["fixed_fraction"] == 0
+    with pytest.raises(SolverError, match="unknown preprocess 'magic'"):
+        RoofDualityComposite(SteepestDescentSolver()).sample(bqm, preprocess="magic")
+
+
+def test_solver_composite_passes_warm_starts_the_dimod_way():
+    bqm = random_bqm(12, seed=3)
+    start = np.ones(bqm.num_variables, dtype=np.int8)
+    descent = SolverComposite(SteepestDescentSolver(), warm_overrides={"num_reads": 1})
+    descent.name = "steepest-descent"
+    states = (start.reshape(1, -1), list(range(bqm.num_variables)))
+    warm = descent.sample(bqm, initial_states=states, num_reads=7)
+    expected = SteepestDescentSolver().sample(bqm, initial_states=states)
+    assert warm.info["warm_start"] and len(warm) == 1
+    assert warm.first.energy == pytest.approx(expected.first.energy)
+    # a sampler that takes no initial states runs cold, and says so
+    exact = SolverComposite(dimod.ExactSolver()).sample(bqm, initial_states=states)
+    assert exact.info["warm_start"] is False
+
+
+def test_embedding_cache_composite_reuses_the_stored_embedding(tmp_path):
+    from dwave.system.testing import MockDWaveSampler
+
+    mock = MockDWaveSampler(topology_type="pegasus", topology_shape=[4])
+    cache = EmbeddingCache(DirectoryStore(tmp_path))
+    composite = EmbeddingCacheComposite(mock, cache, "pegasus4", "qpu-sim")
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 4))
+    first = composite.sample(bqm, num_reads=5, chain_strength=2.0)
+    assert first.info["embedding_cache"] == "computed" and first.info["qubits"] > 0
+    again = EmbeddingCacheComposite(
+        mock, EmbeddingCache(DirectoryStore(tmp_path)), "pegasus4", "qpu-sim"
+    )
+    second = again.sample(bqm, num_reads=5, chain_strength=2.0)
+    assert (
+        second.info["embedding_cache_hit"]
+        and second.info["embedding_key"] == first.info["embedding_key"]
+    )
+    assert set(second.variables) == set(bqm.variables)
+
+
+def test_a_dimod_sampler_by_name_runs_through_the_composites():
+    solver = get_solver(SD)
+    assert isinstance(solver, dimod.Sampler)
+    assert isinstance(solver.children[0], RoofDualityComposite)
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 8))
+    result = solver.solve(bqm, seed=2, initial_state=np.zeros(bqm.num_variables, np.int8))
+    assert result.info["preprocess"] == "roof-duality" and result.info["warm_start"]
+
+
+def test_a_dimod_sampler_matches_a_synthetic_scene_in_process():
+    pair = make_scene(12, 32, max_disparity=6, seed=2)
+    common = {"max_disparity": 6, "seed": 3, "encoding": "domain-wall"}
+    ours = run_pipeline(pair.left, pair.right, MatchConfig(solver=SD, **common))
+    builtin = run_pipeline(pair.left, pair.right, MatchConfig(solver="exact", **common))
+    assert ours.disparity.shape == pair.left.shape[:2]
+
+    def bad(disparity: np.ndarray) -> float:
+        return float(np.mean(np.abs(disparity - pair.disparity) > 1))
+
+    # roof duality then descent: as few bad pixels as the exact row DP, give or take
+    assert bad(ours.disparity) <= bad(builtin.disparity) + 0.03
+    assert np.mean(np.abs(ours.disparity - pair.disparity)) < 1.0
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("dimod:no_such_package.Sampler", "cannot import no_such_package"),
+        ("dimod:dimod.Structured", "not a dimod.Sampler subclass"),
+        ("dimod:dwave.samplers.NoSuchSampler", "has no NoSuchSampler"),
+        ("dimod:Sampler", "dimod:PACKAGE.MODULE.CLASS"),
+    ],
+)
+def test_a_bad_dimod_name_says_what_to_do(name, message):
+    with pytest.raises(UnknownSolver) as caught:
+        get_solver(name)
+    assert message in str(caught.value) and "pip install" in str(caught.value)
+
+
+def test_plugins_register_through_the_entry_point_group(tmp_path, monkeypatch):
+    package = tmp_path / "qhsm_probe_plugin.py"
+    package.write_text(
+        "from shared.solvers import SolverSpec\n"
+        "from shared.solvers.composites import SolverComposite\n"
+        "import dimod\n"
+        "PROBE = SolverSpec('ignored', lambda: SolverComposite(dimod.ExactSolver()),\n"
+        "                  description='probe', queue='probe-queue')\n"
+    )
+    info = tmp_path / "qhsm_probe_plugin-0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: qhsm-probe-plugin\nVersion: 0\n")
+    (info / "entry_points.txt").write_text("[qhsm.solvers]\nprobe = qhsm_probe_plugin:PROBE\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_SPECS", dict(registry._SPECS))
+    monkeypatch.setattr(registry, "_INSTANCES", {})
+    monkeypatch.delitem(sys.modules, "qhsm_probe_plugin", raising=False)
+    assert "probe" in registry.solver_names()
+    assert registry.spec("probe") == SolverSpec(
+        "probe", registry.spec("probe").factory, description="probe", queue="probe-queue"
+    )
+    assert registry.queue_of("probe") == "probe-queue"
+    assert isinstance(get_solver("probe"), dimod.Sampler)
