@@ -139,6 +139,9 @@ class SimulatedAnnealing(SolverComposite):
     ``"none"``) and ``polish`` (steepest descent on every read afterwards).
     """
 
+    #: ``sa``'s defaults are its presets (:data:`SA_PRESETS`), chosen in :meth:`configure`.
+    defaults: dict[str, Any] = {}  # noqa: RUF012
+
     def configure(self, params: dict[str, Any], warm: bool) -> tuple[dict[str, Any], dict]:
         params = dict(params)
         tuned = {"preset", "num_reads", "num_sweeps"} & set(params)

@@ -58,9 +58,16 @@ class TransientSolverError(SolverError):
     """A failure worth retrying later (rate limit, timeout, solver offline)."""
 
 
+def _declared(capability: str) -> property:
+    """A sampler attribute read from its registry record, where it is declared once."""
+    return property(lambda self: getattr(self.spec, capability), doc=f"The registry's {capability}")
+
+
 class Sampler(dimod.Sampler):
     """What every registered QUBO solver adds to ``dimod.Sampler``: its registry name, whether
-    it can run here, how its errors read, and the registry's record of its capabilities."""
+    it can run here, how its errors read, the registry's record of its capabilities, and
+    ``sample`` with the registry's default parameters under the given ones (subclasses
+    implement :meth:`run`)."""
 
     name: str = ""
 
@@ -79,21 +86,10 @@ class Sampler(dimod.Sampler):
 
         return spec(self.name)
 
-    @property
-    def description(self) -> str:
-        return self.spec.description
-
-    @property
-    def offline(self) -> bool:
-        return self.spec.offline
-
-    @property
-    def uses_qpu_time(self) -> bool:
-        return self.spec.uses_qpu_time
-
-    @property
-    def warm_start_default(self) -> bool:
-        return self.spec.warm_start_default
+    description = _declared("description")
+    offline = _declared("offline")
+    uses_qpu_time = _declared("uses_qpu_time")
+    warm_start_default = _declared("warm_start_default")
 
     @property
     def defaults(self) -> dict[str, Any]:
@@ -106,16 +102,27 @@ class Sampler(dimod.Sampler):
         except UnknownSolver:
             return {}
 
-    def solve(
+    def sample(
         self,
         bqm: dimod.BinaryQuadraticModel,
         *,
         seed: int | None = None,
-        initial_state: np.ndarray | None = None,
+        initial_states: Any = None,
         **params: Any,
-    ) -> SolveResult:
-        """:func:`solve` with this sampler."""
-        return solve(self, bqm, seed=seed, initial_state=initial_state, **params)
+    ) -> dimod.SampleSet:
+        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype."""
+        params = {**self.defaults, **params}
+        return self.run(bqm, params, seed=seed, initial_states=initial_states)
+
+    def run(
+        self, bqm: dimod.BinaryQuadraticModel, params: dict[str, Any], *, seed, initial_states
+    ) -> dimod.SampleSet:
+        """The sampling itself, with the defaults filled in."""
+        raise NotImplementedError
+
+    def solve(self, bqm: dimod.BinaryQuadraticModel, **kwargs: Any) -> SolveResult:
+        """:func:`solve` with this sampler (``seed``, ``initial_state`` and parameters)."""
+        return solve(self, bqm, **kwargs)
 
 
 def seconds(timing: dict[str, Any]) -> dict[str, float]:

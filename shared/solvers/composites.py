@@ -64,21 +64,14 @@ class SolverComposite(Sampler, dimod.ComposedSampler):
         return {"child_properties": self._child.properties.copy()}
 
     def configure(self, params: dict[str, Any], warm: bool) -> tuple[dict[str, Any], dict]:
-        """The child's parameters for a call with ``params`` (and a warm start or not), and
-        what to report about that choice in the sample set's info."""
-        settings = {**self.defaults, **params}
+        """The child's parameters for a call with ``params`` (defaults filled in; with a warm
+        start or not), and what to report about that choice in the sample set's info."""
+        settings = dict(params)
         if warm:
             settings.update(self.warm_overrides)
         return settings, {}
 
-    def sample(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_states: Any = None,
-        **params: Any,
-    ) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         child = self._child.parameters
         warm = initial_states is not None and "initial_states" in child
         settings, report = self.configure(params, warm)

@@ -187,19 +187,12 @@ class _EmbeddedQPU(Sampler):
         except Exception as error:
             raise self.translate(error) from None
 
-    def sample(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_states: Any = None,
-        **params: Any,
-    ) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         from dwave.embedding.chain_breaks import majority_vote
 
         composite = self.composite()
         strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
-        settings: dict[str, Any] = {**self.defaults, **params}
+        settings = params
         if initial_states is not None:
             states, labels = dimod.as_samples(initial_states)
             settings.update(
@@ -332,19 +325,23 @@ class QPUSolver(_EmbeddedQPU):
     def _make_sampler(self):
         from dwave.system import DWaveSampler
 
+        solver = get_settings().dwave_solver
+        return self._connect(DWaveSampler, **({"solver": solver} if solver else {}))
+
+    def _connect(self, factory, **options: Any):
+        """A Leap client sampler built with the token, region and endpoint of ``Settings``;
+        the token is scrubbed from the cloud client's loggers before and after."""
         settings = get_settings()
         if settings.dwave_api_token is None:
             raise SolverUnavailable(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
-        options: dict[str, Any] = {"token": settings.dwave_api_token.get_secret_value()}
-        if settings.dwave_solver:
-            options["solver"] = settings.dwave_solver
+        token = settings.dwave_api_token.get_secret_value()
         if settings.dwave_region:
             options["region"] = settings.dwave_region
         if settings.dwave_endpoint:
             options["endpoint"] = settings.dwave_endpoint
-        scrub_cloud_logs(options["token"])
-        sampler = DWaveSampler(**options)
-        scrub_cloud_logs(options["token"])  # loggers of modules the client imported lazily
+        scrub_cloud_logs(token)
+        sampler = factory(token=token, **options)
+        scrub_cloud_logs(token)  # loggers of modules the client imported lazily
         return sampler
 
 

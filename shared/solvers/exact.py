@@ -69,7 +69,7 @@ class ExactSolver(Sampler):
         self.check_bundle_height(bundle_height)
         return solve_chains(costs)
 
-    def sample(self, bqm: dimod.BinaryQuadraticModel, **params: Any) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         if bqm.num_variables > BRUTE_FORCE_LIMIT:
             raise SolverError(
                 f"exact solves a generic BQM by enumeration only up to {BRUTE_FORCE_LIMIT} "

@@ -95,14 +95,7 @@ class GurobiSampler(Sampler, dimod.Initialized):
             "GRB_LICENSEID for a full licence)",
         )
 
-    def sample(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_states: Any = None,
-        **params: Any,
-    ) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         import gurobipy as gp
         import scipy.sparse as sp
 
@@ -119,7 +112,7 @@ class GurobiSampler(Sampler, dimod.Initialized):
         q_matrix = sp.csr_matrix((quadratic * scale, (rows, cols)), shape=(n, n))
         try:
             with _environment(settings) as env, gp.Model(env=env) as model:
-                for key, value in _gurobi_params({**self.defaults, **params}).items():
+                for key, value in _gurobi_params(params).items():
                     model.setParam(key, value)
                 if seed is not None:
                     model.setParam("Seed", int(seed) % 2_000_000_000)

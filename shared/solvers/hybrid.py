@@ -15,9 +15,8 @@ from typing import Any
 import dimod
 import numpy as np
 
-from shared.config import get_settings
-from shared.solvers.base import Availability, Sampler, SolverError, SolverUnavailable
-from shared.solvers.dwave import MOCK_TOPOLOGY, TOKEN_HELP, QPUSolver, scrub_cloud_logs
+from shared.solvers.base import Availability, Sampler, SolverError
+from shared.solvers.dwave import MOCK_TOPOLOGY, QPUSolver
 
 
 class LeapHybridSolver(QPUSolver):
@@ -32,27 +31,14 @@ class LeapHybridSolver(QPUSolver):
     def _make_sampler(self):
         from dwave.system import LeapHybridSampler
 
-        settings = get_settings()
-        if settings.dwave_api_token is None:
-            raise SolverUnavailable(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
-        options: dict[str, Any] = {"token": settings.dwave_api_token.get_secret_value()}
-        if settings.dwave_region:
-            options["region"] = settings.dwave_region
-        if settings.dwave_endpoint:
-            options["endpoint"] = settings.dwave_endpoint
-        scrub_cloud_logs(options["token"])
-        sampler = LeapHybridSampler(**options)
-        scrub_cloud_logs(options["token"])
-        return sampler
+        return self._connect(LeapHybridSampler)
 
-    def sample(
-        self, bqm: dimod.BinaryQuadraticModel, *, initial_states: Any = None, **params: Any
-    ) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         with self._lock:
             if self._sampler is None:
                 self._sampler = self._make_sampler()
         self._check_size(bqm)
-        sampleset = self._sampler.sample(bqm, **{**self.defaults, **params})
+        sampleset = self._sampler.sample(bqm, **params)
         sampleset.resolve()
         # Leap reports microseconds, like the QPU
         timing = {
@@ -101,14 +87,7 @@ class KerberosSolver(Sampler):
     def available(self) -> Availability:
         return Availability(True, "offline simulator (dwave-hybrid Kerberos, MockDWaveSampler)")
 
-    def sample(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_states: Any = None,
-        **params: Any,
-    ) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         from dwave.system.testing import MockDWaveSampler
         from hybrid.reference.kerberos import KerberosSampler
 
@@ -124,9 +103,7 @@ class KerberosSolver(Sampler):
         init = None
         if initial_states is not None:
             init = dimod.SampleSet.from_samples_bqm(initial_states, bqm)
-        sampleset = KerberosSampler().sample(
-            bqm, init_sample=init, qpu_sampler=self._qpu, **{**self.defaults, **params}
-        )
+        sampleset = KerberosSampler().sample(bqm, init_sample=init, qpu_sampler=self._qpu, **params)
         charge = hybrid_charge_seconds(bqm.num_variables, params)
         sampleset.info.clear()
         sampleset.info.update(

@@ -34,6 +34,12 @@ MAX_SA_SWEEPS = 2_000_000
 MAX_BUNDLE_SECONDS = 600
 
 
+def _at_most(work: float, limit: float, problem: str) -> None:
+    """The bound on a product of parameters (reads x sweeps, reads x time) per bundle."""
+    if work > limit:
+        raise ValueError(f"{problem}; lower one of them")
+
+
 class SolverParams(BaseModel):
     """Parameters every solver accepts: ``warm_start`` steers the pipeline, not the solver."""
 
@@ -77,11 +83,12 @@ class AnnealParams(SolverParams):
         given = self.model_fields_set
         reads = self.num_reads if "num_reads" in given else preset["num_reads"]
         sweeps = self.num_sweeps if "num_sweeps" in given else preset["num_sweeps"]
-        if reads * sweeps > MAX_SA_SWEEPS:
-            raise ValueError(
-                f"num_reads x num_sweeps = {reads * sweeps} is above {MAX_SA_SWEEPS} sweeps per "
-                "bundle (4x the paper's 500 x 1000); lower one of them"
-            )
+        _at_most(
+            reads * sweeps,
+            MAX_SA_SWEEPS,
+            f"num_reads x num_sweeps = {reads * sweeps} is above {MAX_SA_SWEEPS} sweeps per "
+            "bundle (4x the paper's 500 x 1000)",
+        )
         return self
 
 
@@ -96,11 +103,11 @@ class TabuParams(SolverParams):
     @model_validator(mode="after")
     def _bounded_time(self) -> TabuParams:
         total = self.num_reads * self.timeout
-        if total > MAX_BUNDLE_SECONDS * 1000:
-            raise ValueError(
-                f"num_reads x timeout = {total} ms is above {MAX_BUNDLE_SECONDS} s per bundle; "
-                "lower one of them"
-            )
+        _at_most(
+            total,
+            MAX_BUNDLE_SECONDS * 1000,
+            f"num_reads x timeout = {total} ms is above {MAX_BUNDLE_SECONDS} s per bundle",
+        )
         return self
 
 

@@ -60,18 +60,9 @@ def sampler_class(name: str) -> type[dimod.Sampler]:
 
 @cache
 def dimod_spec(name: str) -> SolverSpec:
-    """The registry record of a ``dimod:`` solver name (``ValueError`` says why it is none).
-
-    Parameters
-    ----------
-    name
-        ``dimod:PACKAGE.MODULE.CLASS``.
-
-    Returns
-    -------
-    SolverSpec
-        Factory (the class inside the composites), unchecked parameters, the ``dimod`` queue.
-    """
+    """The registry record of a ``dimod:`` solver name: its factory puts the class
+    (:func:`sampler_class`, whose ``ValueError`` this passes on) inside the composites; its
+    parameters go unchecked to the sampler; its queue is ``dimod``."""
     cls = sampler_class(name)
 
     def factory() -> SolverComposite:

@@ -265,7 +265,7 @@ def get_solver(name: str) -> Any:
     Parameters
     ----------
     name
-        A registered name or ``dimod:PACKAGE.MODULE.CLASS``.
+        As for :func:`spec`.
 
     Returns
     -------

@@ -26,7 +26,7 @@ class _Fake(Sampler):
     def available(self) -> Availability:
         return Availability(True, "test fake")
 
-    def sample(self, bqm, *, seed=None, **params: Any) -> dimod.SampleSet:
+    def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         self.act(seed)
         zeros = np.zeros((1, bqm.num_variables), dtype=np.int8)
         info = {"timing": {"fake_access_time": 0.001}}
