@@ -43,6 +43,15 @@ def test_unknown_solver_is_422_and_lists_the_known_ones(api):
     assert "unknown solver 'quantum-magic'" in detail and "exact" in detail
 
 
+def test_a_dimod_sampler_by_name_is_accepted_and_a_bad_name_is_422(api):
+    good = {"solver": "dimod:dwave.samplers.SteepestDescentSolver", "encoding": "domain-wall"}
+    assert post(api, params=good).status_code == 202
+    response = post(api, params={"solver": "dimod:dimod.Structured"})
+    assert response.status_code == 422
+    detail = response.json()["detail"]
+    assert "not a dimod.Sampler subclass" in detail and "dimod:PACKAGE.MODULE.CLASS" in detail
+
+
 def test_solver_without_worker_or_local_availability_is_422(api):
     response = post(api, params={"solver": "fake-unavailable"})
     assert response.status_code == 422

@@ -38,6 +38,7 @@ MAIN_QUEUES = [
     "fake-sleepy",
     "fake-hung",
     "fake-split",
+    "dimod",
 ]
 ROUTED_QUEUES = ["gurobi", "fake-routed"]
 

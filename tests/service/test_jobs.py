@@ -46,8 +46,14 @@ def reference(pair, params: dict) -> np.ndarray:
             "encoding": "domain-wall",
             "solver_params": {"num_reads": 4, "num_sweeps": 100},
         },
+        {
+            "solver": "dimod:dwave.samplers.SteepestDescentSolver",
+            "max_disparity": 8,
+            "seed": 3,
+            "encoding": "domain-wall",
+        },
     ],
-    ids=["exact", "sa"],
+    ids=["exact", "sa", "dimod"],
 )
 def test_result_identical_to_in_process_pipeline(client, pair, settings, params):
     left, right, _, _, truth = pair
