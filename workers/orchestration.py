@@ -172,8 +172,8 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
 def fan_out(
     celery: Celery, settings: Settings, job_id: str, index: int, solver: str, chunks: list
 ) -> None:
-    """A chord: the chunks on the solver's queue (the registry's; with its time limits), then the level's
-    fan-in on the control queue."""
+    """A chord: the chunks on the solver's queue (the registry's, with its time limits), then
+    the level's fan-in on the control queue."""
     limits = task_time_limits(settings, solver)
     header = [
         celery.signature(SOLVE_ROWS, args=(job_id, index, chunk), queue=queue_of(solver), **limits)
