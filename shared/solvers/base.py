@@ -127,7 +127,18 @@ class Sampler(dimod.Sampler):
 
 def seconds(timing: dict[str, Any]) -> dict[str, float]:
     """A sample set's timing in seconds: ``*_ns`` fields (dwave-samplers) converted, other
-    numeric fields taken as seconds already (our samplers convert D-Wave's microseconds)."""
+    numeric fields taken as seconds already (our samplers convert D-Wave's microseconds).
+
+    Parameters
+    ----------
+    timing
+        ``SampleSet.info["timing"]``.
+
+    Returns
+    -------
+    dict
+        Field (``_ns`` suffix dropped) -> seconds; non-numeric fields are left out.
+    """
     out = {}
     for key, value in timing.items():
         if isinstance(value, int | float) and not isinstance(value, bool):
@@ -160,7 +171,21 @@ def sample_array(sample: dict[Any, int] | dimod.SampleView, num_variables: int) 
 def initial_states(
     initial_state: np.ndarray | None, bqm: dimod.BinaryQuadraticModel
 ) -> tuple[np.ndarray, list[int]] | None:
-    """A warm start as dimod's ``initial_states`` (samples-like, the BQM's variables 0..n-1)."""
+    """A warm start as dimod's ``initial_states``.
+
+    Parameters
+    ----------
+    initial_state
+        One value per variable of ``bqm`` (None: no warm start).
+    bqm
+        The bundle's QUBO on the variables 0..n-1.
+
+    Returns
+    -------
+    tuple or None
+        Samples-like ``(array of shape (1, n), labels 0..n-1)``; a length that does not match
+        is a ``SolverError``.
+    """
     if initial_state is None:
         return None
     state = np.asarray(initial_state, dtype=np.int8).reshape(1, -1)

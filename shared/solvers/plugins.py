@@ -60,9 +60,20 @@ def sampler_class(name: str) -> type[dimod.Sampler]:
 
 @cache
 def dimod_spec(name: str) -> SolverSpec:
-    """The registry record of a ``dimod:`` solver name: its factory puts the class
-    (:func:`sampler_class`, whose ``ValueError`` this passes on) inside the composites; its
-    parameters go unchecked to the sampler; its queue is ``dimod``."""
+    """The registry record of a ``dimod:`` solver name.
+
+    Parameters
+    ----------
+    name
+        The solver name as a job or ``--solver`` gives it; :func:`sampler_class`'s
+        ``ValueError`` is passed on.
+
+    Returns
+    -------
+    SolverSpec
+        Its factory puts the class inside the composites; its parameters go unchecked to the
+        sampler; its queue is ``dimod``.
+    """
     cls = sampler_class(name)
 
     def factory() -> SolverComposite:

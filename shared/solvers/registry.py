@@ -303,7 +303,8 @@ def recommended_encoding(name: str) -> str | None:
 
 
 def queue_of(name: str) -> str:
-    """The Celery queue the bundles of solver ``name`` go to."""
+    """The Celery queue the bundles of solver ``name`` go to: the record's ``queue``, else the
+    name itself (``name``: registered, or ``dimod:``; returns a str)."""
     return spec(name).queue_name
 
 
@@ -314,5 +315,16 @@ def queue_names() -> list[str]:
 
 
 def names_metered_by(meter: str) -> frozenset[str]:
-    """The registered solvers charged with the given model (``"qpu"`` or ``"hybrid"``)."""
+    """The registered solvers charged with the given model.
+
+    Parameters
+    ----------
+    meter
+        ``"qpu"`` (the QPU timing model) or ``"hybrid"`` (Leap's hybrid charge).
+
+    Returns
+    -------
+    frozenset
+        Their names.
+    """
     return frozenset(name for name, record in _SPECS.items() if record.meter == meter)
