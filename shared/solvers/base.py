@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any, Protocol, runtime_checkable
 
 import dimod
@@ -244,7 +245,10 @@ def solve(
     except SolverError:
         raise
     except Exception as error:  # samplers raise many types; translate what we know
-        translate = getattr(sampler, "translate", Sampler.translate.__get__(sampler))
+        translate = getattr(sampler, "translate", None)
+        if translate is None:  # a plain dimod sampler: only bad parameters are ours to word
+            name = getattr(sampler, "name", type(sampler).__name__)
+            translate = Sampler.translate.__get__(SimpleNamespace(name=name))
         mapped = translate(error)
         if mapped is None:
             raise
