@@ -169,3 +169,19 @@ def test_plugins_register_through_the_entry_point_group(tmp_path, monkeypatch):
     )
     assert registry.queue_of("probe") == "probe-queue"
     assert isinstance(get_solver("probe"), dimod.Sampler)
+
+
+def test_solve_maps_bad_parameters_to_our_error_and_lets_other_exceptions_through():
+    bqm = random_bqm(6, seed=1)
+    with pytest.raises(SolverError, match="SteepestDescentSolver: invalid parameters"):
+        solve(SteepestDescentSolver(), bqm, num_reads=-1)
+
+    class Interrupted(Exception):  # like Celery's SoftTimeLimitExceeded
+        pass
+
+    class Stopped(dimod.ExactSolver):
+        def sample(self, bqm, **params):
+            raise Interrupted
+
+    with pytest.raises(Interrupted):
+        solve(SolverComposite(Stopped()), bqm)
