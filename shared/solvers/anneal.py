@@ -53,7 +53,7 @@ WARM_START_COOLING = 30.0
 def beta_range(bqm: dimod.BinaryQuadraticModel) -> tuple[float, float]:
     """(hot, cold) inverse temperatures of the Ising form of ``bqm`` (vectorised; see module
     docstring for why not dwave-samplers' default)."""
-    linear, (rows, cols, quadratic), _ = bqm.spin.to_numpy_vectors()
+    linear, (rows, cols, quadratic), *_ = bqm.spin.to_numpy_vectors()
     abs_h, abs_j = np.abs(linear), np.abs(quadratic)
     largest = max(abs_h.max(initial=0.0), abs_j.max(initial=0.0))
     if largest == 0.0:
@@ -120,7 +120,10 @@ class TunedAnnealer(dimod.Sampler):
             settings["initial_states"] = (states, labels)
         sampleset = SimulatedAnnealingSampler().sample(spin, **settings)
         if polish:
-            sampleset = SteepestDescentSolver().sample(spin, initial_states=sampleset)
+            sampleset = SteepestDescentSolver().sample(
+                spin,
+                initial_states=sampleset,  # type: ignore[arg-type]  # a SampleSet is samples-like
+            )
         sampleset = sampleset.change_vartype(bqm.vartype)
         sampleset.info.update(
             beta_range=[float(b) for b in sampleset.info.get("beta_range", ())],

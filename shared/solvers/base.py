@@ -12,6 +12,7 @@ sample as an int8 array, its energy, wall time, timing, info) and maps errors to
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any, Protocol, runtime_checkable
@@ -161,7 +162,7 @@ def _plain(value: Any) -> bool:
     return False
 
 
-def sample_array(sample: dict[Any, int] | dimod.SampleView, num_variables: int) -> np.ndarray:
+def sample_array(sample: Mapping[Any, Any], num_variables: int) -> np.ndarray:
     """A sample keyed by the integer variables 0..n-1 as an int8 array in that order."""
     out = np.zeros(num_variables, dtype=np.int8)
     keys = np.fromiter(sample.keys(), dtype=np.int64, count=len(sample))

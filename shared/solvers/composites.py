@@ -110,7 +110,8 @@ def fix_variables(
         The reduced BINARY BQM and the original numbers of its variables 0..m-1.
     """
     n = bqm.num_variables
-    linear, (rows, cols, quadratic), offset = bqm.binary.to_numpy_vectors(variable_order=range(n))
+    vectors = bqm.binary.to_numpy_vectors(variable_order=range(n))
+    linear, (rows, cols, quadratic), offset = vectors[0], vectors[1], vectors[2]
     values = np.zeros(n)
     is_fixed = np.zeros(n, dtype=bool)
     if fixed:
@@ -231,7 +232,7 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
         Solver name under which embedding sizes are recorded (for the QPU time estimates).
     """
 
-    def __init__(self, child: dimod.Sampler, cache, target: str, solver: str) -> None:
+    def __init__(self, child: Any, cache, target: str, solver: str) -> None:
         self._child, self.cache, self.target, self.solver = child, cache, target, solver
 
     @property

@@ -110,8 +110,8 @@ class _EmbeddedQPU(Sampler):
 
     def __init__(self, cache: EmbeddingCache | None = None) -> None:
         self._cache = cache
-        self._sampler = None
-        self._target: str | None = None
+        self._sampler: Any = None
+        self._target = ""
         self._lock = threading.Lock()
 
     @property

@@ -89,7 +89,7 @@ class DirectoryStore:
 
 def structure_edges(bqm: dimod.BinaryQuadraticModel) -> np.ndarray:
     """Sorted (u < v) edge array (m, 2) of a BQM whose variables are integers."""
-    _, (rows, cols, _), _ = bqm.to_numpy_vectors(variable_order=range(bqm.num_variables))
+    _, (rows, cols, _), *_ = bqm.to_numpy_vectors(variable_order=range(bqm.num_variables))
     edges = np.stack([np.minimum(rows, cols), np.maximum(rows, cols)], axis=1).astype(np.int64)
     if edges.size == 0:
         return edges.reshape(0, 2)
@@ -98,7 +98,8 @@ def structure_edges(bqm: dimod.BinaryQuadraticModel) -> np.ndarray:
 
 def graph_fingerprint(edges: Iterable[tuple[Hashable, Hashable]]) -> str:
     """A short hash of a target graph's edge list (its working qubits and couplers)."""
-    array = np.array(sorted(tuple(sorted(edge)) for edge in edges), dtype=np.int64)
+    pairs = (tuple(sorted(edge)) for edge in edges)  # type: ignore[type-var]
+    array = np.array(sorted(pairs), dtype=np.int64)
     return hashlib.sha256(array.tobytes()).hexdigest()[:16]
 
 
@@ -318,7 +319,7 @@ def find_embedding(
             f"{qubits} qubits; use a smaller bundle height, --encoding domain-wall, or a "
             "coarser level"
         )
-    source = nx.Graph()
+    source: nx.Graph = nx.Graph()
     source.add_nodes_from(range(bqm.num_variables))
     source.add_edges_from(structure_edges(bqm).tolist())
     started = time.perf_counter()

@@ -53,10 +53,15 @@ def _environment(settings: Settings):
 
     env = gp.Env(empty=True)
     env.setParam("OutputFlag", 0)
-    if licence_kind(settings) == "wls":
-        env.setParam("WLSACCESSID", settings.grb_wls_access_id.get_secret_value())
-        env.setParam("WLSSECRET", settings.grb_wls_secret.get_secret_value())
-        env.setParam("LICENSEID", settings.grb_license_id)
+    access, secret, licence = (
+        settings.grb_wls_access_id,
+        settings.grb_wls_secret,
+        settings.grb_license_id,
+    )
+    if access and secret and licence:  # licence_kind(settings) == "wls"
+        env.setParam("WLSACCESSID", access.get_secret_value())
+        env.setParam("WLSSECRET", secret.get_secret_value())
+        env.setParam("LICENSEID", licence)
     env.start()
     return env
 
@@ -117,11 +122,11 @@ class GurobiSampler(Sampler, dimod.Initialized):
                 if seed is not None:
                     model.setParam("Seed", int(seed) % 2_000_000_000)
                 x = model.addMVar(n, vtype=gp.GRB.BINARY)
-                model.setMObjective(
+                model.setMObjective(  # type: ignore[call-overload]  # a sparse Q is accepted
                     q_matrix, linear * scale, float(offset) * scale, sense=gp.GRB.MINIMIZE
                 )
                 if start is not None:
-                    x.Start = np.asarray(start, dtype=float)
+                    x.Start = np.asarray(start, dtype=float)  # type: ignore[assignment]
                 model.optimize()
                 status = model.Status
                 if model.SolCount == 0:

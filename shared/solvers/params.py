@@ -14,6 +14,7 @@ The models are pure pydantic (no Ocean or Gurobi import), so importing them is c
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from types import UnionType
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
@@ -249,7 +250,7 @@ def check(model: type[SolverParams], solver: str, params: dict[str, Any]) -> dic
     return parsed.model_dump(mode="json", exclude_unset=True)
 
 
-def _message(error: dict[str, Any]) -> str:
+def _message(error: Mapping[str, Any]) -> str:
     if error["type"] == "extra_forbidden":
         return "unknown parameter"
     value = error.get("input")
