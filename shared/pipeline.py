@@ -27,8 +27,9 @@ from shared.config import DataTerm, MatchConfig, PyramidKind
 from shared.data_terms import ad_census_volume
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
+from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solve import LevelInputs, LevelSolution, solve_level_in_process
+from shared.solve import LevelSolution, solve_level_in_process
 
 SolveLevel = Callable[[LevelInputs, MatchConfig], LevelSolution]
 Progress = Callable[[int, int], None]

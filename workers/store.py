@@ -41,8 +41,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
+from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solve import LevelInputs
 
 log = logging.getLogger(__name__)
 

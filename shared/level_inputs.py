@@ -1,0 +1,273 @@
+"""The inputs of one level: everything needed to build any bundle of it (the level's images, both
+views stacked, and its candidate array), and the bundles it is cut into. Workers receive this;
+:mod:`shared.solve` turns its bundles into QUBOs and solutions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from shared.bundles import Bundle, bundle_rows, segment_columns
+from shared.config import DataTerm, LevelConfig, MatchConfig
+from shared.data_terms import (
+    ad_census_volume,
+    bin_minimum,
+    gather,
+    squared_difference,
+    squared_volume,
+)
+from shared.energy import Costs, mrf_costs
+from shared.images import to_gray
+from shared.pyramid import LevelPlan
+
+#: A bundle as given to :func:`shared.solve.solve_bundles`: a :class:`Bundle`, or a row range
+#: (whole rows).
+BundleSpec = Bundle | tuple[int, int]
+
+
+@dataclass
+class LevelInputs:
+    """Everything needed to build any bundle of a level.
+
+    ``left`` / ``right`` are the level's images (float32 in [0, 1], gray or BGR colour) and
+    ``candidates`` (rows, w, K) int32 the labels each pixel may take. With ``views`` = 2 the
+    arrays hold two matching problems one below the other: rows [0, h) are the left view's,
+    rows [h, 2h) the right view's as the mirrored pair (both images flipped, roles swapped).
+    Bundles, tasks and progress therefore treat the right view as more rows of the same level;
+    costs never mix the two. ``initial_labels`` (rows, w) is the coarser level's estimate as
+    labels, for warm starts; ``None`` on the coarsest level.
+    """
+
+    plan: LevelPlan
+    left: np.ndarray
+    right: np.ndarray
+    candidates: np.ndarray
+    initial_labels: np.ndarray | None = None
+    views: int = 1
+    #: Optional per-view full cost volumes (in process only; workers build costs per block).
+    volumes: list[np.ndarray] | None = None
+    #: What preparing the bundles did (:func:`level_bundles`): segment width, embeddings.
+    prepared: dict = field(default_factory=dict)
+    _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
+
+    @property
+    def index(self) -> int:
+        return self.plan.index
+
+    @property
+    def level(self) -> LevelConfig:
+        return self.plan.mrf
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows of all views, width)."""
+        return self.left.shape[0], self.left.shape[1]
+
+    @property
+    def view_height(self) -> int:
+        return self.left.shape[0] // self.views
+
+    def view_parts(self, start: int, stop: int) -> list[tuple[int, int, int]]:
+        """Rows [start, stop) split by view, as (view, first row, stop row) in view rows.
+
+        Parameters
+        ----------
+        start, stop : int
+            Rows of the stacked views.
+
+        Returns
+        -------
+        list of tuple of int
+            ``(view, first, stop)`` per view the range touches, rows counted within that view.
+        """
+        parts = []
+        height = self.view_height
+        for view in range(self.views):
+            first, last = max(start, view * height), min(stop, (view + 1) * height)
+            if first < last:
+                parts.append((view, first - view * height, last - view * height))
+        return parts
+
+    def starting_labels(self, costs: Costs, start: int, stop: int) -> np.ndarray:
+        """A warm start for rows [start, stop): the coarser level's estimate, or on the coarsest
+        level the data term's winner-takes-all (``costs`` are those rows' costs).
+
+        Parameters
+        ----------
+        costs : Costs
+            The costs of rows [start, stop).
+        start, stop : int
+            Rows of the stacked views.
+
+        Returns
+        -------
+        numpy.ndarray
+            Candidate index (stop - start, w), int32.
+        """
+        if self.initial_labels is not None:
+            return self.initial_labels[start:stop]
+        return costs.unary.argmin(axis=2).astype(np.int32)
+
+    def bundle_rows(self, bundle_height: int) -> list[tuple[int, int]]:
+        """The level's bundles as row ranges: each view tiled on its own, so that no bundle
+        spans the seam between the two views.
+
+        Parameters
+        ----------
+        bundle_height : int
+            Rows per bundle.
+
+        Returns
+        -------
+        list of tuple of int
+            ``(start, stop)`` in rows of the stacked views.
+        """
+        height = self.view_height
+        return [
+            (view * height + start, view * height + stop)
+            for view in range(self.views)
+            for start, stop in bundle_rows(height, bundle_height)
+        ]
+
+    def bundles(self, bundle_height: int, bundle_width: int | None, margin: int) -> list[Bundle]:
+        """The level's bundles: :meth:`bundle_rows`, each cut into row segments of
+        ``bundle_width`` pixels overlapping by ``margin`` (:func:`shared.bundles.segment_columns`;
+        None: whole rows).
+
+        Parameters
+        ----------
+        bundle_height : int
+            Rows per bundle.
+        bundle_width : int or None
+            Columns per segment; ``None`` for whole rows.
+        margin : int
+            Least overlap of neighbouring segments, pixels.
+
+        Returns
+        -------
+        list of Bundle
+            Row by row, segments left to right.
+        """
+        columns = segment_columns(self.shape[1], bundle_width, margin)
+        return [
+            Bundle(start, stop, first, last)
+            for start, stop in self.bundle_rows(bundle_height)
+            for first, last in columns
+        ]
+
+    def planned_bundles(self, config: MatchConfig) -> list[Bundle]:
+        """The bundles :func:`level_bundles` chose for this level (its width is kept in
+        ``prepared``), without searching or embedding again.
+
+        Parameters
+        ----------
+        config : MatchConfig
+            The run's configuration (bundle height and margin).
+
+        Returns
+        -------
+        list of Bundle
+        """
+        width = self.prepared.get("bundle_width")
+        if width is not None and width >= self.shape[1]:
+            width = None
+        return self.bundles(config.bundle_height, width, config.bundle_margin)
+
+    def as_bundle(self, spec: BundleSpec) -> Bundle:
+        """A :class:`Bundle` from a bundle or a row range (whole rows).
+
+        Parameters
+        ----------
+        spec : Bundle or sequence of int
+            A bundle, ``[row_start, row_stop, col_start, col_stop]`` or ``[row_start, row_stop]``.
+
+        Returns
+        -------
+        Bundle
+        """
+        if isinstance(spec, Bundle):
+            return spec
+        if len(spec) == 4:
+            return Bundle(*spec)
+        start, stop = spec
+        return Bundle(start, stop, 0, self.shape[1])
+
+    def view_images(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(left, right) image of each view.
+
+        Returns
+        -------
+        list of tuple of numpy.ndarray
+            One ``(left, right)`` per view, each (view_height, w) or (view_height, w, 3).
+        """
+        height = self.view_height
+        return [
+            (self.left[v * height : (v + 1) * height], self.right[v * height : (v + 1) * height])
+            for v in range(self.views)
+        ]
+
+    def _bin_costs(self, data_term: DataTerm, view: int, first: int, last: int) -> np.ndarray:
+        """The data term of every label (bins, last - first, w) on rows of one view."""
+        if self.volumes is None:
+            left, right = self.view_images()[view]
+            volume_of = ad_census_volume if data_term is DataTerm.AD_CENSUS else squared_volume
+            volume = volume_of(left, right, self.plan.max_disparity, first, last)
+            return bin_minimum(volume, self.plan.bin_width)
+        return self.binned_volumes()[view][:, first:last]
+
+    def binned_volumes(self) -> list[np.ndarray]:
+        """The cached volumes' bin minima per view, built once (call before sharing the inputs
+        between threads).
+
+        Returns
+        -------
+        list of numpy.ndarray
+            (bins, view_height, w) per view; empty without cached volumes.
+        """
+        if self._binned is None and self.volumes is not None:
+            self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
+        return self._binned or []
+
+    def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
+        """Costs of rows [start, stop) (a block that spans both views has no edge between).
+
+        Parameters
+        ----------
+        config : MatchConfig
+            The run's configuration.
+        start : int, optional
+            First row of the stacked views.
+        stop : int, optional
+            Row after the last; default: all rows.
+
+        Returns
+        -------
+        Costs
+            Vertical edges only when ``config.bundle_height`` > 1.
+        """
+        stop = self.shape[0] if stop is None else stop
+        height = self.view_height
+        blocks = []
+        for view, first, last in self.view_parts(start, stop):
+            base = view * height
+            left, right = self.view_images()[view]
+            candidates = self.candidates[base + first : base + last]
+            guide = to_gray(left[first:last])
+            if config.data_term is DataTerm.SQUARED and self.plan.bin_width == 1:
+                # the paper's path: evaluated at the candidates only
+                unary = squared_difference(guide, to_gray(right[first:last]), candidates)
+            else:
+                bin_costs = self._bin_costs(config.data_term, view, first, last)
+                unary = gather(bin_costs, candidates)
+            blocks.append(
+                mrf_costs(
+                    unary,
+                    candidates,
+                    guide,
+                    self.level,
+                    config.regularizer,
+                    vertical=config.bundle_height > 1,
+                )
+            )
+        return Costs.stack(blocks)
