@@ -21,7 +21,7 @@ import json
 import sys
 from collections.abc import Iterator
 
-from shared.cli import CommandError, setting_option
+from shared.cli_options import CommandError, setting_option
 
 
 @contextlib.contextmanager

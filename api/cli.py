@@ -14,7 +14,7 @@ import json
 import sys
 from pathlib import Path
 
-from shared.cli import (
+from shared.cli_options import (
     CommandError,
     add_json_option,
     add_match_options,

@@ -78,7 +78,7 @@ def test_bench_defaults_follow_the_readme_recommendation():
 def test_match_options_leave_every_default_to_the_model_and_state_it():
     """Not given, an option is None (the preset and MatchConfig decide); its help states the
     model's default, so a changed default in MatchConfig changes the help with it."""
-    from shared.cli import MATCH_OPTIONS, config_from_args, match_params
+    from shared.cli_options import MATCH_OPTIONS, config_from_args, match_params
     from shared.config import MatchConfig
 
     for command in ("match", "submit", "estimate"):
@@ -100,7 +100,7 @@ def test_match_options_leave_every_default_to_the_model_and_state_it():
 
 
 def test_service_options_show_and_override_the_settings(monkeypatch):
-    from shared.cli import settings_from_args
+    from shared.cli_options import settings_from_args
 
     monkeypatch.setenv("QHSM_API_PORT", "8123")
     monkeypatch.setenv("QHSM_API_URL", "http://127.0.0.1:8123")
