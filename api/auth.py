@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from api.users import User, admin_user, current_user
-from workers.store import JobRecord
+from workers.records import JobRecord
 
 #: The authenticated caller (a lab member; ``admin`` sees and cancels every job).
 Principal = User

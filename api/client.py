@@ -156,7 +156,7 @@ def progress_bar(stream: IO[str] | None = None) -> Callable[[dict], None]:
     redrawn only when something changed."""
     from tqdm import tqdm
 
-    from workers.store import Progress
+    from workers.records import Progress
 
     bar: tqdm | None = None
     shown = None

@@ -11,7 +11,7 @@ from pydantic import BaseModel, Field, create_model
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
-from workers.store import JobState, Progress
+from workers.records import JobState, Progress
 
 
 class Links(BaseModel):

@@ -34,7 +34,8 @@ from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
 from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
-from workers.store import ChunkReport, JobRecord, JobState, JobStore, LevelInputsMissing, now
+from workers.records import ChunkReport, JobRecord, JobState, now
+from workers.store import JobStore, LevelInputsMissing
 
 log = logging.getLogger(__name__)
 

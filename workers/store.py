@@ -25,150 +25,37 @@ from __future__ import annotations
 import io
 import json
 import logging
-import math
-import re
 import shutil
-import uuid
 from collections.abc import Callable, Iterable
-from datetime import UTC, datetime
-from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import redis
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from shared.bundles import bundle_key
-from shared.config import MatchConfig, Settings
+from shared.config import Settings
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
+from workers.records import (
+    ACTIVE,
+    JOB_ID,
+    ChunkReport,
+    JobRecord,
+    JobState,
+    Progress,
+    load_record,
+    now,
+)
 
 log = logging.getLogger(__name__)
 
-JOB_ID = re.compile(r"^[0-9a-f]{32}$")
 #: Level inputs live this long at most (they are deleted as soon as the level is assembled).
 LEVEL_INPUTS_GRACE = 3600
 
 
-class JobState(StrEnum):
-    QUEUED = "queued"
-    RUNNING = "running"
-    SUCCEEDED = "succeeded"
-    FAILED = "failed"
-    CANCELLED = "cancelled"
-
-    @property
-    def terminal(self) -> bool:
-        return self in (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
-
-
-ACTIVE = frozenset({JobState.QUEUED, JobState.RUNNING})
-
-
-class GroundTruth(BaseModel):
-    """Evaluation protocol of an uploaded ground truth (stored values = disparity x scale)."""
-
-    scale: float = Field(1.0, gt=0)
-    border: int = Field(0, ge=0)
-
-
-class JobRecord(BaseModel):
-    """What the service knows about a job (storage model; API schemas are separate).
-
-    Any float survives the JSON round trip (``Infinity``/``NaN`` are written as such, not as
-    ``null``), so a stored record always loads again; in metrics and level reports, which
-    clients read, numbers that are not finite are stored as null.
-    """
-
-    model_config = ConfigDict(ser_json_inf_nan="constants")
-
-    id: str
-    state: JobState = JobState.QUEUED
-    owner: str | None = None
-    config: MatchConfig
-    width: int
-    height: int
-    ground_truth: GroundTruth | None = None
-    created_at: datetime
-    started_at: datetime | None = None
-    finished_at: datetime | None = None
-    level: int = 0  # 1-based index of the level being solved; 0 before the first
-    levels_total: int = 0  # levels of the run (the bin pyramid's depend on the range)
-    bundles_total: int = 0  # bundles of that level
-    #: ``shared.disparity_range.RangeEstimate`` as a dict: the range the job runs with
-    disparity_range: dict[str, Any] | None = None
-    levels: list[dict[str, Any]] = Field(default_factory=list)  # shared.pipeline.LevelReport
-    metrics: dict[str, float | None] | None = None
-    error: str | None = None
-
-    @field_validator("metrics", "levels")
-    @classmethod
-    def _finite_or_null(cls, value: Any) -> Any:
-        return finite_or_null(value)
-
-
-def finite_or_null(value: Any) -> Any:
-    """``value`` with every float that is not finite (in nested dicts and lists) made None: what
-    clients read must be valid JSON, which has no Infinity or NaN."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {key: finite_or_null(item) for key, item in value.items()}
-    if isinstance(value, list):
-        return [finite_or_null(item) for item in value]
-    return value
-
-
-def load_record(raw: bytes | str, job_id: str) -> JobRecord | None:
-    """The stored record, or None (logged) when it no longer validates: one broken record must
-    not make the job listings or the workers fail."""
-    try:
-        return JobRecord.model_validate_json(raw)
-    except ValidationError as error:
-        log.error("job %s: stored record does not load, skipped: %s", job_id, error)
-        return None
-
-
-class ChunkReport(BaseModel):
-    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it.
-
-    Timing entries that are not finite numbers are dropped (they would poison the job's usage).
-    """
-
-    model_config = ConfigDict(ser_json_inf_nan="constants")
-
-    level: int
-    bundles: int
-    wall_time: float
-    timing: dict[str, float] = Field(default_factory=dict)
-    worker: str = ""
-
-    @field_validator("timing")
-    @classmethod
-    def _finite_timing(cls, value: dict[str, float]) -> dict[str, float]:
-        return {key: seconds for key, seconds in value.items() if math.isfinite(seconds)}
-
-
-class Progress(BaseModel):
-    """How far a job is (the API's job status and the client's progress bar read this model)."""
-
-    level: int = Field(description="1-based level being solved (0: not started)")
-    levels: int
-    bundles_done: int = Field(description="Bundles of the current level solved so far")
-    bundles_total: int
-
-
 class LevelInputsMissing(LookupError):
     """The level's inputs are gone (job finished, cancelled or expired)."""
-
-
-def now() -> datetime:
-    return datetime.now(UTC)
-
-
-def new_job_id() -> str:
-    return uuid.uuid4().hex
 
 
 def _text(value: bytes | str) -> str:

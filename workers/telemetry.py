@@ -101,7 +101,7 @@ class ServiceCollector(Collector):
         yield resends
 
     def _jobs(self) -> Metric:
-        from workers.store import JobState
+        from workers.records import JobState
 
         states: Counter[str] = Counter({state.value: 0 for state in JobState})
         index, start = self._key("jobs"), 0

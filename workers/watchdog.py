@@ -28,7 +28,8 @@ from celery import Celery
 from shared.bundles import bundle_key
 from workers import orchestration
 from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB
-from workers.store import JobRecord, JobState, JobStore
+from workers.records import JobRecord, JobState
+from workers.store import JobStore
 from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)

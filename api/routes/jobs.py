@@ -35,7 +35,7 @@ from shared.solvers.registry import queue_of
 from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.quota import QuotaExceeded
-from workers.store import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
+from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 

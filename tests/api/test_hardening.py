@@ -26,7 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from api.client import Client, ClientError
-from workers.store import ACTIVE, ChunkReport, JobState
+from workers.records import ACTIVE, ChunkReport, JobState
 
 MiB = 2**20
 

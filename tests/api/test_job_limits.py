@@ -73,7 +73,8 @@ def test_a_user_with_too_many_jobs_in_flight_gets_429(api_settings):
 
 def test_the_cap_counts_only_jobs_still_in_flight(api_settings):
     """A finished job leaves the count at once; a record that vanished is dropped from it."""
-    from workers.store import JobState, JobStore
+    from workers.records import JobState
+    from workers.store import JobStore
 
     store = JobStore.from_settings(api_settings)
     users = UserStore.from_settings(api_settings)

@@ -14,7 +14,7 @@ from api.schemas import JobStatus, LevelTiming, Metrics
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores, evaluate
 from shared.pipeline import LevelReport
-from workers.store import Progress
+from workers.records import Progress
 
 
 def test_metrics_are_the_core_scores_with_null_for_non_finite_numbers():

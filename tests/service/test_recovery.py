@@ -19,7 +19,8 @@ from shared.synthetic import make_scene
 from workers import orchestration
 from workers.app import make_celery
 from workers.embedded_redis import free_port
-from workers.store import JobRecord, JobState, JobStore, new_job_id, now
+from workers.records import JobRecord, JobState, new_job_id, now
+from workers.store import JobStore
 from workers.watchdog import Watchdog, resend_count
 
 pytestmark = pytest.mark.service

@@ -8,15 +8,8 @@ import pytest
 from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
 from workers import orchestration
-from workers.store import (
-    ChunkReport,
-    JobRecord,
-    JobState,
-    JobStore,
-    LevelInputsMissing,
-    new_job_id,
-    now,
-)
+from workers.records import ChunkReport, JobRecord, JobState, new_job_id, now
+from workers.store import JobStore, LevelInputsMissing
 
 
 @pytest.fixture
