@@ -23,13 +23,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from shared import filters, pyramid
+from shared.assembly import LevelSolution
 from shared.config import DataTerm, MatchConfig, PyramidKind
 from shared.data_terms import ad_census_volume
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solve import LevelSolution, solve_level_in_process
+from shared.solve import solve_level_in_process
 
 SolveLevel = Callable[[LevelInputs, MatchConfig], LevelSolution]
 Progress = Callable[[int, int], None]

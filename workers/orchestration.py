@@ -23,13 +23,14 @@ import numpy as np
 from celery import Celery, chord
 
 from shared import pyramid
+from shared.assembly import BundleResult, assemble
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
-from shared.solve import BundleResult, assemble, level_bundles, solve_bundles
+from shared.solve import level_bundles, solve_bundles
 from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
 from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from shared.assembly import BundleResult, assemble
 from shared.config import LevelConfig, MatchConfig, Preset, Regularizer
 from shared.energy import mrf_energy
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
-from shared.solve import BundleResult, assemble, solve_bundles, solve_level_in_process
+from shared.solve import solve_bundles, solve_level_in_process
 
 
 def _scores(scene, **overrides):

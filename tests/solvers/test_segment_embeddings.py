@@ -6,9 +6,10 @@ from __future__ import annotations
 import pytest
 from dwave import graphs as dwave_graphs
 
+from shared.assembly import assemble
 from shared.config import LevelConfig, MatchConfig
 from shared.pipeline import match_views, plan_run, prepare_level
-from shared.solve import assemble, level_bundles, solve_bundles
+from shared.solve import level_bundles, solve_bundles
 from shared.solvers import embedding_cache
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import shape_bqm
