@@ -349,7 +349,8 @@ class SimulatedQPUSolver(_EmbeddedQPU):
     """``qpu-sim``: the ``qpu`` code path on ``MockDWaveSampler`` (Pegasus P16), offline.
 
     The mock runs steepest descent per read on the embedded problem; ``annealing_time`` and
-    warm-start (reverse anneal) parameters are accepted but have no effect there.
+    warm-start (reverse anneal) parameters are accepted but have no effect there. ``num_reads``
+    defaults to 100, not 500 (:class:`~shared.solvers.params.SimulatedQPUParams` says why).
     """
 
     name = "qpu-sim"
@@ -372,9 +373,25 @@ class SimulatedQPUSolver(_EmbeddedQPU):
             raise SolverError(f"{self.name}: invalid sampling parameters: {error}") from None
 
     def _make_sampler(self):
-        from dwave.system.testing import MockDWaveSampler
+        return mock_qpu()
 
-        topology_type, shape = MOCK_TOPOLOGY
-        return MockDWaveSampler(
-            topology_type=topology_type, topology_shape=shape, parameter_warnings=False
-        )
+
+def mock_qpu():
+    """The offline QPU of ``qpu-sim`` and ``hybrid-sim``: dwave-system's ``MockDWaveSampler`` on
+    :data:`MOCK_TOPOLOGY`, sampling with its default substitute (dwave-samplers'
+    ``SteepestDescentSampler``: one descent from a random state per read), parameter warnings
+    off (we pass QPU parameters such as ``annealing_time`` that it accepts but does not
+    simulate).
+
+    Returns
+    -------
+    MockDWaveSampler
+        A structured sampler with a QPU's properties; seeded per call through
+        ``substitute_kwargs["seed"]``.
+    """
+    from dwave.system.testing import MockDWaveSampler
+
+    topology_type, shape = MOCK_TOPOLOGY
+    return MockDWaveSampler(
+        topology_type=topology_type, topology_shape=shape, parameter_warnings=False
+    )

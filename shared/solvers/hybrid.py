@@ -16,7 +16,7 @@ import dimod
 import numpy as np
 
 from shared.solvers.base import Availability, Sampler, SolverError
-from shared.solvers.dwave import MOCK_TOPOLOGY, QPUSolver
+from shared.solvers.dwave import QPUSolver, mock_qpu
 
 
 class LeapHybridSolver(QPUSolver):
@@ -88,16 +88,12 @@ class KerberosSolver(Sampler):
         return Availability(True, "offline simulator (dwave-hybrid Kerberos, MockDWaveSampler)")
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
-        from dwave.system.testing import MockDWaveSampler
         from hybrid.reference.kerberos import KerberosSampler
 
         from shared.solvers.qpu_time import hybrid_charge_seconds
 
         if self._qpu is None:
-            topology_type, shape = MOCK_TOPOLOGY
-            self._qpu = MockDWaveSampler(
-                topology_type=topology_type, topology_shape=shape, parameter_warnings=False
-            )
+            self._qpu = mock_qpu()
         if seed is not None:
             np.random.seed(seed % 2**32)  # dwave-hybrid's samplers draw from numpy's global RNG
         init = None

@@ -54,7 +54,7 @@ from shared.energy import Costs
 from shared.pyramid import level_shape, plan
 from shared.solvers.base import uses_warm_start
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
-from shared.solvers.params import DEFAULT_NUM_READS
+from shared.solvers.params import DEFAULT_NUM_READS, schema_defaults
 from shared.solvers.registry import UnknownSolver, names_metered_by, spec
 
 log = logging.getLogger(__name__)
@@ -216,6 +216,8 @@ def bundle_seconds(
             num_qubits = embedding.qubits
         if num_qubits is None:
             num_qubits = assumed_qubits(num_variables)
+        # what the solver runs with when a parameter is not given (qpu-sim reads fewer than qpu)
+        params = {**schema_defaults(spec(solver_name).params), **(params or {})}
         return qpu_access_seconds(num_qubits, params, solver)
     if solver_name in HYBRID_SOLVERS:
         return hybrid_charge_seconds(num_variables, params)

@@ -127,7 +127,7 @@ _BUILTIN = [
         "qpu-sim",
         "dwave:SimulatedQPUSolver",
         "Offline simulator of the qpu path (MockDWaveSampler, Pegasus P16)",
-        schemas.QPUParams,
+        schemas.SimulatedQPUParams,
         meter="qpu",
         offline=True,
         encoding="domain-wall",
