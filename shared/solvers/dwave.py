@@ -41,6 +41,7 @@ from shared.solvers.embedding_cache import (
     default_cache,
     graph_fingerprint,
 )
+from shared.solvers.mock_qpu import SIM_NUM_READS
 
 log = logging.getLogger(__name__)
 
@@ -102,10 +103,15 @@ class _EmbeddedQPU:
     offline: bool
     uses_qpu_time: bool
     simulated: bool
+    #: reads per bundle when ``num_reads`` is not given
+    default_num_reads: int = DEFAULT_NUM_READS
 
     def __init__(self, cache: EmbeddingCache | None = None) -> None:
         self._cache = cache
         self._sampler = None
+        #: one FixedEmbeddingComposite per embedding: its chain structure is built once, not
+        #: per bundle (that was ~10 % of a qpu-sim bundle)
+        self._composites: dict[str, Any] = {}
         self._target: str | None = None
         self._lock = threading.Lock()
 
@@ -194,7 +200,7 @@ class _EmbeddedQPU:
                 bqm, base.edgelist, self._target, seed=0, solver=self.name
             )
             strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
-            settings: dict[str, Any] = {"num_reads": DEFAULT_NUM_READS, **params}
+            settings: dict[str, Any] = {"num_reads": self.default_num_reads, **params}
             if initial_state is not None:
                 state = np.asarray(initial_state, dtype=np.int8)
                 settings.update(
@@ -204,7 +210,9 @@ class _EmbeddedQPU:
                 )
                 # the schedule sets the anneal's length; SAPI refuses both (the estimate's view)
                 settings.pop("annealing_time", None)
-            composite = FixedEmbeddingComposite(base, embedding)
+            composite = self._composites.get(key)
+            if composite is None:
+                composite = self._composites[key] = FixedEmbeddingComposite(base, embedding)
             # The mock's seed is sampler state, so simulated calls are serialised.
             with self._lock if self.simulated else contextlib.nullcontext():
                 self._seed_sampler(base, seed)
@@ -372,7 +380,8 @@ class SimulatedQPUSolver(_EmbeddedQPU):
     """``qpu-sim``: the ``qpu`` code path on ``MockDWaveSampler`` (Pegasus P16), offline.
 
     The mock runs steepest descent per read on the embedded problem; ``annealing_time`` and
-    warm-start (reverse anneal) parameters are accepted but have no effect there.
+    warm-start (reverse anneal) parameters are accepted but have no effect there. ``num_reads``
+    defaults to 100, not 500 (:data:`shared.solvers.mock_qpu.SIM_NUM_READS` says why).
     """
 
     name = "qpu-sim"
@@ -380,6 +389,8 @@ class SimulatedQPUSolver(_EmbeddedQPU):
     offline = True
     uses_qpu_time = False
     simulated = True
+    #: the stand-in's own read budget (see shared/solvers/mock_qpu.py)
+    default_num_reads = SIM_NUM_READS
 
     def available(self) -> Availability:
         return Availability(True, "offline simulator (MockDWaveSampler, Pegasus P16)")
@@ -400,9 +411,6 @@ class SimulatedQPUSolver(_EmbeddedQPU):
             raise SolverError(f"{self.name}: invalid sampling parameters: {error}") from None
 
     def _make_sampler(self):
-        from dwave.system.testing import MockDWaveSampler
+        from shared.solvers.mock_qpu import mock_sampler
 
-        topology_type, shape = MOCK_TOPOLOGY
-        return MockDWaveSampler(
-            topology_type=topology_type, topology_shape=shape, parameter_warnings=False
-        )
+        return mock_sampler()

@@ -212,6 +212,10 @@ def bundle_seconds(
             num_qubits = embedding.qubits
         if num_qubits is None:
             num_qubits = assumed_qubits(num_variables)
+        if solver_name == "qpu-sim":  # the stand-in's own default (shared/solvers/mock_qpu.py)
+            from shared.solvers.mock_qpu import SIM_NUM_READS
+
+            params = {"num_reads": SIM_NUM_READS, **(params or {})}
         return qpu_access_seconds(num_qubits, params, solver)
     if solver_name in HYBRID_SOLVERS:
         return hybrid_charge_seconds(num_variables, params)
