@@ -23,6 +23,7 @@ from shared.solvers import (
 )
 from shared.solvers.dwave import SimulatedQPUSolver
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
+from shared.solvers.mock_qpu import SIM_NUM_READS
 
 MOCK_QPU_ACCESS_US = 8550.28  # MockDWaveSampler's fixed demonstration timing (not charged)
 
@@ -49,12 +50,13 @@ def test_qpu_sim_solves_a_small_row(encoding, mock_qpu, tmp_path):
     decoded = codec.decode(costs, result.sample)
     assert mrf_energy(costs, decoded.labels) == pytest.approx(optimum(costs), rel=1e-9)
     assert result.energy == pytest.approx(bqm.energy(result.sample))
-    assert result.info["simulated"] is True and result.info["num_reads"] == 500
+    # the stand-in's own default read count (shared/solvers/mock_qpu.py); qpu keeps 500
+    assert result.info["simulated"] is True and result.info["num_reads"] == SIM_NUM_READS
     assert 0.0 <= result.info["chain_break_fraction"] <= 1.0
     assert result.info["qubits"] >= bqm.num_variables
     assert result.info["chains"] == bqm.num_variables
     # Not the mock's fixed demonstration value: the timing model for the actual embedding.
-    modeled = qpu_time.qpu_access_seconds(result.info["qubits"], {"num_reads": 500})
+    modeled = qpu_time.qpu_access_seconds(result.info["qubits"], {"num_reads": SIM_NUM_READS})
     assert result.timing == {"qpu_access_time": pytest.approx(modeled)}
     assert result.timing["qpu_access_time"] != pytest.approx(MOCK_QPU_ACCESS_US * 1e-6)
     assert result.info["qpu_access_time"] == result.timing["qpu_access_time"]
