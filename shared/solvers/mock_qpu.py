@@ -8,11 +8,12 @@ reads): one greedy descent from a random state per read, no annealing.
 Why the stand-in has its own read budget: a QPU read costs about 0.1 ms of QPU time, so ``qpu``
 asks for 500; a read of the mock is a full descent on the embedded problem (about 1 ms of CPU
 for a 120-px Tsukuba segment on ~1,650 qubits) and was 57 % of a bundle's time, which put a
-Tsukuba job (6,912 bundles) at 25-55 min on two cores. Descents from random states add little
-past the first hundred (the best of 500 is within a few percent of the best of 100 in embedded
-energy), so ``qpu-sim`` takes :data:`SIM_NUM_READS` unless ``num_reads`` is given, and its
-simulated QPU time (what it charges) is the timing model's value for the reads it took.
-``qpu`` keeps 500.
+Tsukuba job (6,912 bundles) at 25-55 min on two cores. Descents from random states add nothing
+measurable past the first hundred (Tsukuba segments' energy gaps vs their optimum are the same
+with 100 and 500 reads: docs/benchmarks.md, "Row segments"), so ``qpu-sim`` takes
+:data:`SIM_NUM_READS` unless ``num_reads`` is given, and its simulated QPU time (what it charges,
+and what a job's estimate assumes) is the timing model's value for the reads it took. ``qpu``
+keeps 500.
 """
 
 from __future__ import annotations
