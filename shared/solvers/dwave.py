@@ -112,6 +112,7 @@ class _EmbeddedQPU(Sampler):
         self._cache = cache
         self._sampler: Any = None
         self._target = ""
+        self._composite: EmbeddingCacheComposite | None = None
         self._lock = threading.Lock()
 
     @property
@@ -145,9 +146,18 @@ class _EmbeddedQPU(Sampler):
             return self._sampler
 
     def composite(self) -> EmbeddingCacheComposite:
-        """The base sampler inside the cached-embedding composite."""
-        base = self.sampler()
-        return EmbeddingCacheComposite(base, self.cache, self._target, self.name)
+        """The base sampler inside the cached-embedding composite, kept while the base sampler,
+        cache and target stay the same (it holds one ``FixedEmbeddingComposite`` per
+        embedding)."""
+        base, cache = self.sampler(), self.cache
+        kept = self._composite
+        if kept is None or (kept.children[0], kept.cache, kept.target) != (
+            base,
+            cache,
+            self._target,
+        ):
+            kept = self._composite = EmbeddingCacheComposite(base, cache, self._target, self.name)
+        return kept
 
     def widest_bundle(
         self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int

@@ -45,7 +45,9 @@ def test_qpu_sim_solves_a_small_row(encoding, mock_qpu, tmp_path):
     codec = get_codec(encoding)
     bqm = codec.encode(costs)
     solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
-    result = solver.solve(bqm, seed=4)
+    # qpu's 500 reads (qpu-sim's default is 100: test_mock_qpu); 100 descents from random
+    # states can miss this row's optimum
+    result = solver.solve(bqm, seed=4, num_reads=500)
     decoded = codec.decode(costs, result.sample)
     assert mrf_energy(costs, decoded.labels) == pytest.approx(optimum(costs), rel=1e-9)
     assert result.energy == pytest.approx(bqm.energy(result.sample))
@@ -229,3 +231,65 @@ def test_warm_started_qpu_sim_is_charged_the_reverse_anneal_its_estimate_assumes
     assert result.timing["qpu_access_time"] == pytest.approx(expected)
     cold = qpu_time.qpu_access_seconds(result.info["qubits"], {"num_reads": 30})
     assert result.timing["qpu_access_time"] != pytest.approx(cold)
+
+
+def test_the_stand_in_is_a_pegasus_p16_mock_sampling_by_steepest_descent(mock_qpu):
+    from dwave.samplers import SteepestDescentSampler
+    from dwave.system.testing import MockDWaveSampler
+
+    assert isinstance(mock_qpu, MockDWaveSampler)
+    assert mock_qpu.properties["topology"] == {"type": "pegasus", "shape": [16]}
+    assert isinstance(mock_qpu.substitute_sampler, SteepestDescentSampler)
+    assert mock_qpu.parameter_warnings is False
+
+
+def test_qpu_sim_takes_its_own_read_budget_and_is_charged_the_reads_it_took(mock_qpu, tmp_path):
+    from shared.solvers.embedding_cache import EmbeddingSize
+    from shared.solvers.params import DEFAULT_NUM_READS, SimulatedQPUParams
+
+    sim_reads = SimulatedQPUParams.model_fields["num_reads"].default
+    assert sim_reads < DEFAULT_NUM_READS
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 6, seed=3))
+    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
+    default = solver.solve(bqm, seed=1)
+    asked = solver.solve(bqm, seed=1, num_reads=7)
+    assert default.info["num_reads"] == sim_reads and asked.info["num_reads"] == 7
+    # a bundle's estimate (no num_reads given) is what the bundle is charged
+    size = EmbeddingSize(default.info["qubits"], default.info["chains"], 1)
+    estimated = qpu_time.bundle_seconds("qpu-sim", bqm.num_variables, {}, embedding=size)
+    assert default.timing["qpu_access_time"] == pytest.approx(estimated)
+    assert asked.timing["qpu_access_time"] < default.timing["qpu_access_time"]
+    # qpu's estimate keeps its 500 reads
+    qpu = qpu_time.bundle_seconds("qpu", bqm.num_variables, {}, embedding=size)
+    assert qpu == pytest.approx(qpu_time.qpu_access_seconds(size.qubits, {"num_reads": 500}))
+
+
+def test_one_embedding_composite_per_shape_whatever_the_biases(mock_qpu, tmp_path):
+    from unittest import mock
+
+    import dwave.system
+
+    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
+    codec = get_codec("domain-wall")
+    with mock.patch.object(
+        dwave.system, "FixedEmbeddingComposite", wraps=dwave.system.FixedEmbeddingComposite
+    ) as built:
+        results = [
+            solver.solve(codec.encode(stereo_costs(1, 6, seed=s)), seed=s, num_reads=5)
+            for s in range(3)
+        ]
+        assert built.call_count == 1
+        solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=5)
+        assert built.call_count == 2
+    assert [r.info["embedding_cache"] for r in results] == ["computed", "memory", "memory"]
+
+
+def test_a_reused_embedding_composite_gives_what_a_fresh_one_gives(mock_qpu, tmp_path):
+    codec = get_codec("domain-wall")
+    first, second = (codec.encode(stereo_costs(1, 6, seed=s)) for s in (4, 5))
+    warm = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path / "a")))
+    warm.solve(first, seed=2, num_reads=20)
+    reused = warm.solve(second, seed=9, num_reads=20)
+    fresh = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path / "b")))
+    again = fresh.solve(second, seed=9, num_reads=20)
+    assert (reused.sample == again.sample).all() and reused.energy == again.energy
