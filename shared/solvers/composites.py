@@ -192,6 +192,7 @@ class RoofDualityComposite(dimod.ComposedSampler):
         if fixed:
             samples[:, list(fixed)] = list(fixed.values())
         occurrences = None
+        energies = None
         if len(fixed) < n:
             rest, free = fix_variables(bqm, fixed)
             if initial_states is not None:
@@ -204,12 +205,15 @@ class RoofDualityComposite(dimod.ComposedSampler):
             samples = np.repeat(samples, len(record), axis=0)
             samples[:, free[order]] = record.sample
             occurrences = record.num_occurrences
+            # the reduced BQM carries the fixed part in its offset: its energies are the BQM's,
+            # and keeping them (not recomputing) keeps which of two near-equal reads is best
+            energies = record.energy
             info = {**sampleset.info, **info}
         variables = list(range(n))
         return dimod.SampleSet.from_samples(
             (samples, variables),
             vartype=dimod.BINARY,
-            energy=bqm.energies((samples, variables)),
+            energy=bqm.energies((samples, variables)) if energies is None else energies,
             info=info,
             num_occurrences=occurrences,
         )
