@@ -5,6 +5,8 @@ qhsm demo     the same, then one job end to end on a sample scene, then stop
 qhsm api      the API alone (deployments run workers with ``celery -A workers worker``)
 qhsm submit   the client: upload a pair, show progress, download the disparity map
 qhsm estimate a job's estimated QPU (or hybrid) seconds, without running it
+
+One function per command and its parser; they share the settings options and the client.
 """
 
 from __future__ import annotations

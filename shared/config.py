@@ -4,6 +4,9 @@ the environment (``Settings``).
 ``MatchConfig`` is the single description of a run. The CLI builds it from flags, the API
 validates it from the ``params`` JSON of an upload, and the pipeline and the workers read it;
 there is no second copy of these options anywhere.
+
+Longer than most modules on purpose: each field carries the description and bounds that the CLI's
+help, the API's schema and the error messages show, so they are written here once.
 """
 
 from __future__ import annotations

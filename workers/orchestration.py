@@ -8,6 +8,8 @@
 
 No task ever waits for another: each level's callback launches the next level. The level logic
 is ``shared.pipeline``'s and ``shared.solve``'s; this module only moves data between them.
+The three tasks stay together because they share the job's state machine (running, cancelled,
+failed) and each hands the next its data.
 """
 
 from __future__ import annotations

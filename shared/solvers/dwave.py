@@ -12,7 +12,8 @@ parameters (:func:`shared.solvers.qpu_time.qpu_access_seconds`), marked ``simula
 what the service charges for it.
 
 The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
-message we raise or log.
+message we raise or log. (About 340 lines of code: the shared path, the cloud errors' mapping and
+the auto-width search.)
 """
 
 from __future__ import annotations
