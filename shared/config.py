@@ -218,7 +218,11 @@ class MatchConfig(BaseModel):
         description="Parabola fit on the final cost (bin pyramid): lower RMSE on slants, more "
         "1-px errors on integer ground truth",
     )
-    solver: str = Field("exact", description="Solver name, see `qhsm solvers`")
+    solver: str = Field(
+        "exact",
+        description="Solver name, see `qhsm solvers`, or dimod:PACKAGE.MODULE.CLASS (any installed "
+        "dimod sampler)",
+    )
     seed: int = Field(0, ge=0, lt=2**32, description="Seeds every bundle's solver")
     solver_params: dict[str, Any] = Field(default_factory=dict)
 

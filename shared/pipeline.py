@@ -78,11 +78,12 @@ class MatchResult:
         Returns
         -------
         dict
-            ``seconds``, ``max_disparity`` (:meth:`RangeEstimate.as_dict`) and one dict per level.
+            ``seconds``, ``disparity_range`` (:meth:`RangeEstimate.as_dict`, named as in the job
+            status) and one dict per level.
         """
         return {
             "seconds": self.seconds,
-            "max_disparity": self.max_disparity.as_dict(),
+            "disparity_range": self.max_disparity.as_dict(),
             "levels": [asdict(level) for level in self.levels],
         }
 

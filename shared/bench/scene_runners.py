@@ -71,7 +71,7 @@ def local_runner(processes: int = 0) -> SceneRunner:
             result.disparity,
             result.seconds,
             summary["levels"],
-            info={"disparity_range": summary["max_disparity"]},
+            info={"disparity_range": summary["disparity_range"]},
         )
 
     return run

@@ -48,7 +48,7 @@ def test_console_script_matches_and_reports_json(pair, tmp_path, scene):
     )
     summary = json.loads(completed.stdout)
     assert [level["bin_width"] for level in summary["levels"]] == [4, 2, 1]
-    assert summary["max_disparity"] == {
+    assert summary["disparity_range"] == {
         "max_disparity": 16,
         "source": "given",
         "confirmed": 0.0,
@@ -107,8 +107,8 @@ def test_preset_and_auto_range_from_the_command_line(pair, tmp_path, capsys):
     assert [level["downsample"] for level in paper["levels"]] == [4, 2, 1]
     assert main(base) == 0  # default: accurate, auto range
     accurate = json.loads(capsys.readouterr().out)
-    assert accurate["max_disparity"]["source"] == "auto"
-    assert 16 <= accurate["max_disparity"]["max_disparity"] <= 28
+    assert accurate["disparity_range"]["source"] == "auto"
+    assert 16 <= accurate["disparity_range"]["max_disparity"] <= 28
     with pytest.raises(SystemExit):
         main([*base, "--max-disparity", "wide"])
     assert "expected auto or an integer" in capsys.readouterr().err
