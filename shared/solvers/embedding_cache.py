@@ -52,6 +52,18 @@ class EmbeddingSize:
 
     @classmethod
     def of(cls, embedding: Embedding) -> EmbeddingSize:
+        """The size of ``embedding``: total qubits, number of chains and the longest chain.
+
+        Parameters
+        ----------
+        embedding : dict of int to list of int
+            Variable -> its chain of physical qubits.
+
+        Returns
+        -------
+        EmbeddingSize
+            Qubits summed over the chains; ``longest_chain`` 0 for an empty embedding.
+        """
         lengths = [len(chain) for chain in embedding.values()]
         return cls(qubits=sum(lengths), chains=len(lengths), longest_chain=max(lengths, default=0))
 
@@ -59,9 +71,30 @@ class EmbeddingSize:
 class EmbeddingStore(Protocol):
     """Shared key-value storage for embeddings serialised as JSON text."""
 
-    def get(self, key: str) -> str | None: ...
+    def get(self, key: str) -> str | None:
+        """The value stored under ``key``.
 
-    def set(self, key: str, value: str) -> None: ...
+        Parameters
+        ----------
+        key : str
+            A cache key (structure key, ``size-...``, ``width-...`` or ``nofit-...``).
+
+        Returns
+        -------
+        str or None
+            The stored JSON text, None when nothing is stored under the key.
+        """
+
+    def set(self, key: str, value: str) -> None:
+        """Store ``value`` under ``key``, replacing any earlier value.
+
+        Parameters
+        ----------
+        key : str
+            The cache key to write.
+        value : str
+            JSON text (an embedding, a size, a width or a failure marker).
+        """
 
 
 class DirectoryStore:
@@ -72,6 +105,18 @@ class DirectoryStore:
         self.directory = Path(directory)
 
     def get(self, key: str) -> str | None:
+        """The text of ``<directory>/<key>.json``.
+
+        Parameters
+        ----------
+        key : str
+            File stem under the store's directory.
+
+        Returns
+        -------
+        str or None
+            The file's contents; None when the file does not exist.
+        """
         path = self.directory / f"{key}.json"
         try:
             return path.read_text()
@@ -79,6 +124,15 @@ class DirectoryStore:
             return None
 
     def set(self, key: str, value: str) -> None:
+        """Write ``<directory>/<key>.json`` atomically (mode 0644: other users' workers read it).
+
+        Parameters
+        ----------
+        key : str
+            File stem; the directory is created when missing.
+        value : str
+            Text written to the file.
+        """
         self.directory.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=self.directory, suffix=".tmp")
         with os.fdopen(handle, "w") as stream:
@@ -88,7 +142,19 @@ class DirectoryStore:
 
 
 def structure_edges(bqm: dimod.BinaryQuadraticModel) -> np.ndarray:
-    """Sorted (u < v) edge array (m, 2) of a BQM whose variables are integers."""
+    """Sorted (u < v) edge array (m, 2) of a BQM whose variables are integers.
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        A BQM on the variables 0..n-1.
+
+    Returns
+    -------
+    numpy.ndarray
+        int64 array of shape (m, 2), one row per coupling, sorted by (u, v); (0, 2) when there is
+        none.
+    """
     _, (rows, cols, _), *_ = bqm.to_numpy_vectors(variable_order=range(bqm.num_variables))
     edges = np.stack([np.minimum(rows, cols), np.maximum(rows, cols)], axis=1).astype(np.int64)
     if edges.size == 0:
@@ -97,14 +163,36 @@ def structure_edges(bqm: dimod.BinaryQuadraticModel) -> np.ndarray:
 
 
 def graph_fingerprint(edges: Iterable[tuple[Hashable, Hashable]]) -> str:
-    """A short hash of a target graph's edge list (its working qubits and couplers)."""
+    """A short hash of a target graph's edge list (its working qubits and couplers).
+
+    Parameters
+    ----------
+    edges : iterable of (node, node)
+        The target graph's couplers as pairs of qubit numbers, in any order or orientation.
+
+    Returns
+    -------
+    str
+        The first 16 hex digits of the SHA-256 of the sorted, oriented edge array.
+    """
     pairs = (tuple(sorted(edge)) for edge in edges)  # type: ignore[type-var]
     array = np.array(sorted(pairs), dtype=np.int64)
     return hashlib.sha256(array.tobytes()).hexdigest()[:16]
 
 
 def structure_digest(bqm: dimod.BinaryQuadraticModel) -> str:
-    """A hash of the BQM's graph (variable count and edges), independent of its biases."""
+    """A hash of the BQM's graph (variable count and edges), independent of its biases.
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        A bundle's QUBO on the variables 0..n-1.
+
+    Returns
+    -------
+    str
+        32 hex digits of the SHA-256 of the variable count and :func:`structure_edges`.
+    """
     digest = hashlib.sha256()
     digest.update(np.int64(bqm.num_variables).tobytes())
     digest.update(structure_edges(bqm).tobytes())
@@ -112,12 +200,38 @@ def structure_digest(bqm: dimod.BinaryQuadraticModel) -> str:
 
 
 def structure_key(bqm: dimod.BinaryQuadraticModel, target: str) -> str:
-    """Cache key of the BQM's graph on ``target`` (a target name plus its fingerprint)."""
+    """Cache key of the BQM's graph on ``target`` (a target name plus its fingerprint).
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        The BQM whose graph is to be embedded.
+    target : str
+        The target graph's name in cache keys (topology and :func:`graph_fingerprint`).
+
+    Returns
+    -------
+    str
+        ``"<target>-<structure digest>"``.
+    """
     return f"{target}-{structure_digest(bqm)}"
 
 
 def size_key(solver: str, digest: str) -> str:
-    """Store key of the size of ``solver``'s embedding of the structure ``digest``."""
+    """Store key of the size of ``solver``'s embedding of the structure ``digest``.
+
+    Parameters
+    ----------
+    solver : str
+        Registry name of the solver that embedded the structure.
+    digest : str
+        The structure's :func:`structure_digest`.
+
+    Returns
+    -------
+    str
+        ``"size-<solver>-<digest>"``.
+    """
     return f"size-{solver}-{digest}"
 
 
@@ -163,6 +277,37 @@ class EmbeddingCache:
 
         With ``solver`` (the adapter's name) the embedding's size is also recorded for
         :meth:`known_size` the first time this process meets the structure.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle's QUBO on the variables 0..n-1; only its graph matters.
+        target_edges : list of (int, int)
+            The QPU graph's working couplers.
+        target : str
+            Name of the target graph in the key (topology and edge fingerprint).
+        timeout : float, optional
+            Seconds minorminer may search on a miss; default ``Settings.embedding_timeout``.
+        seed : int, default 0
+            minorminer's random seed.
+        solver : str, optional
+            Solver name under which the embedding's size is recorded; None records nothing.
+        remember_failure : bool, default True
+            Whether a failed search makes later lookups of the key in this process fail at once.
+
+        Returns
+        -------
+        embedding : dict of int to list of int
+            Variable -> chain of qubits.
+        source : str
+            ``"memory"``, ``"store"`` or ``"computed"``.
+        key : str
+            The structure's cache key.
+
+        Raises
+        ------
+        SolverError
+            When no embedding is found (or an earlier search of the key failed in this process).
         """
         digest = structure_digest(bqm)
         key = f"{target}-{digest}"
@@ -208,7 +353,20 @@ class EmbeddingCache:
 
     def known_size(self, solver: str, digest: str) -> EmbeddingSize | None:
         """The size of ``solver``'s embedding of a structure, if one was ever found (by any
-        process sharing the store); None before the first bundle of that structure."""
+        process sharing the store); None before the first bundle of that structure.
+
+        Parameters
+        ----------
+        solver : str
+            Registry name of the embedding solver.
+        digest : str
+            :func:`structure_digest` of the bundle shape.
+
+        Returns
+        -------
+        EmbeddingSize or None
+            The recorded size; None when unknown or the stored record is malformed.
+        """
         key = size_key(solver, digest)
         with self._lock:
             if key in self._sizes:
@@ -227,11 +385,32 @@ class EmbeddingCache:
 
     def record_width(self, key: str, width: int | None) -> None:
         """Keep what ``--bundle-width auto`` chose for a level shape (None: whole rows), so that
-        estimates made before any job runs can count the segments."""
+        estimates made before any job runs can count the segments.
+
+        Parameters
+        ----------
+        key : str
+            The level shape's key (``qpu_time.auto_width_key``).
+        width : int or None
+            The chosen segment width in pixels; None for whole rows.
+        """
         self.store.set(f"width-{key}", json.dumps(width))
 
     def known_width(self, key: str) -> tuple[bool, int | None]:
-        """(known, width) of :meth:`record_width`."""
+        """(known, width) of :meth:`record_width`.
+
+        Parameters
+        ----------
+        key : str
+            The level shape's key, as given to :meth:`record_width`.
+
+        Returns
+        -------
+        known : bool
+            Whether a width was recorded (and parses).
+        width : int or None
+            The recorded width in pixels (None: whole rows, or unknown).
+        """
         stored = self.store.get(f"width-{key}")
         if stored is None:
             return False, None
@@ -257,6 +436,33 @@ class EmbeddingCache:
         Each width's verdict is kept in the store (an embedding found is the embedding every
         bundle of that shape then uses; a failure is kept per timeout), so the search runs once
         per (width, labels, encoding, target) across all processes sharing the store.
+
+        Parameters
+        ----------
+        bqm_of_width : callable
+            Width in pixels -> a bundle BQM of that width (its structure is what gets embedded).
+        row_width : int
+            Width of a whole row, pixels.
+        narrowest : int
+            Smallest acceptable segment width, pixels.
+        target_edges : list of (int, int)
+            The QPU graph's working couplers.
+        target : str
+            Name of the target graph in the cache keys.
+        timeout : float
+            Seconds each embedding search may take.
+        solver : str, optional
+            Solver name under which embedding sizes are recorded.
+
+        Returns
+        -------
+        int or None
+            The widest width that embeds, in pixels; None when the whole row does.
+
+        Raises
+        ------
+        SolverError
+            When not even a segment of ``narrowest`` pixels embeds.
         """
 
         def fits(width: int) -> bool:
@@ -308,7 +514,29 @@ def find_embedding(
     timeout: float,
     seed: int = 0,
 ) -> Embedding:
-    """minorminer's heuristic embedding, or a :class:`SolverError` that says what to change."""
+    """minorminer's heuristic embedding, or a :class:`SolverError` that says what to change.
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        The BQM on the variables 0..n-1 whose graph is embedded.
+    target_edges : list of (int, int)
+        Couplers of the QPU graph.
+    timeout : float
+        minorminer's time limit, seconds.
+    seed : int, default 0
+        minorminer's ``random_seed``.
+
+    Returns
+    -------
+    dict of int to list of int
+        Variable -> chain of qubits, one chain per variable.
+
+    Raises
+    ------
+    SolverError
+        If the BQM has more variables than the target has qubits, or no embedding is found in time.
+    """
     import minorminer
     import networkx as nx
 
@@ -355,6 +583,12 @@ def default_cache() -> EmbeddingCache:
 
 
 def set_default_store(store: EmbeddingStore) -> None:
-    """Install a shared store (the service installs Redis at worker start-up)."""
+    """Install a shared store (the service installs Redis at worker start-up).
+
+    Parameters
+    ----------
+    store : EmbeddingStore
+        Replaces the process-wide cache by a new, empty one in front of this store.
+    """
     global _default_cache
     _default_cache = EmbeddingCache(store)
