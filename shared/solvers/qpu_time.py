@@ -127,7 +127,18 @@ _QPU_TIMING_PARAMS = (
 
 def is_metered(solver_name: str) -> bool:
     """Whether jobs on this solver spend (real or simulated) D-Wave time from a budget (the
-    registry's ``SolverSpec.metered``; False for unknown names)."""
+    registry's ``SolverSpec.metered``; False for unknown names).
+
+    Parameters
+    ----------
+    solver_name : str
+        A registry name (or any string).
+
+    Returns
+    -------
+    bool
+        True for the QPU and hybrid solvers and their offline stand-ins.
+    """
     try:
         return spec(solver_name).metered
     except UnknownSolver:
@@ -136,7 +147,18 @@ def is_metered(solver_name: str) -> bool:
 
 def charged_seconds(timing: dict[str, float]) -> float:
     """What one solve costs its owner: the hybrid ``charge_time`` when reported, else the
-    ``qpu_access_time`` (both already in seconds in a ``SolveResult``); 0 when neither."""
+    ``qpu_access_time`` (both already in seconds in a ``SolveResult``); 0 when neither.
+
+    Parameters
+    ----------
+    timing : dict of str to float
+        ``SolveResult.timing`` of one solve, in seconds.
+
+    Returns
+    -------
+    float
+        Seconds charged, never negative.
+    """
     for key in ("charge_time", "qpu_access_time"):
         value = timing.get(key)
         if value is not None:
@@ -169,7 +191,23 @@ def _reference_solver(timing_key: str = "advantage"):
 def qpu_access_seconds(num_qubits: int, params: dict[str, Any] | None = None, solver=None) -> float:
     """Estimated QPU access time of one problem on ``num_qubits`` qubits with these sampler
     parameters. ``solver`` is a live ``dwave.cloud`` solver (its own timing data); default:
-    the offline Advantage model."""
+    the offline Advantage model.
+
+    Parameters
+    ----------
+    num_qubits : int
+        Qubits the embedded problem uses (at least 1 is assumed).
+    params : dict, optional
+        Sampler parameters; ``num_reads`` (default ``DEFAULT_NUM_READS``) and the annealing and
+        thermalization parameters the model reads.
+    solver : dwave.cloud solver, optional
+        Whose ``estimate_qpu_access_time`` is used; None: the offline Advantage_system4.1 model.
+
+    Returns
+    -------
+    float
+        Estimated ``qpu_access_time``, seconds.
+    """
     params = params or {}
     solver = solver or _reference_solver()
     options = {key: params[key] for key in _QPU_TIMING_PARAMS if params.get(key) is not None}
@@ -184,7 +222,22 @@ def hybrid_charge_seconds(
     minimum_time_limit: list[list[float]] | None = None,
 ) -> float:
     """Estimated charge of one hybrid BQM problem: ``time_limit`` if given, never below the
-    solver's minimum for ``num_variables`` (LeapHybridSampler.min_time_limit's interpolation)."""
+    solver's minimum for ``num_variables`` (LeapHybridSampler.min_time_limit's interpolation).
+
+    Parameters
+    ----------
+    num_variables : int
+        Binary variables of the problem.
+    params : dict, optional
+        Solver parameters; only ``time_limit`` (seconds) is read.
+    minimum_time_limit : list of [variables, seconds], optional
+        The solver's ``minimum_time_limit`` curve; default :data:`HYBRID_MINIMUM_TIME_LIMIT`.
+
+    Returns
+    -------
+    float
+        Estimated ``charge_time``, seconds.
+    """
     params = params or {}
     curve = np.asarray(minimum_time_limit or HYBRID_MINIMUM_TIME_LIMIT, dtype=float)
     minimum = float(np.interp(num_variables, curve[:, 0], curve[:, 1]))
@@ -193,7 +246,18 @@ def hybrid_charge_seconds(
 
 
 def assumed_qubits(num_variables: int) -> int:
-    """Qubits assumed for a bundle whose structure has not been embedded yet."""
+    """Qubits assumed for a bundle whose structure has not been embedded yet.
+
+    Parameters
+    ----------
+    num_variables : int
+        Binary variables of the bundle's QUBO.
+
+    Returns
+    -------
+    int
+        ``QUBITS_PER_VARIABLE`` qubits per variable, rounded up, at most :data:`MAX_QUBITS`.
+    """
     return min(MAX_QUBITS, int(np.ceil(num_variables * QUBITS_PER_VARIABLE)))
 
 
@@ -211,6 +275,26 @@ def bundle_seconds(
     ``embedding`` (or ``num_qubits``) is the bundle's actual embedding when known; ``solver`` a
     live cloud solver whose ``estimate_qpu_access_time`` and timing data replace the offline
     model.
+
+    Parameters
+    ----------
+    solver_name : str
+        Registry name of the solver.
+    num_variables : int
+        Binary variables of the bundle's QUBO.
+    params : dict, optional
+        The bundle's sampler parameters (over the schema's defaults for QPU solvers).
+    num_qubits : int, optional
+        Qubits of the bundle's embedding; default :func:`assumed_qubits`.
+    embedding : EmbeddingSize, optional
+        The actual embedding's size; its qubits win over ``num_qubits``.
+    solver : dwave.cloud solver, optional
+        Live solver for the QPU model (None: the offline model).
+
+    Returns
+    -------
+    float
+        Estimated metered seconds of the bundle.
     """
     if solver_name in QPU_SOLVERS:
         if embedding is not None:
@@ -227,7 +311,22 @@ def bundle_seconds(
 
 def shape_bqm(encoding: str, height: int, width: int, candidates: int):
     """The QUBO of a bundle of this shape with zero costs: the QUBO's graph does not depend on
-    the costs (zero terms are kept), so it has the structure of every bundle of the shape."""
+    the costs (zero terms are kept), so it has the structure of every bundle of the shape.
+
+    Parameters
+    ----------
+    encoding : str
+        Label encoding (``one-hot``, ``domain-wall``, ...), a codec name.
+    height, width : int
+        Bundle size in pixels (rows, columns).
+    candidates : int
+        Disparity labels per pixel.
+
+    Returns
+    -------
+    dimod.BinaryQuadraticModel
+        The codec's QUBO of all-zero costs.
+    """
     zeros = np.zeros((height, width, candidates))
     costs = Costs(
         candidates=np.zeros((height, width, candidates), dtype=np.int32),
@@ -240,7 +339,22 @@ def shape_bqm(encoding: str, height: int, width: int, candidates: int):
 
 @lru_cache(maxsize=256)
 def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> str:
-    """Structure digest of every bundle of this shape (:func:`shape_bqm`)."""
+    """Structure digest of every bundle of this shape (:func:`shape_bqm`).
+
+    Parameters
+    ----------
+    encoding : str
+        Codec name of the label encoding.
+    height, width : int
+        Bundle rows and columns, pixels.
+    candidates : int
+        Labels per pixel.
+
+    Returns
+    -------
+    str
+        The :func:`~shared.solvers.embedding_cache.structure_digest` (cached per shape).
+    """
     return structure_digest(shape_bqm(encoding, height, width, candidates))
 
 
@@ -253,7 +367,27 @@ def known_embedding(
 ) -> EmbeddingSize | None:
     """The size of the embedding ``solver_name`` uses for bundles of ``shape`` (rows, width)
     with ``candidates`` labels, if any worker has embedded one; None otherwise (and for
-    solvers that do not embed)."""
+    solvers that do not embed).
+
+    Parameters
+    ----------
+    cache : EmbeddingCache or None
+        Where sizes are looked up; None: none known.
+    solver_name : str
+        Registry name of the solver.
+    encoding : str
+        Codec name of the label encoding.
+    shape : (int, int)
+        Bundle rows and columns, pixels.
+    candidates : int
+        Labels per pixel.
+
+    Returns
+    -------
+    EmbeddingSize or None
+        The recorded size; None when unknown, too large to embed, not a QPU solver, or the store
+        is unreachable.
+    """
     if cache is None or solver_name not in QPU_SOLVERS:
         return None
     height, width = shape
@@ -277,7 +411,28 @@ AUTO_VARIABLES_GUESS = 320
 def auto_width_key(
     solver_name: str, encoding: str, height: int, candidates: int, row_width: int, margin: int
 ) -> str:
-    """Store key of the width ``auto`` chose for this level shape."""
+    """Store key of the width ``auto`` chose for this level shape.
+
+    Parameters
+    ----------
+    solver_name : str
+        Registry name of the solver.
+    encoding : str
+        Codec name of the label encoding.
+    height : int
+        Bundle height, rows.
+    candidates : int
+        Labels per pixel.
+    row_width : int
+        The level's row width, pixels.
+    margin : int
+        ``bundle_margin``, pixels.
+
+    Returns
+    -------
+    str
+        A key for :meth:`~shared.solvers.embedding_cache.EmbeddingCache.record_width`.
+    """
     return f"{solver_name}-{encoding}-{height}x{row_width}-{candidates}-{margin}"
 
 
@@ -289,7 +444,27 @@ def segment_width(
     cache: EmbeddingCache | None,
 ) -> int | None:
     """The segment width the run will use on a level (None: whole rows): the configured one,
-    or for ``auto`` (the QPU solvers' default) the width chosen before, else a guess."""
+    or for ``auto`` (the QPU solvers' default) the width chosen before, else a guess.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration (solver, encoding, bundle width and margin).
+    height : int
+        Bundle height, rows.
+    row_width : int
+        The level's row width, pixels.
+    candidates : int
+        Labels per pixel at the level.
+    cache : EmbeddingCache or None
+        Where an earlier ``auto`` choice is looked up; None: guess.
+
+    Returns
+    -------
+    int or None
+        Segment width in pixels; None for whole rows (also when the width is not below
+        ``row_width``).
+    """
     setting = config.bundle_width
     if setting is None and config.solver in QPU_SOLVERS:
         setting = AUTO
@@ -360,7 +535,20 @@ class JobEstimate:
 
 def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
     """The QPU parameters a bundle is sent with: a warm-started bundle (``warm_start`` and a
-    coarser estimate) is a reverse anneal with the adapter's schedule, re-initialised per read."""
+    coarser estimate) is a reverse anneal with the adapter's schedule, re-initialised per read.
+
+    Parameters
+    ----------
+    solver_params : dict
+        The job's ``solver_params``; ``warm_start`` is dropped.
+    warm : bool
+        Whether the bundle is warm-started.
+
+    Returns
+    -------
+    dict
+        A new dict of the QPU parameters (the reverse-anneal ones added when warm).
+    """
     params = {key: value for key, value in solver_params.items() if key != "warm_start"}
     if warm:
         from shared.solvers.dwave import WARM_START_SCHEDULE
@@ -384,7 +572,28 @@ def level_estimate(
     ``views`` = 2 with the left-right check, whose right view has as many bundles again).
 
     Every bundle is estimated at the size of the level's largest bundle, with that bundle
-    shape's actual embedding when ``cache`` knows one."""
+    shape's actual embedding when ``cache`` knows one.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+    index : int
+        The level's index in the pyramid.
+    shape : (int, int)
+        One view's height and width at the level, pixels.
+    candidates : int
+        Labels per pixel at the level.
+    views : int, default 1
+        1, or 2 with the left-right check.
+    cache : EmbeddingCache, optional
+        Where known embedding sizes and ``auto`` widths are looked up.
+
+    Returns
+    -------
+    LevelEstimate
+        Bundles, variables per bundle, qubits and the total estimated seconds of the level.
+    """
     height, width = shape
     rows = bundle_rows(height, config.bundle_height)
     tallest = max(stop - start for start, stop in rows)
@@ -420,7 +629,24 @@ def job_seconds(
     """Estimate a job before accepting it, from the image ``shape`` (height, width), its
     resolved ``max_disparity``, the pyramid and the solver parameters: nothing is embedded or
     solved. ``cache``: where the actual embeddings of earlier jobs are looked up (the service's
-    shared store)."""
+    shared store).
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The job's configuration.
+    shape : (int, int)
+        Image height and width, pixels.
+    max_disparity : int
+        The resolved maximum disparity, pixels.
+    cache : EmbeddingCache, optional
+        The shared embedding cache; None: assumptions only.
+
+    Returns
+    -------
+    JobEstimate
+        Total seconds and bundles, and one :class:`LevelEstimate` per level.
+    """
     views = 2 if config.lr_check else 1
     levels = [
         level_estimate(
