@@ -52,7 +52,18 @@ WARM_START_COOLING = 30.0
 
 def beta_range(bqm: dimod.BinaryQuadraticModel) -> tuple[float, float]:
     """(hot, cold) inverse temperatures of the Ising form of ``bqm`` (vectorised; see module
-    docstring for why not dwave-samplers' default)."""
+    docstring for why not dwave-samplers' default).
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        The problem, in either vartype (its Ising form is read).
+
+    Returns
+    -------
+    tuple of float
+        ``(hot, cold)`` inverse temperatures, ``cold >= hot``; ``(0.1, 1.0)`` when every bias is 0.
+    """
     linear, (rows, cols, quadratic), *_ = bqm.spin.to_numpy_vectors()
     abs_h, abs_j = np.abs(linear), np.abs(quadratic)
     largest = max(abs_h.max(initial=0.0), abs_j.max(initial=0.0))
@@ -99,6 +110,25 @@ class TunedAnnealer(dimod.Sampler):
         initial_states: Any = None,
         **settings: Any,
     ) -> dimod.SampleSet:
+        """Simulated annealing of ``bqm`` in its Ising form, with the tuned schedule unless
+        ``beta_range="sampler-default"``.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem, BINARY or SPIN.
+        polish : bool, default False
+            Whether to run steepest descent from every read afterwards.
+        initial_states : samples-like, optional
+            Warm start in the BQM's vartype; it also makes the schedule start colder.
+        **settings
+            ``SimulatedAnnealingSampler`` parameters; ``beta_range`` None means :func:`beta_range`.
+
+        Returns
+        -------
+        dimod.SampleSet
+            Reads in the BQM's vartype; info has ``beta_range``, ``polished`` and ``num_reads``.
+        """
         from dwave.samplers import SimulatedAnnealingSampler, SteepestDescentSolver
 
         # The samplers work on the Ising form; converting once here (dimod's C++ routine)
@@ -146,6 +176,27 @@ class SimulatedAnnealing(SolverComposite):
     defaults: dict[str, Any] = {}  # noqa: RUF012
 
     def configure(self, params: dict[str, Any], warm: bool) -> tuple[dict[str, Any], dict]:
+        """The annealer's settings for ``params``: the chosen preset under the given parameters.
+
+        Parameters
+        ----------
+        params : dict
+            The call's ``sa`` parameters, ``preset`` among them.
+        warm : bool
+            Whether the call has a warm start (``warm`` preset unless reads or sweeps are given).
+
+        Returns
+        -------
+        settings : dict
+            Parameters for the child, ``preprocess`` included.
+        report : dict
+            ``{"preset": name}`` for the sample set's info.
+
+        Raises
+        ------
+        SolverError
+            For an unknown preset or preprocess.
+        """
         params = dict(params)
         tuned = {"preset", "num_reads", "num_sweeps"} & set(params)
         preset = params.pop("preset", "warm" if warm and not tuned else "default")

@@ -77,7 +77,19 @@ class Sampler(dimod.Sampler):
         return Availability(True, "always available (CPU)")
 
     def translate(self, error: Exception) -> SolverError | None:
-        """Our error for one the sampler raised (None: let it through unchanged)."""
+        """Our error for one the sampler raised (None: let it through unchanged).
+
+        Parameters
+        ----------
+        error : Exception
+            What the sampler raised.
+
+        Returns
+        -------
+        SolverError or None
+            A ``SolverError`` naming the solver for ``TypeError`` and ``ValueError`` (bad
+            parameters); None for anything else.
+        """
         if isinstance(error, TypeError | ValueError):
             return SolverError(f"{self.name}: invalid parameters: {error}")
         return None
@@ -112,18 +124,70 @@ class Sampler(dimod.Sampler):
         initial_states: Any = None,
         **params: Any,
     ) -> dimod.SampleSet:
-        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype."""
+        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem.
+        seed : int, optional
+            Random seed, passed to :meth:`run`.
+        initial_states : samples-like, optional
+            Warm start; None for a cold start.
+        **params
+            Solver parameters, over :attr:`defaults`.
+
+        Returns
+        -------
+        dimod.SampleSet
+            What :meth:`run` returns.
+        """
         params = {**self.defaults, **params}
         return self.run(bqm, params, seed=seed, initial_states=initial_states)
 
     def run(
         self, bqm: dimod.BinaryQuadraticModel, params: dict[str, Any], *, seed, initial_states
     ) -> dimod.SampleSet:
-        """The sampling itself, with the defaults filled in."""
+        """The sampling itself, with the defaults filled in.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem to sample.
+        params : dict
+            Defaults merged with the call's parameters.
+        seed : int or None
+            The call's seed.
+        initial_states : samples-like or None
+            The call's warm start.
+
+        Returns
+        -------
+        dimod.SampleSet
+            Samples with ``info["timing"]`` in seconds.
+
+        Raises
+        ------
+        NotImplementedError
+            Always here; subclasses implement it.
+        """
         raise NotImplementedError
 
     def solve(self, bqm: dimod.BinaryQuadraticModel, **kwargs: Any) -> SolveResult:
-        """:func:`solve` with this sampler (``seed``, ``initial_state`` and parameters)."""
+        """:func:`solve` with this sampler (``seed``, ``initial_state`` and parameters).
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle's QUBO on the variables 0..n-1.
+        **kwargs
+            ``seed``, ``initial_state`` and solver parameters, as :func:`solve` takes them.
+
+        Returns
+        -------
+        SolveResult
+            The best sample and its timing.
+        """
         return solve(self, bqm, **kwargs)
 
 
@@ -163,7 +227,20 @@ def _plain(value: Any) -> bool:
 
 
 def sample_array(sample: Mapping[Any, Any], num_variables: int) -> np.ndarray:
-    """A sample keyed by the integer variables 0..n-1 as an int8 array in that order."""
+    """A sample keyed by the integer variables 0..n-1 as an int8 array in that order.
+
+    Parameters
+    ----------
+    sample : mapping of int to int
+        Variable -> value (0/1 or -1/+1), over all variables 0..n-1.
+    num_variables : int
+        n, the length of the result.
+
+    Returns
+    -------
+    numpy.ndarray
+        int8 array of shape (n,), indexed by variable.
+    """
     out = np.zeros(num_variables, dtype=np.int8)
     keys = np.fromiter(sample.keys(), dtype=np.int64, count=len(sample))
     out[keys] = np.fromiter(sample.values(), dtype=np.int8, count=len(sample))
@@ -275,12 +352,37 @@ class RowSolver(Protocol):
     vectorise over rows; it raises ``SolverError`` for bundle shapes it cannot solve.
     """
 
-    def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray: ...
+    def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray:
+        """Labels of every row of ``costs`` by this solver.
+
+        Parameters
+        ----------
+        costs : Costs
+            MRF costs of the task's rows: ``unary`` (h, w, K), ``pair_h`` and ``pair_v``.
+        bundle_height : int
+            Rows per bundle the configuration asks for.
+
+        Returns
+        -------
+        numpy.ndarray
+            Label index per pixel, shape (h, w).
+        """
 
 
 def uses_warm_start(config: MatchConfig) -> bool:
     """Whether ``config``'s bundles are warm-started: ``solver_params["warm_start"]`` (kept for
-    old clients) or ``MatchConfig.warm_start`` when given, else the solver's default."""
+    old clients) or ``MatchConfig.warm_start`` when given, else the solver's default.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration (its solver, ``solver_params`` and ``warm_start``).
+
+    Returns
+    -------
+    bool
+        True when every level after the coarsest starts from the coarser estimate.
+    """
     if "warm_start" in config.solver_params:
         return bool(config.solver_params["warm_start"])
     if config.warm_start is not None:

@@ -65,13 +65,46 @@ class SolverComposite(Sampler, dimod.ComposedSampler):
 
     def configure(self, params: dict[str, Any], warm: bool) -> tuple[dict[str, Any], dict]:
         """The child's parameters for a call with ``params`` (defaults filled in; with a warm
-        start or not), and what to report about that choice in the sample set's info."""
+        start or not), and what to report about that choice in the sample set's info.
+
+        Parameters
+        ----------
+        params : dict
+            Parameters of the call, defaults filled in.
+        warm : bool
+            Whether the call has a warm start the child takes.
+
+        Returns
+        -------
+        settings : dict
+            The child's parameters (``warm_overrides`` applied when warm).
+        report : dict
+            Extra info for the sample set (empty here).
+        """
         settings = dict(params)
         if warm:
             settings.update(self.warm_overrides)
         return settings, {}
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
+        """Sample ``bqm`` with the child: seed and warm start passed when the child takes them.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle's QUBO.
+        params : dict
+            Solver parameters with the defaults, for :meth:`configure`.
+        seed : int or None
+            Passed when the child has a ``seed`` parameter.
+        initial_states : samples-like or None
+            Warm start; tiled over the reads when the child has ``initial_states_generator``.
+
+        Returns
+        -------
+        dimod.SampleSet
+            The child's samples, info with ``num_reads`` and ``warm_start``.
+        """
         child = self._child.parameters
         warm = initial_states is not None and "initial_states" in child
         settings, report = self.configure(params, warm)
@@ -174,6 +207,29 @@ class RoofDualityComposite(dimod.ComposedSampler):
         initial_states: Any = None,
         **params: Any,
     ) -> dimod.SampleSet:
+        """Fix what roof duality proves, sample the rest with the child and complete every sample.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            BINARY BQM on the variables 0..n-1.
+        preprocess : str, default "roof-duality"
+            ``"roof-duality"`` or ``"none"``.
+        initial_states : samples-like, optional
+            Warm start over all n variables; its free columns go to the child.
+        **params
+            The child's parameters.
+
+        Returns
+        -------
+        dimod.SampleSet
+            BINARY samples on 0..n-1; info has ``preprocess`` and ``fixed_fraction``.
+
+        Raises
+        ------
+        SolverError
+            For an unknown ``preprocess``.
+        """
         if preprocess not in PREPROCESSORS:
             raise SolverError(
                 f"unknown preprocess {preprocess!r}; choose from {', '.join(PREPROCESSORS)}"
@@ -256,10 +312,35 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
 
     def embedding(self, bqm: dimod.BinaryQuadraticModel) -> tuple[dict, str, str]:
         """(embedding, where it came from, cache key) of ``bqm``'s structure. Seed 0, not the
-        bundle's: the embedding depends on the structure only, whichever worker finds it."""
+        bundle's: the embedding depends on the structure only, whichever worker finds it.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle; only its structure is looked up.
+
+        Returns
+        -------
+        tuple
+            ``(embedding, source, key)`` of :meth:`EmbeddingCache.lookup`.
+        """
         return self.cache.lookup(bqm, self._child.edgelist, self.target, seed=0, solver=self.solver)
 
     def sample(self, bqm: dimod.BinaryQuadraticModel, **params: Any) -> dimod.SampleSet:
+        """Sample ``bqm`` on the child through the cached embedding of its structure.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle's QUBO.
+        **params
+            Parameters of ``FixedEmbeddingComposite`` and the child (``chain_strength``, ...).
+
+        Returns
+        -------
+        dimod.SampleSet
+            Unembedded samples; info has the :data:`EMBEDDING_INFO` fields.
+        """
         from dwave.system import FixedEmbeddingComposite
 
         from shared.solvers.embedding_cache import EmbeddingSize
