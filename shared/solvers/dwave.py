@@ -53,7 +53,18 @@ TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION
 
 
 def chain_strength(bqm: dimod.BinaryQuadraticModel) -> float:
-    """Uniform torque compensation with prefactor 1.414 (Ocean's default rule, paper's value)."""
+    """Uniform torque compensation with prefactor 1.414 (Ocean's default rule, paper's value).
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        The logical problem before embedding.
+
+    Returns
+    -------
+    float
+        Chain coupling strength, in the units of the BQM's biases.
+    """
     from dwave.embedding.chain_strength import uniform_torque_compensation
 
     return float(uniform_torque_compensation(bqm, prefactor=CHAIN_STRENGTH_PREFACTOR))
@@ -81,7 +92,13 @@ class _TokenScrubber(logging.Filter):
 
 def scrub_cloud_logs(secret: str) -> None:
     """Put a :class:`_TokenScrubber` on every ``dwave.cloud`` logger (a filter on a parent logger
-    does not see its children's records, so each one gets its own)."""
+    does not see its children's records, so each one gets its own).
+
+    Parameters
+    ----------
+    secret : str
+        The API token to mask as ``***``; a logger that already has a filter for it gets no other.
+    """
     names = [n for n in list(logging.root.manager.loggerDict) if n.startswith("dwave.cloud.")]
     for name in ["dwave.cloud", *names]:
         logger = logging.getLogger(name)

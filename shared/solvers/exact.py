@@ -25,6 +25,16 @@ def solve_chains(costs: Costs) -> np.ndarray:
 
     Vertical edges are ignored, so this is the exact MAP only for single-row bundles; callers
     must not use it for taller bundles (see :meth:`ExactSolver.check_bundle_height`).
+
+    Parameters
+    ----------
+    costs : Costs
+        ``unary`` (h, w, K) and ``pair_h`` (h, w - 1, K, K); ``pair_v`` is not read.
+
+    Returns
+    -------
+    numpy.ndarray
+        int32 label indices of shape (h, w), the minimum-cost labelling of each row.
     """
     unary, pair = costs.unary, costs.pair_h
     height, width, labels = unary.shape
@@ -57,6 +67,18 @@ class ExactSolver(Sampler):
 
     @staticmethod
     def check_bundle_height(bundle_height: int) -> None:
+        """Refuse bundles taller than one row, for which the row DP is not exact.
+
+        Parameters
+        ----------
+        bundle_height : int
+            The configured rows per bundle.
+
+        Raises
+        ------
+        SolverError
+            Unless ``bundle_height`` is 1.
+        """
         if bundle_height != 1:
             raise SolverError(
                 f"the exact solver is exact only for single-row bundles (bundle height 1), "
@@ -65,11 +87,52 @@ class ExactSolver(Sampler):
             )
 
     def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray:
-        """Exact labels of every row of ``costs`` (single-row bundles only)."""
+        """Exact labels of every row of ``costs`` (single-row bundles only).
+
+        Parameters
+        ----------
+        costs : Costs
+            MRF costs of the rows (unary (h, w, K), horizontal pair costs).
+        bundle_height : int
+            Must be 1.
+
+        Returns
+        -------
+        numpy.ndarray
+            Optimal labels, (h, w) int32 (:func:`solve_chains`).
+
+        Raises
+        ------
+        SolverError
+            For a bundle height other than 1.
+        """
         self.check_bundle_height(bundle_height)
         return solve_chains(costs)
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
+        """Brute-force minimum of a small generic BQM (dimod's ``ExactSolver``).
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            At most :data:`BRUTE_FORCE_LIMIT` variables.
+        params : dict
+            Ignored (``exact`` takes none).
+        seed : int or None
+            Ignored: enumeration is deterministic.
+        initial_states : samples-like or None
+            Ignored.
+
+        Returns
+        -------
+        dimod.SampleSet
+            The lowest-energy state(s).
+
+        Raises
+        ------
+        SolverError
+            When the BQM is too large to enumerate.
+        """
         if bqm.num_variables > BRUTE_FORCE_LIMIT:
             raise SolverError(
                 f"exact solves a generic BQM by enumeration only up to {BRUTE_FORCE_LIMIT} "

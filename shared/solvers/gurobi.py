@@ -40,7 +40,18 @@ LICENCE_HELP = (
 
 
 def licence_kind(settings: Settings) -> str:
-    """``"wls"``, ``"file"`` or ``"pip"`` (the size-limited licence bundled with gurobipy)."""
+    """``"wls"``, ``"file"`` or ``"pip"`` (the size-limited licence bundled with gurobipy).
+
+    Parameters
+    ----------
+    settings : Settings
+        Application settings (the ``grb_*`` licence fields).
+
+    Returns
+    -------
+    str
+        ``"wls"`` when all three WLS fields are set, ``"file"`` with a licence file, else ``"pip"``.
+    """
     if settings.grb_wls_access_id and settings.grb_wls_secret and settings.grb_license_id:
         return "wls"
     if settings.grb_license_file is not None:
@@ -101,6 +112,32 @@ class GurobiSampler(Sampler, dimod.Initialized):
         )
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
+        """Minimise the BQM as a binary MIQP (objective scaled to :data:`OBJECTIVE_SCALE`).
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle's QUBO (a SPIN BQM is converted).
+        params : dict
+            ``time_limit`` (seconds), ``mip_gap``, ``threads`` or raw Gurobi parameter names.
+        seed : int or None
+            Gurobi's ``Seed`` (taken modulo 2e9).
+        initial_states : samples-like or None
+            Its first state is the MIP start.
+
+        Returns
+        -------
+        dimod.SampleSet
+            One sample; info has the status, ``optimal``, ``mip_gap``, ``bound``, ``licence``
+            and the solver time in seconds.
+
+        Raises
+        ------
+        TransientSolverError
+            When Gurobi stops without any solution.
+        SolverError
+            For Gurobi errors (``SolverUnavailable`` without a valid licence).
+        """
         import gurobipy as gp
         import scipy.sparse as sp
 

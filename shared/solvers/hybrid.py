@@ -34,6 +34,29 @@ class LeapHybridSolver(QPUSolver):
         return self._connect(LeapHybridSampler)
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
+        """Send the BQM to Leap's hybrid solver and convert its timing to seconds.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem; refused before upload when above the solver's variable limit.
+        params : dict
+            ``LeapHybridSampler`` parameters (``time_limit``, seconds).
+        seed : int or None
+            Ignored: Leap takes no seed.
+        initial_states : samples-like or None
+            Ignored; reported as ``warm_start_ignored``.
+
+        Returns
+        -------
+        dimod.SampleSet
+            Leap's samples; info has ``timing`` (seconds) and ``qpu_access_time``.
+
+        Raises
+        ------
+        SolverError
+            When the problem has too many variables for the solver.
+        """
         with self._lock:
             if self._sampler is None:
                 self._sampler = self._make_sampler()
@@ -88,6 +111,24 @@ class KerberosSolver(Sampler):
         return Availability(True, "offline simulator (dwave-hybrid Kerberos, MockDWaveSampler)")
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
+        """Run Kerberos offline with the mock QPU; the charge is Leap's minimum for the size.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem.
+        params : dict
+            Kerberos parameters (``max_iter``, ``max_time``, ...).
+        seed : int or None
+            Seeds numpy's global RNG, which dwave-hybrid draws from.
+        initial_states : samples-like or None
+            Kerberos' initial sample (the first state).
+
+        Returns
+        -------
+        dimod.SampleSet
+            Kerberos' result; info has a simulated ``timing`` (``charge_time``, ``run_time``).
+        """
         from hybrid.reference.kerberos import KerberosSampler
 
         from shared.solvers.qpu_time import hybrid_charge_seconds

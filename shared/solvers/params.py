@@ -221,7 +221,18 @@ class InvalidSolverParams(ValueError):
 
 
 def allowed(model: type[BaseModel]) -> str:
-    """The model's parameters with their ranges, e.g. ``num_reads (int, 1..1000)``."""
+    """The model's parameters with their ranges, e.g. ``num_reads (int, 1..1000)``.
+
+    Parameters
+    ----------
+    model : type of pydantic.BaseModel
+        A solver's parameter schema.
+
+    Returns
+    -------
+    str
+        Comma-separated ``name (type, low..high)``; the range only when both bounds are declared.
+    """
     parts = []
     for name, field in model.model_fields.items():
         low = high = None
@@ -251,6 +262,25 @@ def check(model: type[SolverParams], solver: str, params: dict[str, Any]) -> dic
     """``params`` validated against ``model``: the parameters as given, with coerced types.
 
     Raises :class:`InvalidSolverParams` naming each bad parameter and the allowed ranges.
+
+    Parameters
+    ----------
+    model : type of SolverParams
+        The solver's schema.
+    solver : str
+        Solver name, for the message.
+    params : dict
+        ``solver_params`` as given.
+
+    Returns
+    -------
+    dict
+        The given parameters only, JSON-typed after validation.
+
+    Raises
+    ------
+    InvalidSolverParams
+        When a parameter is unknown or out of range.
     """
     try:
         parsed = model.model_validate(params)

@@ -287,24 +287,80 @@ def get_solver(name: str) -> Any:
 
 
 def params_schema(name: str) -> type[schemas.SolverParams]:
-    """The pydantic model bounding ``name``'s ``solver_params``."""
+    """The pydantic model bounding ``name``'s ``solver_params``.
+
+    Parameters
+    ----------
+    name : str
+        A registered name or ``dimod:PACKAGE.MODULE.CLASS``.
+
+    Returns
+    -------
+    type of SolverParams
+        The record's schema.
+
+    Raises
+    ------
+    UnknownSolver
+        From :func:`spec`, for a name that is neither registered nor a loadable ``dimod:`` class.
+    """
     return spec(name).params
 
 
 def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
-    """``params`` checked against the solver's schema (``InvalidSolverParams`` says why not)."""
+    """``params`` checked against the solver's schema (``InvalidSolverParams`` says why not).
+
+    Parameters
+    ----------
+    name : str
+        Solver name whose schema applies.
+    params : dict
+        The job's ``solver_params``.
+
+    Returns
+    -------
+    dict
+        The parameters as :func:`shared.solvers.params.check` returns them.
+
+    Raises
+    ------
+    InvalidSolverParams
+        When they do not fit the schema.
+    """
     return schemas.check(params_schema(name), name, params)
 
 
 def recommended_encoding(name: str) -> str | None:
     """The label encoding to use with ``name`` when none is asked for (``qhsm bench``); None:
-    no preference (the preset decides)."""
+    no preference (the preset decides).
+
+    Parameters
+    ----------
+    name : str
+        Solver name.
+
+    Returns
+    -------
+    str or None
+        The record's ``encoding``.
+    """
     return spec(name).encoding
 
 
 def queue_of(name: str) -> str:
     """The Celery queue the bundles of solver ``name`` go to: the record's ``queue``, else the
-    name itself (``name``: registered, or ``dimod:``; returns a str)."""
+    name itself (``name``: registered, or ``dimod:``; returns a str).
+
+    Parameters
+    ----------
+    name : str
+        Solver whose bundles are queued.
+
+    Returns
+    -------
+    str
+        The Celery queue name.
+    """
     return spec(name).queue_name
 
 
