@@ -38,6 +38,24 @@ AUTO_ENCODING = "auto"
 
 
 def cmd_match(args: argparse.Namespace) -> int:
+    """``qhsm match``: run the pipeline on a stereo pair in this process and save the disparity map.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The ``match`` options: ``left``, ``right``, ``output`` (.pfm, .png or .npy), the
+        ``MatchConfig`` options, ``preview``, ``json`` and ``processes``.
+
+    Returns
+    -------
+    int
+        0 on success.
+
+    Raises
+    ------
+    CommandError
+        When the solver is not available here or the output suffix is not supported.
+    """
     from shared.images import load_pair, preview_png, save_disparity
     from shared.pipeline import run_pipeline
     from shared.solve import ProcessPoolLevelSolver, bundle_width_setting
@@ -75,6 +93,19 @@ def cmd_match(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    """``qhsm eval``: print a disparity map's RMSE and bad-pixel percentage against ground truth.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``disparity``, ``ground_truth``, ``scale`` (stored value per pixel of disparity),
+        ``border`` (ignored frame, pixels) and ``mask``.
+
+    Returns
+    -------
+    int
+        0; the scores go to stdout as JSON.
+    """
     from shared.images import load_disparity, load_disparity_values, load_mask
     from shared.metrics import evaluate
 
@@ -87,6 +118,18 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_solvers(args: argparse.Namespace) -> int:
+    """``qhsm solvers``: list every registered solver and whether it can run here.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Its ``json`` switch selects JSON rows over a table.
+
+    Returns
+    -------
+    int
+        0 (unavailable solvers are listed, not an error).
+    """
     from shared.solvers import get_solver, solver_names
 
     rows = []
@@ -112,6 +155,19 @@ def cmd_solvers(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    """``qhsm bench``: run the selected experiments on a dataset folder and write the results.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The ``bench`` options (dataset, scenes, solvers, experiments, encoding, ``--param``, ...),
+        turned into ``BenchOptions``.
+
+    Returns
+    -------
+    int
+        0 once ``results.md`` and ``results.json`` are written under ``--out``.
+    """
     from shared.bench import BenchOptions, parse_solver_params, run_bench, split_names
 
     options = BenchOptions(
@@ -137,6 +193,23 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_datasets_fetch(args: argparse.Namespace) -> int:
+    """``qhsm datasets fetch``: download a Middlebury set, checking the files' checksums.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``name`` of the set, target ``directory``, optional ``scenes`` and ``mirror``.
+
+    Returns
+    -------
+    int
+        0; files without a known checksum are reported on stderr.
+
+    Raises
+    ------
+    CommandError
+        When the download fails to connect.
+    """
     from shared.bench import split_names
     from shared.config import get_settings
     from shared.datasets import fetch
@@ -163,6 +236,18 @@ def cmd_datasets_fetch(args: argparse.Namespace) -> int:
 
 
 def cmd_datasets_list(args: argparse.Namespace) -> int:
+    """``qhsm datasets list``: show the scenes in a folder and their evaluation protocol.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``directory`` of scene folders and the ``json`` switch.
+
+    Returns
+    -------
+    int
+        0.
+    """
     from shared.datasets import find_scenes
 
     scenes = find_scenes(args.directory)
@@ -286,6 +371,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the command line and run its command; expected errors become a message on stderr.
+
+    Parameters
+    ----------
+    argv : sequence of str, optional
+        Arguments after the program name; None reads ``sys.argv``.
+
+    Returns
+    -------
+    int
+        The command's exit status, or ``EXIT_FAILED`` (1) after a reported error.
+    """
     from shared.images import ImageError
     from shared.solvers import SolverError, UnknownSolver
 

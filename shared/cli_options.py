@@ -86,6 +86,23 @@ def field_help(model: type[BaseModel], name: str, text: str = "") -> str:
 
 
 def int_or_auto(text: str) -> int | str:
+    """argparse ``type`` of options that take ``auto`` or a whole number.
+
+    Parameters
+    ----------
+    text : str
+        The option's value as typed.
+
+    Returns
+    -------
+    int or str
+        The integer, or ``"auto"``.
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        For anything else (argparse reports it as a usage error).
+    """
     if text == AUTO:
         return AUTO
     try:
@@ -212,12 +229,26 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
 
 
 def add_json_option(parser: argparse.ArgumentParser, what: str = "the result") -> None:
-    """``--json``: print ``what`` as JSON (every command that has it says the same)."""
+    """``--json``: print ``what`` as JSON (every command that has it says the same).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    what : str, default "the result"
+        What the command prints, for the help text.
+    """
     parser.add_argument("--json", action="store_true", help=f"print {what} as JSON")
 
 
 def add_processes_option(parser: argparse.ArgumentParser) -> None:
-    """``--processes``: local processes that solve the bundles (``qhsm match`` and ``bench``)."""
+    """``--processes``: local processes that solve the bundles (``qhsm match`` and ``bench``).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The parser that receives ``--processes`` (int, default 0: one per core).
+    """
     parser.add_argument(
         "--processes",
         type=int,
@@ -252,7 +283,13 @@ MATCH_OPTIONS = (
 def add_match_options(parser: argparse.ArgumentParser) -> None:
     """Options that map onto ``MatchConfig`` (shared with ``qhsm submit``), built from its
     fields. Every default is ``None`` here: an option not given is left to the preset and
-    ``MatchConfig``."""
+    ``MatchConfig``.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The parser that receives one option per :data:`MATCH_OPTIONS` field, and ``--param``.
+    """
     for name in MATCH_OPTIONS:
         model_option(parser, MatchConfig, name)
     parser.add_argument(
@@ -275,6 +312,24 @@ def _parse_param(text: str) -> tuple[str, object]:
 
 
 def config_from_args(args: argparse.Namespace) -> MatchConfig:
+    """The run's ``MatchConfig`` from the parsed ``MatchConfig`` options.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The command line as parsed; its :data:`MATCH_OPTIONS` attributes and ``param`` are
+        read (via :func:`match_params`).
+
+    Returns
+    -------
+    MatchConfig
+        The preset's values under the given options.
+
+    Raises
+    ------
+    CommandError
+        When the options do not make a valid configuration (the message names each field).
+    """
     from pydantic import ValidationError
 
     try:
@@ -285,7 +340,23 @@ def config_from_args(args: argparse.Namespace) -> MatchConfig:
 
 def match_params(args: argparse.Namespace) -> dict:
     """The ``MatchConfig`` options given on the command line (the rest keep their defaults):
-    what ``qhsm submit`` sends as the job's ``params``."""
+    what ``qhsm submit`` sends as the job's ``params``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed options of a parser built with :func:`add_match_options`.
+
+    Returns
+    -------
+    dict
+        Field -> value of the options given; ``--param`` values under ``solver_params``.
+
+    Raises
+    ------
+    CommandError
+        For a ``--param`` that is not ``KEY=VALUE``.
+    """
     params = {
         name: getattr(args, name) for name in MATCH_OPTIONS if getattr(args, name) is not None
     }

@@ -110,12 +110,14 @@ class DirectoryStore:
         Parameters
         ----------
         key : str
-            File stem under the store's directory.
+            File stem under the store's directory (a structure, ``size-``, ``width-`` or
+            ``nofit-`` key).
 
         Returns
         -------
         str or None
-            The file's contents; None when the file does not exist.
+            The file's contents (read as text); None when the file does not exist, i.e.
+            no process has stored ``key`` yet.
         """
         path = self.directory / f"{key}.json"
         try:
