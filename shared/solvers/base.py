@@ -367,6 +367,7 @@ class RowSolver(Protocol):
         numpy.ndarray
             Label index per pixel, shape (h, w).
         """
+        ...
 
 
 def uses_warm_start(config: MatchConfig) -> bool:

@@ -84,6 +84,7 @@ class EmbeddingStore(Protocol):
         str or None
             The stored JSON text, None when nothing is stored under the key.
         """
+        ...
 
     def set(self, key: str, value: str) -> None:
         """Store ``value`` under ``key``, replacing any earlier value.
@@ -95,6 +96,7 @@ class EmbeddingStore(Protocol):
         value : str
             JSON text (an embedding, a size, a width or a failure marker).
         """
+        ...
 
 
 class DirectoryStore:
