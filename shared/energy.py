@@ -68,43 +68,39 @@ class Costs:
         )
 
     def rows(self, start: int, stop: int) -> Costs:
-        """The costs of rows [start, stop): edges leaving the block are dropped.
-
-        Parameters
-        ----------
-        start, stop : int
-            The rows to keep.
-
-        Returns
-        -------
-        Costs
-            Views into this object's arrays.
-        """
-        return Costs(
-            candidates=self.candidates[start:stop],
-            unary=self.unary[start:stop],
-            pair_h=self.pair_h[start:stop],
-            pair_v=self.pair_v[start : max(start, stop - 1)],
-        )
+        """The costs of rows [start, stop) (views): :meth:`block` along axis 0."""
+        return self.block(0, start, stop)
 
     def columns(self, start: int, stop: int) -> Costs:
-        """The costs of columns [start, stop): edges leaving the block are dropped.
+        """The costs of columns [start, stop) (views): :meth:`block` along axis 1."""
+        return self.block(1, start, stop)
+
+    def block(self, axis: int, start: int, stop: int) -> Costs:
+        """The costs of pixels [start, stop) along ``axis``: edges leaving the block are dropped.
 
         Parameters
         ----------
+        axis : int
+            0 for a block of rows, 1 for a block of columns.
         start, stop : int
-            The columns to keep.
+            The range kept along ``axis``.
 
         Returns
         -------
         Costs
             Views into this object's arrays.
         """
+        pixels = (slice(None),) * axis + (slice(start, stop),)
+        # the edges along the axis join pixel i to i + 1: the block keeps those with both ends in it
+        inner = (slice(None),) * axis + (slice(start, max(start, stop - 1)),)
+        along, across = (self.pair_v, self.pair_h) if axis == 0 else (self.pair_h, self.pair_v)
+        kept_along, kept_across = along[inner], across[pixels]
+        pair_v, pair_h = (kept_along, kept_across) if axis == 0 else (kept_across, kept_along)
         return Costs(
-            candidates=self.candidates[:, start:stop],
-            unary=self.unary[:, start:stop],
-            pair_h=self.pair_h[:, start : max(start, stop - 1)],
-            pair_v=self.pair_v[:, start:stop],
+            candidates=self.candidates[pixels],
+            unary=self.unary[pixels],
+            pair_h=pair_h,
+            pair_v=pair_v,
         )
 
 

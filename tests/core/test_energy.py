@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from shared.config import LevelConfig, Regularizer
 from shared.energy import level_costs, mrf_energy
@@ -81,3 +83,44 @@ def test_row_energies_are_the_single_row_bundle_energies(random_costs):
     labels = np.random.default_rng(1).integers(0, 3, (4, 7))
     expected = [mrf_energy(costs.rows(r, r + 1), labels[r : r + 1]) for r in range(4)]
     np.testing.assert_allclose(row_energies(costs, labels), expected, rtol=1e-12)
+
+
+@given(
+    shape=st.tuples(st.integers(1, 6), st.integers(1, 6), st.integers(1, 3)),
+    axis=st.sampled_from([0, 1]),
+    data=st.data(),
+)
+def test_a_block_of_costs_keeps_its_pixels_and_the_edges_inside_it(shape, axis, data):
+    """Rows/columns [start, stop): the MRF energy of the block equals the whole MRF's energy
+    restricted to the block's pixels and the edges with both ends in it."""
+    from shared.energy import Costs
+
+    height, width, labels = shape
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**16)))
+    costs = Costs(
+        candidates=np.zeros(shape, dtype=np.int32),
+        unary=rng.random(shape),
+        pair_h=rng.random((height, width - 1, labels, labels)),
+        pair_v=rng.random((height - 1, width, labels, labels)),
+    )
+    size = shape[axis]
+    start = data.draw(st.integers(0, size - 1))
+    stop = data.draw(st.integers(start + 1, size))
+    block = costs.rows(start, stop) if axis == 0 else costs.columns(start, stop)
+    labels_map = rng.integers(0, labels, (height, width))
+    inside = labels_map[start:stop] if axis == 0 else labels_map[:, start:stop]
+    # the same block as a stand-alone MRF: cut the whole map down to it
+    mask = np.zeros((height, width), dtype=bool)
+    if axis == 0:
+        mask[start:stop] = True
+    else:
+        mask[:, start:stop] = True
+    rows, cols = np.nonzero(mask)
+    expected = costs.unary[rows, cols, labels_map[rows, cols]].sum()
+    h_keep = mask[:, :-1] & mask[:, 1:]
+    r, c = np.nonzero(h_keep)
+    expected += costs.pair_h[r, c, labels_map[r, c], labels_map[r, c + 1]].sum()
+    v_keep = mask[:-1] & mask[1:]
+    r, c = np.nonzero(v_keep)
+    expected += costs.pair_v[r, c, labels_map[r, c], labels_map[r + 1, c]].sum()
+    assert mrf_energy(block, inside) == pytest.approx(expected)
