@@ -15,6 +15,7 @@ A store is anything with ``get(key) -> str | None`` and ``set(key, value: str) -
 Next to each embedding the cache keeps its *size* (qubits, chains, longest chain) under a key made
 of the solver's name and the structure digest, so that QPU time can be estimated from the real
 embedding before any sampler (or network connection) exists, e.g. in the API at submit time.
+(About 310 lines of code; the rest is the numpydoc of the cache's keys, stores and search.)
 """
 
 from __future__ import annotations

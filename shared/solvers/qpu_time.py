@@ -35,8 +35,9 @@ Hybrid model: Leap's hybrid BQM solver charges about its run time, which is the 
 use the curve Leap's ``hybrid_binary_quadratic_model_version2`` reports (3 s up to 1024
 variables, 10 s at 4096, 40 s at 10000, ...).
 
-All functions return seconds. (Long because the timing data and the job-level estimate, which
-walks the planned levels and their bundle shapes, belong with the model they feed.)
+All functions return seconds. (About 360 lines of code, the rest numpydoc: the timing data and
+the job-level estimate, which walks the planned levels and their bundle shapes, belong with the
+model they feed.)
 """
 
 from __future__ import annotations
