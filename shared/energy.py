@@ -68,11 +68,31 @@ class Costs:
         )
 
     def rows(self, start: int, stop: int) -> Costs:
-        """The costs of rows [start, stop) (views): :meth:`block` along axis 0."""
+        """The costs of a block of rows (views): :meth:`block` along axis 0.
+
+        Parameters
+        ----------
+        start, stop : int
+            First row kept and the row after the last.
+
+        Returns
+        -------
+        Costs
+        """
         return self.block(0, start, stop)
 
     def columns(self, start: int, stop: int) -> Costs:
-        """The costs of columns [start, stop) (views): :meth:`block` along axis 1."""
+        """The costs of a segment of columns (views): :meth:`block` along axis 1.
+
+        Parameters
+        ----------
+        start, stop : int
+            First column kept and the column after the last.
+
+        Returns
+        -------
+        Costs
+        """
         return self.block(1, start, stop)
 
     def block(self, axis: int, start: int, stop: int) -> Costs:
