@@ -86,12 +86,15 @@ class Costs:
 
         Parameters
         ----------
-        start, stop : int
-            First column kept and the column after the last.
+        start : int
+            First column kept.
+        stop : int
+            One past the last column kept.
 
         Returns
         -------
         Costs
+            The segment's costs; horizontal edges that cross its ends are dropped.
         """
         return self.block(1, start, stop)
 
