@@ -14,7 +14,6 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any, Protocol, runtime_checkable
 
 import dimod
@@ -60,6 +59,26 @@ class TransientSolverError(SolverError):
     """A failure worth retrying later (rate limit, timeout, solver offline)."""
 
 
+def bad_parameters(name: str, error: Exception) -> SolverError | None:
+    """``TypeError`` / ``ValueError`` from a sampler (bad parameters) as a ``SolverError`` naming
+    solver ``name``; None for any other error (it goes through unchanged).
+
+    Parameters
+    ----------
+    name : str
+        The solver's name, for the message.
+    error : Exception
+        What the sampler raised.
+
+    Returns
+    -------
+    SolverError or None
+    """
+    if isinstance(error, TypeError | ValueError):
+        return SolverError(f"{name}: invalid parameters: {error}")
+    return None
+
+
 def _declared(capability: str) -> property:
     """A sampler attribute read from its registry record, where it is declared once."""
     return property(lambda self: getattr(self.spec, capability), doc=f"The registry's {capability}")
@@ -90,9 +109,7 @@ class Sampler(dimod.Sampler):
             A ``SolverError`` naming the solver for ``TypeError`` and ``ValueError`` (bad
             parameters); None for anything else.
         """
-        if isinstance(error, TypeError | ValueError):
-            return SolverError(f"{self.name}: invalid parameters: {error}")
-        return None
+        return bad_parameters(self.name, error)
 
     @property
     def spec(self):
@@ -325,9 +342,9 @@ def solve(
     except Exception as error:  # samplers raise many types; translate what we know
         translate = getattr(sampler, "translate", None)
         if translate is None:  # a plain dimod sampler: only bad parameters are ours to word
-            name = getattr(sampler, "name", type(sampler).__name__)
-            translate = Sampler.translate.__get__(SimpleNamespace(name=name))
-        mapped = translate(error)
+            mapped = bad_parameters(getattr(sampler, "name", type(sampler).__name__), error)
+        else:
+            mapped = translate(error)
         if mapped is None:
             raise
         raise mapped from None

@@ -108,6 +108,12 @@ class SolverComposite(Sampler, dimod.ComposedSampler):
         child = self._child.parameters
         warm = initial_states is not None and "initial_states" in child
         settings, report = self.configure(params, warm)
+        unknown = sorted(set(settings) - set(child))
+        if unknown:  # dimod samplers only warn, and then ignore them: a typo would go unseen
+            raise SolverError(
+                f"{self.name}: unknown parameters {', '.join(unknown)}; it takes "
+                f"{', '.join(sorted(set(child) - {'seed', 'initial_states'}))}"
+            )
         if seed is not None and "seed" in child:
             settings["seed"] = seed
         if warm:

@@ -116,6 +116,15 @@ def test_a_dimod_sampler_by_name_runs_through_the_composites():
     assert result.info["preprocess"] == "roof-duality" and result.info["warm_start"]
 
 
+def test_a_dimod_sampler_refuses_a_parameter_it_does_not_take():
+    """dimod samplers only warn about unknown keywords and ignore them: a typo would go unseen."""
+    bqm = get_codec("domain-wall").encode(stereo_costs(1, 8))
+    with pytest.raises(SolverError, match=r"unknown parameters num_raeds; it takes .*num_reads"):
+        get_solver(SD).solve(bqm, seed=2, num_raeds=5)
+    taken = get_solver(SD).solve(bqm, seed=2, num_reads=3, preprocess="none")
+    assert taken.info["num_reads"] == 3
+
+
 def test_a_dimod_sampler_matches_a_synthetic_scene_in_process():
     pair = make_scene(12, 32, max_disparity=6, seed=2)
     common = {"max_disparity": 6, "seed": 3, "encoding": "domain-wall"}
