@@ -3,8 +3,8 @@
 The class is imported by name and run through the same composites as the built-in samplers:
 :class:`~shared.solvers.composites.SolverComposite` (seed and warm starts when the sampler takes
 them) around :class:`~shared.solvers.composites.RoofDualityComposite`. Its bundles go to the
-``dimod`` Celery queue; its parameters are passed on unchecked (the sampler checks them, the
-task time limits bound them).
+``dimod`` Celery queue; its parameters must be among those the class declares (checked when a
+bundle runs), their values are the sampler's to check, and the task time limits bound them.
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ def dimod_spec(name: str) -> SolverSpec:
     Returns
     -------
     SolverSpec
-        Its factory puts the class inside the composites; its parameters go unchecked to the
-        sampler; its queue is ``dimod``.
+        Its factory puts the class inside the composites; its parameters have no schema (the
+        sampler declares them); its queue is ``dimod``.
     """
     cls = sampler_class(name)
 
