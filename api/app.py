@@ -8,6 +8,8 @@ import logging
 
 import redis
 from fastapi import Depends, FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
@@ -20,6 +22,7 @@ from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
 from workers.app import make_celery
+from workers.records import finite_or_null
 from workers.store import JobStore
 
 log = logging.getLogger("qhsm.api")
@@ -58,6 +61,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.exception_handler(UploadError)
     async def upload_error(request: Request, error: UploadError) -> JSONResponse:
         return JSONResponse({"detail": error.message}, status_code=error.status_code)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, error: RequestValidationError) -> JSONResponse:
+        # FastAPI's own handler echoes the input, which fails to encode when it is Infinity
+        # or NaN (a JSON body may hold them): a 500 instead of the 422
+        detail = finite_or_null(jsonable_encoder(error.errors()))
+        return JSONResponse({"detail": detail}, status_code=422)
 
     @app.exception_handler(redis.ConnectionError)
     @app.exception_handler(redis.TimeoutError)

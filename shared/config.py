@@ -399,7 +399,10 @@ class Settings(BaseSettings):
         True, description="Require `Authorization: Bearer KEY` on /v1 (off: everyone is `local`)"
     )
     default_qpu_seconds: float = Field(
-        60.0, ge=0, description="QPU/hybrid budget of a new user without --qpu-seconds, seconds"
+        60.0,
+        ge=0,
+        allow_inf_nan=False,
+        description="QPU/hybrid budget of a new user without --qpu-seconds, seconds",
     )
     qpu_max_in_flight: int = Field(
         2, ge=1, description="Lab-wide limit on QPU/hybrid problems being solved at once"

@@ -27,6 +27,7 @@ import json
 import logging
 import shutil
 from collections.abc import Callable, Iterable
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -54,8 +55,20 @@ log = logging.getLogger(__name__)
 LEVEL_INPUTS_GRACE = 3600
 
 
+#: Writes a new job and takes a place under its owner's active-job cap, in one script.
+_CREATE = files(__package__).joinpath("create_job.lua").read_text(encoding="utf-8")
+
+
 class LevelInputsMissing(LookupError):
     """The level's inputs are gone (job finished, cancelled or expired)."""
+
+
+class ActiveJobsCap(Exception):
+    """The owner already has ``cap`` jobs queued or running; nothing was written."""
+
+    def __init__(self, owner: str, active: int, cap: int):
+        super().__init__(f"user {owner!r} already has {active} jobs queued or running")
+        self.owner, self.active, self.cap = owner, active, cap
 
 
 def _text(value: bytes | str) -> str:
@@ -80,6 +93,7 @@ class JobStore:
         self.settings = settings
         self.prefix = settings.key_prefix
         self.ttl = settings.result_ttl_seconds
+        self._create = client.register_script(_CREATE)
 
     @classmethod
     def from_settings(cls, settings: Settings) -> JobStore:
@@ -103,22 +117,41 @@ class JobStore:
 
     # records ----------------------------------------------------------------------------------
 
-    def create(self, record: JobRecord, arrays: dict[str, np.ndarray]) -> None:
-        """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record."""
+    def create(
+        self, record: JobRecord, arrays: dict[str, np.ndarray], cap: int | None = None
+    ) -> None:
+        """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record.
+
+        With ``cap``, the owner may have at most that many jobs queued or running: the count
+        and the record's write are one Redis script (:class:`ActiveJobsCap` when full), so
+        simultaneous submits never get past it. Whatever fails on the way (the cap, a full
+        disk, Redis) leaves no upload folder behind."""
         folder = self.job_dir(record.id)
         folder.mkdir(parents=True, exist_ok=False)
-        for name, array in arrays.items():
-            np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
-        with self.redis.pipeline() as pipe:
-            pipe.set(self.key("job", record.id), record.model_dump_json())
-            pipe.zadd(self.key("jobs"), {record.id: record.created_at.timestamp()})
-            pipe.hset(self.key("jobs", "active"), record.id, record.owner or "")
-            if record.owner is not None:
-                pipe.zadd(
-                    self.key("jobs", "owner", record.owner),
-                    {record.id: record.created_at.timestamp()},
-                )
-            pipe.execute()
+        try:
+            for name, array in arrays.items():
+                np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+            owner = record.owner or ""
+            keys = [
+                self.key("job", record.id),
+                self.key("jobs"),
+                self.key("jobs", "active"),
+                self.key("jobs", "owner", owner),
+            ]
+            args = [
+                record.id,
+                owner,
+                record.model_dump_json(),
+                repr(record.created_at.timestamp()),
+                cap or 0,
+                self.key("job", ""),
+            ]
+            active = int(self._create(keys=keys, args=args))
+            if active < 0:
+                raise ActiveJobsCap(owner, -1 - active, cap or 0)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
 
     def load_upload(self, job_id: str, name: str) -> np.ndarray:
         return np.load(self.job_dir(job_id) / f"{name}.npy", allow_pickle=False)
