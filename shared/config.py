@@ -394,6 +394,19 @@ class Settings(BaseSettings):
         "Seconds after the soft limit at which a task that ignores it is killed",
     )
 
+    dimod_samplers: dict[str, dict[str, tuple[float, float]]] = Field(
+        default_factory=dict,
+        description="dimod: sampler classes jobs may name besides the built-in list, each with "
+        'its parameters\' [low, high] bounds (JSON, e.g. {"my_pkg.MySampler": {"num_reads": '
+        "[1, 100]}}); any other class or parameter is refused",
+    )
+    task_memory_limit_mb: int | None = Field(
+        8192,
+        ge=0,
+        description="Address space a worker's pool process may use, MiB (RLIMIT_AS); a task "
+        "that needs more fails its job with a message (0 or None: no limit)",
+    )
+
     # users, API keys and QPU quotas (issue 5)
     auth_enabled: bool = Field(
         True, description="Require `Authorization: Bearer KEY` on /v1 (off: everyone is `local`)"

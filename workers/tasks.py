@@ -29,7 +29,7 @@ from workers.app import (
     task_time_limits,
     terminate_tasks,
 )
-from workers.process import die_with_parent
+from workers.process import die_with_parent, limit_memory
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
 from workers.telemetry import Telemetry
@@ -86,6 +86,7 @@ def install_embedding_store() -> None:
 def _init_process(**_: object) -> None:
     global _store, _meter, _telemetry
     die_with_parent()  # a pool process never outlives its worker (even a SIGKILLed one)
+    limit_memory(settings.task_memory_limit_mb)  # one task cannot take the machine's memory
     _store = None
     _meter = None
     _telemetry = None
@@ -107,6 +108,9 @@ def start_job(self, job_id: str) -> None:
     except (SolverError, ValueError) as error:  # e.g. no segment embeds: say what to change
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
+    except MemoryError:
+        log.warning("job %s: out of memory preparing level 1", job_id)
+        store().fail(job_id, memory_message(0))
     except Exception:
         log.exception("job %s: start failed", job_id)
         store().fail(job_id, orchestration.internal_error(job_id, "starting the job"))
@@ -121,6 +125,9 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
     except SolverError as error:  # preparing the next level's bundles (embedding) failed
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
+    except MemoryError:
+        log.warning("job %s: out of memory assembling level %d", job_id, index + 1)
+        store().fail(job_id, memory_message(index + 1))
     except Exception:
         log.exception("job %s: fan-in of level %d failed", job_id, index)
         store().fail(job_id, orchestration.internal_error(job_id, f"assembling level {index + 1}"))
@@ -151,6 +158,9 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
             telemetry().task_done(queue, time.perf_counter() - started, result["bundles"])
     except SoftTimeLimitExceeded:
         return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
+    except MemoryError:
+        log.warning("job %s: a task of level %d ran out of memory", job_id, index)
+        return _fail(job_id, memory_message(index), task_id)
     except TransientSolverError as error:
         retries = self.request.retries
         if retries < settings.task_retries:
@@ -192,6 +202,15 @@ def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:
         f"a task of level {index + 1} {how} after the time limit of {limit:g} s per task "
         "(QHSM_TASK_SOFT_TIME_LIMIT, per solver QHSM_SOLVER_TIME_LIMITS); use fewer reads or "
         "sweeps, a smaller image, or ask the operator to raise the limit"
+    )
+
+
+def memory_message(index: int) -> str:
+    """What a user reads when one of the job's tasks needed more memory than a process has."""
+    return (
+        f"a task of level {index + 1} needed more memory than the limit of "
+        f"{settings.task_memory_limit_mb} MiB per worker process (QHSM_TASK_MEMORY_LIMIT_MB); "
+        "use fewer reads, smaller bundles or a smaller image, or ask the operator to raise it"
     )
 
 
