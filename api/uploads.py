@@ -227,10 +227,20 @@ def _no_constant(name: str) -> float:
     raise ValueError(f"{name} is not a number this service accepts")
 
 
+#: Longest ``params`` form field: a job's config is kept in its record, rewritten at every step.
+MAX_PARAMS_CHARS = 64 * 1024
+
+
 def parse_config(params: str | None) -> MatchConfig:
     """``params`` JSON (MatchConfig fields, as for ``qhsm match``) -> a validated config."""
     if params is None or not params.strip():
         return MatchConfig()
+    if len(params) > MAX_PARAMS_CHARS:
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"params: {len(params)} characters, above the limit of {MAX_PARAMS_CHARS}; send "
+            "only the MatchConfig fields you change",
+        )
     try:
         raw: Any = json.loads(params, parse_float=_finite_number, parse_constant=_no_constant)
     except json.JSONDecodeError as error:

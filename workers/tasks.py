@@ -220,6 +220,7 @@ def _fail(job_id: str, message: str, task_id: str | None = None) -> dict:
     record = store().get(job_id)
     solver = record.config.solver if record else "?"
     full = f"solver {solver!r} failed: {message}"
+    log.warning("job %s failed: %s", job_id, full)  # in full: the record keeps a bounded text
     if store().fail(job_id, full):
         others = [other for other in store().running_tasks(job_id) if other != task_id]
         terminate_tasks(app, others, solver)

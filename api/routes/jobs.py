@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 from typing import Annotated, Literal
 
@@ -294,8 +295,13 @@ def create_job(
         svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
     except ActiveJobsCap as full:
         raise too_many_jobs(principal.name, full.active, full.cap) from None
-    keep_views(svc, record.id, arrays)
-    svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    try:
+        keep_views(svc, record.id, arrays)
+        svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    except BaseException:  # a full disk or Redis gone: the job was never queued
+        with contextlib.suppress(Exception):
+            svc.store.discard(record.id)
+        raise
     body = JobCreated(id=record.id, state=record.state, links=links(record.id))
     return JSONResponse(
         body.model_dump(mode="json"),
