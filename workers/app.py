@@ -24,6 +24,8 @@ log = logging.getLogger(__name__)
 
 #: Task names (the API sends tasks by name so it never imports solver code).
 START_JOB = "qhsm.start_job"
+PLAN_LEVEL = "qhsm.plan_level"
+FAN_OUT_LEVEL = "qhsm.fan_out_level"
 SOLVE_ROWS = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
 

@@ -22,7 +22,9 @@ from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
 from workers import orchestration, watchdog
 from workers.app import (
+    FAN_OUT_LEVEL,
     LEVEL_DONE,
+    PLAN_LEVEL,
     SOLVE_ROWS,
     START_JOB,
     app,
@@ -141,6 +143,48 @@ class SolverTask(Task):
             job_id, index = args[0], args[1]
             store().task_ended(job_id, task_id)
             _fail(job_id, time_limit_message(job_id, index, hard=True))
+
+
+@app.task(name=PLAN_LEVEL, bind=True, base=SolverTask, ignore_result=True)
+def plan_level(self, job_id: str, index: int) -> None:
+    """On the solver's queue (where the D-Wave token is): the level's bundle plan."""
+    try:
+        orchestration.plan_level(store(), job_id, index)
+    except SoftTimeLimitExceeded:
+        _fail(job_id, time_limit_message(job_id, index, hard=False))
+    except TransientSolverError as error:  # the QPU's graph could not be fetched
+        retries = self.request.retries
+        if retries < settings.task_retries:
+            delay = orchestration.retry_delay(settings, retries)
+            log.warning("job %s: planning: %s; retry in %.1f s", job_id, error, delay)
+            raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
+        _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+    except SolverError as error:  # e.g. no segment embeds, or no token here: what to change
+        _fail(job_id, str(error))
+    except (LevelInputsMissing, orchestration.JobGone):
+        return
+    except REDIS_DOWN as error:  # the watchdog re-sends the plan when Redis is back
+        log.warning("job %s: Redis unavailable planning level %d: %s", job_id, index, error)
+        raise
+    except MemoryError:
+        _fail(job_id, memory_message(index))
+    except Exception:
+        log.exception("job %s: planning level %d failed", job_id, index)
+        _fail(job_id, orchestration.internal_error(job_id, f"planning level {index + 1}"))
+
+
+@app.task(name=FAN_OUT_LEVEL, bind=True, ignore_result=True)
+def fan_out_level(self, job_id: str, index: int) -> None:
+    """On the control queue, after ``plan_level``: the level's chord."""
+    try:
+        orchestration.fan_out_level(app, store(), job_id, index)
+    except REDIS_DOWN as error:
+        log.warning("job %s: Redis unavailable fanning out level %d: %s", job_id, index, error)
+    except LevelInputsMissing:
+        return
+    except Exception:
+        log.exception("job %s: fan-out of level %d failed", job_id, index)
+        store().fail(job_id, orchestration.internal_error(job_id, f"starting level {index + 1}"))
 
 
 @app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)

@@ -27,7 +27,7 @@ from celery import Celery
 
 from shared.bundles import bundle_key
 from workers import orchestration
-from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB
+from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, START_JOB
 from workers.records import JobRecord, JobState
 from workers.store import JobStore
 from workers.telemetry import Telemetry
@@ -161,6 +161,13 @@ class Watchdog:
         settings = self.store.settings
         config = record.config
         inputs, _ = self.store.load_level(record.id, index)
+        if not orchestration.is_planned(inputs):  # its plan task (solver queue) was lost
+            if self.planning(record.id, index):
+                return "in-flight"
+            log.warning("job %s: re-sending the plan of level %d", record.id, index + 1)
+            orchestration.send_plan(self.celery, settings, record.id, index, config.solver)
+            self.telemetry.resent(1)
+            return "resent"
         solved = self.store.solved_rows(record.id, index)
         expected = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
         missing = [b for b in expected if bundle_key(b) not in solved]
@@ -233,6 +240,21 @@ class Watchdog:
                     if task.get("name") == SOLVE_ROWS and args[:2] == [job_id, index]:
                         rows.update(bundle_key(spec) for spec in args[2])
         return rows
+
+    def planning(self, job_id: str, index: int) -> bool:
+        """Whether a live worker is planning (or holds the plan task of) the job's level."""
+        try:
+            inspect = self.celery.control.inspect(timeout=self.store.settings.inspect_timeout)
+            replies = [inspect.active() or {}, inspect.reserved() or {}]
+        except Exception as error:
+            log.warning("watchdog: cannot ask the workers what they run: %s", error)
+            return True  # unknown: leave it alone this time
+        return any(
+            task.get("name") == PLAN_LEVEL and (task.get("args") or [])[:2] == [job_id, index]
+            for reply in replies
+            for tasks in reply.values()
+            for task in tasks
+        )
 
     def consumed_queues(self) -> set[str] | None:
         """Queues some live worker consumes (None when the workers cannot be asked)."""
