@@ -351,6 +351,16 @@ class Settings(BaseSettings):
         "A running job whose progress has not moved this long gets its unsolved "
         "bundles re-sent by the watchdog (seconds; tasks are idempotent)",
     )
+    watchdog_lost_seconds: float = seconds_field(
+        30.0,
+        "An active job (queued or running) without progress this long, none of whose tasks "
+        "is in any queue or held by a live worker, has its work sent again (seconds)",
+    )
+    worker_heartbeat_seconds: float = seconds_field(
+        2.0,
+        "How often a worker says it is alive and which messages it holds; one silent for 5 "
+        "of them is dead and what it held is put back in its queues (seconds)",
+    )
     watchdog_max_resends: int = Field(
         3, ge=1, description="Re-sends without progress after which the watchdog fails the job"
     )

@@ -89,6 +89,10 @@ def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) ->
     include = ["workers.tasks"] if with_tasks else []
     celery = Celery("qhsm", include=include)
     celery.conf.update(celery_config(settings))
+    if with_tasks:  # a worker: heartbeats with the messages it holds (workers/liveness.py)
+        from workers import liveness
+
+        liveness.install(celery)
     return celery
 
 

@@ -138,10 +138,18 @@ def decode_bundle(data: dict, width: int) -> BundleResult:
 
 
 def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
-    """Begin a queued job: its first level's chord."""
-    record = store.transition(job_id, JobState.RUNNING, {JobState.QUEUED}, started_at=now())
-    if record is None:
-        log.info("job %s: not queued any more (cancelled or gone); nothing to start", job_id)
+    """Begin a queued job: its first level's chord. A start whose worker died before it
+    launched the first level (the job is running, at level 0) is carried out again when its
+    message comes back."""
+
+    def begin(current: JobRecord) -> JobRecord | None:
+        if current.state is not JobState.QUEUED:
+            return None
+        return current.model_copy(update={"state": JobState.RUNNING, "started_at": now()})
+
+    record = store.update(job_id, begin)
+    if record is None or record.state is not JobState.RUNNING or record.level or record.levels:
+        log.info("job %s: not queued any more (cancelled, gone or started); nothing to do", job_id)
         return
     left, right = job_views(store, record)
     first = job_plans(record)[0]
