@@ -180,7 +180,8 @@ def test_a_live_workers_long_task_is_never_sent_again(stack):
     assert status["state"] == "succeeded", status
     store = JobStore.from_settings(settings)
     assert resend_count(store) == 0
-    solved = store.redis.hget(Telemetry(store.redis, settings.key_prefix).key("bundles"), "fake-slow")
+    counted = Telemetry(store.redis, settings.key_prefix).key("bundles")
+    solved = store.redis.hget(counted, "fake-slow")
     assert int(solved) == SCENE.left.shape[0]  # every row once, none twice
 
 
