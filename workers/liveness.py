@@ -1,4 +1,5 @@
-"""Worker liveness, and the messages a dead worker held put back in their queues.
+"""Worker liveness, and the messages a dead worker held put back in their queues; the heartbeat
+also makes a worker consume the user queues of its solver queues (``workers/fair.py``).
 
 With ``acks_late`` a task's message stays in the broker's ``unacked`` hash until the task ends,
 and Redis would hand it out again only after the 6-hour visibility timeout. So every worker's
@@ -33,6 +34,7 @@ from celery import Celery, bootsteps, signals
 from celery.worker import state
 
 from shared.config import Settings
+from workers import fair
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +118,8 @@ class Heartbeat(bootsteps.StartStopStep):
             self.timer_ref = None
 
     def beat(self, parent: Any) -> None:
-        """Say we are alive and what we hold; a Redis outage only skips a beat."""
+        """Say we are alive and what we hold, and consume the user queues of our solver
+        queues that appeared since (``workers/fair.py``); a Redis outage only skips a beat."""
         if self.client is None:
             return
         prefix = self.settings.key_prefix
@@ -127,8 +130,23 @@ class Heartbeat(bootsteps.StartStopStep):
                 pipe.set(instance_key(prefix, self.instance), record, px=int(ttl * 1000))
                 pipe.sadd(workers_key(prefix), self.instance)
                 pipe.execute()
+            self.follow_user_queues(parent)
         except redis.RedisError as error:
             log.warning("heartbeat not written (Redis unavailable): %s", error)
+
+    def follow_user_queues(self, parent: Any) -> None:
+        """Consume every user queue of the solver queues this worker consumes."""
+        consumer = getattr(parent, "task_consumer", None)
+        if consumer is None or self.client is None:
+            return
+        consumed = {queue.name for queue in consumer.queues}
+        bases = {name for name in consumed if fair.SEPARATOR not in name}
+        bases.discard(self.settings.control_queue)
+        for base in sorted(bases):
+            for name in fair.user_queues(self.client, self.settings.key_prefix, base):
+                if name not in consumed:
+                    parent.add_task_queue(name)
+                    log.info("consuming %s (a user queue of %s)", name, base)
 
 
 def install(celery: Celery) -> None:

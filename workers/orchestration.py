@@ -39,6 +39,7 @@ from shared.pyramid import LevelPlan
 from shared.solve import level_bundles, plans_with_solver, solve_bundles
 from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
+from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, now
@@ -225,7 +226,7 @@ def _fan_out_planned(
     chunks = task_chunks(inputs, config, rows_per_task(store.settings, config.solver))
     total = sum(len(chunk) for chunk in chunks)
     if _advance(store, job_id, inputs.index, total, launched_here=launched_here):
-        fan_out(celery, store.settings, job_id, inputs.index, config.solver, chunks)
+        fan_out(celery, store, record, inputs.index, chunks)
 
 
 def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solver: str) -> None:
@@ -276,16 +277,19 @@ def fan_out_level(celery: Celery, store: JobStore, job_id: str, index: int) -> N
 
 
 def fan_out(
-    celery: Celery, settings: Settings, job_id: str, index: int, solver: str, chunks: list
+    celery: Celery, store: JobStore, record: JobRecord, index: int, chunks: list[RowRanges]
 ) -> None:
-    """A chord: the chunks on the solver's queue (the registry's, with its time limits), then
-    the level's fan-in on the control queue."""
+    """A chord: the chunks on the job's owner's queue of the solver (``workers/fair.py``:
+    users are served in turn), with the solver's time limits, then the level's fan-in on the
+    control queue."""
+    settings, solver = store.settings, record.config.solver
+    queue = fair.route(store.redis, store.prefix, queue_of(solver), record.owner)
     limits = task_time_limits(settings, solver)
     header = [
-        celery.signature(SOLVE_ROWS, args=(job_id, index, chunk), queue=queue_of(solver), **limits)
+        celery.signature(SOLVE_ROWS, args=(record.id, index, chunk), queue=queue, **limits)
         for chunk in chunks
     ]
-    callback = celery.signature(LEVEL_DONE, args=(job_id, index), queue=settings.control_queue)
+    callback = celery.signature(LEVEL_DONE, args=(record.id, index), queue=settings.control_queue)
     chord(header)(callback)
 
 

@@ -20,7 +20,7 @@ from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
 from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
-from workers import orchestration, watchdog
+from workers import fair, orchestration, watchdog
 from workers.app import (
     FAN_OUT_LEVEL,
     LEVEL_DONE,
@@ -199,7 +199,8 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
         if result is not None and not result.get("duplicate"):
             queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
-            telemetry().task_done(queue, time.perf_counter() - started, result["bundles"])
+            seconds = time.perf_counter() - started
+            telemetry().task_done(fair.base_queue(queue), seconds, result["bundles"])
     except SoftTimeLimitExceeded:
         return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
     except MemoryError:

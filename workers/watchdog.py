@@ -35,8 +35,8 @@ import redis
 from celery import Celery
 
 from shared.bundles import bundle_key
-from shared.solvers.registry import queue_names
-from workers import liveness, orchestration
+from shared.solvers.registry import queue_names, queue_of
+from workers import fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, START_JOB
 from workers.records import JobRecord, JobState
 from workers.store import JobStore
@@ -194,8 +194,9 @@ class Watchdog:
         return [base, *(f"{base}\x06\x16{priority}" for priority in (3, 6, 9))]
 
     def queue_names(self) -> list[str]:
-        """The control queue and every solver queue."""
-        return [self.store.settings.control_queue, *queue_names()]
+        """The control queue and every solver queue, with its users' queues."""
+        solvers = fair.with_user_queues(self.store.redis, self.store.prefix, queue_names())
+        return [self.store.settings.control_queue, *solvers]
 
     def start_again(self, record: JobRecord) -> str:
         """A queued job whose start task is nowhere (the API died before it was sent, or it
@@ -210,7 +211,8 @@ class Watchdog:
         solver = record.config.solver
         if not lost:
             consumed = self.consumed_queues()
-            if consumed is not None and solver in consumed and self.queue_length(solver) > 0:
+            queue = queue_of(solver)
+            if consumed is not None and queue in consumed and self.queue_length(queue) > 0:
                 return "waiting"  # its tasks may be behind others in a busy queue: not stalled
         if attempt > settings.watchdog_max_resends:
             reason = (
@@ -265,7 +267,7 @@ class Watchdog:
             "job %s: no progress for %g s; re-sending %d unsolved bundles of level %d",
             record.id, self.stall, len(missing), index + 1,
         )  # fmt: skip
-        orchestration.fan_out(self.celery, settings, record.id, index, config.solver, chunks)
+        orchestration.fan_out(self.celery, self.store, record, index, chunks)
         self.telemetry.resent(len(chunks))
         return "resent"
 
@@ -338,8 +340,10 @@ class Watchdog:
         return {queue["name"] for queues in replies.values() for queue in queues}
 
     def queue_length(self, queue: str) -> int:
-        """Messages waiting in a queue (kombu's Redis lists: the queue, and its priorities)."""
-        keys = self.queue_keys(queue)
+        """Messages waiting in a solver's queue and its users' queues (kombu's Redis lists:
+        each queue's, and its priorities')."""
+        names = fair.with_user_queues(self.store.redis, self.store.prefix, [queue])
+        keys = [key for name in names for key in self.queue_keys(name)]
         with self.store.redis.pipeline() as pipe:
             for key in keys:
                 pipe.llen(key)
