@@ -410,6 +410,14 @@ class Settings(BaseSettings):
         'its parameters\' [low, high] bounds (JSON, e.g. {"my_pkg.MySampler": {"num_reads": '
         "[1, 100]}}); any other class or parameter is refused",
     )
+    solver_nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="Niceness a worker process takes when it first solves bundles: "
+        "orchestration (starting jobs, assembling levels) and the API get the CPU first on a "
+        "shared machine (0: as started)",
+    )
     task_memory_limit_mb: int | None = Field(
         8192,
         ge=0,

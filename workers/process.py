@@ -50,3 +50,21 @@ def limit_memory(megabytes: int | None) -> None:
     if hard != resource.RLIM_INFINITY:
         ceiling = min(ceiling, hard)
     resource.setrlimit(resource.RLIMIT_AS, (ceiling, hard))
+
+
+def lower_priority(increment: int) -> None:
+    """Make this process ``increment`` nicer (once: later calls change nothing), so that on a
+    shared machine solver work yields the CPU to orchestration and the API.
+
+    Parameters
+    ----------
+    increment : int
+        Niceness to add; 0 leaves the priority as it is."""
+    global _lowered
+    if increment and not _lowered:
+        with contextlib.suppress(OSError):
+            os.nice(increment)
+        _lowered = True
+
+
+_lowered = False

@@ -31,7 +31,7 @@ from workers.app import (
     task_time_limits,
     terminate_tasks,
 )
-from workers.process import die_with_parent, limit_memory
+from workers.process import die_with_parent, limit_memory, lower_priority
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
 from workers.telemetry import Telemetry
@@ -190,6 +190,7 @@ def fan_out_level(self, job_id: str, index: int) -> None:
 @app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
 def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
     ranges = [[int(value) for value in bundle] for bundle in row_ranges]
+    lower_priority(settings.solver_nice)  # orchestration and the API get the CPU first
     worker = self.request.hostname or ""
     task_id = self.request.id
     if task_id:
