@@ -47,6 +47,8 @@ def celery_config(settings: Settings) -> dict:
         "broker_transport_options": {
             "visibility_timeout": settings.task_visibility_timeout,
             "global_keyprefix": prefix,
+            # the next task from the user with the fewest running (workers/fair.py)
+            "queue_order_strategy": "workers.fair:FewestRunningFirst",
         },
         "result_backend_transport_options": {"global_keyprefix": prefix},
         "broker_connection_retry_on_startup": True,

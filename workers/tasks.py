@@ -193,13 +193,15 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     lower_priority(settings.solver_nice)  # orchestration and the API get the CPU first
     worker = self.request.hostname or ""
     task_id = self.request.id
+    queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
     if task_id:
         store().task_started(job_id, task_id)
+        limit = task_time_limits(settings, fair.base_queue(queue))["time_limit"]
+        fair.task_started(store().redis, settings.key_prefix, queue, task_id, limit)
     started = time.perf_counter()
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
         if result is not None and not result.get("duplicate"):
-            queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
             seconds = time.perf_counter() - started
             telemetry().task_done(fair.base_queue(queue), seconds, result["bundles"])
     except SoftTimeLimitExceeded:
@@ -234,6 +236,7 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     finally:
         if task_id:
             store().task_ended(job_id, task_id)
+            fair.task_ended(store().redis, settings.key_prefix, queue, task_id)
     return result if result is not None else {"skipped": True}
 
 

@@ -47,3 +47,27 @@ def test_a_small_job_is_served_between_another_users_large_jobs_tasks(settings, 
         assert theirs["state"] == "running", theirs["state"]
         assert theirs["progress"]["bundles_done"] < 0.7 * theirs["progress"]["bundles_total"]
         assert harness.wait_for(alice, first, timeout=120)["state"] == "succeeded"
+
+
+def test_a_free_worker_takes_from_the_user_with_fewest_tasks_running(settings, monkeypatch):
+    """kombu's queue order: the users with fewer solver tasks running lab-wide come first,
+    the solvers' own queues before them; kombu's rotation decides among equals."""
+    import redis
+
+    from workers import fair
+
+    monkeypatch.setenv("QHSM_REDIS_URL", settings.redis_url)
+    monkeypatch.setenv("QHSM_KEY_PREFIX", settings.key_prefix)
+    client = redis.Redis.from_url(settings.redis_url)
+    prefix = settings.key_prefix
+    for task in ("t1", "t2", "t3"):
+        fair.task_started(client, prefix, "sa~busy", task, limit=60)
+    fair.task_started(client, prefix, "exact~some", "t4", limit=60)
+    fair.task_started(client, prefix, "sa~lapsed", "t5", limit=-1)  # its worker was killed
+    cycle = fair.FewestRunningFirst(["sa~busy", "exact~some", "sa", "sa~idle", "sa~lapsed"])
+    assert cycle.consume(5) == ["sa", "sa~idle", "sa~lapsed", "exact~some", "sa~busy"]
+    for task in ("t1", "t2", "t3"):
+        fair.task_ended(client, prefix, "sa~busy", task)
+    cycle._counts = (0.0, {})
+    cycle.rotate("sa~idle")  # it just gave a message: after its equals
+    assert cycle.consume(5)[:4] == ["sa", "sa~busy", "sa~lapsed", "sa~idle"]
