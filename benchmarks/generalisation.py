@@ -32,6 +32,8 @@ from shared.bench.generalisation import (
     parse_variant,
     run_benchmark,
 )
+from shared.cli_options import model_option
+from shared.config import MatchConfig
 from shared.datasets import default_middlebury_dir
 
 
@@ -63,7 +65,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=DEFAULT_PROCESSES,
         help="runs side by side (default: one per core; 1: in this process)",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    model_option(parser, MatchConfig, "seed", with_default=True)
     parser.add_argument("--out", type=Path, default=Path("out/generalisation"))
     return parser.parse_args(argv)
 

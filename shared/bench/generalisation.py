@@ -211,7 +211,7 @@ class Options:
     scenes: list[str] | None = None
     #: Processes running the runs side by side (1: all in this process).
     processes: int = DEFAULT_PROCESSES
-    seed: int = 0
+    seed: int = MatchConfig.model_fields["seed"].default
 
 
 def _bench_options(options: Options) -> BenchOptions:
