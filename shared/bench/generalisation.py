@@ -417,7 +417,7 @@ def results(
         "machine": {
             "platform": platform.platform(),
             "cpus": os.cpu_count(),
-            "load_average": list(os.getloadavg()),
+            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         },
         "processes": options.processes,
         "wall_seconds": wall,
@@ -459,8 +459,8 @@ def markdown(data: dict[str, Any]) -> str:
     machine = data["machine"]
     lines += [
         f"Created {data['created']} on {machine['platform']}, {machine['cpus']} CPUs, load "
-        f"average {machine['load_average'][0]:.1f} at the end; {data['processes']} processes; "
-        f"wall time {data['wall_seconds']:.0f} s.",
+        f"average {fmt((machine['load_average'] or [None])[0], 1)} at the end; "
+        f"{data['processes']} processes; wall time {data['wall_seconds']:.0f} s.",
         "",
         "Main figure: bad pixels (|d - gt| > 1 px, %) over the non-occluded pixels with known "
         "ground truth (the dataset's nonocc mask, else the ground truth's left-right check within "
