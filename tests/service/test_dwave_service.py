@@ -199,7 +199,7 @@ def compose_workers() -> dict[str, tuple[list[str], bool]]:
 
 
 def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
-    sapi, tmp_path, monkeypatch
+    sapi, tmp_path, monkeypatch, redis_url
 ):
     """Each worker of docker-compose.yml, with its queues and only the environment the file
     gives it (the token to worker-qpu and worker-hybrid alone), against the same stub."""
@@ -208,7 +208,7 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
     from workers.embedding_store import for_settings
     from workers.supervisor import WorkerProcess, wait_for_workers, worker_env
 
-    url, server = harness.find_redis(tmp_path / "redis")
+    url = redis_url
     settings = Settings(
         redis_url=url,
         key_prefix=harness.unique_prefix(),
@@ -249,8 +249,6 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
         for worker in started:
             worker.stop()
         harness.drop_prefix(url, settings.key_prefix)
-        if server is not None:
-            server.stop()
 
 
 def test_the_stub_refuses_another_token(sapi):
