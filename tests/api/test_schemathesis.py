@@ -55,7 +55,7 @@ def test_no_request_ends_in_a_server_error(case, admin_headers):
 
 
 @schema.parametrize()
-@settings(max_examples=60, deadline=None, suppress_health_check=list(HealthCheck))
+@settings(max_examples=20, deadline=None, suppress_health_check=list(HealthCheck))
 @pytest.mark.timeout(120)
 def test_no_request_of_a_member_ends_in_a_server_error(case, member_headers):
     call_without_server_error(case, member_headers)

@@ -29,8 +29,6 @@ from workers.supervisor import WorkerProcess, wait_for_workers
 ROWS_PER_TASK = 4
 SLOW_SECONDS = 0.25
 TIME_LIMIT = 1.0
-#: Address space of a test worker's pool process, MiB: room for the solvers, not for fake-hog.
-MEMORY_LIMIT_MB = 1536
 MAIN_QUEUES = [
     "exact",
     "sa",
@@ -88,7 +86,7 @@ def workers(settings, markers, service_dir):
     env["QHSM_TEST_MARKERS"] = str(markers)
     env["QHSM_SOLVER_TIME_LIMITS"] = json.dumps(settings.solver_time_limits)
     env["QHSM_TASK_TIME_LIMIT_GRACE"] = str(settings.task_time_limit_grace)
-    env["QHSM_TASK_MEMORY_LIMIT_MB"] = str(MEMORY_LIMIT_MB)
+    env["QHSM_TASK_MEMORY_LIMIT_MB"] = str(harness.MEMORY_LIMIT_MB)
     logs = service_dir / "logs"
     suffix = settings.key_prefix
     started = {

@@ -198,11 +198,10 @@ def compose_workers() -> dict[str, tuple[list[str], bool]]:
     return workers
 
 
-def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
-    sapi, tmp_path, monkeypatch, redis_url
-):
-    """Each worker of docker-compose.yml, with its queues and only the environment the file
-    gives it (the token to worker-qpu and worker-hybrid alone), against the same stub."""
+def test_a_qpu_job_runs_on_the_compose_files_worker_split(sapi, tmp_path, monkeypatch, redis_url):
+    """The workers of docker-compose.yml a qpu job needs, with their queues and only the
+    environment the file gives them (the token to worker-qpu and worker-hybrid alone), against
+    the same stub (hybrid takes the same path as under serve: its worker, its token)."""
     from api.app import create_app
     from workers.app import make_celery
     from workers.embedding_store import for_settings
@@ -221,7 +220,7 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
     assert [name for name, (_, token) in split.items() if token] == ["worker-qpu", "worker-hybrid"]
     started = []
     try:
-        needed = {"control", "qpu", "hybrid"}
+        needed = {"control", "qpu"}
         for name, (queues, token) in split.items():
             if not needed & set(queues):
                 continue
@@ -240,8 +239,7 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
             raise_server_exceptions=False,
             headers={"Authorization": f"Bearer {key}"},
         ) as client:
-            for solver in ("qpu", "hybrid"):
-                check_job(client, sapi, solver, in_process(solver, sapi, store, monkeypatch))
+            check_job(client, sapi, "qpu", in_process("qpu", sapi, store, monkeypatch))
         no_token_in_redis(url, settings.key_prefix)
         for worker in started:
             assert SENTINEL not in worker.log_file.read_text()

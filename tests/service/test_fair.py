@@ -29,7 +29,7 @@ def user_client(settings, name: str) -> TestClient:
 
 
 def test_a_small_job_is_served_between_another_users_large_jobs_tasks(settings, workers):
-    big, small = make_scene(96, 24, max_disparity=6, seed=1), make_scene(8, 24, 6, seed=2)
+    big, small = make_scene(64, 24, max_disparity=6, seed=1), make_scene(8, 24, 6, seed=2)
     params = harness.one_level(solver="fake-slow")
     with user_client(settings, "alice") as alice, user_client(settings, "bob") as bob:
         first = harness.submit(alice, harness.png(big.left), harness.png(big.right), params)
@@ -38,7 +38,7 @@ def test_a_small_job_is_served_between_another_users_large_jobs_tasks(settings, 
         while alice.get(f"/v1/jobs/{first}").json()["progress"]["bundles_done"] < 4:
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        # alice has 24 tasks of 4 bundles queued (24 x 4 x 0.25 s on two processes: 12 s)
+        # alice has 15 tasks of 4 bundles queued (15 x 4 x 0.25 s on two processes: 7.5 s)
         second = harness.submit(bob, harness.png(small.left), harness.png(small.right), params)
         done = harness.wait_for(bob, second, timeout=60)
         assert done["state"] == "succeeded", done

@@ -152,12 +152,10 @@ def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_pa
 def test_a_task_that_needs_more_memory_than_a_process_has_fails_its_job(client, pair):
     """Pool processes have an address-space ceiling (QHSM_TASK_MEMORY_LIMIT_MB): a bundle
     that allocates past it fails its job with a reason instead of taking the machine."""
-    from conftest import MEMORY_LIMIT_MB
-
     job_id = harness.submit(client, *pair, one_level("fake-hog"))
     status = harness.wait_for(client, job_id, timeout=60)
     assert status["state"] == "failed", status
-    assert f"limit of {MEMORY_LIMIT_MB} MiB" in status["error"]
+    assert f"limit of {harness.MEMORY_LIMIT_MB} MiB" in status["error"]
     assert "QHSM_TASK_MEMORY_LIMIT_MB" in status["error"]
     # the worker is fine afterwards
     done = harness.wait_for(client, harness.submit(client, *pair, one_level("exact")))

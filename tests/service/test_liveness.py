@@ -36,7 +36,7 @@ from workers.watchdog import resend_count
 pytestmark = pytest.mark.service
 
 HEARTBEAT = 0.5
-SLOW_SECONDS = 1.0  # per bundle of fake-slow
+SLOW_SECONDS = 0.5  # per bundle of fake-slow
 SCENE = make_scene(16, 24, max_disparity=6, seed=8)
 UPLOADS = harness.png(SCENE.left), harness.png(SCENE.right)
 
@@ -163,13 +163,14 @@ def test_a_job_whose_solver_worker_died_mid_task_finishes_identically(stack):
 
 
 def test_a_live_workers_long_task_is_never_sent_again(stack):
-    """Tasks that outlast every threshold but the stall (16 s, the heartbeat's expiry and
-    watchdog_lost_seconds) on a live worker are left alone: each bundle is solved once."""
+    """Tasks that outlast every threshold but the stall (8 s: more than the heartbeat's expiry
+    and watchdog_lost_seconds, 3 s here) on a live worker are left alone: each bundle is solved
+    once."""
     settings, start = stack
     start(
         "control",
         [settings.control_queue],
-        QHSM_ROWS_PER_TASK="16",  # one task: 16 s
+        QHSM_ROWS_PER_TASK="16",  # one task: 8 s
         QHSM_WATCHDOG_LOST_SECONDS="3",
     )
     start("cpu", ["fake-slow"])
