@@ -198,10 +198,12 @@ def compose_workers() -> dict[str, tuple[list[str], bool]]:
     return workers
 
 
-def test_a_qpu_job_runs_on_the_compose_files_worker_split(sapi, tmp_path, monkeypatch, redis_url):
-    """The workers of docker-compose.yml a qpu job needs, with their queues and only the
+def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
+    sapi, tmp_path, monkeypatch, redis_url
+):
+    """The workers of docker-compose.yml these jobs need, with their queues and only the
     environment the file gives them (the token to worker-qpu and worker-hybrid alone), against
-    the same stub (hybrid takes the same path as under serve: its worker, its token)."""
+    the same stub."""
     from api.app import create_app
     from workers.app import make_celery
     from workers.embedding_store import for_settings
@@ -220,7 +222,7 @@ def test_a_qpu_job_runs_on_the_compose_files_worker_split(sapi, tmp_path, monkey
     assert [name for name, (_, token) in split.items() if token] == ["worker-qpu", "worker-hybrid"]
     started = []
     try:
-        needed = {"control", "qpu"}
+        needed = {"control", "qpu", "hybrid"}
         for name, (queues, token) in split.items():
             if not needed & set(queues):
                 continue
@@ -239,7 +241,8 @@ def test_a_qpu_job_runs_on_the_compose_files_worker_split(sapi, tmp_path, monkey
             raise_server_exceptions=False,
             headers={"Authorization": f"Bearer {key}"},
         ) as client:
-            check_job(client, sapi, "qpu", in_process("qpu", sapi, store, monkeypatch))
+            for solver in ("qpu", "hybrid"):
+                check_job(client, sapi, solver, in_process(solver, sapi, store, monkeypatch))
         no_token_in_redis(url, settings.key_prefix)
         for worker in started:
             assert SENTINEL not in worker.log_file.read_text()
