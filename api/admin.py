@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import sys
 from collections.abc import Iterator
 
@@ -105,8 +106,10 @@ def _seconds(value: str) -> float | None:
         raise argparse.ArgumentTypeError(
             f"expected seconds or 'unlimited', got {value!r}"
         ) from None
-    if seconds < 0:
-        raise argparse.ArgumentTypeError("seconds cannot be negative")
+    if not math.isfinite(seconds) or seconds < 0:
+        raise argparse.ArgumentTypeError(
+            f"seconds must be a finite number >= 0 (or 'unlimited'), got {value!r}"
+        )
     return seconds
 
 

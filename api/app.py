@@ -4,12 +4,17 @@ the package (fastapi-offline), never from a CDN."""
 
 from __future__ import annotations
 
+import errno
 import logging
 
 import redis
 from fastapi import Depends, FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi.encoders import jsonable_encoder
+from fastapi.exception_handlers import http_exception_handler
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse, Response
 from fastapi_offline import FastAPIOffline
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from api import web
 from api.access_log import quiet_polls
@@ -20,9 +25,42 @@ from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
 from workers.app import make_celery
+from workers.records import finite_or_null
 from workers.store import JobStore
 
 log = logging.getLogger("qhsm.api")
+
+
+#: errno values of a full disk or an exhausted quota.
+DISK_FULL = {errno.ENOSPC, errno.EDQUOT}
+#: How Redis refuses writes when it cannot persist them (full disk) or is out of memory
+#: (also quoted inside a pipeline's "Command # 1 (...) of pipeline caused error: ...").
+REDIS_FULL = ("MISCONF ", "OOM command not allowed")
+
+
+def storage_full(error: BaseException | None) -> bool:
+    """Whether ``error`` says the service's storage is full: the data directory's disk, or
+    Redis refusing writes it cannot persist."""
+    if isinstance(error, OSError):
+        return error.errno in DISK_FULL
+    if isinstance(error, redis.ResponseError):
+        return any(sign in str(error) for sign in REDIS_FULL) or storage_full(error.__context__)
+    return False
+
+
+def storage_full_response(request: Request, error: BaseException) -> JSONResponse:
+    """507 with ``Retry-After``: nothing was kept of the request (uploads are removed)."""
+    where = "Redis cannot write" if isinstance(error, redis.RedisError) else "the disk is full"
+    log.error("%s %s: storage full (%s): %s", request.method, request.url.path, where, error)
+    return JSONResponse(
+        {
+            "detail": f"the service is out of storage ({where}); nothing of this request was "
+            "kept. Try again later; if it persists, tell the operator to free disk space on "
+            "the data directory and Redis"
+        },
+        status_code=507,
+        headers={"Retry-After": "60"},
+    )
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -58,6 +96,33 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.exception_handler(UploadError)
     async def upload_error(request: Request, error: UploadError) -> JSONResponse:
         return JSONResponse({"detail": error.message}, status_code=error.status_code)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request: Request, error: RequestValidationError) -> JSONResponse:
+        # FastAPI's own handler echoes the input, which fails to encode when it is Infinity
+        # or NaN (a JSON body may hold them): a 500 instead of the 422
+        detail = finite_or_null(jsonable_encoder(error.errors()))
+        return JSONResponse({"detail": detail}, status_code=422)
+
+    @app.exception_handler(OSError)
+    async def disk_error(request: Request, error: OSError) -> JSONResponse:
+        if not storage_full(error):
+            raise error  # a bug: the ErrorBoundary answers 500 with an incident id
+        return storage_full_response(request, error)
+
+    @app.exception_handler(redis.ResponseError)
+    async def redis_refused(request: Request, error: redis.ResponseError) -> JSONResponse:
+        if not storage_full(error):
+            raise error
+        return storage_full_response(request, error)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, error: StarletteHTTPException) -> Response:
+        # FastAPI turns any error while it reads a form into "400 error parsing the body",
+        # a full disk under the spooled upload included
+        if storage_full(error.__cause__):
+            return storage_full_response(request, error.__cause__)
+        return await http_exception_handler(request, error)
 
     @app.exception_handler(redis.ConnectionError)
     @app.exception_handler(redis.TimeoutError)

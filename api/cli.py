@@ -165,10 +165,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
             raise CommandError(str(error)) from None
         settings = stack.settings
         print(stack.describe(), file=sys.stderr)
-        key = _announce_key(settings)
         url = f"http://{settings.api_host}:{settings.api_port}"
         print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
-        print(f"web page: {sign_in_url(url, settings.api_host, key)}", file=sys.stderr)
+        announce_web_page(settings, url)
         _uvicorn_server(settings, args.log_level).run(sockets=[sock])
     finally:
         stack.stop()
@@ -177,8 +176,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def sign_in_url(url: str, host: str, key: str | None) -> str:
-    """The web page's address; on a loopback address it signs the local admin in: the key is
-    in the fragment, which browsers never send, so it stays out of every server log."""
+    """The web page's address; with a key just made and a loopback address it signs the local
+    admin in: the key is in the fragment, which browsers never send, so it stays out of every
+    server log (the page asks before it switches a signed-in tab to that account)."""
     import ipaddress
 
     try:
@@ -188,12 +188,13 @@ def sign_in_url(url: str, host: str, key: str | None) -> str:
     return f"{url}/#key={key}" if key and local else f"{url}/"
 
 
-def _announce_key(settings: Settings) -> str | None:
-    """Make sure the local admin exists (auth on) and say where its key is; the key itself is
-    printed only when it was just made."""
+def _announce_key(settings: Settings) -> tuple[str | None, bool]:
+    """Make sure the local admin exists (auth on) and say where its key is: (the key, whether
+    it was just made). The key itself is printed only when it was just made, never in a log
+    line of a later start."""
     if not settings.auth_enabled:
         print("authentication is off (QHSM_AUTH_ENABLED=false)", file=sys.stderr)
-        return None
+        return None, False
     from api.users import LOCAL_ADMIN, LOCAL_KEY_FILE, UserStore, ensure_local_admin
 
     key, new = ensure_local_admin(UserStore.from_settings(settings), settings.data_dir)
@@ -201,10 +202,19 @@ def _announce_key(settings: Settings) -> str | None:
     if new:
         print(f"new API key of {LOCAL_ADMIN} (admin): {key}", file=sys.stderr)
     print(
-        f"{LOCAL_ADMIN}'s API key is in {where}; `qhsm submit` uses it unless --key or "
-        "QHSM_API_KEY is given; add lab members with `qhsm admin create-user NAME`",
+        f"{LOCAL_ADMIN}'s API key is in {where} (sign in to the web page with it); "
+        "`qhsm submit` uses it unless --key or QHSM_API_KEY is given; add lab members with "
+        "`qhsm admin create-user NAME`",
         file=sys.stderr,
     )
+    return key, new
+
+
+def announce_web_page(settings: Settings, url: str) -> str | None:
+    """Print where the local admin's key is and the web page's address (with the key in its
+    fragment only when the key was just made); returns the key."""
+    key, new = _announce_key(settings)
+    print(f"web page: {sign_in_url(url, settings.api_host, key if new else None)}", file=sys.stderr)
     return key
 
 
@@ -258,7 +268,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         stack.start()
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
-        key = _announce_key(stack.settings)
+        key, new = _announce_key(stack.settings)
         client = Client(api.url, key=key, key_source="the demo's local admin")
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
@@ -276,7 +286,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
         if args.keep_running:
             print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
-            page = sign_in_url(api.url, stack.settings.api_host, key)
+            page = sign_in_url(api.url, stack.settings.api_host, key if new else None)
             print(f"web page: {page}", file=sys.stderr)
             api.join()
     except KeyboardInterrupt:

@@ -136,10 +136,23 @@ def _registered_handler(app: Any, error: Exception) -> Any:
     return None
 
 
+async def _handled(handler: Any, request: Request, error: Exception) -> Any:
+    """The handler's response, or None when it declines ``error`` by raising it again (e.g.
+    the OSError handler for anything but a full disk)."""
+    try:
+        response = handler(request, error)
+        if inspect.isawaitable(response):
+            response = await response
+    except Exception:
+        return None
+    return response
+
+
 class ErrorBoundary:
     """Any exception that escapes the routes: answered by the app's handler for its class when
     there is one, else logged with an incident id and answered as a JSON 500 that names the
-    incident; never re-raised (so the connection stays usable)."""
+    incident; never re-raised (so the connection stays usable). A handler declines an error by
+    raising it again."""
 
     def __init__(self, app: ASGIApp):
         self.app = app
@@ -160,11 +173,10 @@ class ErrorBoundary:
         except Exception as error:
             handler = None if started else _registered_handler(scope["app"], error)
             if handler is not None:  # e.g. a Redis outage raised while authenticating
-                response = handler(Request(scope, receive), error)
-                if inspect.isawaitable(response):
-                    response = await response
-                await response(scope, receive, send)
-                return
+                response = await _handled(handler, Request(scope, receive), error)
+                if response is not None:
+                    await response(scope, receive, send)
+                    return
             incident = uuid.uuid4().hex[:12]
             log.exception("incident %s: %s %s failed", incident, scope["method"], scope["path"])
             if started:  # half a response is out: only closing the connection can end it

@@ -7,6 +7,7 @@ import io
 import json
 import math
 import re
+import tokenize
 from typing import Any
 
 import cv2
@@ -167,16 +168,30 @@ def read_npy(data: bytes, shape: tuple[int, int]) -> np.ndarray:
     stream = io.BytesIO(data)
     try:
         version = npy_format.read_magic(stream)
-        if version == (1, 0):
-            header = npy_format.read_array_header_1_0(stream, max_header_size=NPY_MAX_HEADER)
-        elif version == (2, 0):
-            header = npy_format.read_array_header_2_0(stream, max_header_size=NPY_MAX_HEADER)
-        else:
-            raise ValueError(f"version {version[0]}.{version[1]} is not supported")
-    except (ValueError, SyntaxError, TypeError) as error:
+    except ValueError as error:
         raise UploadError(
             status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
             f"{name}: not a readable .npy file ({error}); save it with numpy.save",
+        ) from None
+    readers = {
+        (1, 0): npy_format.read_array_header_1_0,
+        (2, 0): npy_format.read_array_header_2_0,
+    }
+    if version not in readers:
+        raise UploadError(
+            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            f"{name}: not a readable .npy file (version {version[0]}.{version[1]} is not "
+            "supported); save it with numpy.save",
+        )
+    try:
+        header = readers[version](stream, max_header_size=NPY_MAX_HEADER)
+    except (ValueError, SyntaxError, TypeError, tokenize.TokenError, RecursionError) as error:
+        # numpy tokenizes and literal-evaluates the header: what it raises on one that does
+        # not parse
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"{name}: not a readable .npy file, its header does not parse ({error}); save it "
+            "with numpy.save",
         ) from None
     dims, fortran_order, dtype = header
     if dtype.hasobject or dtype.kind not in "uif" or dtype.subdtype is not None:
@@ -212,10 +227,20 @@ def _no_constant(name: str) -> float:
     raise ValueError(f"{name} is not a number this service accepts")
 
 
+#: Longest ``params`` form field: a job's config is kept in its record, rewritten at every step.
+MAX_PARAMS_CHARS = 64 * 1024
+
+
 def parse_config(params: str | None) -> MatchConfig:
     """``params`` JSON (MatchConfig fields, as for ``qhsm match``) -> a validated config."""
     if params is None or not params.strip():
         return MatchConfig()
+    if len(params) > MAX_PARAMS_CHARS:
+        raise UploadError(
+            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"params: {len(params)} characters, above the limit of {MAX_PARAMS_CHARS}; send "
+            "only the MatchConfig fields you change",
+        )
     try:
         raw: Any = json.loads(params, parse_float=_finite_number, parse_constant=_no_constant)
     except json.JSONDecodeError as error:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import math
 import re
 import secrets
 from datetime import UTC, datetime
@@ -117,8 +118,11 @@ class UserStore:
             )
         if qpu_seconds == DEFAULT_BUDGET:
             qpu_seconds = self.default_qpu_seconds
-        if qpu_seconds is not None and float(qpu_seconds) < 0:
-            raise UserError("--qpu-seconds cannot be negative")
+        if qpu_seconds is not None and not 0 <= float(qpu_seconds) < math.inf:
+            raise UserError(
+                "--qpu-seconds must be a finite number >= 0 (or unlimited), "
+                f"not {qpu_seconds!r}"
+            )
         if not self.redis.sadd(self.key("users"), name):
             raise UserError(f"user {name!r} exists already (rotate-key gives them a new key)")
         key_id, key = new_key()

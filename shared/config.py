@@ -351,6 +351,16 @@ class Settings(BaseSettings):
         "A running job whose progress has not moved this long gets its unsolved "
         "bundles re-sent by the watchdog (seconds; tasks are idempotent)",
     )
+    watchdog_lost_seconds: float = seconds_field(
+        30.0,
+        "An active job (queued or running) without progress this long, none of whose tasks "
+        "is in any queue or held by a live worker, has its work sent again (seconds)",
+    )
+    worker_heartbeat_seconds: float = seconds_field(
+        2.0,
+        "How often a worker says it is alive and which messages it holds; one silent for 5 "
+        "of them is dead and what it held is put back in its queues (seconds)",
+    )
     watchdog_max_resends: int = Field(
         3, ge=1, description="Re-sends without progress after which the watchdog fails the job"
     )
@@ -394,12 +404,36 @@ class Settings(BaseSettings):
         "Seconds after the soft limit at which a task that ignores it is killed",
     )
 
+    dimod_samplers: dict[str, dict[str, tuple[float, float]]] = Field(
+        default_factory=dict,
+        description="dimod: sampler classes jobs may name besides the built-in list, each with "
+        'its parameters\' [low, high] bounds (JSON, e.g. {"my_pkg.MySampler": {"num_reads": '
+        "[1, 100]}}); any other class or parameter is refused",
+    )
+    solver_nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="Niceness a worker process takes when it first solves bundles: "
+        "orchestration (starting jobs, assembling levels) and the API get the CPU first on a "
+        "shared machine (0: as started)",
+    )
+    task_memory_limit_mb: int | None = Field(
+        8192,
+        ge=0,
+        description="Address space a worker's pool process may use, MiB (RLIMIT_AS); a task "
+        "that needs more fails its job with a message (0 or None: no limit)",
+    )
+
     # users, API keys and QPU quotas (issue 5)
     auth_enabled: bool = Field(
         True, description="Require `Authorization: Bearer KEY` on /v1 (off: everyone is `local`)"
     )
     default_qpu_seconds: float = Field(
-        60.0, ge=0, description="QPU/hybrid budget of a new user without --qpu-seconds, seconds"
+        60.0,
+        ge=0,
+        allow_inf_nan=False,
+        description="QPU/hybrid budget of a new user without --qpu-seconds, seconds",
     )
     qpu_max_in_flight: int = Field(
         2, ge=1, description="Lab-wide limit on QPU/hybrid problems being solved at once"

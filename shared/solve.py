@@ -107,6 +107,23 @@ def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
     return None if pixels >= inputs.shape[1] else pixels
 
 
+def plans_with_solver(config: MatchConfig) -> bool:
+    """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
+    (the widest segment that embeds, each shape's embedding) need their sampler, and so their
+    credentials, to plan a level; a service runs it where the solver runs.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    bool
+    """
+    return getattr(get_solver(config.solver), "embed_shapes", None) is not None
+
+
 def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     """Every bundle of the level (segments of the level's :func:`level_bundle_width`).
 

@@ -24,6 +24,8 @@ log = logging.getLogger(__name__)
 
 #: Task names (the API sends tasks by name so it never imports solver code).
 START_JOB = "qhsm.start_job"
+PLAN_LEVEL = "qhsm.plan_level"
+FAN_OUT_LEVEL = "qhsm.fan_out_level"
 SOLVE_ROWS = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
 
@@ -45,6 +47,8 @@ def celery_config(settings: Settings) -> dict:
         "broker_transport_options": {
             "visibility_timeout": settings.task_visibility_timeout,
             "global_keyprefix": prefix,
+            # the next task from the user with the fewest running (workers/fair.py)
+            "queue_order_strategy": "workers.fair:FewestRunningFirst",
         },
         "result_backend_transport_options": {"global_keyprefix": prefix},
         "broker_connection_retry_on_startup": True,
@@ -87,6 +91,10 @@ def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) ->
     include = ["workers.tasks"] if with_tasks else []
     celery = Celery("qhsm", include=include)
     celery.conf.update(celery_config(settings))
+    if with_tasks:  # a worker: heartbeats with the messages it holds (workers/liveness.py)
+        from workers import liveness
+
+        liveness.install(celery)
     return celery
 
 

@@ -2,6 +2,10 @@
 
     start_job      (control)  load uploads, plan the levels, prepare_level(0), write inputs,
                               launch chord 0
+    plan_level     (solver)   only for solvers that plan on their QPU graph (qpu, qpu-sim): the
+                              widest segment that embeds and the shapes' embeddings, found where
+                              the solver (and its token) is, kept with the level and the
+                              embeddings; then fan_out_level (control) launches the chord
     solve_rows     (solver)   load the level's inputs once per process, solve_bundles, labels back
     level_done     (control)  assemble, finish_level, report; prepare the next level and launch
                               its chord, or finish() (+ metrics) and store the result
@@ -22,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import asdict
 
 import numpy as np
-from celery import Celery, chord
+from celery import Celery, chain, chord
 
 from shared import pyramid
 from shared.assembly import BundleResult, assemble
@@ -32,10 +36,11 @@ from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
-from shared.solve import level_bundles, solve_bundles
+from shared.solve import level_bundles, plans_with_solver, solve_bundles
 from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
-from workers.app import LEVEL_DONE, SOLVE_ROWS, task_time_limits
+from workers import fair
+from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, task_time_limits
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, now
 from workers.store import JobStore, LevelInputsMissing
@@ -67,14 +72,19 @@ def internal_error(job_id: str, what: str) -> str:
 
 
 def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
-    """The level's bundles (both views' with the left-right check; row segments with a
-    ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
+    """The level's planned bundles (both views' with the left-right check; row segments with
+    a ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
 
     Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
     (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
     """
-    bundles = [bundle.as_list() for bundle in level_bundles(inputs, config)]
+    bundles = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
     return group_bundles(bundles, config, rows_per_task)
+
+
+def is_planned(inputs: LevelInputs) -> bool:
+    """Whether the level's bundles were planned (``level_bundles`` recorded their width)."""
+    return "bundle_width" in inputs.prepared
 
 
 def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
@@ -129,10 +139,18 @@ def decode_bundle(data: dict, width: int) -> BundleResult:
 
 
 def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
-    """Begin a queued job: its first level's chord."""
-    record = store.transition(job_id, JobState.RUNNING, {JobState.QUEUED}, started_at=now())
-    if record is None:
-        log.info("job %s: not queued any more (cancelled or gone); nothing to start", job_id)
+    """Begin a queued job: its first level's chord. A start whose worker died before it
+    launched the first level (the job is running, at level 0) is carried out again when its
+    message comes back."""
+
+    def begin(current: JobRecord) -> JobRecord | None:
+        if current.state is not JobState.QUEUED:
+            return None
+        return current.model_copy(update={"state": JobState.RUNNING, "started_at": now()})
+
+    record = store.update(job_id, begin)
+    if record is None or record.state is not JobState.RUNNING or record.level or record.levels:
+        log.info("job %s: not queued any more (cancelled, gone or started); nothing to do", job_id)
         return
     left, right = job_views(store, record)
     first = job_plans(record)[0]
@@ -153,38 +171,125 @@ def job_plans(record: JobRecord) -> list[LevelPlan]:
 
 
 def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: LevelInputs) -> None:
-    """Write the level's inputs once and fan its bundles out on the solver's queue."""
-    settings = store.settings
+    """Write the level's inputs once, plan its bundles and fan them out on the solver's queue.
+
+    Planning is geometry for most solvers (done here). Solvers that embed on a QPU graph need
+    their sampler for it, and so the D-Wave token, which control workers never have: for
+    them it is a task on the solver's own queue (:func:`plan_level`), followed by
+    :func:`fan_out_level` here."""
     config = record.config
     started = time.time()
-    # may search a width and embed (QPU): before the save, which keeps what it chose
-    chunks = task_chunks(inputs, config, rows_per_task(settings, config.solver))
+    remote = plans_with_solver(config)
+    if not remote:
+        level_bundles(inputs, config)  # sets inputs.prepared: the bundles' width
     store.save_level(record.id, inputs, started=started)
-    total = sum(len(chunk) for chunk in chunks)
+    if remote:
+        if _advance(store, record.id, inputs.index):
+            send_plan(celery, store.settings, record.id, inputs.index, config.solver)
+        return
+    _fan_out_planned(celery, store, record.id, inputs, launched_here=True)
+
+
+def _advance(
+    store: JobStore, job_id: str, index: int, total: int = 0, *, launched_here: bool = True
+) -> bool:
+    """Make level ``index`` the running job's current one with ``total`` bundles (0 while
+    they are planned elsewhere); False (and the level's inputs dropped) when the job is no
+    longer running. With ``launched_here`` false the level must be current and not fanned
+    out yet (a repeated fan-out changes nothing)."""
+    moved = False
 
     def advance(current: JobRecord) -> JobRecord | None:
+        nonlocal moved
         if current.state is not JobState.RUNNING:
             return None
-        return current.model_copy(update={"level": inputs.index + 1, "bundles_total": total})
+        if not launched_here and (current.level != index + 1 or current.bundles_total):
+            return None
+        moved = True
+        return current.model_copy(update={"level": index + 1, "bundles_total": total})
 
-    updated = store.update(record.id, advance)
+    updated = store.update(job_id, advance)
     if updated is None or updated.state is not JobState.RUNNING:
-        store.drop_level(record.id, inputs.index)
+        store.drop_level(job_id, index)
+        return False
+    return moved
+
+
+def _fan_out_planned(
+    celery: Celery, store: JobStore, job_id: str, inputs: LevelInputs, *, launched_here: bool
+) -> None:
+    """The planned level's chord, once its bundle count is on the record."""
+    record = store.get(job_id)
+    if record is None:
         return
-    fan_out(celery, settings, record.id, inputs.index, config.solver, chunks)
+    config = record.config
+    chunks = task_chunks(inputs, config, rows_per_task(store.settings, config.solver))
+    total = sum(len(chunk) for chunk in chunks)
+    if _advance(store, job_id, inputs.index, total, launched_here=launched_here):
+        fan_out(celery, store, record, inputs.index, chunks)
+
+
+def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solver: str) -> None:
+    """Plan the level on the solver's queue, then fan it out from the control queue."""
+    chain(
+        celery.signature(
+            PLAN_LEVEL,
+            args=(job_id, index),
+            queue=queue_of(solver),
+            **task_time_limits(settings, solver),
+        ),
+        celery.signature(
+            FAN_OUT_LEVEL, args=(job_id, index), queue=settings.control_queue, immutable=True
+        ),
+    ).apply_async()
+
+
+def plan_level(store: JobStore, job_id: str, index: int) -> dict | None:
+    """On the solver's queue: what the level's plan needs from the solver (its QPU graph: the
+    widest segment that embeds, every bundle shape embedded once, kept in the embedding store),
+    recorded with the level's inputs; None when the job is no longer running.
+
+    Idempotent: a level planned already (a re-sent or redelivered task) is left as it is."""
+    if store.state(job_id) is not JobState.RUNNING:
+        return None
+    record = store.get(job_id)
+    if record is None:
+        raise JobGone(job_id)
+    inputs, _ = store.load_level(job_id, index)
+    if not is_planned(inputs):
+        level_bundles(inputs, record.config)
+        store.save_prepared(job_id, index, inputs.prepared)
+    return inputs.prepared
+
+
+def fan_out_level(celery: Celery, store: JobStore, job_id: str, index: int) -> None:
+    """On the control queue, after :func:`plan_level`: launch the planned level's chord (once:
+    a level whose bundle count is already on the record was launched)."""
+    record = store.get(job_id)
+    if record is None or record.state is not JobState.RUNNING or record.level != index + 1:
+        return
+    if record.bundles_total:
+        log.info("job %s: level %d fanned out already; ignoring a repeat", job_id, index + 1)
+        return
+    inputs, _ = store.load_level(job_id, index)
+    if is_planned(inputs):
+        _fan_out_planned(celery, store, job_id, inputs, launched_here=False)
 
 
 def fan_out(
-    celery: Celery, settings: Settings, job_id: str, index: int, solver: str, chunks: list
+    celery: Celery, store: JobStore, record: JobRecord, index: int, chunks: list[RowRanges]
 ) -> None:
-    """A chord: the chunks on the solver's queue (the registry's, with its time limits), then
-    the level's fan-in on the control queue."""
+    """A chord: the chunks on the job's owner's queue of the solver (``workers/fair.py``:
+    users are served in turn), with the solver's time limits, then the level's fan-in on the
+    control queue."""
+    settings, solver = store.settings, record.config.solver
+    queue = fair.route(store.redis, store.prefix, queue_of(solver), record.owner)
     limits = task_time_limits(settings, solver)
     header = [
-        celery.signature(SOLVE_ROWS, args=(job_id, index, chunk), queue=queue_of(solver), **limits)
+        celery.signature(SOLVE_ROWS, args=(record.id, index, chunk), queue=queue, **limits)
         for chunk in chunks
     ]
-    callback = celery.signature(LEVEL_DONE, args=(job_id, index), queue=settings.control_queue)
+    callback = celery.signature(LEVEL_DONE, args=(record.id, index), queue=settings.control_queue)
     chord(header)(callback)
 
 

@@ -76,6 +76,23 @@ class JobRecord(BaseModel):
     def _finite_or_null(cls, value: Any) -> Any:
         return finite_or_null(value)
 
+    @field_validator("error")
+    @classmethod
+    def _bounded(cls, value: str | None) -> str | None:
+        return bounded_message(value)
+
+
+#: Longest message a record keeps (a solver's error may quote a whole problem); the workers'
+#: log has the full text.
+MAX_MESSAGE_CHARS = 2000
+
+
+def bounded_message(message: str | None) -> str | None:
+    """``message`` cut at :data:`MAX_MESSAGE_CHARS`, saying so."""
+    if message is None or len(message) <= MAX_MESSAGE_CHARS:
+        return message
+    return message[:MAX_MESSAGE_CHARS] + " ... (cut; the full message is in the worker log)"
+
 
 def finite_or_null(value: Any) -> Any:
     """``value`` with every float that is not finite (in nested dicts and lists) made None: what

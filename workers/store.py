@@ -27,6 +27,7 @@ import json
 import logging
 import shutil
 from collections.abc import Callable, Iterable
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
@@ -54,8 +55,20 @@ log = logging.getLogger(__name__)
 LEVEL_INPUTS_GRACE = 3600
 
 
+#: Writes a new job and takes a place under its owner's active-job cap, in one script.
+_CREATE = files(__package__).joinpath("create_job.lua").read_text(encoding="utf-8")
+
+
 class LevelInputsMissing(LookupError):
     """The level's inputs are gone (job finished, cancelled or expired)."""
+
+
+class ActiveJobsCap(Exception):
+    """The owner already has ``cap`` jobs queued or running; nothing was written."""
+
+    def __init__(self, owner: str, active: int, cap: int):
+        super().__init__(f"user {owner!r} already has {active} jobs queued or running")
+        self.owner, self.active, self.cap = owner, active, cap
 
 
 def _text(value: bytes | str) -> str:
@@ -72,6 +85,39 @@ def _from_npy(data: bytes) -> np.ndarray:
     return np.load(io.BytesIO(data), allow_pickle=False)
 
 
+#: Largest value one write puts in Redis (each is a record of its append-only file): a level's
+#: arrays are written in pieces of at most this many bytes.
+MAX_VALUE_BYTES = 4 * 2**20
+
+
+def _array_fields(name: str, array: np.ndarray) -> dict[str, bytes]:
+    """``array`` as hash fields of at most :data:`MAX_VALUE_BYTES` each: ``name`` holds its
+    .npy header (dtype, shape) and ``name:0``, ``name:1``, ... its bytes. Integer arrays travel
+    in the narrowest dtype that holds their values (candidates are small disparities) and come
+    back in their own."""
+    array = np.ascontiguousarray(array)
+    stored = array
+    if array.dtype.kind in "iu" and array.size:
+        narrow = np.promote_types(np.min_scalar_type(array.min()), np.min_scalar_type(array.max()))
+        if narrow.itemsize < array.dtype.itemsize:
+            stored = array.astype(narrow)
+    data = stored.tobytes()
+    pieces = range(0, max(len(data), 1), MAX_VALUE_BYTES)
+    header = {"dtype": array.dtype.str, "stored": stored.dtype.str, "shape": list(array.shape)}
+    fields = {name: json.dumps({**header, "pieces": len(pieces)}).encode()}
+    for number, start in enumerate(pieces):
+        fields[f"{name}:{number}"] = data[start : start + MAX_VALUE_BYTES]
+    return fields
+
+
+def _array_from(fields: dict[bytes, bytes], name: str) -> np.ndarray:
+    """The array :func:`_array_fields` wrote under ``name``."""
+    header = json.loads(fields[name.encode()])
+    data = b"".join(fields[f"{name}:{number}".encode()] for number in range(header["pieces"]))
+    stored = np.frombuffer(data, dtype=np.dtype(header["stored"])).reshape(header["shape"])
+    return stored.astype(np.dtype(header["dtype"]))
+
+
 class JobStore:
     """Job records in Redis and job files in ``data_dir/jobs/{id}``."""
 
@@ -80,6 +126,7 @@ class JobStore:
         self.settings = settings
         self.prefix = settings.key_prefix
         self.ttl = settings.result_ttl_seconds
+        self._create = client.register_script(_CREATE)
 
     @classmethod
     def from_settings(cls, settings: Settings) -> JobStore:
@@ -103,22 +150,55 @@ class JobStore:
 
     # records ----------------------------------------------------------------------------------
 
-    def create(self, record: JobRecord, arrays: dict[str, np.ndarray]) -> None:
-        """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record."""
+    def create(
+        self, record: JobRecord, arrays: dict[str, np.ndarray], cap: int | None = None
+    ) -> None:
+        """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record.
+
+        With ``cap``, the owner may have at most that many jobs queued or running: the count
+        and the record's write are one Redis script (:class:`ActiveJobsCap` when full), so
+        simultaneous submits never get past it. Whatever fails on the way (the cap, a full
+        disk, Redis) leaves no upload folder behind."""
         folder = self.job_dir(record.id)
         folder.mkdir(parents=True, exist_ok=False)
-        for name, array in arrays.items():
-            np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+        try:
+            for name, array in arrays.items():
+                np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+            owner = record.owner or ""
+            keys = [
+                self.key("job", record.id),
+                self.key("jobs"),
+                self.key("jobs", "active"),
+                self.key("jobs", "owner", owner),
+            ]
+            args = [
+                record.id,
+                owner,
+                record.model_dump_json(),
+                repr(record.created_at.timestamp()),
+                cap or 0,
+                self.key("job", ""),
+            ]
+            active = int(self._create(keys=keys, args=args))
+            if active < 0:
+                raise ActiveJobsCap(owner, -1 - active, cap or 0)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+
+    def discard(self, job_id: str) -> None:
+        """Remove a job that was written but could not be queued (its submit failed after
+        :meth:`create`): record, indexes, views and uploads, as if it had never been."""
+        record = self.get(job_id)
         with self.redis.pipeline() as pipe:
-            pipe.set(self.key("job", record.id), record.model_dump_json())
-            pipe.zadd(self.key("jobs"), {record.id: record.created_at.timestamp()})
-            pipe.hset(self.key("jobs", "active"), record.id, record.owner or "")
-            if record.owner is not None:
-                pipe.zadd(
-                    self.key("jobs", "owner", record.owner),
-                    {record.id: record.created_at.timestamp()},
-                )
+            pipe.delete(self.key("job", job_id))
+            pipe.zrem(self.key("jobs"), job_id)
+            pipe.hdel(self.key("jobs", "active"), job_id)
+            if record is not None and record.owner is not None:
+                pipe.zrem(self.key("jobs", "owner", record.owner), job_id)
             pipe.execute()
+        for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
+            self.redis.delete(key)
 
     def load_upload(self, job_id: str, name: str) -> np.ndarray:
         return np.load(self.job_dir(job_id) / f"{name}.npy", allow_pickle=False)
@@ -302,32 +382,39 @@ class JobStore:
             "plan": inputs.plan.model_dump_json().encode(),
             "views": str(inputs.views).encode(),
             "started": repr(started).encode(),
-            "left": _npy(inputs.left),
-            "right": _npy(inputs.right),
-            "candidates": _npy(inputs.candidates),
             "prepared": json.dumps(inputs.prepared).encode(),
         }
+        arrays = {"left": inputs.left, "right": inputs.right, "candidates": inputs.candidates}
         if inputs.initial_labels is not None:
-            fields["initial_labels"] = _npy(inputs.initial_labels)
+            arrays["initial_labels"] = inputs.initial_labels
+        for name, array in arrays.items():
+            fields.update(_array_fields(name, array))
         key = self.key("job", job_id, "level", inputs.index)
         with self.redis.pipeline() as pipe:
-            pipe.hset(key, mapping=fields)
+            for name, value in fields.items():  # one bounded write per field
+                pipe.hset(key, name, value)
             pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
             pipe.execute()
+
+    def save_prepared(self, job_id: str, index: int, prepared: dict) -> None:
+        """Record what planning the level's bundles chose (``LevelInputs.prepared``)."""
+        key = self.key("job", job_id, "level", index)
+        self.redis.hset(key, "prepared", json.dumps(prepared))
 
     def load_level(self, job_id: str, index: int) -> tuple[LevelInputs, float]:
         """The level's inputs and when the level was started (epoch seconds)."""
         fields = self.redis.hgetall(self.key("job", job_id, "level", index))
         if not fields:
             raise LevelInputsMissing(f"job {job_id}: inputs of level {index} are gone")
-        initial = fields.get(b"initial_labels")
         inputs = LevelInputs(
             plan=LevelPlan.model_validate_json(fields[b"plan"]),
             views=int(fields[b"views"]),
-            left=_from_npy(fields[b"left"]),
-            right=_from_npy(fields[b"right"]),
-            candidates=_from_npy(fields[b"candidates"]),
-            initial_labels=None if initial is None else _from_npy(initial),
+            left=_array_from(fields, "left"),
+            right=_array_from(fields, "right"),
+            candidates=_array_from(fields, "candidates"),
+            initial_labels=(
+                _array_from(fields, "initial_labels") if b"initial_labels" in fields else None
+            ),
             prepared=json.loads(fields.get(b"prepared", b"{}")),
         )
         return inputs, float(fields[b"started"])

@@ -20,16 +20,18 @@ from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
 from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
-from workers import orchestration, watchdog
+from workers import fair, orchestration, watchdog
 from workers.app import (
+    FAN_OUT_LEVEL,
     LEVEL_DONE,
+    PLAN_LEVEL,
     SOLVE_ROWS,
     START_JOB,
     app,
     task_time_limits,
     terminate_tasks,
 )
-from workers.process import die_with_parent
+from workers.process import die_with_parent, limit_memory, lower_priority
 from workers.quota import QpuMeter, QuotaExceeded
 from workers.store import JobStore, LevelInputsMissing
 from workers.telemetry import Telemetry
@@ -86,6 +88,7 @@ def install_embedding_store() -> None:
 def _init_process(**_: object) -> None:
     global _store, _meter, _telemetry
     die_with_parent()  # a pool process never outlives its worker (even a SIGKILLed one)
+    limit_memory(settings.task_memory_limit_mb)  # one task cannot take the machine's memory
     _store = None
     _meter = None
     _telemetry = None
@@ -107,6 +110,9 @@ def start_job(self, job_id: str) -> None:
     except (SolverError, ValueError) as error:  # e.g. no segment embeds: say what to change
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
+    except MemoryError:
+        log.warning("job %s: out of memory preparing level 1", job_id)
+        store().fail(job_id, memory_message(0))
     except Exception:
         log.exception("job %s: start failed", job_id)
         store().fail(job_id, orchestration.internal_error(job_id, "starting the job"))
@@ -121,6 +127,9 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
     except SolverError as error:  # preparing the next level's bundles (embedding) failed
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
+    except MemoryError:
+        log.warning("job %s: out of memory assembling level %d", job_id, index + 1)
+        store().fail(job_id, memory_message(index + 1))
     except Exception:
         log.exception("job %s: fan-in of level %d failed", job_id, index)
         store().fail(job_id, orchestration.internal_error(job_id, f"assembling level {index + 1}"))
@@ -136,21 +145,70 @@ class SolverTask(Task):
             _fail(job_id, time_limit_message(job_id, index, hard=True))
 
 
+@app.task(name=PLAN_LEVEL, bind=True, base=SolverTask, ignore_result=True)
+def plan_level(self, job_id: str, index: int) -> None:
+    """On the solver's queue (where the D-Wave token is): the level's bundle plan."""
+    try:
+        orchestration.plan_level(store(), job_id, index)
+    except SoftTimeLimitExceeded:
+        _fail(job_id, time_limit_message(job_id, index, hard=False))
+    except TransientSolverError as error:  # the QPU's graph could not be fetched
+        retries = self.request.retries
+        if retries < settings.task_retries:
+            delay = orchestration.retry_delay(settings, retries)
+            log.warning("job %s: planning: %s; retry in %.1f s", job_id, error, delay)
+            raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
+        _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+    except SolverError as error:  # e.g. no segment embeds, or no token here: what to change
+        _fail(job_id, str(error))
+    except (LevelInputsMissing, orchestration.JobGone):
+        return
+    except REDIS_DOWN as error:  # the watchdog re-sends the plan when Redis is back
+        log.warning("job %s: Redis unavailable planning level %d: %s", job_id, index, error)
+        raise
+    except MemoryError:
+        _fail(job_id, memory_message(index))
+    except Exception:
+        log.exception("job %s: planning level %d failed", job_id, index)
+        _fail(job_id, orchestration.internal_error(job_id, f"planning level {index + 1}"))
+
+
+@app.task(name=FAN_OUT_LEVEL, bind=True, ignore_result=True)
+def fan_out_level(self, job_id: str, index: int) -> None:
+    """On the control queue, after ``plan_level``: the level's chord."""
+    try:
+        orchestration.fan_out_level(app, store(), job_id, index)
+    except REDIS_DOWN as error:
+        log.warning("job %s: Redis unavailable fanning out level %d: %s", job_id, index, error)
+    except LevelInputsMissing:
+        return
+    except Exception:
+        log.exception("job %s: fan-out of level %d failed", job_id, index)
+        store().fail(job_id, orchestration.internal_error(job_id, f"starting level {index + 1}"))
+
+
 @app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
 def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
     ranges = [[int(value) for value in bundle] for bundle in row_ranges]
+    lower_priority(settings.solver_nice)  # orchestration and the API get the CPU first
     worker = self.request.hostname or ""
     task_id = self.request.id
+    queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
     if task_id:
         store().task_started(job_id, task_id)
+        limit = task_time_limits(settings, fair.base_queue(queue))["time_limit"]
+        fair.task_started(store().redis, settings.key_prefix, queue, task_id, limit)
     started = time.perf_counter()
     try:
         result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
         if result is not None and not result.get("duplicate"):
-            queue = (self.request.delivery_info or {}).get("routing_key") or "unknown"
-            telemetry().task_done(queue, time.perf_counter() - started, result["bundles"])
+            seconds = time.perf_counter() - started
+            telemetry().task_done(fair.base_queue(queue), seconds, result["bundles"])
     except SoftTimeLimitExceeded:
         return _fail(job_id, time_limit_message(job_id, index, hard=False), task_id)
+    except MemoryError:
+        log.warning("job %s: a task of level %d ran out of memory", job_id, index)
+        return _fail(job_id, memory_message(index), task_id)
     except TransientSolverError as error:
         retries = self.request.retries
         if retries < settings.task_retries:
@@ -178,6 +236,7 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
     finally:
         if task_id:
             store().task_ended(job_id, task_id)
+            fair.task_ended(store().redis, settings.key_prefix, queue, task_id)
     return result if result is not None else {"skipped": True}
 
 
@@ -195,12 +254,22 @@ def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:
     )
 
 
+def memory_message(index: int) -> str:
+    """What a user reads when one of the job's tasks needed more memory than a process has."""
+    return (
+        f"a task of level {index + 1} needed more memory than the limit of "
+        f"{settings.task_memory_limit_mb} MiB per worker process (QHSM_TASK_MEMORY_LIMIT_MB); "
+        "use fewer reads, smaller bundles or a smaller image, or ask the operator to raise it"
+    )
+
+
 def _fail(job_id: str, message: str, task_id: str | None = None) -> dict:
     """Fail the job; its other running solver tasks are stopped (they would only waste
     workers: their results are no longer wanted)."""
     record = store().get(job_id)
     solver = record.config.solver if record else "?"
     full = f"solver {solver!r} failed: {message}"
+    log.warning("job %s failed: %s", job_id, full)  # in full: the record keeps a bounded text
     if store().fail(job_id, full):
         others = [other for other in store().running_tasks(job_id) if other != task_id]
         terminate_tasks(app, others, solver)

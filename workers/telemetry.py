@@ -148,12 +148,17 @@ class ServiceCollector(Collector):
         family = GaugeMetricFamily(
             "qhsm_queue_depth", "Messages waiting in each Celery queue", labels=["queue"]
         )
+        from workers.fair import user_queues
+
+        prefix = self.settings.key_prefix
+        lists = {queue: [queue, *user_queues(self.redis, prefix, queue)] for queue in self.queues}
         with self.redis.pipeline(transaction=False) as pipe:
-            for queue in self.queues:  # kombu's Redis transport: a list per queue
-                pipe.llen(self._key(queue))
-            depths = pipe.execute()
-        for queue, depth in zip(self.queues, depths, strict=True):
-            family.add_metric([queue], depth)
+            for names in lists.values():  # kombu's Redis transport: a list per queue
+                for name in names:
+                    pipe.llen(self._key(name))
+            depths = iter(pipe.execute())
+        for queue, names in lists.items():  # a solver's users' queues count as its own
+            family.add_metric([queue], sum(next(depths) for _ in names))
         return family
 
     def _qpu_seconds(self) -> Metric:

@@ -1,6 +1,15 @@
-"""The watchdog: a running job whose progress has not moved for ``watchdog_stall_seconds`` gets
-its unsolved bundles re-sent, so a job whose worker was SIGKILLed, or whose tasks were lost in a
-Redis outage, finishes within minutes instead of waiting for the 6-hour visibility timeout.
+"""The watchdog: what a dead worker held goes back to its queue, and an active job whose work
+is lost or stalled gets it sent again, so a job finishes (or fails with a reason) within a
+couple of minutes of any process dying instead of waiting for the 6-hour visibility timeout.
+
+Each round (a few seconds: :attr:`Watchdog.period`) it first re-queues the unacknowledged
+messages of workers that stopped sending heartbeats (``workers/liveness.py``: exactly what the
+dead worker held; a live worker's long tasks are never touched). Then it looks at every queued
+and running job: one without progress for ``watchdog_lost_seconds`` none of whose tasks is in a
+queue or held by a live worker lost them (the API died before sending its start, or Redis lost
+them): its start, or its level's unsolved bundles, are sent again at once. A running job whose
+progress has not moved for ``watchdog_stall_seconds`` although its tasks exist gets its
+unsolved bundles re-sent, skipping those a live worker is solving.
 
 Re-sending is safe because results are idempotent: solved bundles are kept in the store by first
 row (``JobStore.save_bundles``), and the level's fan-in assembles from them and runs at most once.
@@ -26,8 +35,9 @@ import redis
 from celery import Celery
 
 from shared.bundles import bundle_key
-from workers import orchestration
-from workers.app import LEVEL_DONE, SOLVE_ROWS, START_JOB
+from shared.solvers.registry import queue_names, queue_of
+from workers import fair, liveness, orchestration
+from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, START_JOB
 from workers.records import JobRecord, JobState
 from workers.store import JobStore
 from workers.telemetry import Telemetry
@@ -55,6 +65,7 @@ class _Seen:
     signature: tuple
     since: float
     attempts: int = 0
+    checked: float = 0.0  # when its messages were last looked for
 
 
 @dataclass
@@ -73,18 +84,17 @@ class Watchdog:
     def stall(self) -> float:
         return self.store.settings.watchdog_stall_seconds
 
-    def running(self) -> Iterator[JobRecord]:
-        """Every running job (records that fail to load are skipped)."""
-        index = self.store.key("jobs")
-        offset = 0
-        while True:
-            ids = [
-                raw.decode() for raw in self.store.redis.zrange(index, offset, offset + PAGE - 1)
-            ]
-            if not ids:
-                return
-            offset += len(ids)
-            raws = self.store.redis.mget([self.store.key("job", job_id) for job_id in ids])
+    @property
+    def lost_after(self) -> float:
+        return self.store.settings.watchdog_lost_seconds
+
+    def active(self) -> Iterator[JobRecord]:
+        """Every queued or running job (records that fail to load are skipped)."""
+        index = self.store.key("jobs", "active")
+        ids = sorted(raw.decode() for raw in self.store.redis.hkeys(index))
+        for start in range(0, len(ids), PAGE):
+            page = ids[start : start + PAGE]
+            raws = self.store.redis.mget([self.store.key("job", job_id) for job_id in page])
             for raw in raws:
                 if raw is None:
                     continue
@@ -92,17 +102,17 @@ class Watchdog:
                     record = JobRecord.model_validate_json(raw)
                 except ValueError:
                     continue
-                if record.state is JobState.RUNNING:
+                if record.state in (JobState.QUEUED, JobState.RUNNING):
                     yield record
 
     def signature(self, record: JobRecord) -> tuple:
-        """What moves while a job progresses: its level, levels done, bundles solved."""
+        """What moves while a job progresses: its state, level, levels done, bundles solved."""
         solved = self.store.solved_count(record.id, record.level - 1) if record.level else 0
-        return (record.level, len(record.levels), solved)
+        return (record.state, record.level, len(record.levels), solved)
 
     def leader(self) -> bool:
         """Hold (or renew) the lock that lets one watchdog act at a time."""
-        key, ttl = self.store.key(LOCK_KEY), max(2, int(3 * interval(self.stall)) + 1)
+        key, ttl = self.store.key(LOCK_KEY), max(2, int(3 * self.period) + 1)
         redis_ = self.store.redis
         if redis_.set(key, self.name, nx=True, ex=ttl):
             return True
@@ -111,35 +121,99 @@ class Watchdog:
             return True
         return False
 
+    @property
+    def period(self) -> float:
+        """How often the watchdog looks: often enough to notice a dead worker within a few
+        heartbeats, and a stalled job a few times per stall period."""
+        heartbeat = self.store.settings.worker_heartbeat_seconds
+        return max(0.5, min(interval(self.stall), 2.5 * heartbeat))
+
     def tick(self) -> list[tuple[str, str]]:
-        """Look at every running job once; returns (job id, action) for the stalled ones."""
+        """Look at every active job once; returns (job id, action) for those it acted on.
+
+        A job without progress for ``watchdog_lost_seconds`` none of whose tasks is anywhere
+        (no queue holds one, no live worker: :meth:`present`) lost them, with the process that
+        died holding them or a Redis restart: its work is sent again at once. One that did not
+        move for ``watchdog_stall_seconds`` although its tasks exist is handled as stalled."""
         now = self.clock()
         actions = []
-        running = set()
-        for record in self.running():
-            running.add(record.id)
+        active = set()
+        messages: bytes | None = None
+        for record in self.active():
+            active.add(record.id)
             signature = self.signature(record)
             seen = self.seen.get(record.id)
             if seen is None or seen.signature != signature:
-                self.seen[record.id] = _Seen(signature, now)
+                self.seen[record.id] = _Seen(signature, now, checked=now)
                 continue
-            if now - seen.since < self.stall:
+            idle = now - seen.since
+            action = None
+            if record.state is JobState.QUEUED:
+                if idle >= self.lost_after and now - seen.checked >= self.lost_after:
+                    seen.checked = now
+                    messages = self.messages() if messages is None else messages
+                    if record.id.encode() not in messages:
+                        action = self.start_again(record)
+            elif idle >= self.stall:
+                seen.since = seen.checked = now
+                action = self.recover(record, seen.attempts + 1)
+            elif idle >= self.lost_after and now - seen.checked >= self.lost_after:
+                seen.checked = now
+                messages = self.messages() if messages is None else messages
+                if record.id.encode() not in messages:
+                    log.warning(
+                        "job %s: none of its tasks is queued or held by a live worker; "
+                        "sending its work again", record.id,
+                    )  # fmt: skip
+                    action = self.recover(record, seen.attempts + 1, lost=True)
+            if action is None:
                 continue
-            seen.since = now
-            action = self.recover(record, seen.attempts + 1)
             if action not in ("in-flight", "waiting"):
                 seen.attempts += 1
             actions.append((record.id, action))
-        for job_id in set(self.seen) - running:
+        for job_id in set(self.seen) - active:
             del self.seen[job_id]
         return actions
 
-    def recover(self, record: JobRecord, attempt: int) -> str:
+    def messages(self) -> bytes:
+        """Every task message in the broker now, as one blob to look job ids up in: the queues
+        (their priority lists included) and the unacknowledged ones of live workers (a task's
+        header names its job: ``argsrepr``)."""
+        redis_ = self.store.redis
+        keys = [key for queue in self.queue_names() for key in self.queue_keys(queue)]
+        with redis_.pipeline(transaction=False) as pipe:
+            for key in keys:
+                pipe.lrange(key, 0, -1)
+            pipe.hvals(liveness.unacked_keys(self.store.prefix)[0])
+            found = pipe.execute()
+        return b"\0".join(item for batch in found for item in batch)
+
+    def queue_keys(self, queue: str) -> list[str]:
+        """kombu's Redis lists of a queue: the queue's, and one per priority step."""
+        base = self.store.key(queue)
+        return [base, *(f"{base}\x06\x16{priority}" for priority in (3, 6, 9))]
+
+    def queue_names(self) -> list[str]:
+        """The control queue and every solver queue, with its users' queues."""
+        solvers = fair.with_user_queues(self.store.redis, self.store.prefix, queue_names())
+        return [self.store.settings.control_queue, *solvers]
+
+    def start_again(self, record: JobRecord) -> str:
+        """A queued job whose start task is nowhere (the API died before it was sent, or it
+        was lost with Redis): send it again (starting is idempotent)."""
+        log.warning("job %s: queued but its start task is nowhere; sending it again", record.id)
+        self.celery.send_task(START_JOB, args=(record.id,), queue=self.store.settings.control_queue)
+        self.telemetry.resent(1)
+        return "started"
+
+    def recover(self, record: JobRecord, attempt: int, lost: bool = False) -> str:
         settings = self.store.settings
         solver = record.config.solver
-        consumed = self.consumed_queues()
-        if consumed is not None and solver in consumed and self.queue_length(solver) > 0:
-            return "waiting"  # its tasks may be behind others in a busy queue: not stalled
+        if not lost:
+            consumed = self.consumed_queues()
+            queue = queue_of(solver)
+            if consumed is not None and queue in consumed and self.queue_length(queue) > 0:
+                return "waiting"  # its tasks may be behind others in a busy queue: not stalled
         if attempt > settings.watchdog_max_resends:
             reason = (
                 f"no progress for {self.stall:g} s even after {attempt - 1} re-sends of its "
@@ -161,6 +235,13 @@ class Watchdog:
         settings = self.store.settings
         config = record.config
         inputs, _ = self.store.load_level(record.id, index)
+        if not orchestration.is_planned(inputs):  # its plan task (solver queue) was lost
+            if self.planning(record.id, index):
+                return "in-flight"
+            log.warning("job %s: re-sending the plan of level %d", record.id, index + 1)
+            orchestration.send_plan(self.celery, settings, record.id, index, config.solver)
+            self.telemetry.resent(1)
+            return "resent"
         solved = self.store.solved_rows(record.id, index)
         expected = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
         missing = [b for b in expected if bundle_key(b) not in solved]
@@ -186,7 +267,7 @@ class Watchdog:
             "job %s: no progress for %g s; re-sending %d unsolved bundles of level %d",
             record.id, self.stall, len(missing), index + 1,
         )  # fmt: skip
-        orchestration.fan_out(self.celery, settings, record.id, index, config.solver, chunks)
+        orchestration.fan_out(self.celery, self.store, record, index, chunks)
         self.telemetry.resent(len(chunks))
         return "resent"
 
@@ -234,6 +315,21 @@ class Watchdog:
                         rows.update(bundle_key(spec) for spec in args[2])
         return rows
 
+    def planning(self, job_id: str, index: int) -> bool:
+        """Whether a live worker is planning (or holds the plan task of) the job's level."""
+        try:
+            inspect = self.celery.control.inspect(timeout=self.store.settings.inspect_timeout)
+            replies = [inspect.active() or {}, inspect.reserved() or {}]
+        except Exception as error:
+            log.warning("watchdog: cannot ask the workers what they run: %s", error)
+            return True  # unknown: leave it alone this time
+        return any(
+            task.get("name") == PLAN_LEVEL and (task.get("args") or [])[:2] == [job_id, index]
+            for reply in replies
+            for tasks in reply.values()
+            for task in tasks
+        )
+
     def consumed_queues(self) -> set[str] | None:
         """Queues some live worker consumes (None when the workers cannot be asked)."""
         try:
@@ -244,9 +340,10 @@ class Watchdog:
         return {queue["name"] for queues in replies.values() for queue in queues}
 
     def queue_length(self, queue: str) -> int:
-        """Messages waiting in a queue (kombu's Redis lists: the queue, and its priorities)."""
-        base = self.store.key(queue)
-        keys = [base, *(f"{base}\x06\x16{priority}" for priority in (3, 6, 9))]
+        """Messages waiting in a solver's queue and its users' queues (kombu's Redis lists:
+        each queue's, and its priorities')."""
+        names = fair.with_user_queues(self.store.redis, self.store.prefix, [queue])
+        keys = [key for name in names for key in self.queue_keys(name)]
         with self.store.redis.pipeline() as pipe:
             for key in keys:
                 pipe.llen(key)
@@ -260,10 +357,16 @@ class Watchdog:
         return ""
 
     def run(self, stop: threading.Event) -> None:
-        """Tick until ``stop``; errors (Redis down) are logged and the next tick tries again."""
-        while not stop.wait(interval(self.stall)):
+        """Every :attr:`period` until ``stop``: put back what dead workers held, then look at
+        the jobs; errors (Redis down) are logged and the next round tries again."""
+        while not stop.wait(self.period):
             try:
                 if self.leader():
+                    restored = liveness.restore_orphans(
+                        self.celery, self.store.redis, self.store.settings
+                    )
+                    if restored:
+                        self.telemetry.resent(restored)
                     self.tick()
             except redis.RedisError as error:
                 log.warning("watchdog: Redis unavailable (%s); trying again", error)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 from typing import Annotated, Literal
 
@@ -36,6 +37,7 @@ from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.quota import QuotaExceeded
 from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
+from workers.store import ActiveJobsCap
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -156,19 +158,26 @@ def bounded_params(config: MatchConfig) -> MatchConfig:
     return config.model_copy(update={"solver_params": params})
 
 
+def too_many_jobs(name: str, active: int, cap: int) -> HTTPException:
+    """The 429 of a user at the per-user cap of jobs in flight."""
+    return HTTPException(
+        http.HTTP_429_TOO_MANY_REQUESTS,
+        f"user {name!r} already has {active} jobs queued or running, the limit per user "
+        f"(QHSM_MAX_ACTIVE_JOBS_PER_USER={cap}); wait for one to finish or cancel one "
+        "(DELETE /v1/jobs/{id}), then submit again",
+    )
+
+
 def check_active_jobs(principal: Principal, svc: Services) -> None:
-    """429 when the user already has ``Settings.max_active_jobs_per_user`` jobs in flight."""
+    """429 at once, before the uploads are read, when the user already has
+    ``Settings.max_active_jobs_per_user`` jobs in flight (the cap is taken atomically when the
+    job is written: :meth:`workers.store.JobStore.create`)."""
     cap = svc.settings.max_active_jobs_per_user
     if not cap:  # 0 or None: no limit
         return
     active = svc.store.active_jobs(principal.name)
     if active >= cap:
-        raise HTTPException(
-            http.HTTP_429_TOO_MANY_REQUESTS,
-            f"user {principal.name!r} already has {active} jobs queued or running, the limit "
-            f"per user (QHSM_MAX_ACTIVE_JOBS_PER_USER={cap}); wait for one to finish or cancel "
-            "one (DELETE /v1/jobs/{id}), then submit again",
-        )
+        raise too_many_jobs(principal.name, active, cap)
 
 
 def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEstimate:
@@ -282,9 +291,17 @@ def create_job(
         disparity_range=disparity_range.as_dict(),
         levels_total=len(plan(config, disparity_range.max_disparity)),
     )
-    svc.store.create(record, arrays)
-    keep_views(svc, record.id, arrays)
-    svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    try:
+        svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
+    except ActiveJobsCap as full:
+        raise too_many_jobs(principal.name, full.active, full.cap) from None
+    try:
+        keep_views(svc, record.id, arrays)
+        svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    except BaseException:  # a full disk or Redis gone: the job was never queued
+        with contextlib.suppress(Exception):
+            svc.store.discard(record.id)
+        raise
     body = JobCreated(id=record.id, state=record.state, links=links(record.id))
     return JSONResponse(
         body.model_dump(mode="json"),

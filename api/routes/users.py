@@ -37,12 +37,17 @@ class NewUser(BaseModel):
     name: str = Field(description="1-64 letters, digits, '_', '.', '@' or '-'")
     admin: bool = False
     qpu_seconds: float | None = Field(
-        None, ge=0, description="QPU budget, seconds; null: unlimited; omitted: the default"
+        None,
+        ge=0,
+        allow_inf_nan=False,
+        description="QPU budget, seconds (finite); null: unlimited; omitted: the default",
     )
 
 
 class Quota(BaseModel):
-    qpu_seconds: float | None = Field(ge=0, description="QPU budget, seconds; null: unlimited")
+    qpu_seconds: float | None = Field(
+        ge=0, allow_inf_nan=False, description="QPU budget, seconds (finite); null: unlimited"
+    )
 
 
 class IssuedKey(BaseModel):

@@ -710,18 +710,61 @@ function fragmentKey() {
   return fragment ? decodeURIComponent(fragment[1]) : null;
 }
 
-/** Sign in with the fragment's key, else the tab's stored one. The fragment never reaches the
- * server (browsers do not send it) and is dropped from the address bar at once. */
+/** Who a key belongs to (GET /v1/me with it), without signing in with it. */
+async function whoIs(candidate) {
+  const response = await fetch("/v1/me", { headers: { Authorization: `Bearer ${candidate}` } });
+  if (!response.ok) {
+    const data = await body(response);
+    throw new ApiError(response.status, data.detail ?? `HTTP ${response.status}`);
+  }
+  return response.json();
+}
+
+function describe(user) { return `${user.name}${user.admin ? " (admin)" : ""}`; }
+
+/** Ask before a link's key signs this tab in: a link to `#key=<someone else's key>` must never
+ * switch accounts silently (the uploads would go to that account). Resolves to the choice. */
+function confirmSwitch(next) {
+  return new Promise((resolve) => {
+    stopPolling();
+    $("#nav").hidden = true;
+    $("#switch-to").textContent = describe(next);
+    $("#switch-from").hidden = !state.me;
+    if (state.me) $("#switch-current").textContent = describe(state.me);
+    $("#switch-accept").textContent = `Sign in as ${next.name}`;
+    $("#switch-decline").textContent = state.me ? `Stay ${state.me.name}` : "Cancel";
+    showView("switch");
+    const choose = (accepted) => () => {
+      $("#switch-accept").onclick = $("#switch-decline").onclick = null;
+      resolve(accepted);
+    };
+    $("#switch-accept").onclick = choose(true);
+    $("#switch-decline").onclick = choose(false);
+    $("#switch-accept").focus();
+  });
+}
+
+/** Sign in with the tab's stored key, then consider the fragment's (what `qhsm serve` prints
+ * when it makes a key): the page says whose it is and asks, unless it is the tab's own user.
+ * The fragment never reaches the server (browsers do not send it) and is dropped from the
+ * address bar at once. */
 async function signInFromFragment() {
   const fromFragment = fragmentKey();
   if (fromFragment) history.replaceState(null, "", `${location.pathname}#/jobs`);
-  const candidate = fromFragment || key();
-  if (candidate) {
+  if (key() && !state.me) {
     try {
-      await signIn(candidate);
+      await signIn(key());
     } catch (error) {
       sessionStorage.removeItem(KEY_STORAGE);
       state.me = null;
+    }
+  }
+  if (fromFragment && fromFragment !== key()) {
+    try {
+      const next = await whoIs(fromFragment);
+      const same = state.me && state.me.name === next.name;
+      if (same || (await confirmSwitch(next))) await signIn(fromFragment);
+    } catch (error) {
       $("#signin-error").textContent = error.message;
     }
   }

@@ -177,44 +177,6 @@ class _EmbeddedQPU(Sampler):
             kept = self._composite = EmbeddingCacheComposite(base, cache, self._target, self.name)
         return kept
 
-    def widest_bundle(
-        self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int
-    ) -> int | None:
-        """``--bundle-width auto``: the widest row segment whose QUBO embeds on this solver's
-        graph (None: whole rows), found once per shape and target and kept in the embedding
-        cache together with that shape's embedding, which every such bundle then reuses."""
-        from shared.solvers.qpu_time import auto_width_key, shape_bqm
-
-        base = self.sampler()
-        width = self.cache.widest(
-            lambda width: shape_bqm(str(encoding), height, width, candidates),
-            row_width=row_width,
-            narrowest=2 * margin + 1,
-            target_edges=base.edgelist,
-            target=self._target,
-            timeout=get_settings().embedding_search_timeout,
-            solver=self.name,
-        )
-        key = auto_width_key(self.name, str(encoding), height, candidates, row_width, margin)
-        self.cache.record_width(key, width)
-        return width
-
-    def embed_shapes(
-        self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
-    ) -> None:
-        """Embed each bundle shape (rows, columns) of a level once, before its bundles fan out,
-        so that no two workers compute the same embedding at the same time."""
-        from shared.solvers.qpu_time import shape_bqm
-
-        try:
-            composite = self.composite()
-            for height, width in shapes:
-                composite.embedding(shape_bqm(str(encoding), height, width, candidates))
-        except SolverError:
-            raise
-        except Exception as error:
-            raise self.translate(error) from None
-
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         from dwave.embedding.chain_breaks import majority_vote
 
@@ -330,15 +292,10 @@ def _is_connection_error(error: Exception) -> bool:
     return isinstance(error, requests.ConnectionError | requests.Timeout)
 
 
-class QPUSolver(_EmbeddedQPU):
-    """``qpu``: a D-Wave Advantage QPU through Leap (needs ``DWAVE_API_TOKEN``).
+class LeapCloudSolver(_EmbeddedQPU):
+    """A sampler of D-Wave's cloud (Leap): the token, solver, region and endpoint come from
+    ``Settings`` (``DWAVE_API_TOKEN``, ...); the token is scrubbed from every message."""
 
-    Parameters: ``num_reads`` (default 500), ``annealing_time`` (us), ``chain_strength``
-    (overrides torque compensation), ``anneal_schedule`` (for warm starts), and any other
-    ``DWaveSampler`` parameter.
-    """
-
-    name = "qpu"
     simulated = False
 
     def available(self) -> Availability:
@@ -349,12 +306,6 @@ class QPUSolver(_EmbeddedQPU):
     def _secret(self) -> str | None:
         token = get_settings().dwave_api_token
         return token.get_secret_value() if token is not None else None
-
-    def _make_sampler(self):
-        from dwave.system import DWaveSampler
-
-        solver = get_settings().dwave_solver
-        return self._connect(DWaveSampler, **({"solver": solver} if solver else {}))
 
     def _connect(self, factory, **options: Any):
         """A Leap client sampler built with the token, region and endpoint of ``Settings``;
@@ -373,7 +324,68 @@ class QPUSolver(_EmbeddedQPU):
         return sampler
 
 
-class SimulatedQPUSolver(_EmbeddedQPU):
+class _SegmentsOnGraph(_EmbeddedQPU):
+    """What planning a level asks of a QPU solver (``shared.solve.level_bundles``): the widest
+    row segment that embeds on its graph, and each bundle shape's embedding, found once."""
+
+    def widest_bundle(
+        self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int
+    ) -> int | None:
+        """``--bundle-width auto``: the widest row segment whose QUBO embeds on this solver's
+        graph (None: whole rows), found once per shape and target and kept in the embedding
+        cache together with that shape's embedding, which every such bundle then reuses."""
+        from shared.solvers.qpu_time import auto_width_key, shape_bqm
+
+        base = self.sampler()
+        width = self.cache.widest(
+            lambda width: shape_bqm(str(encoding), height, width, candidates),
+            row_width=row_width,
+            narrowest=2 * margin + 1,
+            target_edges=base.edgelist,
+            target=self._target,
+            timeout=get_settings().embedding_search_timeout,
+            solver=self.name,
+        )
+        key = auto_width_key(self.name, str(encoding), height, candidates, row_width, margin)
+        self.cache.record_width(key, width)
+        return width
+
+    def embed_shapes(
+        self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
+    ) -> None:
+        """Embed each bundle shape (rows, columns) of a level once, before its bundles fan out,
+        so that no two workers compute the same embedding at the same time."""
+        from shared.solvers.qpu_time import shape_bqm
+
+        try:
+            composite = self.composite()
+            for height, width in shapes:
+                composite.embedding(shape_bqm(str(encoding), height, width, candidates))
+        except SolverError:
+            raise
+        except Exception as error:
+            raise self.translate(error) from None
+
+
+
+class QPUSolver(_SegmentsOnGraph, LeapCloudSolver):
+    """``qpu``: a D-Wave Advantage QPU through Leap (needs ``DWAVE_API_TOKEN``).
+
+    Parameters: ``num_reads`` (default 500), ``annealing_time`` (us), ``chain_strength``
+    (overrides torque compensation), ``anneal_schedule`` (for warm starts), and any other
+    ``DWaveSampler`` parameter.
+    """
+
+    name = "qpu"
+
+    def _make_sampler(self):
+        from dwave.system import DWaveSampler
+
+        solver = get_settings().dwave_solver
+        return self._connect(DWaveSampler, **({"solver": solver} if solver else {}))
+
+
+class SimulatedQPUSolver(_SegmentsOnGraph):
     """``qpu-sim``: the ``qpu`` code path on ``MockDWaveSampler`` (Pegasus P16), offline.
 
     The mock runs steepest descent per read on the embedded problem; ``annealing_time`` and

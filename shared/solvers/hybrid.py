@@ -16,13 +16,14 @@ import dimod
 import numpy as np
 
 from shared.solvers.base import Availability, Sampler, SolverError
-from shared.solvers.dwave import QPUSolver, mock_qpu
+from shared.solvers.dwave import LeapCloudSolver, mock_qpu
 
 
-class LeapHybridSolver(QPUSolver):
+class LeapHybridSolver(LeapCloudSolver):
     """``hybrid``: ``LeapHybridSampler`` (needs ``DWAVE_API_TOKEN``); ``time_limit`` in seconds
     (Leap's minimum for the problem size when unset). Warm starts are not supported by Leap's
-    BQM solver, so ``initial_states`` are ignored and reported as such."""
+    BQM solver, so ``initial_states`` are ignored and reported as such. It decomposes problems
+    itself: bundles are whole rows, with no QPU graph to embed on."""
 
     name = "hybrid"
     simulated = False

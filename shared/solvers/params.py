@@ -24,6 +24,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    create_model,
     field_validator,
     model_validator,
 )
@@ -169,11 +170,60 @@ class SimulatedQPUParams(QPUParams):
     num_reads: int = Field(100, ge=1, le=10_000)
 
 
-class AnyParams(SolverParams):
-    """``dimod:`` samplers: any keyword the sampler takes (it checks them itself; the task time
-    limits bound the time spent)."""
+class DimodAnnealParams(SolverParams):
+    """``dimod:dwave.samplers.SimulatedAnnealingSampler``: the sampler's own parameters, bounded
+    as ``sa``'s (``AnnealParams`` adds our presets, fixing and polish on top)."""
 
-    model_config = ConfigDict(extra="allow")
+    num_reads: int | None = Field(None, ge=1, le=1000)
+    num_sweeps: int | None = Field(None, ge=1, le=100_000)
+    beta_range: tuple[float, float] | None = None
+    beta_schedule_type: Literal["linear", "geometric"] | None = None
+
+    @field_validator("beta_range")
+    @classmethod
+    def _positive_range(cls, value: Any) -> Any:
+        if value is not None and not all(0 < b < 1e12 for b in value):
+            raise ValueError("beta_range must be two inverse temperatures in (0, 1e12)")
+        return value
+
+    @model_validator(mode="after")
+    def _bounded_work(self) -> DimodAnnealParams:
+        reads, sweeps = self.num_reads or 1, self.num_sweeps or 1000  # the sampler's defaults
+        _at_most(
+            reads * sweeps,
+            MAX_SA_SWEEPS,
+            f"num_reads x num_sweeps = {reads * sweeps} is above {MAX_SA_SWEEPS} sweeps per bundle",
+        )
+        return self
+
+
+class ReadsParams(SolverParams):
+    """``dimod:`` samplers whose work is set by ``num_reads`` alone (random, tree
+    decomposition)."""
+
+    num_reads: int | None = Field(None, ge=1, le=1000)
+
+
+def bounds_schema(name: str, bounds: Mapping[str, tuple[float, float]]) -> type[SolverParams]:
+    """A schema for a deployment's own ``dimod:`` sampler (``Settings.dimod_samplers``): each
+    named parameter a number within its [low, high]; any other parameter is refused.
+
+    Parameters
+    ----------
+    name : str
+        The sampler class's dotted path (the model's name).
+    bounds : mapping
+        Parameter -> (low, high).
+
+    Returns
+    -------
+    type of SolverParams
+    """
+    fields: dict[str, Any] = {
+        key: (int | float | None, Field(None, ge=low, le=high))
+        for key, (low, high) in bounds.items()
+    }
+    return create_model(f"Params[{name}]", __base__=SolverParams, **fields)
 
 
 class LeapHybridParams(SolverParams):

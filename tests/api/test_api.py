@@ -49,7 +49,33 @@ def test_a_dimod_sampler_by_name_is_accepted_and_a_bad_name_is_422(api):
     response = post(api, params={"solver": "dimod:dimod.Structured"})
     assert response.status_code == 422
     detail = response.json()["detail"]
-    assert "not a dimod.Sampler subclass" in detail and "dimod:PACKAGE.MODULE.CLASS" in detail
+    assert "is not among the dimod samplers this service allows" in detail
+    assert "dimod:PACKAGE.MODULE.CLASS" in detail and "QHSM_DIMOD_SAMPLERS" in detail
+
+
+@pytest.mark.parametrize("name", ["dimod:this.X", "dimod:lib2to3.__main__.X", "dimod:os.X"])
+def test_a_dimod_name_off_the_allowlist_is_422_and_never_imported(api, name, capfd):
+    """A solver name used to be imported by the API: `this` printed the Zen of Python, 2to3
+    ran and raised SystemExit (a plain-text 500)."""
+    import sys
+
+    module = name.removeprefix("dimod:").split(".")[0]
+    already = module in sys.modules
+    response = post(api, params={"solver": name})
+    assert response.status_code == 422, response.text
+    assert "not among the dimod samplers this service allows" in response.json()["detail"]
+    assert already or module not in sys.modules
+    assert "Beautiful is better than ugly" not in capfd.readouterr().out
+
+
+def test_a_dimod_samplers_parameters_are_bounded_at_submit(api):
+    params = {
+        "solver": "dimod:dwave.samplers.SimulatedAnnealingSampler",
+        "solver_params": {"num_reads": 10, "num_sweeps": 100_000_000},
+    }
+    response = post(api, params=params)
+    assert response.status_code == 422, response.text
+    assert "num_sweeps (int, 1..100000)" in response.json()["detail"]
 
 
 def test_solver_without_worker_or_local_availability_is_422(api):

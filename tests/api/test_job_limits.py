@@ -89,3 +89,54 @@ def test_the_cap_counts_only_jobs_still_in_flight(api_settings):
     store.redis.delete(store.key("job", ids[1]))
     assert store.active_jobs(name) == 1
     assert store.redis.hlen(store.key("jobs", "active")) >= 1
+
+
+def test_simultaneous_submits_never_pass_the_cap(api_settings):
+    """The cap is counted and taken in one Redis script: 30 submits at once with a cap of 8
+    accept exactly 8 (the count used to be read, then written: 12 to 16 got through)."""
+    import threading
+
+    import httpx
+    import uvicorn
+
+    from workers.embedded_redis import free_port
+
+    users = UserStore.from_settings(api_settings)
+    _, key = users.create_user(f"racer-{uuid.uuid4().hex[:6]}")
+    settings = api_settings.model_copy(update={"max_active_jobs_per_user": 8})
+    port = free_port()
+    server = uvicorn.Server(
+        uvicorn.Config(create_app(settings), host="127.0.0.1", port=port, log_config=None)
+    )
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        assert thread.is_alive()
+    jobs = settings.data_dir.resolve() / "jobs"
+    folders = len(list(jobs.iterdir())) if jobs.is_dir() else 0
+    start = threading.Barrier(30)
+    codes: list[int] = []
+
+    def one() -> None:
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=60) as client:
+            start.wait()
+            response = client.post(
+                "/v1/jobs",
+                files=FILES,
+                data={"params": json.dumps({"solver": "exact"})},
+                headers={"Authorization": f"Bearer {key}"},
+            )
+            codes.append(response.status_code)
+
+    racers = [threading.Thread(target=one) for _ in range(30)]
+    try:
+        for racer in racers:
+            racer.start()
+        for racer in racers:
+            racer.join(120)
+    finally:
+        server.should_exit = True
+        thread.join(10)
+    assert sorted(set(codes)) == [202, 429]
+    assert codes.count(202) == 8, codes
+    assert len(list(jobs.iterdir())) == folders + 8  # refused submits leave no folder behind

@@ -38,6 +38,7 @@ MAIN_QUEUES = [
     "fake-sleepy",
     "fake-hung",
     "fake-split",
+    "fake-hog",
     "dimod",
 ]
 ROUTED_QUEUES = ["gurobi", "fake-routed"]
@@ -85,6 +86,7 @@ def workers(settings, markers, service_dir):
     env["QHSM_TEST_MARKERS"] = str(markers)
     env["QHSM_SOLVER_TIME_LIMITS"] = json.dumps(settings.solver_time_limits)
     env["QHSM_TASK_TIME_LIMIT_GRACE"] = str(settings.task_time_limit_grace)
+    env["QHSM_TASK_MEMORY_LIMIT_MB"] = str(harness.MEMORY_LIMIT_MB)
     logs = service_dir / "logs"
     suffix = settings.key_prefix
     started = {

@@ -14,6 +14,8 @@ import redis
 from shared.config import LevelConfig
 
 TERMINAL = {"succeeded", "failed", "cancelled"}
+#: Address space of a test worker's pool process, MiB: room for the solvers, not for fake-hog.
+MEMORY_LIMIT_MB = 1536
 
 
 def admin_key(settings) -> str:

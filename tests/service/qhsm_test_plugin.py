@@ -102,6 +102,15 @@ class _Split(_Fake):
         time.sleep(600)
 
 
+class _Hog(_Fake):
+    """Allocates and touches more memory than the test workers' ceiling (2 GiB, well within
+    the machine's): only ``QHSM_TASK_MEMORY_LIMIT_MB`` stops it."""
+
+    def act(self, seed: int | None) -> None:
+        hog = np.ones(2 * 2**30 // 8)
+        hog[-1] = seed or 0
+
+
 class _Unavailable(_Fake):
     def available(self) -> Availability:
         return Availability(False, "fake-unavailable needs hardware this machine lacks")
@@ -119,3 +128,4 @@ SLEEPY = _spec("fake-sleepy", _Sleepy)
 HUNG = _spec("fake-hung", _Hung)
 SPLIT = _spec("fake-split", _Split)
 UNAVAILABLE = _spec("fake-unavailable", _Unavailable)
+HOG = _spec("fake-hog", _Hog)

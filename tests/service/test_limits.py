@@ -147,3 +147,25 @@ def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_pa
     control = [worker for worker, names in queues.items() if own.control_queue in names]
     assert len(control) == 1 and queues[control[0]] == {own.control_queue}
     assert "sa" in set().union(*queues.values())
+
+
+def test_a_task_that_needs_more_memory_than_a_process_has_fails_its_job(client, pair):
+    """Pool processes have an address-space ceiling (QHSM_TASK_MEMORY_LIMIT_MB): a bundle
+    that allocates past it fails its job with a reason instead of taking the machine."""
+    job_id = harness.submit(client, *pair, one_level("fake-hog"))
+    status = harness.wait_for(client, job_id, timeout=60)
+    assert status["state"] == "failed", status
+    assert f"limit of {harness.MEMORY_LIMIT_MB} MiB" in status["error"]
+    assert "QHSM_TASK_MEMORY_LIMIT_MB" in status["error"]
+    # the worker is fine afterwards
+    done = harness.wait_for(client, harness.submit(client, *pair, one_level("exact")))
+    assert done["state"] == "succeeded", done
+
+
+def test_an_exact_enumeration_is_refused_above_its_size_before_it_allocates(client, pair):
+    """dimod.ExactSolver holds 2^n states: the allowlist gives it a largest bundle."""
+    params = one_level("dimod:dimod.ExactSolver", encoding="one-hot")
+    job_id = harness.submit(client, *pair, params)
+    status = harness.wait_for(client, job_id, timeout=60)
+    assert status["state"] == "failed", status
+    assert "enumerates every state" in status["error"]

@@ -81,3 +81,31 @@ def test_job_ids_never_become_paths(store):
     with pytest.raises(ValueError):
         store.job_dir("../../etc")
     assert store.get("../../etc") is None
+
+
+def test_a_large_levels_inputs_are_written_in_bounded_pieces(store):
+    """A 1000x600 colour level used to be one 33 MB write (one record of Redis's append-only
+    file); now no value is above MAX_VALUE_BYTES, and the level reads back exactly."""
+    from shared import pyramid
+    from shared.level_inputs import LevelInputs
+    from workers.store import MAX_VALUE_BYTES
+
+    record = new_job(store, JobState.RUNNING)
+    rng = np.random.default_rng(0)
+    left = rng.random((1200, 1000, 3), dtype=np.float32)  # both views stacked
+    candidates = rng.integers(0, 60, (1200, 1000, 6)).astype(np.int64)
+    plan = pyramid.plan(MatchConfig(), 60)[-1]
+    inputs = LevelInputs(
+        plan=plan, views=2, left=left, right=left[::-1], candidates=candidates,
+        initial_labels=candidates[..., 0].astype(np.int32),
+    )  # fmt: skip
+    store.save_level(record.id, inputs, started=1.0)
+    key = store.key("job", record.id, "level", inputs.index)
+    sizes = [store.redis.hstrlen(key, field) for field in store.redis.hkeys(key)]
+    assert max(sizes) <= MAX_VALUE_BYTES
+    loaded, _ = store.load_level(record.id, inputs.index)
+    for name in ("left", "right", "candidates", "initial_labels"):
+        ours, theirs = getattr(loaded, name), getattr(inputs, name)
+        assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), name
+    store.fail(record.id, "x" * 100_000)
+    assert len(store.get(record.id).error) < 2100  # a record's messages are bounded too

@@ -152,3 +152,19 @@ def test_a_colour_pair_keeps_its_colour_and_takes_a_ground_truth(client):
     colour = cv2.imdecode(np.frombuffer(view, np.uint8), cv2.IMREAD_UNCHANGED)
     assert colour.shape == (32, 48, 3) and not np.array_equal(colour[..., 0], colour[..., 2])
     assert client.get(f"/v1/jobs/{job_id}/error.png").status_code == 200
+
+
+def test_serve_prints_the_key_only_when_it_makes_it(settings, tmp_path, capsys):
+    """The full key is in serve's output once, when it is created; a later start says where
+    it is and prints the plain address."""
+    from api.cli import announce_web_page
+
+    local = settings.model_copy(update={"data_dir": tmp_path, "auth_enabled": True})
+    url = "http://127.0.0.1:8000"
+    first_key = announce_web_page(local, url)
+    first = capsys.readouterr().err
+    assert first_key and f"#key={first_key}" in first
+    assert announce_web_page(local, url) == first_key
+    later = capsys.readouterr().err
+    assert first_key not in later and "#key=" not in later
+    assert "web page: http://127.0.0.1:8000/\n" in later and str(tmp_path / "api-key") in later

@@ -146,16 +146,60 @@ def test_a_dimod_sampler_matches_a_synthetic_scene_in_process():
 @pytest.mark.parametrize(
     ("name", "message"),
     [
+        ("dimod:this.X", "is not among the dimod samplers this service allows"),
+        ("dimod:lib2to3.__main__.X", "is not among the dimod samplers this service allows"),
+        ("dimod:dimod.Structured", "is not among the dimod samplers this service allows"),
         ("dimod:no_such_package.Sampler", "cannot import no_such_package"),
         ("dimod:dimod.Structured", "not a dimod.Sampler subclass"),
         ("dimod:dwave.samplers.NoSuchSampler", "has no NoSuchSampler"),
         ("dimod:Sampler", "dimod:PACKAGE.MODULE.CLASS"),
     ],
+    ids=["zen", "2to3", "not-allowed", "missing", "not-a-sampler", "no-class", "malformed"],
 )
-def test_a_bad_dimod_name_says_what_to_do(name, message):
+def test_a_bad_dimod_name_says_what_to_do_and_imports_nothing_not_allowed(
+    name, message, monkeypatch
+):
+    """Only allowed classes are imported; the deployment's own (QHSM_DIMOD_SAMPLERS) that do
+    not load say why."""
+    if "not among" not in message:  # the operator allowed it; it does not load
+        path = name.removeprefix("dimod:")
+        monkeypatch.setenv("QHSM_DIMOD_SAMPLERS", f'{{"{path}": {{}}}}')
+    module = name.removeprefix("dimod:").rpartition(".")[0]
+    before = set(sys.modules)
     with pytest.raises(UnknownSolver) as caught:
         get_solver(name)
-    assert message in str(caught.value) and "pip install" in str(caught.value)
+    assert message in str(caught.value) and "QHSM_DIMOD_SAMPLERS" in str(caught.value)
+    if "not among" in message:
+        assert module not in set(sys.modules) - before
+
+
+def test_allowed_dimod_samplers_have_bounded_parameters(monkeypatch):
+    """As for the built-in solvers: a sweep count that would run for hours is refused."""
+    from shared.solvers import InvalidSolverParams, check_params
+
+    anneal = "dimod:dwave.samplers.SimulatedAnnealingSampler"
+    assert check_params(anneal, {"num_reads": 10, "num_sweeps": 1000}) == {
+        "num_reads": 10,
+        "num_sweeps": 1000,
+    }
+    for bad in ({"num_sweeps": 10**8}, {"num_reads": 1000, "num_sweeps": 100_000}, {"x": 1}):
+        with pytest.raises(InvalidSolverParams):
+            check_params(anneal, bad)
+    with pytest.raises(InvalidSolverParams, match="unknown parameter"):
+        check_params("dimod:dimod.ExactSolver", {"num_reads": 2})
+    monkeypatch.setenv("QHSM_DIMOD_SAMPLERS", '{"dimod.NullSampler": {"num_reads": [1, 5]}}')
+    assert check_params("dimod:dimod.NullSampler", {"num_reads": 5}) == {"num_reads": 5}
+    with pytest.raises(InvalidSolverParams, match="less than or equal to 5"):
+        check_params("dimod:dimod.NullSampler", {"num_reads": 6})
+
+
+def test_an_exact_enumeration_refuses_a_bundle_above_its_size():
+    bqm = get_codec("one-hot").encode(stereo_costs(1, 12, labels=4))
+    with pytest.raises(SolverError, match="at most 24 variables per bundle"):
+        get_solver("dimod:dimod.ExactSolver").solve(bqm, preprocess="none")
+    small = get_codec("domain-wall").encode(stereo_costs(1, 4, labels=3))
+    result = get_solver("dimod:dimod.ExactSolver").solve(small)
+    assert result.energy == pytest.approx(float(dimod.ExactSolver().sample(small).first.energy))
 
 
 def test_plugins_register_through_the_entry_point_group(tmp_path, monkeypatch):

@@ -138,6 +138,10 @@ def test_admin_cli_round_trip(redis_url, redis_client, prefix, monkeypatch, caps
     assert main(["admin", "usage"]) == 0
     assert "ada: used 0.500 s of 7 s" in capsys.readouterr().out
     assert main(["admin", "set-quota", "bob", "1"]) == 1
+    for infinite in ("1e400", "nan"):  # "unlimited" says it; an overflow does not
+        with pytest.raises(SystemExit):
+            main(["admin", "set-quota", "ada", infinite])
+        assert "finite" in capsys.readouterr().err
 
 
 def test_usage_route_shows_own_usage_and_admins_everyones(store):

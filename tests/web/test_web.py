@@ -17,8 +17,13 @@ RESULT_TIMEOUT = 60_000  # ms: the exact solver on a 64x48 pair takes well under
 
 
 def sign_in(page: Page, server, key: str | None = None) -> None:
-    """Open the page signed in through the `#key=` fragment (what `qhsm serve` prints)."""
+    """Open the page through a `#key=` address (what `qhsm serve` prints when it makes the
+    key) and accept its question whose account that is (unless the tab is already that user)."""
     page.goto(f"{server.url}/#key={key or server.admin_key}")
+    asked = page.locator("#view-switch:visible").or_(page.locator("#who:visible"))
+    expect(asked).to_be_visible()
+    if page.locator("#view-switch").is_visible():
+        page.locator("#switch-accept").click()
     expect(page.locator("#who")).to_be_visible()
 
 
@@ -42,6 +47,8 @@ def test_the_sign_in_url_of_serve_signs_the_admin_in_and_leaves_no_key_behind(
 ):
     assert urlsplit(server.sign_in_url).fragment == f"key={server.admin_key}"
     page.goto(server.sign_in_url)
+    expect(page.locator("#switch-to")).to_have_text("local-admin (admin)")  # says who, asks
+    page.get_by_role("button", name="Sign in as local-admin").click()
     expect(page.locator("#who-name")).to_have_text("local-admin (admin)")
     assert "key=" not in page.url  # dropped from the address bar (and so from the history)
     assert page.evaluate("sessionStorage.getItem('qhsm.key')") == server.admin_key
@@ -200,6 +207,33 @@ def test_another_users_job_is_neither_listed_nor_reachable(page: Page, server, p
     expect(page.locator(f'tr[data-job="{job_id}"]')).to_be_visible()
     sign_in(page, server)
     expect(page.locator(f'tr[data-job="{job_id}"] .owner-col')).to_have_text("web-bob")
+
+
+def test_a_link_with_another_users_key_never_switches_a_signed_in_tab_silently(
+    page: Page, server
+):
+    """Login CSRF: `/#key=<someone else's key>` used to switch the tab to that account, and
+    the uploads then went there. The page now says whose key it is and asks."""
+    with server.client() as api:
+        response = api.post("/v1/users", json={"name": "web-mallory"})
+        assert response.status_code == 201, response.text
+        mallory = response.json()["key"]
+    sign_in(page, server)
+    page.goto(f"{server.url}/#key={mallory}")
+    expect(page.locator("#switch-to")).to_have_text("web-mallory")
+    expect(page.locator("#switch-current")).to_have_text("local-admin (admin)")
+    assert "key=" not in page.url
+    assert page.evaluate("sessionStorage.getItem('qhsm.key')") == server.admin_key
+    page.get_by_role("button", name="Stay local-admin").click()
+    expect(page.locator("#who-name")).to_have_text("local-admin (admin)")
+    assert page.evaluate("sessionStorage.getItem('qhsm.key')") == server.admin_key
+    # choosing to switch does switch; the tab's own key in a link asks nothing
+    page.goto(f"{server.url}/#key={mallory}")
+    page.get_by_role("button", name="Sign in as web-mallory").click()
+    expect(page.locator("#who-name")).to_have_text("web-mallory")
+    page.goto(f"{server.url}/#key={mallory}")
+    expect(page.locator("#who-name")).to_have_text("web-mallory")
+    expect(page.locator("#view-switch")).to_be_hidden()
 
 
 def test_admin_creates_a_user_sets_a_quota_and_sees_usage(page: Page, server, screenshots):

@@ -19,6 +19,7 @@ Keys (under ``{key_prefix}:``):
 
 from __future__ import annotations
 
+import math
 import uuid
 from dataclasses import dataclass, field
 
@@ -135,13 +136,16 @@ class QuotaLedger:
 
     def set_limit(self, user: str, seconds: float | None) -> None:
         """Set (or with None: remove, i.e. unlimited) a user's total budget in seconds
-        (ValueError when negative)."""
+        (ValueError unless finite and >= 0: unlimited is None, never infinity)."""
         with self.redis.pipeline() as pipe:
             if seconds is None:
                 pipe.hdel(self.key("quota", user), "limit")
             else:
-                if seconds < 0:
-                    raise ValueError("a QPU budget cannot be negative")
+                if not math.isfinite(seconds) or seconds < 0:
+                    raise ValueError(
+                        f"a QPU budget is a finite number of seconds >= 0 (or unlimited), "
+                        f"not {seconds!r}"
+                    )
                 pipe.hset(self.key("quota", user), "limit", repr(float(seconds)))
             pipe.sadd(self.key("quota", "users"), user)
             pipe.execute()

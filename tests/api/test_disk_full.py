@@ -1,0 +1,140 @@
+"""A full data disk (issue 20, item 4): the API and an embedded Redis on a 4 MiB tmpfs that is
+then filled. Every endpoint that writes answers 507 with ``Retry-After`` and a message, never a
+500, and a refused upload leaves no folder behind. Skipped where tmpfs cannot be mounted (not
+root, or no CAP_SYS_ADMIN)."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import subprocess
+from pathlib import Path
+
+import harness
+import pytest
+from fastapi.testclient import TestClient
+
+from api.app import create_app
+from api.users import UserStore
+from shared.config import Settings
+from shared.synthetic import make_scene
+from workers.embedded_redis import EmbeddedRedis
+
+SIZE = "4m"
+VIEW = harness.png(make_scene(24, 32).left)
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A mounted tmpfs (unmounted afterwards) that the test fills with ``fill()``."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={SIZE}", "tmpfs", str(mount)],
+        capture_output=True,
+        text=True,
+    )
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+def fill(folder: Path) -> None:
+    """Write until the disk is full."""
+    with (folder / "filler").open("ab") as out, contextlib.suppress(OSError):
+        while True:
+            out.write(b"\0" * 65536)
+            out.flush()
+
+
+def redis_full(server: EmbeddedRedis, timeout: float = 10.0) -> None:
+    """Write until Redis has noticed that its append-only file cannot grow (it then refuses
+    every write with MISCONF)."""
+    import time
+
+    import redis
+
+    client = redis.Redis.from_url(server.url)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            client.set("probe", "x" * 65536)
+        except redis.ResponseError as error:
+            assert str(error).startswith("MISCONF"), error
+            return
+        time.sleep(0.1)
+    raise AssertionError("Redis kept accepting writes on a full disk")
+
+
+def test_every_writing_endpoint_answers_507_on_a_full_disk(full_disk):
+    server = EmbeddedRedis(full_disk / "redis").start()
+    try:
+        settings = Settings(
+            redis_url=server.url,
+            key_prefix=harness.unique_prefix(),
+            data_dir=full_disk / "data",
+            inspect_timeout=0.3,
+        )
+        _, key = UserStore.from_settings(settings).create_user(
+            "full", admin=True, qpu_seconds=None
+        )
+        files = {"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
+        fill(full_disk)
+        redis_full(server)
+        with TestClient(
+            create_app(settings),
+            raise_server_exceptions=False,
+            headers={"Authorization": f"Bearer {key}"},
+        ) as client:
+            answers = {
+                "submit": client.post(
+                    "/v1/jobs", files=files, data={"params": json.dumps({"solver": "exact"})}
+                ),
+                "create user": client.post("/v1/users", json={"name": "later"}),
+                "set quota": client.put("/v1/users/full/quota", json={"qpu_seconds": 3}),
+            }
+            for what, response in answers.items():
+                assert response.status_code == 507, (what, response.text)
+                assert response.headers["retry-after"], what
+                assert "out of storage" in response.json()["detail"], what
+            assert client.get("/v1/usage").status_code in (200, 507)  # reads work if they can
+            assert client.get("/v1/jobs").status_code == 200
+        jobs = settings.data_dir / "jobs"
+        assert not jobs.exists() or list(jobs.iterdir()) == []  # no partial upload left
+    finally:
+        server.stop()
+
+
+def test_uploads_cut_short_by_a_full_disk_leave_nothing_behind(api_settings, monkeypatch):
+    """The data disk fills while the uploads are written (Redis is fine): 507, and neither
+    the partial files nor a record remain."""
+    import numpy as np
+
+    from workers import store as store_module
+
+    written = []
+
+    def save(path, array, allow_pickle=False):
+        if written:
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        written.append(path)
+        np.lib.format.write_array(open(path, "wb"), array)  # noqa: SIM115
+
+    monkeypatch.setattr(store_module.np, "save", save)
+    users = UserStore.from_settings(api_settings)
+    _, key = users.create_user(f"spill-{harness.unique_prefix()[-6:]}")
+    with TestClient(
+        create_app(api_settings),
+        raise_server_exceptions=False,
+        headers={"Authorization": f"Bearer {key}"},
+    ) as client:
+        response = client.post(
+            "/v1/jobs", files={"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
+        )
+        assert response.status_code == 507, response.text
+        assert client.get("/v1/jobs").json()["total"] == 0
+    assert written and not written[0].parent.exists()
