@@ -71,9 +71,9 @@ def cmd_match(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.output}: the output must end in .pfm, .png or .npy")
     left, right = load_pair(args.left, args.right)
 
-    def progress(done: int, total: int) -> None:
-        if not args.json:
-            print(f"level {done}/{total} done", file=sys.stderr)
+    def progress(level: int, levels: int, done: int, total: int) -> None:
+        if not args.json and done == total:
+            print(f"level {level}/{levels} done", file=sys.stderr)
 
     with ProcessPoolLevelSolver(args.processes) as solve_level:
         result = run_pipeline(left, right, config, solve_level, progress=progress)

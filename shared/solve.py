@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import replace
 from functools import partial
 from multiprocessing import get_context
@@ -24,6 +24,9 @@ from shared.energy import mrf_energy, row_energies
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, uses_warm_start
+
+BundleProgress = Callable[[int, int], None]
+"""``(units done, units total)`` within a level: bundles (rows for a row solver)."""
 
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
@@ -144,7 +147,10 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
 
 
 def solve_bundles(
-    inputs: LevelInputs, config: MatchConfig, bundles: Sequence[BundleSpec]
+    inputs: LevelInputs,
+    config: MatchConfig,
+    bundles: Sequence[BundleSpec],
+    progress: BundleProgress | None = None,
 ) -> list[BundleResult]:
     """Solve the given bundles (:class:`Bundle` or row ranges) of a level with
     ``config.solver``.
@@ -157,6 +163,9 @@ def solve_bundles(
         The run's configuration.
     bundles : list of Bundle or tuple of int
         The bundles to solve, e.g. one task's share of the level.
+    progress : callable, optional
+        Called with (bundles solved, bundles given) after each bundle (a row solver: after
+        each block of rows).
 
     Returns
     -------
@@ -176,7 +185,8 @@ def solve_bundles(
         width = inputs.shape[1]
         if any(b.col_start != 0 or b.col_stop != width for b in items):
             raise ValueError(f"{config.solver} solves whole rows only, not row segments")
-        return _solve_on_costs(solver, inputs, config, [(b.row_start, b.row_stop) for b in items])
+        row_ranges = [(b.row_start, b.row_stop) for b in items]
+        return _solve_on_costs(solver, inputs, config, row_ranges, progress)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     warm = uses_warm_start(config)
@@ -212,11 +222,17 @@ def solve_bundles(
                 col_stop=last,
             )
         )
+        if progress is not None:
+            progress(len(results), len(items))
     return results
 
 
 def _solve_on_costs(
-    solver: RowSolver, inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
+    solver: RowSolver,
+    inputs: LevelInputs,
+    config: MatchConfig,
+    row_ranges: list[tuple[int, int]],
+    progress: BundleProgress | None = None,
 ) -> list[BundleResult]:
     """A row solver on blocks of consecutive bundles' rows at once (vectorised over rows, memory
     bounded by :data:`COST_BLOCK_BYTES`, not by the image)."""
@@ -224,10 +240,14 @@ def _solve_on_costs(
     rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
     blocks = _blocks(sorted(row_ranges), rows, inputs.view_height)
     inputs.binned_volumes()
+    results: list[BundleResult] = []
     # numpy releases the GIL inside its loops: threads overlap the blocks (both views)
     with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as pool:
-        solved = pool.map(partial(_solve_block, solver, inputs, config), blocks)
-        return [result for block_results in solved for result in block_results]
+        for block_results in pool.map(partial(_solve_block, solver, inputs, config), blocks):
+            results.extend(block_results)
+            if progress is not None:
+                progress(len(results), len(row_ranges))
+    return results
 
 
 def _solve_block(
@@ -281,7 +301,9 @@ def _blocks(
     return blocks
 
 
-def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
+def solve_level_in_process(
+    inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
+) -> LevelSolution:
     """The in-process ``solve_level``: every bundle of the level, one after another.
 
     Parameters
@@ -290,12 +312,17 @@ def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSol
         The prepared level.
     config : MatchConfig
         The run's configuration (solver, encoding, seed).
+    progress : callable, optional
+        Called with (bundles solved, bundles of the level) as they are solved.
 
     Returns
     -------
     LevelSolution
     """
-    return assemble(inputs, solve_bundles(inputs, config, level_bundles(inputs, config)), config)
+    bundles = level_bundles(inputs, config)
+    if progress is not None:
+        progress(0, len(bundles))
+    return assemble(inputs, solve_bundles(inputs, config, bundles, progress), config)
 
 
 class ProcessPoolLevelSolver:
@@ -323,9 +350,11 @@ class ProcessPoolLevelSolver:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
-    def __call__(self, inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
+    def __call__(
+        self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
+    ) -> LevelSolution:
         if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
-            return solve_level_in_process(inputs, config)
+            return solve_level_in_process(inputs, config, progress)
         bundles = level_bundles(inputs, config)
         count = self.processes * 4
         # consecutive bundles stay together: segments of one row then share its costs
@@ -333,5 +362,13 @@ class ProcessPoolLevelSolver:
         chunks = [bundles[i : i + size] for i in range(0, len(bundles), size)]
         # the children build costs per bundle; the in-process volume cache is not worth sending
         solve = partial(solve_bundles, replace(inputs, volumes=None), config)
-        results = [r for chunk in self._pool.map(solve, chunks) for r in chunk]
+        futures = [self._pool.submit(solve, chunk) for chunk in chunks]
+        done = 0
+        if progress is not None:
+            progress(done, len(bundles))
+        for future in as_completed(futures):
+            done += len(future.result())
+            if progress is not None:
+                progress(done, len(bundles))
+        results = [r for future in futures for r in future.result()]
         return assemble(inputs, results, config)

@@ -186,3 +186,33 @@ def test_fast_median_equals_the_reference_median():
     np.testing.assert_array_equal(median(values, 7), expected)
     fractional = values + 0.5
     np.testing.assert_array_equal(median(fractional, 7), expected + 0.5)
+
+
+def _check_progress(events, result):
+    """Per level, in order: bundles solved never go back and end at the level's bundles."""
+    levels = len(result.levels)
+    assert [event[0] for event in events] == sorted(event[0] for event in events)
+    assert {event[0] for event in events} == set(range(1, levels + 1))
+    for report in result.levels:
+        mine = [event for event in events if event[0] == report.index + 1]
+        assert all(event[1] == levels and event[3] == report.bundles for event in mine)
+        done = [event[2] for event in mine]
+        assert done == sorted(done) and done[0] == 0 and done[-1] == report.bundles
+        assert len(done) > 3  # reported from inside the level, not only at its ends
+
+
+@pytest.mark.parametrize("solver", ["steepest-descent", "exact"])
+def test_progress_reports_bundles_from_inside_each_level(scene, solver):
+    from shared.solve import ProcessPoolLevelSolver
+
+    config = MatchConfig(max_disparity=16, solver=solver, encoding="domain-wall")
+    small = scene.left[:32, :48], scene.right[:32, :48]
+    events: list[tuple[int, int, int, int]] = []
+    result = run_pipeline(*small, config, progress=lambda *event: events.append(event))
+    _check_progress(events, result)  # exact: per block of rows, here one block per view
+    if solver == "exact":  # vectorised: the pool leaves it in this process
+        return
+    pooled: list[tuple[int, int, int, int]] = []
+    with ProcessPoolLevelSolver(2) as pool:
+        again = run_pipeline(*small, config, pool, progress=lambda *event: pooled.append(event))
+    _check_progress(pooled, again)
