@@ -9,12 +9,16 @@ skips the QUBO and works on the costs of blocks of rows.
 from __future__ import annotations
 
 import os
+import signal
+import threading
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import replace
 from functools import partial
 from multiprocessing import get_context
+from multiprocessing.pool import Pool
 
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundles import Bundle, bundle_seed
@@ -330,24 +334,31 @@ class ProcessPoolLevelSolver:
 
     Bundles are independent and seeded by position, so the result equals the sequential one.
     Row solvers (the exact DP) are vectorised over rows already and run in this process. Use as a
-    context manager so the pool lives across levels.
+    context manager so the pool lives across levels. The children ignore Ctrl-C (SIGINT reaches
+    the whole process group): the parent terminates them when it leaves the block on an
+    exception.
     """
 
     def __init__(self, processes: int | None = None) -> None:
         self.processes = processes or os.cpu_count() or 1
-        self._pool: ProcessPoolExecutor | None = None
+        self._pool: Pool | None = None
 
     def __enter__(self) -> ProcessPoolLevelSolver:
         if self.processes > 1:
             # spawn, not fork: forking a process that already runs threads (OpenBLAS, OpenCV,
             # an HTTP client) can deadlock the children. Solvers come from the registry's
             # importable factories, so every child sees the same adapters.
-            self._pool = ProcessPoolExecutor(self.processes, mp_context=get_context("spawn"))
+            with _sigint_ignored():  # inherited from birth: no child prints a traceback
+                self._pool = get_context("spawn").Pool(self.processes)
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+            if exc_type is None:
+                self._pool.close()
+            else:  # interrupted or failed: what the children solve now is not wanted
+                self._pool.terminate()
+            self._pool.join()
             self._pool = None
 
     def __call__(
@@ -362,13 +373,25 @@ class ProcessPoolLevelSolver:
         chunks = [bundles[i : i + size] for i in range(0, len(bundles), size)]
         # the children build costs per bundle; the in-process volume cache is not worth sending
         solve = partial(solve_bundles, replace(inputs, volumes=None), config)
-        futures = [self._pool.submit(solve, chunk) for chunk in chunks]
-        done = 0
+        results: list[BundleResult] = []
         if progress is not None:
-            progress(done, len(bundles))
-        for future in as_completed(futures):
-            done += len(future.result())
+            progress(0, len(bundles))
+        for chunk_results in self._pool.imap(solve, chunks):  # in order, as they finish
+            results.extend(chunk_results)
             if progress is not None:
-                progress(done, len(bundles))
-        results = [r for future in futures for r in future.result()]
+                progress(len(results), len(bundles))
         return assemble(inputs, results, config)
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while the pool's children start: they inherit that and keep it (Python
+    leaves an ignored SIGINT alone), so Ctrl-C is the parent's alone, which terminates them."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal dispositions can only be changed from the main thread
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
