@@ -122,3 +122,28 @@ def test_bundle_width_from_the_command_line(pair, tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     per_row = 3  # 128 px: segments at 0, 40 and 80 (the last one shifted left)
     assert [level["bundles"] for level in summary["levels"]] == [2 * 96 * per_row] * 3
+
+
+def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_c):
+    exe = shutil.which("qhsm")
+    assert exe, "the qhsm console script is not installed (pip install -e .)"
+    left, right = str(pair / "left.png"), str(pair / "right.png")
+    command = [exe, "match", left, right, "-o", str(tmp_path / "d.pfm"), "--solver", "sa"]
+    got = ctrl_c([*command, "--processes", "2", "--max-disparity", "16"], when="bundles")
+    assert got.returncode == 130
+    assert "Traceback" not in got.stderr and "KeyboardInterrupt" not in got.stderr
+    assert got.last_line == "qhsm: interrupted"
+    assert not got.left_processes  # the pool's children are gone too
+    assert not (tmp_path / "d.pfm").exists()
+
+
+def test_a_closed_stdout_ends_quietly(tmp_path):
+    """`qhsm solvers | head -0`: the reader is gone before anything is written."""
+    exe = shutil.which("qhsm")
+    assert exe, "the qhsm console script is not installed (pip install -e .)"
+    process = subprocess.Popen([exe, "solvers"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert process.stdout is not None and process.stderr is not None
+    process.stdout.close()
+    error = process.stderr.read().decode()
+    assert process.wait(60) == 141, error
+    assert error == ""
