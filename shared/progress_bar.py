@@ -1,12 +1,13 @@
-"""The progress bar of a run, on stderr: the bundles of the level in hand, with the level's
-elapsed time and ETA and the run's elapsed time, e.g.::
+"""The progress of a run on stderr: the bundles of the level in hand, with the level's elapsed
+time and ETA and the run's elapsed time, e.g.::
 
     level 2/3 |██████▌      | 300/576 bundles [00:12<00:10 this level, 00:31 in all]
 
 ``qhsm match`` feeds it from the pipeline's progress callback, ``qhsm submit`` / ``wait`` /
 ``demo`` from the job status they poll. Before a level's bundles are known (a job waiting for a
-worker, a level being prepared: e.g. the embedding search of a QPU solver) it shows what is
-going on and the time so far instead of an empty ``0/0``.
+worker, a level being prepared: e.g. the embedding search of a QPU solver) it says what is going
+on and the time so far instead of an empty ``0/0``. On a stream that is not a terminal (a log
+file, CI) it writes one line per change of level or state instead of redrawing a bar.
 """
 
 from __future__ import annotations
@@ -23,11 +24,46 @@ BAR_FORMAT = "{desc} |{bar}| {n}/{total} bundles [{elapsed}<{remaining} this lev
 WAIT_FORMAT = "{desc} [{elapsed}{postfix}]"
 #: Redraw at most this often for the clocks alone (bundles done redraw as tqdm sees fit).
 REDRAW_SECONDS = 0.5
+#: Job states during which the bar is live; any other is shown in front of the last level.
+LIVE = ("queued", "running")
 
 
 def clock(seconds: float) -> str:
-    """``mm:ss`` (``h:mm:ss`` from an hour), as tqdm writes times."""
+    """``mm:ss`` (``h:mm:ss`` from an hour), as tqdm writes times.
+
+    Parameters
+    ----------
+    seconds : float
+        A duration.
+
+    Returns
+    -------
+    str
+    """
     return tqdm.format_interval(seconds)
+
+
+def describe(level: int, levels: int, total: int, state: str = "running") -> str:
+    """What the run is doing, in words: ``level 2/3``, ``level 1/3: preparing``, ``queued:
+    waiting for a worker``, ``succeeded: level 3/3``.
+
+    Parameters
+    ----------
+    level, levels : int
+        The 1-based level in hand (0: none yet) and the run's levels.
+    total : int
+        The level's bundles; 0 while it is prepared.
+    state : str, default "running"
+        A job's state.
+
+    Returns
+    -------
+    str
+    """
+    if state == "queued":
+        return "queued: waiting for a worker"
+    text = f"level {max(level, 1)}/{levels}" + ("" if total else ": preparing")
+    return text if state in LIVE else f"{state}: {text}"
 
 
 class LevelBar:
@@ -39,21 +75,19 @@ class LevelBar:
     stream : file, optional
         Where it draws; default: ``sys.stderr`` at the time of the call (so stdout stays free
         for ``--json``).
-    started : float, optional
-        ``time.monotonic()`` when the run started (default: now).
     leave : bool, default True
         Keep the last state drawn when closed; False: clear it (a summary or an error line
         follows in its place).
     """
 
-    def __init__(
-        self, stream: IO[str] | None = None, started: float | None = None, leave: bool = True
-    ) -> None:
+    def __init__(self, stream: IO[str] | None = None, leave: bool = True) -> None:
         self.stream = stream or sys.stderr
-        self.started = time.monotonic() if started is None else started
         self.leave = leave
+        self.started = time.monotonic()
+        self.interactive = bool(getattr(self.stream, "isatty", lambda: False)())
         self._bar: tqdm | None = None
-        self._shown: tuple[int, bool, int] | None = None  # level, bundles known, total
+        self._shown: tuple[int, int] | None = None  # the level and its bundles drawn
+        self._line = ""  # the last line written (not a terminal)
         self._drawn = 0.0
 
     def update(
@@ -61,48 +95,64 @@ class LevelBar:
     ) -> None:
         """Show that ``done`` of the ``total`` bundles of level ``level`` (1-based) of
         ``levels`` are solved; ``total`` 0: the level is being prepared (not fanned out yet).
-        ``state`` is a job's (``queued``, ``running``, ``succeeded``, ...); any but running
-        is shown in front."""
-        known = total > 0 and state != "queued"
-        if state == "queued":
-            text = "queued: waiting for a worker"
-        elif known:
-            text = f"level {level}/{levels}"
-        else:
-            text = f"level {max(level, 1)}/{levels}: preparing"
-        if state not in ("queued", "running"):
-            text = f"{state}: {text}"
-        shown, self._shown = self._shown, (level, known, total)
+
+        Parameters
+        ----------
+        level, levels, done, total : int
+            As the pipeline's progress callback and a job's progress give them.
+        state : str, default "running"
+            A job's state (``queued``, ``running``, ``succeeded``, ...); any but a live one is
+            shown in front.
+        """
+        total = 0 if state == "queued" else total
+        text = describe(level, levels, total, state)
         now = time.monotonic()
         in_all = f"{clock(now - self.started)} in all"
+        if not self.interactive:
+            self._log(text, level, done, total, in_all)
+            return
+        shown, self._shown = self._shown, (level, total)
         if self._bar is None:
             self._bar = tqdm(
                 file=self.stream,
                 desc=text,
                 postfix=in_all,
-                total=total if known else None,
-                bar_format=BAR_FORMAT if known else WAIT_FORMAT,
+                total=total or None,
+                bar_format=BAR_FORMAT if total else WAIT_FORMAT,
                 dynamic_ncols=True,
                 leave=self.leave,
             )
-            changed = True
+            redraw = True
         else:
-            changed = shown != self._shown or text != self._bar.desc
-            if shown != self._shown or done < self._bar.n:
-                # a new level (or its bundles now known): the level's own rate and ETA
-                self._bar.reset(total=total if known else None)
-                self._bar.bar_format = BAR_FORMAT if known else WAIT_FORMAT
-        self._bar.set_description_str(text, refresh=False)
+            redraw = shown != self._shown or text != self._bar.desc
+            self._bar.set_description_str(text, refresh=False)
+            if shown != self._shown or done < self._bar.n:  # a new level: its own rate and ETA
+                self._bar.bar_format = BAR_FORMAT if total else WAIT_FORMAT
+                self._bar.reset(total=total or None)
         self._bar.set_postfix_str(in_all, refresh=False)
-        if known and done != self._bar.n:
+        if total and done != self._bar.n:
             self._bar.update(done - self._bar.n)  # feeds tqdm's rate, hence the ETA
-            changed = changed or done == total
-        if changed or now - self._drawn >= REDRAW_SECONDS:
+            redraw = redraw or done == total
+        if redraw or now - self._drawn >= REDRAW_SECONDS:
             self._bar.refresh()
             self._drawn = now
 
+    def _log(self, text: str, level: int, done: int, total: int, in_all: str) -> None:
+        """One line per level finished, or change of state (queued, preparing, the end)."""
+        if total and done < total:
+            return
+        line = f"{text}: {total} bundles done ({in_all})" if total else text
+        if line != self._line:
+            self._line = line
+            print(line, file=self.stream, flush=True)
+
     def write(self, line: str) -> None:
-        """Print a line above the bar (a warning, a note)."""
+        """Print a line above the bar (a warning, a note).
+
+        Parameters
+        ----------
+        line : str
+        """
         tqdm.write(line, file=self.stream)
 
     def close(self) -> None:
