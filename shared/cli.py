@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import sys
+import warnings
 from collections.abc import Sequence
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -29,6 +30,8 @@ DESCRIPTION = (
     "(match, eval, bench) or through the job service (serve, submit, admin). "
     "`qhsm COMMAND --help` shows a command's options."
 )
+_python_showwarning = warnings.showwarning
+
 #: ``qhsm bench --encoding auto``: each solver's recommended encoding, else the preset's.
 AUTO_ENCODING = "auto"
 
@@ -404,11 +407,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BROKEN_PIPE
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings for the user (:class:`shared.disparity_range.ViewsWarning`) as one line, the
+    rest as Python shows them."""
+    from shared.disparity_range import ViewsWarning
+
+    if issubclass(category, ViewsWarning):
+        print(f"qhsm: warning: {message}", file=file or sys.stderr)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
 def _run(argv: Sequence[str] | None) -> int:
     from shared.cli_options import CommandError
     from shared.images import ImageError
     from shared.solvers import SolverError, UnknownSolver
 
+    warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
     try:
         return args.handler(args)

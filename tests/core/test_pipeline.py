@@ -8,6 +8,7 @@ from pydantic import ValidationError
 
 from shared.assembly import BundleResult, assemble
 from shared.config import LevelConfig, MatchConfig, Preset, Regularizer
+from shared.disparity_range import ViewsWarning
 from shared.energy import mrf_energy
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
@@ -50,8 +51,10 @@ def test_the_paper_preset_keeps_its_image_pyramid_and_misses_the_accurate_thresh
 @pytest.mark.parametrize("preset", list(Preset))
 def test_matching_the_wrong_view_fails_the_same_threshold(scene, preset):
     config = MatchConfig(max_disparity=16, preset=preset)
-    swapped = run_pipeline(scene.right, scene.left, config)
+    with pytest.warns(ViewsWarning, match="swapped"):  # and it says so
+        swapped = run_pipeline(scene.right, scene.left, config)
     assert evaluate(swapped.disparity, scene.disparity).bpp > 40.0
+    assert "swapped" in swapped.max_disparity.warning
 
 
 @pytest.mark.parametrize("preset", list(Preset))
