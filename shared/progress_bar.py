@@ -109,7 +109,7 @@ class LevelBar:
         now = time.monotonic()
         in_all = f"{clock(now - self.started)} in all"
         if not self.interactive:
-            self._log(text, level, done, total, in_all)
+            self._log(text, state, done, total, in_all)
             return
         shown, self._shown = self._shown, (level, total)
         if self._bar is None:
@@ -137,11 +137,14 @@ class LevelBar:
             self._bar.refresh()
             self._drawn = now
 
-    def _log(self, text: str, level: int, done: int, total: int, in_all: str) -> None:
+    def _log(self, text: str, state: str, done: int, total: int, in_all: str) -> None:
         """One line per level finished, or change of state (queued, preparing, the end)."""
-        if total and done < total:
+        if state not in LIVE:
+            line = f"{text}: {done}/{total} bundles ({in_all})"
+        elif total and done < total:
             return
-        line = f"{text}: {total} bundles done ({in_all})" if total else text
+        else:
+            line = f"{text}: {total} bundles done ({in_all})" if total else text
         if line != self._line:
             self._line = line
             print(line, file=self.stream, flush=True)

@@ -48,7 +48,7 @@ def test_a_log_gets_one_line_per_level_and_state():
         "level 1/3: 576 bundles done",
         "level 2/3: 576 bundles done",
         "level 3/3: 576 bundles done",
-        "succeeded: level 3/3: 576 bundles done",
+        "succeeded: level 3/3: 576/576 bundles",
     ]
     assert all(line.endswith(" in all)") for line in lines[2:])
 
