@@ -5,6 +5,7 @@ the package (fastapi-offline), never from a CDN."""
 from __future__ import annotations
 
 import logging
+import warnings
 
 import redis
 from fastapi import Depends, FastAPI, Request
@@ -19,6 +20,7 @@ from api.routes import estimate, health, jobs, metrics, solvers, usage, users, v
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
+from shared.disparity_range import ViewsWarning
 from workers.app import make_celery
 from workers.store import JobStore
 
@@ -28,6 +30,8 @@ log = logging.getLogger("qhsm.api")
 def create_app(settings: Settings | None = None) -> FastAPI:
     """An app bound to ``settings`` (read from the environment when omitted)."""
     settings = settings or get_settings()
+    # a job's view warnings go back to its submitter (JobCreated, JobStatus), not to this log
+    warnings.filterwarnings("ignore", category=ViewsWarning)
     celery = make_celery(settings, with_tasks=False)
     app: FastAPI = FastAPIOffline(
         title="qhsm",
@@ -46,6 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs.router, dependencies=authenticated)
     app.include_router(estimate.router, dependencies=authenticated)
     app.include_router(views.router, dependencies=authenticated)
+    app.include_router(views.thumbnails, dependencies=authenticated)
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)
     app.include_router(users.router)
