@@ -195,6 +195,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         except DataDirBusy as error:
             raise CommandError(str(error)) from None
         settings = stack.settings
+        print(f"data directory: {settings.data_dir.resolve()} (QHSM_DATA_DIR)", file=sys.stderr)
         print(stack.describe(), file=sys.stderr)
         key = _announce_key(settings)
         url = f"http://{settings.api_host}:{settings.api_port}"

@@ -16,6 +16,15 @@ from shared.energy import Costs
 from shared.synthetic import SyntheticScene, make_scene
 
 
+def pytest_configure(config) -> None:
+    """Nothing a test runs writes to the user's own data folder (the default QHSM_DATA_DIR):
+    unless QHSM_DATA_DIR is set, it is a temporary folder (subprocesses inherit it)."""
+    if "QHSM_DATA_DIR" not in os.environ:
+        import tempfile
+
+        os.environ["QHSM_DATA_DIR"] = tempfile.mkdtemp(prefix="qhsm-test-data-")
+
+
 @pytest.fixture(scope="session")
 def scene() -> SyntheticScene:
     """A 96x128 scene with a slanted background and two layers (disparities up to 16)."""

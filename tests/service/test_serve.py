@@ -298,8 +298,12 @@ def test_admin_without_serve_starts_the_data_dirs_store(tmp_path, capsys, monkey
     monkeypatch.delenv("QHSM_REDIS_URL", raising=False)
     monkeypatch.delenv("REDIS_URL", raising=False)
     data_dir = tmp_path / "data"
+    assert main(["admin", "--data-dir", str(data_dir), "list-users"]) == 1  # nothing served there
+    error = capsys.readouterr().err
+    assert f"no store in the data directory {data_dir}" in error and "--data-dir" in error
+    assert not data_dir.exists()  # and none was started
     assert main(["admin", "--data-dir", str(data_dir), "create-user", "bob"]) == 0
-    assert "store: the embedded Redis of data dir" in capsys.readouterr().err
+    assert "store: a NEW, empty store in data dir" in capsys.readouterr().err
     assert main(["admin", "--data-dir", str(data_dir), "list-users"]) == 0
     captured = capsys.readouterr()
     assert "started for this command" in captured.err
