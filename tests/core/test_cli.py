@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -149,3 +150,26 @@ def test_a_closed_stdout_ends_quietly(tmp_path):
     error = process.stderr.read().decode()
     assert process.wait(60) == 141, error
     assert error == ""
+
+
+def test_swapped_views_are_one_warning_line_before_the_run(pair, tmp_path, capsys):
+    left, right, out = str(pair / "left.png"), str(pair / "right.png"), str(tmp_path / "d.pfm")
+    assert main(["match", right, left, "-o", out, "--max-disparity", "16"]) == 0
+    error = capsys.readouterr().err
+    [warning] = [line for line in error.splitlines() if "warning" in line]
+    assert warning.startswith("qhsm: warning: the views look swapped: ")
+    assert error.index(warning) < error.index("level 1/3")  # before any work
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="XDG_DATA_HOME is the Linux convention")
+def test_the_data_directory_does_not_depend_on_the_current_directory(tmp_path, monkeypatch):
+    from shared.config import get_settings
+
+    monkeypatch.delenv("QHSM_DATA_DIR")
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))  # where platformdirs looks first
+    seen = set()
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        monkeypatch.chdir(tmp_path / folder)
+        seen.add(get_settings().data_dir)
+    assert seen == {tmp_path / "xdg" / "qhsm"}
