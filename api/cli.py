@@ -353,8 +353,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
             names=(files[0].name, files[1].name),
             label=args.label,
         )
-        for warning in job.get("warnings", []):
-            print(f"qhsm: warning: {warning}", file=sys.stderr)
+        _print_warnings(job)
         if not (args.wait or args.output):
             if args.json:
                 print(json.dumps({**job, "url": f"{url.rstrip('/')}{job['links']['self']}"}))
@@ -376,9 +375,7 @@ def cmd_wait(args: argparse.Namespace) -> int:
 
     client = Client(settings_from_args(args).api_url, key=args.key, key_source="the --key option")
     try:
-        status = client.status(args.job)
-        for warning in status.get("warnings", []):
-            print(f"qhsm: warning: {warning}", file=sys.stderr)
+        _print_warnings(client.status(args.job))
         return _follow(client, args.job, args)
     except ClientError as error:
         raise CommandError(str(error)) from None
@@ -402,6 +399,12 @@ def cmd_cancel(args: argparse.Namespace) -> int:
     else:
         print(f"job {args.job} {status['state']}")
     return 0
+
+
+def _print_warnings(job: dict) -> None:
+    """A job's warnings (views that look swapped, an inferred scale), one line each on stderr."""
+    for warning in job.get("warnings", []):
+        print(f"qhsm: warning: {warning}", file=sys.stderr)
 
 
 def _job_commands(job_id: str, args: argparse.Namespace) -> str:
@@ -443,8 +446,8 @@ def _follow(client, job_id: str, args: argparse.Namespace) -> int:
             metered = seen.get("qpu_seconds") is not None
             charged = " (and its QPU time is charged)" if metered else ""
             print(
-                f"qhsm: interrupted; job {job_id} is still running on the service{charged}: "
-                f"{_job_commands(job_id, args)}",
+                f"qhsm: interrupted; job {job_id} is still {seen.get('state', 'queued')} on the "
+                f"service{charged}: {_job_commands(job_id, args)}",
                 file=sys.stderr,
             )
         return EXIT_INTERRUPTED

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 
 import harness
@@ -187,8 +188,8 @@ def test_ctrl_c_leaves_the_job_running_and_says_how_to_cancel_or_wait(
     got = ctrl_c([*command, "--solver", "fake-slow", "--wait"], when="job ")
     assert got.returncode == 130 and "Traceback" not in got.stderr
     job_id = got.stderr.split("job ", 1)[1].split()[0]
-    assert got.last_line.startswith(
-        f"qhsm: interrupted; job {job_id} is still running on the service: "
+    assert re.match(
+        f"qhsm: interrupted; job {job_id} is still (queued|running) on the service: ", got.last_line
     )
     assert f"`qhsm cancel {job_id} --url {api_url}`" in got.last_line
     assert f"`qhsm wait {job_id} --url {api_url}`" in got.last_line
