@@ -85,7 +85,6 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     expect(page.get_by_alt_text("Left view", exact=True)).to_be_visible()
     expect(page.locator(".ticks").first).to_contain_text("8 px")  # the colour bar's top
     expect(page.locator("table.levels tbody tr")).to_have_count(len(status["levels"]))
-    screenshots(page, "job")
     with page.expect_download() as download:
         page.get_by_role("button", name="16-bit PNG").click()
     png = cv2.imread(download.value.path(), cv2.IMREAD_UNCHANGED)
