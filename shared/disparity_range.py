@@ -11,7 +11,7 @@ an absolute margin. Too wide a range costs time and a little accuracy; too narro
 the nearest objects, so the margins err on the wide side.
 
 The same match with the views in the other order checks them: a rectified pair with the left
-view first confirms 3-11x more pixels in its own order than in the other (20 Middlebury scenes,
+view first confirms 3-7x more pixels in its own order than in the other (20 Middlebury scenes,
 ``benchmarks/view_checks.py``), where chance agreement confirms 10-30 %. Far more in the other
 order means the views are swapped; about as many in both (noise, unrelated images, a vertical
 offset or rotation) means they are not rectified, or have too little texture to tell. Either

@@ -15,14 +15,26 @@ from shared.datasets import default_middlebury_dir, load_scene
 from shared.energy import Costs
 from shared.synthetic import SyntheticScene, make_scene
 
+_TEMPORARY_DATA_DIR: str | None = None
+
 
 def pytest_configure(config) -> None:
     """Nothing a test runs writes to the user's own data folder (the default QHSM_DATA_DIR):
-    unless QHSM_DATA_DIR is set, it is a temporary folder (subprocesses inherit it)."""
+    unless QHSM_DATA_DIR is set, it is a temporary folder (subprocesses inherit it), removed at
+    the end."""
+    global _TEMPORARY_DATA_DIR
     if "QHSM_DATA_DIR" not in os.environ:
         import tempfile
 
-        os.environ["QHSM_DATA_DIR"] = tempfile.mkdtemp(prefix="qhsm-test-data-")
+        _TEMPORARY_DATA_DIR = tempfile.mkdtemp(prefix="qhsm-test-data-")
+        os.environ["QHSM_DATA_DIR"] = _TEMPORARY_DATA_DIR
+
+
+def pytest_unconfigure(config) -> None:
+    if _TEMPORARY_DATA_DIR is not None:
+        import shutil
+
+        shutil.rmtree(_TEMPORARY_DATA_DIR, ignore_errors=True)
 
 
 @pytest.fixture(scope="session")
