@@ -10,11 +10,12 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     QHSM_DATA_DIR=/data
 
 WORKDIR /app
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md constraints.txt ./
 COPY shared ./shared
 COPY api ./api
 COPY workers ./workers
-RUN pip install ".[gurobi,monitoring]" \
+# the versions CI passed with (constraints.txt; .ci/refresh-constraints rewrites it)
+RUN pip install ".[gurobi,monitoring]" -c constraints.txt \
     && useradd --create-home --uid 10001 qhsm \
     && mkdir -p /data \
     && chown qhsm /data

@@ -9,8 +9,9 @@
   i.e. s|dp - dq|. The costs are the pipeline's own (:func:`shared.energy.level_costs`), so the
   row DP (:func:`shared.solvers.exact.solve_chains`) must reach the same energy; ``heidari``
   checks that on every row it solves unless told not to.
-* OpenCV StereoSGBM, the classical method a user would pick instead, with the pixels it leaves
-  invalid (occlusions, the left margin, uniqueness failures) filled from the background side.
+* OpenCV StereoSGBM, the classical method a user would pick instead (the settings of issue 17:
+  colour, 5 x 5 blocks, 8 paths), with the pixels it leaves invalid (occlusions, the left
+  margin, uniqueness failures) filled from the background side.
 """
 
 from __future__ import annotations
@@ -236,53 +237,73 @@ def heidari(
 
 # --- OpenCV StereoSGBM ---------------------------------------------------------------------
 
+#: The SGBM baseline of issue 17, the one every comparison uses: 5 x 5 blocks on the colour views,
+#: OpenCV's recommended penalties for three channels (P1 = 8 cn b^2, P2 = 32 cn b^2), a 1-px
+#: left-right check, uniqueness 10 %, speckle filter 100 px / 2 px, and the full 8-path mode.
+SGBM_PARAMETERS: dict[str, int] = {
+    "blockSize": 5,
+    "P1": 8 * 3 * 5 * 5,
+    "P2": 32 * 3 * 5 * 5,
+    "disp12MaxDiff": 1,
+    "uniquenessRatio": 10,
+    "speckleWindowSize": 100,
+    "speckleRange": 2,
+    "mode": cv2.STEREO_SGBM_MODE_HH,
+}
 
-def sgbm(
-    left: np.ndarray, right: np.ndarray, max_disparity: int, block_size: int = 5
-) -> BaselineResult:
-    """OpenCV semi-global block matching with the parameters of OpenCV's stereo_match sample.
 
-    Disparities are searched in 0..max (rounded up to OpenCV's multiple of 16, then clipped to
-    max); invalid pixels are filled by :func:`shared.filters.fill_from_background` (rows
-    without a valid pixel become 0).
+def sgbm_matcher(max_disparity: int) -> cv2.StereoSGBM:
+    """The baseline's OpenCV matcher for disparities 0..``max_disparity``.
+
+    Parameters
+    ----------
+    max_disparity : int
+        Largest disparity, px; OpenCV searches 0..N - 1 with N the next multiple of 16 above it.
+
+    Returns
+    -------
+    cv2.StereoSGBM
+        Configured with :data:`SGBM_PARAMETERS`.
+    """
+    return cv2.StereoSGBM.create(
+        minDisparity=0,
+        numDisparities=16 * int(np.ceil((max_disparity + 1) / 16)),
+        **SGBM_PARAMETERS,
+    )
+
+
+def sgbm(left: np.ndarray, right: np.ndarray, max_disparity: int) -> BaselineResult:
+    """OpenCV semi-global block matching, the baseline (:data:`SGBM_PARAMETERS`).
+
+    The views go in as OpenCV reads them (8-bit, colour kept); the map comes out as OpenCV
+    computes it over its search range (:func:`sgbm_matcher`, not clipped to ``max_disparity``),
+    with the pixels it marks invalid (occlusions, the left margin, uniqueness and left-right
+    failures) filled by :func:`shared.filters.fill_from_background` (rows without a valid pixel
+    become 0).
 
     Parameters
     ----------
     left, right : numpy.ndarray
-        The views (h, w) or (h, w, 3), float32 in [0, 1].
+        The views (h, w, 3) BGR or (h, w), float32 in [0, 1].
     max_disparity : int
         Largest disparity, px.
-    block_size : int, optional
-        OpenCV's matched block size (odd).
 
     Returns
     -------
     BaselineResult
+        ``info``: the fraction of pixels filled and OpenCV's number of disparities.
     """
     started = time.perf_counter()
-    num_disparities = 16 * int(np.ceil((max_disparity + 1) / 16))
-    matcher = cv2.StereoSGBM.create(
-        minDisparity=0,
-        numDisparities=num_disparities,
-        blockSize=block_size,
-        P1=8 * block_size * block_size,
-        P2=32 * block_size * block_size,
-        disp12MaxDiff=1,
-        uniquenessRatio=10,
-        speckleWindowSize=100,
-        speckleRange=2,
-        mode=cv2.STEREO_SGBM_MODE_SGBM,
-    )
+    matcher = sgbm_matcher(max_disparity)
     to_uint8 = lambda image: np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)  # noqa: E731
     raw = matcher.compute(to_uint8(left), to_uint8(right)).astype(np.float32) / 16.0
     valid = raw >= 0
-    disparity = np.clip(fill_from_background(raw, valid, empty=0.0), 0, max_disparity)
+    disparity = fill_from_background(raw, valid, empty=0.0)
     return BaselineResult(
         disparity=disparity,
         seconds=time.perf_counter() - started,
         info={
             "invalid_fraction": float(1.0 - valid.mean()),
-            "block_size": block_size,
-            "num_disparities": num_disparities,
+            "num_disparities": matcher.getNumDisparities(),
         },
     )

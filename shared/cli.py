@@ -237,30 +237,35 @@ def cmd_datasets_fetch(args: argparse.Namespace) -> int:
 
 
 def cmd_datasets_list(args: argparse.Namespace) -> int:
-    """``qhsm datasets list``: show the scenes in a folder and their evaluation protocol.
+    """``qhsm datasets list``: show the scenes below a folder and their evaluation protocol.
 
     Parameters
     ----------
     args : argparse.Namespace
-        ``directory`` of scene folders and the ``json`` switch.
+        ``directory`` (a folder of datasets, a dataset folder or a scene folder) and the
+        ``json`` switch.
 
     Returns
     -------
     int
         0.
     """
-    from shared.datasets import find_scenes
+    from shared.datasets import find_datasets
 
-    scenes = find_scenes(args.directory)
-    rows = [{"name": name, **scene.protocol()} for name, scene in scenes.items()]
+    rows = [
+        {"name": scene.qualified_name, **scene.protocol()}
+        for scenes in find_datasets(args.directory).values()
+        for scene in scenes.values()
+    ]
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
         for row in rows:
             print(
-                f"{row['name']:<12} {row['layout']:<24} scale {row['scale']:g}  border "
+                f"{row['name']:<26} {row['layout']:<24} scale {row['scale']:g}  border "
                 f"{row['border']}  max disparity {row['max_disparity']}  "
-                f"masks {','.join(row['masks']) or '-'}"
+                f"masks {','.join(row['masks']) or '-'}  non-occluded from "
+                f"{row['non_occlusion']}"
             )
     return 0
 
@@ -372,7 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     fetch.set_defaults(handler=cmd_datasets_fetch)
     listing = dataset_commands.add_parser("list", help="show the scenes found and their protocol")
-    listing.add_argument("directory", help="folder of scene folders")
+    listing.add_argument(
+        "directory", help="folder of dataset folders, one dataset folder or one scene folder"
+    )
     add_json_option(listing, "the scenes")
     listing.set_defaults(handler=cmd_datasets_list)
 

@@ -1,4 +1,6 @@
-"""Fixtures shared by every test package: synthetic scenes and the optional Middlebury data."""
+"""Fixtures shared by every test package: synthetic scenes, the optional Middlebury data, the
+Redis the user, API and service tests share (one per session, each test under its own key
+prefix), a temporary data directory, and Ctrl-C as a terminal sends it."""
 
 from __future__ import annotations
 
@@ -6,10 +8,12 @@ import os
 import signal
 import subprocess
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 import pytest
+import redis
 
 from shared.datasets import default_middlebury_dir, load_scene
 from shared.energy import Costs
@@ -69,6 +73,91 @@ def _random_costs(rng: np.random.Generator, height: int, width: int, labels: int
 def random_costs():
     """Factory: non-negative random MRF costs (the regime the rectifier proofs cover)."""
     return _random_costs
+
+
+#: Environment variable choosing the tests' Redis: a URL, or ``embedded``.
+TEST_REDIS_ENV = "QHSM_TEST_REDIS_URL"
+#: The value of :data:`TEST_REDIS_ENV` that asks for the embedded redis-server.
+EMBEDDED = "embedded"
+#: The local Redis of a development machine or CI, in a database of the tests' own.
+LOCAL_REDIS = "redis://127.0.0.1:6379/13"
+
+
+@dataclass(frozen=True)
+class RedisChoice:
+    """Which Redis the tests use: ``url`` (None: start the embedded one), or ``error``."""
+
+    url: str | None
+    reason: str
+    error: str | None = None
+
+
+_REDIS_CHOICE = pytest.StashKey[RedisChoice]()
+
+
+def _why_not(url: str) -> str | None:
+    """None when a Redis answers at ``url``, else why not."""
+    try:
+        redis.Redis.from_url(url, socket_connect_timeout=0.5, socket_timeout=2).ping()
+    except redis.RedisError as error:
+        return f"{type(error).__name__}: {error}"
+    return None
+
+
+def _redis_choice(config: pytest.Config) -> RedisChoice:
+    """Decided once per session: ``QHSM_TEST_REDIS_URL`` when set (a URL that must answer, or
+    ``embedded``), else the local Redis when it answers, else the embedded redis-server (a
+    laptop without Redis)."""
+    if _REDIS_CHOICE not in config.stash:
+        config.stash[_REDIS_CHOICE] = _choose_redis(os.environ.get(TEST_REDIS_ENV, "").strip())
+    return config.stash[_REDIS_CHOICE]
+
+
+def _choose_redis(wanted: str) -> RedisChoice:
+    from workers.embedded_redis import safe_url
+
+    if wanted.lower() == EMBEDDED:
+        return RedisChoice(None, f"embedded redis-server ({TEST_REDIS_ENV}={EMBEDDED})")
+    if wanted:
+        shown = f"{safe_url(wanted)} (from {TEST_REDIS_ENV})"
+        error = _why_not(wanted)
+        if error is None:
+            return RedisChoice(wanted, shown)
+        return RedisChoice(
+            None,
+            shown,
+            f"{TEST_REDIS_ENV}={safe_url(wanted)} does not answer ({error}): start that Redis, "
+            f"set {TEST_REDIS_ENV}={EMBEDDED}, or unset it (the local Redis if it answers, else "
+            "the embedded one)",
+        )
+    if _why_not(LOCAL_REDIS) is None:
+        return RedisChoice(LOCAL_REDIS, f"{LOCAL_REDIS} (the local Redis answered)")
+    return RedisChoice(None, f"embedded redis-server (nothing answers at {LOCAL_REDIS})")
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    choice = _redis_choice(config)
+    return f"tests' Redis: {choice.error or choice.reason}"
+
+
+@pytest.fixture(scope="session")
+def redis_url(request, tmp_path_factory) -> Iterator[str]:
+    """The URL of the tests' Redis (:func:`_redis_choice`). When that is the embedded
+    redis-server, one is started for the session, as ``qhsm serve`` starts its own (a free
+    127.0.0.1 port, a password)."""
+    choice = _redis_choice(request.config)
+    if choice.error is not None:
+        pytest.exit(choice.error, returncode=pytest.ExitCode.USAGE_ERROR)
+    if choice.url is not None:
+        yield choice.url
+        return
+    from workers.embedded_redis import EmbeddedRedis
+
+    server = EmbeddedRedis(tmp_path_factory.mktemp("redis")).start()
+    try:
+        yield server.url
+    finally:
+        server.stop()
 
 
 @dataclass

@@ -40,7 +40,10 @@ Modules, one job each:
 * :mod:`~shared.bench.scoring`: a run's record and figures under the scene's protocol, and the
   per-variant averages;
 * :mod:`~shared.bench.report`: per-run images (preview, PFM, error map), log lines and the
-  Markdown report.
+  Markdown report;
+* :mod:`~shared.bench.generalisation`: the generalisation benchmark (``benchmarks/
+  generalisation.py``): named variants against the SGBM baseline on every scene found, with the
+  range given, scored on the non-occluded pixels, runs side by side in a process pool.
 """
 
 from shared.bench.experiments import (

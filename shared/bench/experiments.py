@@ -228,22 +228,22 @@ def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> Match
     Returns
     -------
     MatchConfig
-        The configuration the runner is given.
+        The configuration the runner is given (the variant's overrides win over the options).
     """
     assert variant.solver is not None
-    return MatchConfig(
-        preset=variant.preset,
-        solver=variant.solver,
-        max_disparity=AUTO if options.max_disparity == AUTO else scene.max_disparity,
-        bundle_height=options.bundle_height,
-        encoding=encoding_for(variant.solver, options),
-        seed=options.seed,
-        solver_params={
+    settings: dict[str, Any] = {
+        "preset": variant.preset,
+        "solver": variant.solver,
+        "max_disparity": AUTO if options.max_disparity == AUTO else scene.max_disparity,
+        "bundle_height": options.bundle_height,
+        "encoding": encoding_for(variant.solver, options),
+        "seed": options.seed,
+        "solver_params": {
             **options.solver_params.get("*", {}),
             **options.solver_params.get(variant.solver, {}),
         },
-        **variant.overrides,
-    )
+    }
+    return MatchConfig(**{**settings, **variant.overrides})  # the variant's changes win
 
 
 def paper_figure(variant: Variant, scene: str) -> dict | None:

@@ -160,12 +160,13 @@ def markdown(results: dict) -> str:
     lines += [
         "",
         "Protocol: left-view disparity; RMSE and BPP (|d - gt| > 1 px, in %) over every pixel "
-        "with known ground truth outside the scene's border; *nonocc*/*disc* columns use the "
-        "v2 evaluation masks where the scene has them. Wall time is the whole run of the scene. "
+        "with known ground truth outside the scene's border; *disc* uses the v2 evaluation mask "
+        "where the scene has it, *nonocc* the non-occluded pixels (the nonocc mask, else the "
+        "ground truth's left-right check). Wall time is the whole run of the scene. "
         "Paper figures: n/a where unknown.",
         "",
-        "| scene | layout | GT scale | border px | max disparity | masks |",
-        "|---|---|---:|---:|---:|---|",
+        "| scene | layout | GT scale | border px | max disparity | masks | non-occluded from |",
+        "|---|---|---:|---:|---:|---|---|",
     ]
     for name, protocol in results["scenes"].items():
         lines.append(
@@ -177,6 +178,7 @@ def markdown(results: dict) -> str:
                     str(protocol["border"]),
                     str(protocol["max_disparity"]),
                     ", ".join(protocol["masks"]) or "none",
+                    protocol["non_occlusion"],
                 ]
             )
         )

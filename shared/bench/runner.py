@@ -112,7 +112,7 @@ def run_one(
             result = heidari(to_gray(left), to_gray(right), scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
         else:
-            result = sgbm(to_gray(left), to_gray(right), scene.max_disparity)
+            result = sgbm(left, right, scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
     except SolverUnavailable as error:  # found out only when solving (e.g. licence size)
         run.status, run.reason = "skipped", str(error)

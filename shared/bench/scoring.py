@@ -1,8 +1,9 @@
 """Scoring: a run's figures under its scene's protocol, and each variant's mean over the scenes.
 
 The main figures use every pixel with known ground truth outside the scene's border (as the
-paper's table does); the v2 masks ``nonocc``/``all``/``disc`` are scored as well where the scene
-has them.
+paper's table does); the v2 masks ``all``/``disc`` are scored as well where the scene has them,
+and ``nonocc`` wherever the scene can tell its non-occluded pixels (its mask, else the ground
+truth's left-right check: :meth:`shared.datasets.Scene.non_occluded`).
 """
 
 from __future__ import annotations
@@ -42,6 +43,9 @@ class Run:
 def score(run: Run, disparity: np.ndarray, scene: Scene, gt: np.ndarray | None) -> None:
     """Fill in ``run``'s RMSE, BPP, pixel count and per-mask figures (nothing without a GT).
 
+    ``run.masks["nonocc"]`` is there whenever the scene's non-occluded pixels are known (see the
+    module doc), not only where a mask file is.
+
     Parameters
     ----------
     run
@@ -62,8 +66,11 @@ def score(run: Run, disparity: np.ndarray, scene: Scene, gt: np.ndarray | None) 
         return
     main = evaluate(disparity, gt, scale=scene.scale, border=scene.border)
     run.rmse, run.bpp, run.pixels = main.rmse, main.bpp, main.pixels
-    for name in sorted(scene.masks):
-        mask = scene.mask(name)
+    masks = {name: scene.mask(name) for name in scene.masks}
+    non_occluded = scene.non_occluded(gt)  # the mask, else the ground truth's left-right check
+    if non_occluded is not None:
+        masks["nonocc"] = non_occluded
+    for name, mask in sorted(masks.items()):
         run.masks[name] = evaluate(
             disparity, gt, scale=scene.scale, border=scene.border, mask=mask
         ).as_dict()

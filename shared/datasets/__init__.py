@@ -2,9 +2,10 @@
 
 Modules, one job each:
 
-* :mod:`~shared.datasets.scenes`: scene discovery: finding scenes on disk in the layouts we know
-  (ours, Middlebury 2001/2003/2014), and each scene's evaluation protocol (ground-truth scale,
-  ignored border, v2 masks, disparity range; PROVENANCE.md's figures for the known scenes);
+* :mod:`~shared.datasets.scenes`: scene discovery: finding scenes and dataset folders on disk in
+  the layouts we know (ours, Middlebury 2001/2003/2005/2006/2014, KITTI), and each scene's
+  evaluation protocol (ground-truth scale, ignored border, masks, non-occluded pixels, disparity
+  range; the PROVENANCE files' figures for the known scenes and datasets);
 * :mod:`~shared.datasets.download`: ``qhsm datasets fetch``: the registry of known Middlebury
   files with their sha256 and URLs, downloaded, verified and retried through pooch.
 """
@@ -19,21 +20,28 @@ from shared.datasets.download import (
 )
 from shared.datasets.scenes import (
     DEFAULT_MAX_DISPARITY,
+    GT_CONSISTENCY_TOLERANCE,
+    KNOWN_DATASETS,
     KNOWN_MAX_DISPARITY,
     KNOWN_PROTOCOLS,
     LAYOUT_BY_LEFT,
     LAYOUTS,
     MASK_FILES,
     MASKS,
+    DatasetConvention,
     Layout,
     Scene,
+    confirmed_by_right_view,
     default_middlebury_dir,
+    find_datasets,
     find_scenes,
     load_scene,
 )
 
 __all__ = [
     "DEFAULT_MAX_DISPARITY",
+    "GT_CONSISTENCY_TOLERANCE",
+    "KNOWN_DATASETS",
     "KNOWN_MAX_DISPARITY",
     "KNOWN_PROTOCOLS",
     "LAYOUTS",
@@ -42,13 +50,16 @@ __all__ = [
     "MASKS",
     "MASK_FILES",
     "ChecksumMismatch",
+    "DatasetConvention",
     "FetchedFile",
     "Layout",
     "Manifest",
     "RemoteFile",
     "Scene",
+    "confirmed_by_right_view",
     "default_middlebury_dir",
     "fetch",
+    "find_datasets",
     "find_scenes",
     "load_scene",
 ]

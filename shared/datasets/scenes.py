@@ -1,28 +1,42 @@
 """Scene discovery: stereo scenes with ground truth found on disk, with their evaluation protocol.
 
 A ``Scene`` knows its files and its evaluation protocol (ground-truth scale, ignored border,
-masks, the disparity search range). ``find_scenes`` accepts the ``left/right/gt_left`` layout of
-``../shared/data/middlebury`` as well as the layouts Middlebury distributes (2001:
-``im2.ppm/im6.ppm/disp2.pgm``, Tsukuba's ``scene1.row3.col3.ppm``; 2003 quarter size:
-``im2.png/im6.png/disp2.png``).
+masks, the disparity search range, which pixels are non-occluded). ``find_scenes`` accepts the
+``left/right/gt_left[/gt_right]`` layout of ``../shared/data/*`` as well as the layouts Middlebury
+distributes (2001: ``im2.ppm/im6.ppm/disp2.pgm``, Tsukuba's ``scene1.row3.col3.ppm``; 2003
+quarter size: ``im2.png/im6.png/disp2.png``; 2005/2006: ``view1.png/view5.png/disp1.png``;
+MiddEval3: ``im0.png/im1.png/disp0GT.pfm``); ``find_datasets`` finds the dataset folders (one
+folder of scenes each: ``middlebury2005/``, ``middlebury2006/``, ...) below a folder.
 
 The protocol of a scene is resolved, first match wins, from: explicit overrides (CLI flags), a
 ``protocol.json`` in the scene folder (``{"scale": 8, "border": 10, "max_disparity": 20}``, any
-subset), ``KNOWN_PROTOCOLS`` by scene name (PROVENANCE.md), and finally the default of the
-detected layout.
+subset), a ``protocol.json`` in its dataset folder (the scene folder's parent), then for the
+ground-truth scale a PFM ground truth (real disparities: 1) and the convention of a known dataset
+folder (``KNOWN_DATASETS``: Middlebury 2005/2006 store full-size disparities at every size, KITTI
+disparity x 256), then ``KNOWN_PROTOCOLS`` by scene name (PROVENANCE.md), and finally the default
+of the detected layout (Middlebury's 2005/2006 file names: the 2005/2006 convention).
+
+Non-occluded pixels (the main figure of ``benchmarks/generalisation.py``) are the dataset's
+``nonocc`` mask where the scene has one; else the pixels whose ground truth is confirmed by the
+right view's ground truth within 1 px (a left-right check of the ground truth itself); else,
+without a right-view ground truth, every pixel with known ground truth.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
+import imagesize
 import numpy as np
 
-from shared.images import ImageError, load_disparity_values, load_mask, load_pair
+from shared.filters import left_right_check
+from shared.images import ImageError, load_disparity_values, load_pair
 
 #: Protocol per known scene: (ground-truth scale, ignored border), from PROVENANCE.md.
 KNOWN_PROTOCOLS: dict[str, tuple[float, int]] = {
@@ -47,22 +61,105 @@ KNOWN_MAX_DISPARITY: dict[str, int] = {
 }
 DEFAULT_MAX_DISPARITY = 20
 
-#: Candidate file names per role, in order of preference.
+#: Candidate file names per role, in order of preference: ours (``../shared/data``), then
+#: Middlebury's own (2001, Tsukuba, 2003, 2005/2006 ``view1/view5/disp1/disp5``, MiddEval3).
 LAYOUTS = {
-    "left": ["left.png", "left.ppm", "im2.ppm", "im2.png", "scene1.row3.col3.ppm", "im0.png"],
-    "right": ["right.png", "right.ppm", "im6.ppm", "im6.png", "scene1.row3.col4.ppm", "im1.png"],
-    "gt": ["gt_left.png", "gt_left.pgm", "disp2.pgm", "disp2.png", "truedisp.row3.col3.pgm"],
+    "left": [
+        "left.png",
+        "left.ppm",
+        "im2.ppm",
+        "im2.png",
+        "scene1.row3.col3.ppm",
+        "view1.png",
+        "im0.png",
+    ],
+    "right": [
+        "right.png",
+        "right.ppm",
+        "im6.ppm",
+        "im6.png",
+        "scene1.row3.col4.ppm",
+        "view5.png",
+        "im1.png",
+    ],
+    "gt": [
+        "gt_left.png",
+        "gt_left.pgm",
+        "gt_left.pfm",
+        "disp2.pgm",
+        "disp2.png",
+        "truedisp.row3.col3.pgm",
+        "disp1.png",
+        "disp0GT.pfm",
+    ],
+    "gt_right": [
+        "gt_right.png",
+        "gt_right.pgm",
+        "gt_right.pfm",
+        "disp6.pgm",
+        "disp6.png",
+        "disp5.png",
+        "disp1GT.pfm",
+    ],
 }
-#: Mask files per mask name: ours first, then the v2 evaluation's original names.
+#: Mask files per mask name: ours first, then the v2 evaluation's original names, then
+#: MiddEval3's (``mask0nocc.png``, ours ``mask_left_nocc.png``: 255 non-occluded, 128 occluded).
 MASK_FILES = {
     "all": ["mask_all.png", "all.png"],
-    "nonocc": ["mask_nonocc.png", "nonocc.png"],
+    "nonocc": ["mask_nonocc.png", "nonocc.png", "mask_left_nocc.png", "mask0nocc.png"],
     "disc": ["mask_disc.png", "disc.png"],
 }
 MASKS = {key: files[0] for key, files in MASK_FILES.items()}
 PROTOCOL_FILE = "protocol.json"
-#: Value of the pixels near depth discontinuities in the v2 ``disc`` masks.
-DISC_VALUE = 255
+PROTOCOL_KEYS = ("scale", "border", "max_disparity")
+#: The value a mask pixel needs to count, per mask (``all``: any non-zero value). The v2 ``disc``
+#: masks hold 255 near discontinuities and 128 elsewhere in nonocc; MiddEval3's nocc masks 255
+#: where non-occluded and 128 where occluded.
+MASK_VALUE = {"nonocc": 255, "disc": 255}
+#: Largest difference (px) between a pixel's ground truth and the right view's ground truth at
+#: its match for the pixel to count as non-occluded, where the dataset has no nonocc mask.
+GT_CONSISTENCY_TOLERANCE = 1.0
+
+
+@dataclass(frozen=True)
+class DatasetConvention:
+    """How a known dataset folder stores its ground truth."""
+
+    #: Stored value per pixel of disparity.
+    scale: float = 1.0
+    #: Where set, the ground truth holds disparities of the full-size images, which are this many
+    #: pixels high (Middlebury 2005/2006): a reduced size divides by its reduction factor.
+    full_size_height: int | None = None
+
+    def scale_for(self, height: int) -> float:
+        """The ground-truth scale of a scene whose images are ``height`` pixels high.
+
+        Parameters
+        ----------
+        height
+            The scene's image height, pixels.
+
+        Returns
+        -------
+        float
+            ``scale``, or the reduction factor full size / ``height`` (rounded: 3 for third
+            size, 2 for half size, 1 for full size).
+        """
+        if self.full_size_height is None:
+            return self.scale
+        return float(max(1, round(self.full_size_height / height)))
+
+
+#: Ground-truth conventions by dataset folder name (the scene folder's parent, lower case), from
+#: ``../shared/data/PROVENANCE-2005-2006.md``: Middlebury 2005/2006 8-bit PNGs hold the full-size
+#: disparity (images 1110 px high) at every size; KITTI 16-bit PNGs hold disparity x 256.
+MIDDLEBURY_2005_2006 = DatasetConvention(full_size_height=1110)
+KNOWN_DATASETS: dict[str, DatasetConvention] = {
+    "middlebury2005": MIDDLEBURY_2005_2006,
+    "middlebury2006": MIDDLEBURY_2005_2006,
+    "kitti2012": DatasetConvention(scale=256.0),
+    "kitti2015": DatasetConvention(scale=256.0),
+}
 
 
 @dataclass(frozen=True)
@@ -72,20 +169,33 @@ class Layout:
     name: str
     left: str
     right: str
-    scale: float  # default ground-truth scale when the scene's name is not known
+    #: How its ground truth is stored where the scene's name is not known.
+    ground_truth: DatasetConvention
     border: int
+
+    @property
+    def scale(self) -> float:
+        """The default ground-truth scale (1 where it depends on the image size)."""
+        return self.ground_truth.scale
 
 
 #: Recognised layouts, keyed by the left view's file name.
 LAYOUT_BY_LEFT: dict[str, Layout] = {
     layout.left: layout
     for layout in [
-        Layout("shared", "left.png", "right.png", 1.0, 0),
-        Layout("shared", "left.ppm", "right.ppm", 1.0, 0),
-        Layout("middlebury2001", "im2.ppm", "im6.ppm", 8.0, 10),
-        Layout("middlebury2001-tsukuba", "scene1.row3.col3.ppm", "scene1.row3.col4.ppm", 16.0, 18),
-        Layout("middlebury2003", "im2.png", "im6.png", 4.0, 0),
-        Layout("middlebury2014", "im0.png", "im1.png", 1.0, 0),
+        Layout("shared", "left.png", "right.png", DatasetConvention(1.0), 0),
+        Layout("shared", "left.ppm", "right.ppm", DatasetConvention(1.0), 0),
+        Layout("middlebury2001", "im2.ppm", "im6.ppm", DatasetConvention(8.0), 10),
+        Layout(
+            "middlebury2001-tsukuba",
+            "scene1.row3.col3.ppm",
+            "scene1.row3.col4.ppm",
+            DatasetConvention(16.0),
+            18,
+        ),
+        Layout("middlebury2003", "im2.png", "im6.png", DatasetConvention(4.0), 0),
+        Layout("middlebury2005-2006", "view1.png", "view5.png", MIDDLEBURY_2005_2006, 0),
+        Layout("middlebury2014", "im0.png", "im1.png", DatasetConvention(1.0), 0),
     ]
 }
 
@@ -99,6 +209,8 @@ class Scene:
     right: Path
     #: The ground-truth disparity file (values are disparities times ``scale``), if any.
     gt: Path | None = None
+    #: The right view's ground truth (same scale), if any: non-occlusion where no mask says.
+    gt_right: Path | None = None
     #: Ground-truth scale: stored value / disparity in pixels.
     scale: float = 1.0
     #: Pixels ignored along every image edge when scoring.
@@ -108,6 +220,13 @@ class Scene:
     max_disparity: int = DEFAULT_MAX_DISPARITY
     #: The :class:`Layout` name the files were recognised by.
     layout: str = "shared"
+    #: The dataset folder the scene is in (its parent folder's name, lower case).
+    dataset: str = ""
+
+    @property
+    def qualified_name(self) -> str:
+        """``dataset/name``: unique across datasets (2003's Teddy and MiddEval3's are not one)."""
+        return f"{self.dataset}/{self.name}" if self.dataset else self.name
 
     def load(self) -> tuple[np.ndarray, np.ndarray]:
         """Read the two views.
@@ -131,11 +250,21 @@ class Scene:
             raise FileNotFoundError(f"scene {self.name} has no ground truth")
         return load_disparity_values(self.gt)
 
-    def mask(self, name: str) -> np.ndarray | None:
-        """Pixels of a v2 evaluation mask.
+    def ground_truth_range(self) -> int:
+        """The largest ground-truth disparity, rounded up: the range "given" to a matcher.
 
-        ``disc`` holds 255 near discontinuities and 128 elsewhere in nonocc, so only its 255
-        pixels count; the other masks are their non-zero pixels.
+        Returns
+        -------
+        int
+            ceil of the ground truth's maximum, in pixels of the scene's images.
+        """
+        return math.ceil(float(self.ground_truth().max()) / self.scale)
+
+    def mask(self, name: str) -> np.ndarray | None:
+        """Pixels of an evaluation mask on disk (palette PNGs decoded through their palette).
+
+        ``disc`` and ``nonocc`` count only their 255 pixels (``disc``: 128 is the rest of
+        nonocc; MiddEval3's nocc: 128 is occluded); ``all`` its non-zero pixels.
 
         Parameters
         ----------
@@ -149,12 +278,59 @@ class Scene:
         """
         if name not in self.masks:
             return None
-        if name == "disc":
-            raw = cv2.imread(str(self.masks[name]), cv2.IMREAD_GRAYSCALE)
-            if raw is None:
-                raise ImageError(f"{self.masks[name]}: not a readable mask image")
-            return raw == DISC_VALUE
-        return load_mask(self.masks[name])
+        raw = cv2.imread(str(self.masks[name]), cv2.IMREAD_GRAYSCALE)
+        if raw is None:
+            raise ImageError(f"{self.masks[name]}: not a readable mask image")
+        value = MASK_VALUE.get(name)
+        return raw > 0 if value is None else raw == value
+
+    @property
+    def non_occlusion(self) -> str:
+        """Where the scene's non-occluded pixels come from (see :meth:`non_occluded`).
+
+        Returns
+        -------
+        str
+            ``mask`` (a nonocc mask on disk), ``left-right`` (the ground truth's left-right
+            check) or ``none`` (no way to tell: every pixel with known ground truth).
+        """
+        if "nonocc" in self.masks:
+            return "mask"
+        if self.gt is not None and self.gt_right is not None:
+            return "left-right"
+        return "none"
+
+    def non_occluded(self, gt: np.ndarray | None = None) -> np.ndarray | None:
+        """The non-occluded pixels: the nonocc mask, else the ground truth's left-right check.
+
+        Without a mask, the left ground truth's pixels that the right view's ground truth
+        confirms (:func:`confirmed_by_right_view`).
+
+        Parameters
+        ----------
+        gt
+            The left ground truth as stored, if already loaded.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            (h, w) bool, or None where the scene can tell neither way (``non_occlusion ==
+            "none"``).
+        """
+        source = self.non_occlusion
+        if source == "mask":
+            return self.mask("nonocc")
+        if source == "none":
+            return None
+        assert self.gt_right is not None
+        left = (self.ground_truth() if gt is None else gt) / self.scale
+        right = load_disparity_values(self.gt_right) / self.scale
+        if right.shape != left.shape:
+            raise ValueError(
+                f"{self.gt_right}: {right.shape[::-1]} (w x h), the left ground truth is "
+                f"{left.shape[::-1]}"
+            )
+        return confirmed_by_right_view(left, right)
 
     def protocol(self) -> dict:
         """The evaluation protocol as plain data.
@@ -162,11 +338,38 @@ class Scene:
         Returns
         -------
         dict
-            ``layout``, ``scale``, ``border``, ``max_disparity`` and the ``masks`` found (for
-            results files and ``qhsm datasets list``).
+            ``dataset``, ``layout``, ``scale``, ``border``, ``max_disparity``,
+            ``non_occlusion`` and the ``masks`` found (for results files and ``qhsm datasets
+            list``).
         """
-        fields = ("layout", "scale", "border", "max_disparity")
+        fields = ("dataset", "layout", "scale", "border", "max_disparity", "non_occlusion")
         return {**{key: getattr(self, key) for key in fields}, "masks": sorted(self.masks)}
+
+
+def confirmed_by_right_view(
+    left: np.ndarray, right: np.ndarray, tolerance: float = GT_CONSISTENCY_TOLERANCE
+) -> np.ndarray:
+    """Non-occluded pixels from the two views' ground truths: the GT's own left-right check.
+
+    A left pixel with known disparity d is confirmed when the right view's ground truth at
+    x - d (rounded) is known and within ``tolerance`` of d
+    (:func:`shared.filters.left_right_check`); a pixel whose match falls outside the image or on
+    another surface is occluded.
+
+    Parameters
+    ----------
+    left, right
+        Ground-truth disparities (h, w) of the left and the right view, pixels; 0 = unknown.
+    tolerance
+        Largest accepted difference, pixels.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) bool, False also where the left ground truth is unknown.
+    """
+    unknown_as_nan = np.where(right > 0, right, np.nan)  # NaN is never within the tolerance
+    return (left > 0) & left_right_check(left, unknown_as_nan, tolerance)
 
 
 def default_middlebury_dir() -> Path:
@@ -187,7 +390,7 @@ def _first(folder: Path, names: list[str]) -> Path | None:
     return next((folder / n for n in names if (folder / n).is_file()), None)
 
 
-def _protocol_file(folder: Path) -> dict:
+def _protocol_file(folder: Path) -> dict[str, Any]:
     path = folder / PROTOCOL_FILE
     if not path.is_file():
         return {}
@@ -195,10 +398,37 @@ def _protocol_file(folder: Path) -> dict:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise ValueError(f"{path}: not valid JSON ({error})") from None
-    unknown = set(data) - {"scale", "border", "max_disparity"}
-    if not isinstance(data, dict) or unknown:
-        raise ValueError(f"{path}: expected keys scale, border, max_disparity; got {sorted(data)}")
+    if not isinstance(data, dict) or set(data) - set(PROTOCOL_KEYS):
+        got = sorted(data) if isinstance(data, dict) else type(data).__name__
+        raise ValueError(f"{path}: expected keys {', '.join(PROTOCOL_KEYS)}; got {got}")
     return data
+
+
+def _first_given(*values: Any) -> Any:
+    """The first value that is not None (None if all are)."""
+    return next((value for value in values if value is not None), None)
+
+
+def _scale_of(convention: DatasetConvention, left: Path) -> float:
+    """The convention's scale for the scene whose left view is ``left``."""
+    if convention.full_size_height is None:
+        return convention.scale
+    _, height = imagesize.get(str(left))  # the header only
+    if height <= 0:
+        raise ImageError(f"{left}: cannot read the image size")
+    return convention.scale_for(height)
+
+
+def _default_scale(name: str, dataset: str, layout: Layout, left: Path, gt: Path | None) -> float:
+    """The ground-truth scale no protocol file states: the file type, the known dataset, the
+    known scene, the layout (see the module doc)."""
+    if gt is not None and gt.suffix.lower() == ".pfm":
+        return 1.0  # PFM holds real disparities
+    if dataset in KNOWN_DATASETS:
+        return _scale_of(KNOWN_DATASETS[dataset], left)
+    if name in KNOWN_PROTOCOLS:
+        return KNOWN_PROTOCOLS[name][0]
+    return _scale_of(layout.ground_truth, left)
 
 
 def load_scene(
@@ -214,11 +444,12 @@ def load_scene(
     Parameters
     ----------
     folder
-        The scene's folder.
+        The scene's folder; its parent is the scene's dataset folder.
     name
         The scene's name (default: the folder's, lower case); known names have known protocols.
     scale, border, max_disparity
-        Overrides of the protocol (None: ``protocol.json``, the known scene, the layout).
+        Overrides of the protocol (None: the ``protocol.json`` files, the known dataset and
+        scene, the layout).
 
     Returns
     -------
@@ -227,14 +458,18 @@ def load_scene(
     """
     folder = Path(folder)
     name = name or folder.name.lower()
+    dataset = folder.resolve().parent.name.lower()
     left, right = _first(folder, LAYOUTS["left"]), _first(folder, LAYOUTS["right"])
     if left is None or right is None:
         raise FileNotFoundError(
             f"{folder}: no stereo pair found (looked for {LAYOUTS['left']} and {LAYOUTS['right']})"
         )
     layout = LAYOUT_BY_LEFT[left.name]
-    from_file = _protocol_file(folder)
-    known_scale, known_border = KNOWN_PROTOCOLS.get(name, (layout.scale, layout.border))
+    gt = _first(folder, LAYOUTS["gt"])
+    own, shared = _protocol_file(folder), _protocol_file(folder.resolve().parent)
+    known_border = KNOWN_PROTOCOLS[name][1] if name in KNOWN_PROTOCOLS else layout.border
+    given: dict[str, Any] = {"scale": scale, "border": border, "max_disparity": max_disparity}
+    protocol = {key: _first_given(given[key], own.get(key), shared.get(key)) for key in given}
     masks = {}
     for key, files in MASK_FILES.items():
         found = _first(folder, files)
@@ -244,19 +479,27 @@ def load_scene(
         name=name,
         left=left,
         right=right,
-        gt=_first(folder, LAYOUTS["gt"]),
-        scale=float(scale if scale is not None else from_file.get("scale", known_scale)),
-        border=int(border if border is not None else from_file.get("border", known_border)),
+        gt=gt,
+        gt_right=_first(folder, LAYOUTS["gt_right"]) if gt is not None else None,
+        scale=float(
+            protocol["scale"]
+            if protocol["scale"] is not None
+            else _default_scale(name, dataset, layout, left, gt)
+        ),
+        border=int(_first_given(protocol["border"], known_border)),
         masks=masks,
         max_disparity=int(
-            max_disparity
-            if max_disparity is not None
-            else from_file.get(
-                "max_disparity", KNOWN_MAX_DISPARITY.get(name, DEFAULT_MAX_DISPARITY)
+            _first_given(
+                protocol["max_disparity"], KNOWN_MAX_DISPARITY.get(name, DEFAULT_MAX_DISPARITY)
             )
         ),
         layout=layout.name,
+        dataset=dataset,
     )
+
+
+def _is_scene(folder: Path) -> bool:
+    return _first(folder, LAYOUTS["left"]) is not None
 
 
 def find_scenes(root: str | Path, **overrides) -> dict[str, Scene]:
@@ -277,7 +520,7 @@ def find_scenes(root: str | Path, **overrides) -> dict[str, Scene]:
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such directory")
-    if _first(root, LAYOUTS["left"]) is not None:
+    if _is_scene(root):
         scene = load_scene(root, **overrides)
         return {scene.name: scene}
     scenes = {}
@@ -287,3 +530,37 @@ def find_scenes(root: str | Path, **overrides) -> dict[str, Scene]:
         except FileNotFoundError:
             continue
     return scenes
+
+
+def find_datasets(root: str | Path, **overrides) -> dict[str, dict[str, Scene]]:
+    """The dataset folders at or below ``root`` and their scenes, by folder layout alone.
+
+    ``root`` is a dataset when it is a scene folder or has scene folders directly below it;
+    otherwise every sub-folder is searched the same way (``../shared/data`` gives
+    ``middlebury``, ``middlebury2005`` and ``middlebury2006``).
+
+    Parameters
+    ----------
+    root
+        A folder of datasets, one dataset folder, or one scene's folder.
+    **overrides
+        ``scale``, ``border``, ``max_disparity``: passed to :func:`load_scene`.
+
+    Returns
+    -------
+    dict
+        Dataset folder name (lower case) to its scenes as :func:`find_scenes` returns them, sorted
+        by the folders' paths; empty where no scene is found.
+    """
+    root = Path(root)
+    scenes = find_scenes(root, **overrides)
+    if scenes:
+        dataset = next(iter(scenes.values())).dataset
+        return {dataset: scenes}
+    datasets: dict[str, dict[str, Scene]] = {}
+    for folder in sorted(p for p in root.iterdir() if p.is_dir()):
+        for name, found in find_datasets(folder, **overrides).items():
+            if name in datasets:
+                raise ValueError(f"two dataset folders are named {name!r} below {root}")
+            datasets[name] = found
+    return datasets

@@ -57,7 +57,7 @@ from shared.pyramid import level_shape, plan
 from shared.solvers.base import uses_warm_start
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
 from shared.solvers.params import DEFAULT_NUM_READS, schema_defaults
-from shared.solvers.registry import UnknownSolver, names_metered_by, spec
+from shared.solvers.registry import UnknownSolver, spec
 
 log = logging.getLogger(__name__)
 
@@ -107,12 +107,6 @@ HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
 QUBITS_PER_VARIABLE = 2.0
 #: Working qubits of an Advantage (Pegasus P16) QPU: no embedding uses more.
 MAX_QUBITS = 5627
-#: Solvers whose use is charged to a user's budget, as the registry declares them
-#: (``SolverSpec.meter``). The offline stand-ins are charged what the model says the real
-#: service would take, so the accounting can be exercised without a token.
-QPU_SOLVERS = names_metered_by("qpu")
-HYBRID_SOLVERS = names_metered_by("hybrid")
-METERED_SOLVERS = QPU_SOLVERS | HYBRID_SOLVERS
 
 #: The QPU parameters the timing model reads (others do not change the access time).
 _QPU_TIMING_PARAMS = (
@@ -126,9 +120,32 @@ _QPU_TIMING_PARAMS = (
 )
 
 
+def meter_of(solver_name: str) -> str | None:
+    """The model a job on this solver is charged with: the registry's ``SolverSpec.meter``,
+    read when asked, so a solver registered at any time (``register()``, a ``qhsm.solvers``
+    entry point) is estimated like the built-in ones. The offline stand-ins are metered too:
+    they are charged what the model says the real service would take, so the accounting can be
+    exercised without a token.
+
+    Parameters
+    ----------
+    solver_name : str
+        A registry name (or any string).
+
+    Returns
+    -------
+    str or None
+        ``"qpu"`` (the QPU timing model), ``"hybrid"`` (Leap's hybrid charge), or None for an
+        unmetered or unknown solver.
+    """
+    try:
+        return spec(solver_name).meter
+    except UnknownSolver:
+        return None
+
+
 def is_metered(solver_name: str) -> bool:
-    """Whether jobs on this solver spend (real or simulated) D-Wave time from a budget (the
-    registry's ``SolverSpec.metered``; False for unknown names).
+    """Whether jobs on this solver spend (real or simulated) D-Wave time from a budget.
 
     Parameters
     ----------
@@ -138,12 +155,10 @@ def is_metered(solver_name: str) -> bool:
     Returns
     -------
     bool
-        True for the QPU and hybrid solvers and their offline stand-ins.
+        True when :func:`meter_of` names a model (the QPU and hybrid solvers, their offline
+        stand-ins and any metered plugin); False for unknown names.
     """
-    try:
-        return spec(solver_name).metered
-    except UnknownSolver:
-        return False
+    return meter_of(solver_name) is not None
 
 
 def charged_seconds(timing: dict[str, float]) -> float:
@@ -297,7 +312,8 @@ def bundle_seconds(
     float
         Estimated metered seconds of the bundle.
     """
-    if solver_name in QPU_SOLVERS:
+    meter = meter_of(solver_name)
+    if meter == "qpu":
         if embedding is not None:
             num_qubits = embedding.qubits
         if num_qubits is None:
@@ -305,7 +321,7 @@ def bundle_seconds(
         # what the solver runs with when a parameter is not given (qpu-sim reads fewer than qpu)
         params = {**schema_defaults(spec(solver_name).params), **(params or {})}
         return qpu_access_seconds(num_qubits, params, solver)
-    if solver_name in HYBRID_SOLVERS:
+    if meter == "hybrid":
         return hybrid_charge_seconds(num_variables, params)
     return 0.0
 
@@ -389,7 +405,7 @@ def known_embedding(
         The recorded size; None when unknown, too large to embed, not a QPU solver, or the store
         is unreachable.
     """
-    if cache is None or solver_name not in QPU_SOLVERS:
+    if cache is None or meter_of(solver_name) != "qpu":
         return None
     height, width = shape
     if height * width * get_codec(encoding).variables_per_pixel(candidates) > MAX_QUBITS:
@@ -467,7 +483,7 @@ def segment_width(
         ``row_width``).
     """
     setting = config.bundle_width
-    if setting is None and config.solver in QPU_SOLVERS:
+    if setting is None and meter_of(config.solver) == "qpu":
         setting = AUTO
     if setting != AUTO:
         return setting if setting is None or setting < row_width else None
@@ -608,7 +624,7 @@ def level_estimate(
     )
     each = bundle_seconds(config.solver, variables, params, embedding=embedding)
     qubits = None
-    if config.solver in QPU_SOLVERS:
+    if meter_of(config.solver) == "qpu":
         qubits = embedding.qubits if embedding else assumed_qubits(variables)
     return LevelEstimate(
         index=index,

@@ -368,19 +368,3 @@ def queue_names() -> list[str]:
     """Every solver queue a worker may consume (the registered solvers' and ``dimod``)."""
     queues = dict.fromkeys(spec(name).queue_name for name in solver_names())
     return [*queues, DIMOD_QUEUE]
-
-
-def names_metered_by(meter: str) -> frozenset[str]:
-    """The registered solvers charged with the given model.
-
-    Parameters
-    ----------
-    meter
-        ``"qpu"`` (the QPU timing model) or ``"hybrid"`` (Leap's hybrid charge).
-
-    Returns
-    -------
-    frozenset
-        Their names.
-    """
-    return frozenset(name for name, record in _SPECS.items() if record.meter == meter)

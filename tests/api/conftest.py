@@ -23,20 +23,17 @@ from shared.config import Settings
 
 
 @pytest.fixture(scope="session")
-def api_settings(tmp_path_factory):
+def api_settings(tmp_path_factory, redis_url):
     folder = tmp_path_factory.mktemp("api")
-    url, server = harness.find_redis(folder / "redis")
     settings = Settings(
-        redis_url=url,
+        redis_url=redis_url,
         key_prefix=harness.unique_prefix(),
         data_dir=folder / "data",
         inspect_timeout=0.3,
         max_active_jobs_per_user=None,  # no worker runs here: accepted jobs stay queued
     )
     yield settings
-    harness.drop_prefix(url, settings.key_prefix)
-    if server is not None:
-        server.stop()
+    harness.drop_prefix(redis_url, settings.key_prefix)
 
 
 @pytest.fixture(scope="session")

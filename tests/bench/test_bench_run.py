@@ -51,10 +51,12 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
         preview = cv2.imread(str(out / run["files"]["preview"]))
         assert preview.shape[:2] == (32, 48)
     assert results["scenes"]["tsukuba"] == {
+        "dataset": "data",
         "layout": "middlebury2001-tsukuba",
         "scale": 16.0,
         "border": 2,
         "max_disparity": 8,
+        "non_occlusion": "mask",
         "masks": ["all", "disc", "nonocc"],
     }
 

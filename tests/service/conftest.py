@@ -49,14 +49,6 @@ def service_dir(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
-def redis_url(service_dir):
-    url, server = harness.find_redis(service_dir / "redis")
-    yield url
-    if server is not None:
-        server.stop()
-
-
-@pytest.fixture(scope="session")
 def settings(redis_url, service_dir) -> Settings:
     prefix = harness.unique_prefix()
     yield Settings(

@@ -1,34 +1,19 @@
-"""Test harness of the service tests: a real Redis (the local one on 6379 when it answers, in a
-dedicated database with a unique key prefix; else an embedded redis-server) and helpers to talk
-to the API."""
+"""Test harness of the service tests: helpers to set up users and key prefixes in the tests'
+Redis (the session's ``redis_url`` fixture, ``tests/conftest.py``) and to talk to the API."""
 
 from __future__ import annotations
 
 import io
 import time
 import uuid
-from pathlib import Path
 
 import cv2
 import numpy as np
 import redis
 
 from shared.config import LevelConfig
-from workers.embedded_redis import EmbeddedRedis
 
-LOCAL_REDIS = "redis://127.0.0.1:6379/13"
 TERMINAL = {"succeeded", "failed", "cancelled"}
-
-
-def find_redis(folder: Path) -> tuple[str, EmbeddedRedis | None]:
-    """The URL of a Redis for tests, and the embedded server if one had to be started."""
-    try:
-        if redis.Redis.from_url(LOCAL_REDIS, socket_connect_timeout=0.5).ping():
-            return LOCAL_REDIS, None
-    except redis.RedisError:
-        pass
-    server = EmbeddedRedis(folder).start()
-    return server.url, server
 
 
 def admin_key(settings) -> str:

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import harness
 import httpx
@@ -25,7 +26,13 @@ from shared.config import MatchConfig, Settings
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
-from workers.embedded_redis import EMBEDDED_URL_FILE, PID_FILE, EmbeddedRedis, free_port
+from workers.embedded_redis import (
+    EMBEDDED_URL_FILE,
+    PID_FILE,
+    EmbeddedRedis,
+    free_port,
+    safe_url,
+)
 from workers.store import JobStore
 from workers.watchdog import resend_count
 
@@ -314,7 +321,10 @@ def test_admin_without_serve_starts_the_data_dirs_store(tmp_path, capsys, monkey
 def test_admin_says_which_configured_store_it_used(settings, capsys, monkeypatch):
     monkeypatch.setenv("QHSM_KEY_PREFIX", settings.key_prefix)
     assert main(["admin", "--redis-url", settings.redis_url, "list-users"]) == 0
-    assert f"store: Redis at {settings.redis_url} (from --redis-url)" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert f"store: Redis at {safe_url(settings.redis_url)} (from --redis-url)" in err
+    password = urlsplit(settings.redis_url).password  # the embedded Redis has one
+    assert password is None or (password not in err and ":***@127.0.0.1:" in err)
 
 
 # --- orphans and the port -------------------------------------------------------------------------

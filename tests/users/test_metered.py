@@ -144,3 +144,91 @@ def test_a_bundle_estimate_uses_the_embedding_once_a_worker_found_it(level, tmp_
     # a two-row bundle is another structure, not embedded yet: still the assumption
     two_rows = qpu_time.bundle_seconds("qpu-sim", 2 * width * (labels - 1), {"num_reads": 10})
     assert bundle_estimate(inputs, config, 0, 2) == two_rows
+
+
+# --- a metered solver added after the timing model was imported ----------------------------------
+
+PLUGIN = "lab-qpu"
+#: What a lab's plugin package holds: a QPU-metered solver (here the offline QPU path again).
+PLUGIN_MODULE = """
+from shared.solvers import SolverSpec
+from shared.solvers.params import SimulatedQPUParams
+
+SPEC = SolverSpec(
+    "named-by-the-entry-point",
+    "shared.solvers.dwave:SimulatedQPUSolver",
+    params=SimulatedQPUParams,
+    meter="qpu",
+    offline=True,
+)
+"""
+
+
+def register_by_call(folder, monkeypatch) -> None:
+    from shared.solvers.params import SimulatedQPUParams
+
+    registry.register(
+        PLUGIN, "shared.solvers.dwave:SimulatedQPUSolver", SimulatedQPUParams, meter="qpu"
+    )
+
+
+def register_by_entry_point(folder, monkeypatch) -> None:
+    (folder / "lab_qpu_plugin.py").write_text(PLUGIN_MODULE)
+    info = folder / "lab_qpu_plugin-0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: lab-qpu-plugin\nVersion: 0\n")
+    (info / "entry_points.txt").write_text(f"[qhsm.solvers]\n{PLUGIN} = lab_qpu_plugin:SPEC\n")
+    monkeypatch.syspath_prepend(folder)
+
+
+class ReservationWatcher(FakeQPU):
+    """The plugin's sampler: notes what its owner has reserved while each bundle is solved."""
+
+    def __init__(self, ledger: QuotaLedger, owner: str) -> None:
+        super().__init__()
+        self.name = PLUGIN
+        self.ledger, self.owner = ledger, owner
+        self.reserved: list[float] = []
+
+    def solve(self, bqm, **params):
+        self.reserved.append(self.ledger.status(self.owner).reserved)
+        return super().solve(bqm, **params)
+
+
+@pytest.fixture(params=[register_by_call, register_by_entry_point], ids=["register", "entry-point"])
+def plugin_config(request, tmp_path, monkeypatch, level) -> MatchConfig:
+    """The level's job on a QPU-metered solver registered only now, long after
+    ``shared.solvers.qpu_time`` was imported (the registry is restored afterwards)."""
+    monkeypatch.setattr(registry, "_SPECS", dict(registry._SPECS))
+    request.param(tmp_path, monkeypatch)
+    assert registry.spec(PLUGIN).meter == "qpu"
+    _, config = level
+    return MatchConfig.model_validate({**config.model_dump(), "solver": PLUGIN})
+
+
+def test_a_metered_solver_registered_later_is_estimated_and_reserved(
+    plugin_config, level, meter, monkeypatch
+):
+    inputs, builtin = level  # the same job on qpu-sim: the same meter and parameter schema
+    assert qpu_time.meter_of(PLUGIN) == "qpu" and qpu_time.is_metered(PLUGIN)
+    watcher = ReservationWatcher(meter.ledger, "ada")
+    monkeypatch.setitem(registry._INSTANCES, PLUGIN, watcher)
+
+    estimate = bundle_estimate(inputs, plugin_config, 0, 1)
+    assert estimate == bundle_estimate(inputs, builtin, 0, 1) > 0
+    job = qpu_time.job_seconds(plugin_config, (16, 24), 6)
+    assert job.seconds == qpu_time.job_seconds(builtin, (16, 24), 6).seconds > 0
+    assert job.as_dict()["metered"] and job.levels[-1].qubits_per_bundle
+
+    meter.ledger.set_limit("ada", 0.5 * estimate)
+    with pytest.raises(QuotaExceeded, match="not enough QPU budget left for user 'ada'"):
+        solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1)])
+    assert watcher.calls == 0  # refused before it was sent: the bundle needs its estimate
+
+    meter.ledger.set_limit("ada", 10 * estimate)
+    watcher.seconds = lambda call: 0.25 * estimate
+    solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1), (1, 2)])
+    assert watcher.reserved == [pytest.approx(estimate)] * 2  # each held its estimate meanwhile
+    usage = meter.ledger.job_usage("ada", "job")
+    assert usage.problems == 2 and usage.seconds == pytest.approx(0.5 * estimate)
+    assert meter.ledger.status("ada").reserved == 0.0

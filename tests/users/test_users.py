@@ -102,9 +102,8 @@ def test_auth_disabled_makes_everyone_the_local_admin(store, client):
     assert client.get("/admin-only").json() == {"name": "local"}
 
 
-def test_admin_cli_round_trip(redis_client, prefix, monkeypatch, capsys):
-    url = "redis://{host}:{port}/{db}".format(**redis_client.connection_pool.connection_kwargs)
-    monkeypatch.setenv("QHSM_REDIS_URL", url)
+def test_admin_cli_round_trip(redis_url, redis_client, prefix, monkeypatch, capsys):
+    monkeypatch.setenv("QHSM_REDIS_URL", redis_url)
     monkeypatch.setenv("QHSM_KEY_PREFIX", prefix)
     monkeypatch.setenv("QHSM_DEFAULT_QPU_SECONDS", "9")
 

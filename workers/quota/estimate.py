@@ -65,9 +65,9 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     from shared.encodings import get_codec
     from shared.solvers.embedding_cache import default_cache
     from shared.solvers.qpu_time import (
-        QPU_SOLVERS,
         bundle_seconds,
         known_embedding,
+        meter_of,
         sampler_params,
     )
 
@@ -75,7 +75,7 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     width = width if columns is None else columns
     variables = (stop - start) * width * get_codec(config.encoding).variables_per_pixel(labels)
     params = sampler_params(config.solver_params, warm=uses_warm_start(config))
-    if config.solver not in QPU_SOLVERS:
+    if meter_of(config.solver) != "qpu":
         return bundle_seconds(config.solver, variables, params)
     embedding = known_embedding(
         default_cache(), config.solver, config.encoding, (stop - start, width), labels
