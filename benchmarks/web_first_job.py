@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -93,6 +94,7 @@ def main() -> None:
     finally:
         serve.send_signal(signal.SIGINT)
         serve.wait(60)
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 if __name__ == "__main__":
