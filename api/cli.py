@@ -202,6 +202,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
         print(f"web page: {sign_in_url(url, settings.api_host, key)}", file=sys.stderr)
         _uvicorn_server(settings, args.log_level).run(sockets=[sock])
+    except KeyboardInterrupt:  # Ctrl-C is how serve is stopped (uvicorn re-raises it)
+        print("qhsm serve: stopping the workers and Redis ...", file=sys.stderr)
     finally:
         stack.stop()
         sock.close()
