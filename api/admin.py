@@ -10,7 +10,8 @@
 It talks to Redis directly, so it needs no API key (whoever can reach the service's Redis
 administers it anyway): --redis-url, else QHSM_REDIS_URL / REDIS_URL, else the data directory's
 embedded Redis (--data-dir / QHSM_DATA_DIR) -- the running `qhsm serve`'s, or one started for the
-command. It always says which store it used (on stderr).
+command. A data directory no `qhsm serve` has used is refused (only create-user may start a new
+store there, and says so). It always says which store it used (on stderr).
 """
 
 from __future__ import annotations
@@ -26,18 +27,20 @@ from shared.cli_options import CommandError, setting_option
 
 
 @contextlib.contextmanager
-def _store(args: argparse.Namespace) -> Iterator:
+def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
     """The user store of the service's Redis, saying which Redis that is.
 
     --redis-url, else QHSM_REDIS_URL, else the data directory's embedded Redis: the running
     `qhsm serve`'s, or one started here for this command (never a Redis that merely answers on
-    the default port)."""
+    the default port). A data directory that never held a store is refused, unless the command
+    ``creates`` something (``create-user``), which says it starts a new one."""
     import redis
 
     from api.users import UserStore
     from shared.config import get_settings
     from workers.embedded_redis import (
         EMBEDDED_URL_FILE,
+        PASSWORD_FILE,
         DataDirBusy,
         DataDirLock,
         EmbeddedRedis,
@@ -63,13 +66,25 @@ def _store(args: argparse.Namespace) -> Iterator:
                 ) from None
             where = f"the embedded Redis of the running `qhsm serve` (data dir {data_dir})"
         else:
+            new = not (data_dir / "redis" / PASSWORD_FILE).is_file()
+            if new and not creates:
+                raise CommandError(
+                    f"no store in the data directory {data_dir}: no `qhsm serve` has used it "
+                    "(serve prints its data directory). Pass --data-dir DIR or set "
+                    "QHSM_DATA_DIR to that directory, or --redis-url for a deployment's Redis"
+                )
             try:
                 lock = DataDirLock(data_dir).acquire()
             except DataDirBusy as error:
                 raise CommandError(str(error)) from None
             server = EmbeddedRedis(data_dir / "redis").start()
             url = server.url
-            where = f"the embedded Redis of data dir {data_dir} (started for this command)"
+            where = (
+                f"a NEW, empty store in data dir {data_dir} (no `qhsm serve` has used it yet; "
+                "started for this command)"
+                if new
+                else f"the embedded Redis of data dir {data_dir} (started for this command)"
+            )
         print(f"store: {where}", file=sys.stderr)
         client = redis.Redis.from_url(url, socket_connect_timeout=2)
         try:
@@ -123,7 +138,7 @@ def _print_key(name: str, key: str) -> None:
 
 
 def cmd_create_user(args: argparse.Namespace) -> int:
-    with _store(args) as store:
+    with _store(args, creates=True) as store:
         # --qpu-seconds not given: the store's default budget of new users
         budget = {"qpu_seconds": args.qpu_seconds} if "qpu_seconds" in args else {}
         user, key = _call(lambda: store.create_user(args.name, admin=args.admin, **budget))

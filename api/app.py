@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import warnings
 
 import redis
 from fastapi import Depends, FastAPI, Request
@@ -24,6 +25,7 @@ from api.routes import estimate, health, jobs, metrics, solvers, usage, users, v
 from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
+from shared.disparity_range import ViewsWarning
 from workers.app import make_celery
 from workers.records import finite_or_null
 from workers.store import JobStore
@@ -66,6 +68,8 @@ def storage_full_response(request: Request, error: BaseException) -> JSONRespons
 def create_app(settings: Settings | None = None) -> FastAPI:
     """An app bound to ``settings`` (read from the environment when omitted)."""
     settings = settings or get_settings()
+    # a job's view warnings go back to its submitter (JobCreated, JobStatus), not to this log
+    warnings.filterwarnings("ignore", category=ViewsWarning)
     celery = make_celery(settings, with_tasks=False)
     app: FastAPI = FastAPIOffline(
         title="qhsm",
@@ -84,6 +88,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(jobs.router, dependencies=authenticated)
     app.include_router(estimate.router, dependencies=authenticated)
     app.include_router(views.router, dependencies=authenticated)
+    app.include_router(views.thumbnails, dependencies=authenticated)
     app.include_router(solvers.router, dependencies=authenticated)
     app.include_router(usage.router, dependencies=authenticated)
     app.include_router(users.router)

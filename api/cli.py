@@ -4,6 +4,8 @@ qhsm serve    API + workers for every solver that runs here (+ an embedded Redis
 qhsm demo     the same, then one job end to end on a sample scene, then stop
 qhsm api      the API alone (deployments run workers with ``celery -A workers worker``)
 qhsm submit   the client: upload a pair, show progress, download the disparity map
+qhsm wait     follow a submitted job (again) and download its result
+qhsm cancel   cancel a submitted job
 qhsm estimate a job's estimated QPU (or hybrid) seconds, without running it
 
 One function per command and its parser; they share the settings options and the client.
@@ -16,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+from shared.cli import EXIT_INTERRUPTED
 from shared.cli_options import (
     CommandError,
     add_json_option,
@@ -57,31 +60,39 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
     submit.add_argument("right", help="right view, same size, rectified")
     add_match_options(submit)
-    setting_option(submit, "api_url", "--url")
-    submit.add_argument(
-        "--wait",
-        action="store_true",
-        help="show progress (stderr), then download to -o, else to JOB_ID.pfm here",
-    )
-    submit.add_argument("-o", "--output", help="OUT.pfm, .png or .npy (implies --wait)")
-    submit.add_argument("--preview", help="also download a colour preview PNG here")
+    submit.add_argument("--label", help="your name for the job, shown in job lists")
     submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
     submit.add_argument(
-        "--gt-scale", type=float, help="stored value per pixel (default: the service's)"
+        "--gt-scale",
+        type=float,
+        help="stored value per pixel of disparity (default: inferred from the views, with a "
+        "warning; refused when they do not tell)",
     )
     submit.add_argument(
         "--gt-border", type=int, help="ignored frame, pixels (default: the service's)"
     )
     submit.add_argument(
-        "--json",
+        "--wait",
         action="store_true",
-        help="print the job (or, waiting, its final status) as JSON on stdout; progress still "
-        "goes to stderr",
+        help="show progress (stderr), then download to -o, else to JOB_ID.pfm here",
     )
-    submit.add_argument(
-        "--key", help="API key (QHSM_API_KEY; default: the local admin key of `qhsm serve`)"
-    )
+    _result_options(submit, "implies --wait")
+    _client_options(submit)
     submit.set_defaults(handler=cmd_submit)
+
+    wait = commands.add_parser(
+        "wait", help="follow a submitted job (progress on stderr) and download its result"
+    )
+    wait.add_argument("job", help="the job's id (what `qhsm submit` printed)")
+    _result_options(wait, "default: JOB_ID.pfm here")
+    _client_options(wait)
+    wait.set_defaults(handler=cmd_wait)
+
+    cancel = commands.add_parser("cancel", help="cancel a submitted job")
+    cancel.add_argument("job", help="the job's id (what `qhsm submit` printed)")
+    add_json_option(cancel, "the cancelled job's status")
+    _client_options(cancel, json=False)
+    cancel.set_defaults(handler=cmd_cancel)
 
     estimate = commands.add_parser(
         "estimate", help="print a job's estimated QPU (or hybrid) seconds without running it"
@@ -99,6 +110,26 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     add_json_option(estimate, "the estimate")
     estimate.set_defaults(handler=cmd_estimate)
+
+
+def _result_options(parser: argparse.ArgumentParser, output_default: str) -> None:
+    parser.add_argument("-o", "--output", help=f"OUT.pfm, .png or .npy ({output_default})")
+    parser.add_argument("--preview", help="also download a colour preview PNG here")
+
+
+def _client_options(parser: argparse.ArgumentParser, json: bool = True) -> None:
+    """--url, --key (and --json) of the commands that talk to a running service."""
+    setting_option(parser, "api_url", "--url")
+    if json:
+        parser.add_argument(
+            "--json",
+            action="store_true",
+            help="print the job (or, waiting, its final status) as JSON on stdout; progress "
+            "still goes to stderr",
+        )
+    parser.add_argument(
+        "--key", help="API key (QHSM_API_KEY; default: the local admin key of `qhsm serve`)"
+    )
 
 
 def _log_level_option(parser: argparse.ArgumentParser) -> None:
@@ -164,11 +195,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
         except DataDirBusy as error:
             raise CommandError(str(error)) from None
         settings = stack.settings
+        print(f"data directory: {settings.data_dir.resolve()} (QHSM_DATA_DIR)", file=sys.stderr)
         print(stack.describe(), file=sys.stderr)
         url = f"http://{settings.api_host}:{settings.api_port}"
         print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
         announce_web_page(settings, url)
         _uvicorn_server(settings, args.log_level).run(sockets=[sock])
+    except KeyboardInterrupt:  # Ctrl-C is how serve is stopped (uvicorn re-raises it)
+        print("qhsm serve: stopping the workers and Redis ...", file=sys.stderr)
     finally:
         stack.stop()
         sock.close()
@@ -263,6 +297,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
     stack = Stack(settings, concurrency=args.worker_concurrency)
     api = None
+    bar = progress_bar()
+    serving = False  # after the job with --keep-running: Ctrl-C is how one stops it
     print("starting Redis, workers and the API ...", file=sys.stderr)
     try:
         stack.start()
@@ -273,7 +309,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         params = {"solver": args.solver, "max_disparity": max_disparity}
         job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
         print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
-        status = client.wait(job["id"], on_progress=progress_bar())
+        status = client.wait(job["id"], on_progress=bar)
         if status["state"] != "succeeded":
             raise CommandError(f"the demo job {status['state']}: {status['error']}")
         out = stack.settings.data_dir / "demo"
@@ -288,9 +324,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
             print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
             page = sign_in_url(api.url, stack.settings.api_host, key if new else None)
             print(f"web page: {page}", file=sys.stderr)
+            serving = True
             api.join()
     except KeyboardInterrupt:
-        pass
+        bar.close()
+        if not serving:
+            print("qhsm: interrupted; stopping the demo's service", file=sys.stderr)
+            return EXIT_INTERRUPTED
     finally:
         if api is not None:
             api.stop()
@@ -302,7 +342,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
-    from api.client import Client, ClientError, progress_bar, scores_text, write_result
+    from api.client import Client, ClientError
 
     config_from_args(args)  # refuse bad options before uploading anything
     params = match_params(args)
@@ -323,25 +363,106 @@ def cmd_submit(args: argparse.Namespace) -> int:
             gt_scale=args.gt_scale,
             gt_border=args.gt_border,
             names=(files[0].name, files[1].name),
+            label=args.label,
         )
+        _print_warnings(job)
         if not (args.wait or args.output):
             if args.json:
                 print(json.dumps({**job, "url": f"{url.rstrip('/')}{job['links']['self']}"}))
             else:
                 print(f"{job['id']} {job['state']}  {url.rstrip('/')}{job['links']['self']}")
+            print(f"follow it: {_job_commands(job['id'], args)}", file=sys.stderr)
             return 0
         print(f"job {job['id']} {job['state']}", file=sys.stderr)
-        status = client.wait(job["id"], on_progress=progress_bar())  # stderr, in every mode
-        if status["state"] != "succeeded":
-            raise CommandError(f"job {job['id']} {status['state']}: {status['error']}")
-        output = Path(args.output or f"{job['id']}.pfm").resolve()
-        write_result(client, job["id"], output)
-        if args.preview:
-            Path(args.preview).write_bytes(client.preview(job["id"]))
+        return _follow(client, job["id"], args)
     except ClientError as error:
         raise CommandError(str(error)) from None
     finally:
         client.close()
+
+
+def cmd_wait(args: argparse.Namespace) -> int:
+    """``qhsm wait JOB``: the progress of a job submitted earlier, then its result."""
+    from api.client import Client, ClientError
+
+    client = Client(settings_from_args(args).api_url, key=args.key, key_source="the --key option")
+    try:
+        _print_warnings(client.status(args.job))
+        return _follow(client, args.job, args)
+    except ClientError as error:
+        raise CommandError(str(error)) from None
+    finally:
+        client.close()
+
+
+def cmd_cancel(args: argparse.Namespace) -> int:
+    """``qhsm cancel JOB``: stop a queued or running job (its running tasks are killed)."""
+    from api.client import Client, ClientError
+
+    client = Client(settings_from_args(args).api_url, key=args.key, key_source="the --key option")
+    try:
+        status = client.cancel(args.job)
+    except ClientError as error:
+        raise CommandError(str(error)) from None
+    finally:
+        client.close()
+    if args.json:
+        print(json.dumps(status, indent=2))
+    else:
+        print(f"job {args.job} {status['state']}")
+    return 0
+
+
+def _print_warnings(job: dict) -> None:
+    """A job's warnings (views that look swapped, an inferred scale), one line each on stderr."""
+    for warning in job.get("warnings", []):
+        print(f"qhsm: warning: {warning}", file=sys.stderr)
+
+
+def _job_commands(job_id: str, args: argparse.Namespace) -> str:
+    """``qhsm wait X`` / ``qhsm cancel X``, with the --url given (the key is not repeated)."""
+    url = f" --url {args.api_url}" if getattr(args, "api_url", None) else ""
+    return f"`qhsm wait {job_id}{url}` (progress, then the result), `qhsm cancel {job_id}{url}`"
+
+
+def _follow(client, job_id: str, args: argparse.Namespace) -> int:
+    """Show the job's progress until it ends, then download its result; Ctrl-C leaves it
+    running on the service and says how to cancel it or follow it again."""
+    from api.client import progress_bar, scores_text, write_result
+
+    status: dict | None = None
+    seen: dict = {}  # the last status polled
+    bar = progress_bar()  # stderr, in every mode
+
+    def show(polled: dict) -> None:
+        seen.update(polled)
+        bar(polled)
+
+    try:
+        status = client.wait(job_id, on_progress=show)
+        if status["state"] != "succeeded":
+            raise CommandError(f"job {job_id} {status['state']}: {status['error']}")
+        output = Path(args.output or f"{job_id}.pfm").resolve()
+        write_result(client, job_id, output)
+        if args.preview:
+            Path(args.preview).write_bytes(client.preview(job_id))
+    except KeyboardInterrupt:
+        bar.close()
+        if status is not None:  # it ended; interrupted while downloading
+            print(
+                f"qhsm: interrupted; job {job_id} {status['state']}: `qhsm wait {job_id}` "
+                "downloads its result",
+                file=sys.stderr,
+            )
+        else:
+            metered = seen.get("qpu_seconds") is not None
+            charged = " (and its QPU time is charged)" if metered else ""
+            print(
+                f"qhsm: interrupted; job {job_id} is still {seen.get('state', 'queued')} on the "
+                f"service{charged}: {_job_commands(job_id, args)}",
+                file=sys.stderr,
+            )
+        return EXIT_INTERRUPTED
     scores = f"; {scores_text(status)}" if status.get("metrics") else ""
     where = "" if args.output else " (no -o given: named after the job, in this directory)"
     line = f"wrote {output}{where}{scores}"

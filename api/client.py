@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import json
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
@@ -97,11 +97,15 @@ class Client:
         gt_scale: float | None = None,
         gt_border: int | None = None,
         names: tuple[str, str] = ("left.png", "right.png"),
+        label: str | None = None,
     ) -> dict:
-        """POST /v1/jobs; returns ``{id, state, links}``. ``gt_scale`` and ``gt_border`` not
-        given: the service's defaults."""
+        """POST /v1/jobs; returns ``{id, state, links, warnings}``. ``gt_scale`` not given:
+        inferred by the service (with a warning); ``gt_border`` not given: the service's
+        default. ``label``: a name for the job in job lists."""
         files = {"left": (names[0], left), "right": (names[1], right)}
         data = {"params": json.dumps(params or {})}
+        if label:
+            data["label"] = label
         if ground_truth is not None:
             files["ground_truth"] = ("ground_truth", ground_truth)
             given = {"gt_scale": gt_scale, "gt_border": gt_border}
@@ -150,42 +154,39 @@ class Client:
         return self._request("DELETE", f"/v1/jobs/{job_id}").json()
 
 
-def progress_bar(stream: IO[str] | None = None) -> Callable[[dict], None]:
-    """A tqdm bar over the bundles of the level being solved, for :meth:`Client.wait`
-    (default: on the ``sys.stderr`` of the call, so stdout stays free for ``--json``); it is
-    redrawn only when something changed."""
-    from tqdm import tqdm
+class JobBar:
+    """A :class:`shared.progress_bar.LevelBar` fed by the job statuses of :meth:`Client.wait`
+    (default: on the ``sys.stderr`` of the call, so stdout stays free for ``--json``); its
+    clock counts from the job's submission, so a re-attached ``qhsm wait`` shows the job's
+    whole time. It closes itself when the job ends; :meth:`close` on an interruption."""
 
-    from workers.records import Progress
+    def __init__(self, stream: IO[str] | None = None) -> None:
+        self.stream = stream
+        self._bar = None
 
-    bar: tqdm | None = None
-    shown = None
+    def __call__(self, status: dict) -> None:
+        from shared.progress_bar import LevelBar
+        from workers.records import Progress
 
-    def show(status: dict) -> None:
-        nonlocal bar, shown
+        if self._bar is None:
+            self._bar = LevelBar(self.stream)
+            created = datetime.fromisoformat(status["created_at"])
+            self._bar.started -= max(0.0, (datetime.now(UTC) - created).total_seconds())
         progress = Progress.model_validate(status["progress"])
         state = status["state"]
         done = progress.bundles_total if state == "succeeded" else progress.bundles_done
-        now = (state, progress.level, done, progress.bundles_total)
-        if now == shown:
-            return
-        shown = now
-        description = f"{state:<9} level {progress.level}/{progress.levels}"
-        if bar is None:
-            bar = tqdm(
-                file=stream or sys.stderr,
-                desc=description,
-                total=progress.bundles_total,
-                initial=done,
-                bar_format="{desc} |{bar}| {n}/{total} bundles",
-            )
-        else:
-            bar.total, bar.n = progress.bundles_total, done
-            bar.set_description_str(description, refresh=state not in TERMINAL)
+        self._bar.update(progress.level, progress.levels, done, progress.bundles_total, state)
         if state in TERMINAL:
-            bar.close()  # draws the final state
+            self.close()
 
-    return show
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def progress_bar(stream: IO[str] | None = None) -> JobBar:
+    """A :class:`JobBar` for :meth:`Client.wait`'s ``on_progress``."""
+    return JobBar(stream)
 
 
 def scores_text(status: dict) -> str | None:

@@ -11,7 +11,7 @@ from pydantic import BaseModel, Field, create_model
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
-from workers.records import JobState, Progress
+from workers.records import GroundTruth, JobState, Progress
 
 
 class Links(BaseModel):
@@ -24,6 +24,11 @@ class JobCreated(BaseModel):
     id: str
     state: JobState
     links: Links
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="What you should know before it runs: views that look swapped or not "
+        "rectified, a ground-truth scale that was inferred",
+    )
 
 
 class LevelTiming(BaseModel):
@@ -38,7 +43,11 @@ class LevelTiming(BaseModel):
     candidates: int
     bundles: int
     energy: float | None = Field(description="MRF energy of the level (null if not finite)")
-    repaired: int
+    repaired: int = Field(
+        description="Pixels whose QUBO sample was not a valid label encoding (one-hot: no or "
+        "several bits set; domain-wall: a broken wall) and that were given their cheapest "
+        "label next to their valid neighbours; 0 for the exact row solver"
+    )
     seconds: float
     solver_seconds: float
     timing: dict[str, float | None] = Field(default_factory=dict)
@@ -67,39 +76,61 @@ class JobSummary(BaseModel):
 
     id: str
     owner: str | None = Field(None, description="User who submitted the job")
+    label: str | None = Field(None, description="The name the submitter gave the job")
+    files: list[str] = Field(
+        default_factory=list, description="File names of the uploaded views: left, right"
+    )
     state: JobState
     solver: str
     width: int
     height: int
     created_at: datetime
+    started_at: datetime | None
     finished_at: datetime | None
+    metrics: Metrics | None = None
+    qpu_seconds: float | None = Field(
+        None,
+        description="QPU access (hybrid: charge) seconds charged to the job so far; null for "
+        "solvers that are not metered",
+    )
     links: Links
 
     @classmethod
-    def fields_of(cls, record, links: Links) -> dict:
-        """The summary fields of a job record (``workers.store.JobRecord``)."""
+    def fields_of(cls, record, links: Links, qpu_seconds: float | None = None) -> dict:
+        """The summary fields of a job record (``workers.store.JobRecord``) and its charge."""
         return {
             "id": record.id,
             "owner": record.owner,
+            "label": record.label,
+            "files": record.files,
             "state": record.state,
             "solver": record.config.solver,
             "width": record.width,
             "height": record.height,
             "created_at": record.created_at,
+            "started_at": record.started_at,
             "finished_at": record.finished_at,
+            "metrics": record.metrics,
+            "qpu_seconds": qpu_seconds,
             "links": links,
         }
 
 
 class JobStatus(JobSummary):
-    started_at: datetime | None
     progress: Progress
     levels: list[LevelTiming]
     usage: dict[str, float] = Field(
         description="Solver time spent so far, seconds (solver_seconds, qpu_access_time, ...)"
     )
-    metrics: Metrics | None = None
     error: str | None = None
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="Views that look swapped or not rectified, an inferred ground-truth "
+        "scale: what to check",
+    )
+    ground_truth: GroundTruth | None = Field(
+        None, description="How the uploaded ground truth is scored (none: no metrics)"
+    )
     config: MatchConfig
     disparity_range: RangeEstimate | None = Field(
         None, description="The disparity range used: given, or estimated (max_disparity auto)"

@@ -37,11 +37,32 @@ IMAGE_SIGNATURES = (
 )
 
 
+#: Longest job label (characters).
+MAX_LABEL = 200
+#: Longest file name kept for display (characters).
+MAX_NAME = 120
+
+
 class UploadError(Exception):
     def __init__(self, status_code: int, message: str):
         super().__init__(message)
         self.status_code = status_code
         self.message = message
+
+
+def one_line(text: str | None, limit: int = MAX_LABEL) -> str:
+    """``text`` as one line of printable characters (control characters become spaces),
+    stripped and cut to ``limit``: what job lists show."""
+    if not text:
+        return ""
+    printable = "".join(char if char.isprintable() else " " for char in text)
+    return " ".join(printable.split())[:limit]
+
+
+def display_name(filename: str | None) -> str:
+    """An upload's file name without any folder a client sent, for display only (the file is
+    never stored under it)."""
+    return one_line(re.split(r"[/\\]", filename or "")[-1], MAX_NAME)
 
 
 def read_upload(upload: UploadFile, name: str, settings: Settings) -> bytes:

@@ -7,25 +7,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import warnings
 from collections.abc import Sequence
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from shared.cli_options import (
-    CommandError,
-    Parser,
-    add_json_option,
-    add_match_options,
-    add_processes_option,
-    config_from_args,
-    int_or_auto,
-    model_option,
-)
-from shared.config import Encoding, MatchConfig
+# Nothing heavy at import time: main() is then in charge from the first instant (a Ctrl-C while
+# pydantic or numpy load is one line too), and `qhsm --help` starts fast.
 
 EXIT_USAGE = 2
 EXIT_FAILED = 1
+#: Ctrl-C: as a shell reports a process ended by SIGINT (128 + 2).
+EXIT_INTERRUPTED = 130
+#: stdout's reader went away (``qhsm estimate ... | head``): as if killed by SIGPIPE (128 + 13).
+EXIT_BROKEN_PIPE = 141
 
 
 DESCRIPTION = (
@@ -33,6 +30,8 @@ DESCRIPTION = (
     "(match, eval, bench) or through the job service (serve, submit, admin). "
     "`qhsm COMMAND --help` shows a command's options."
 )
+_python_showwarning = warnings.showwarning
+
 #: ``qhsm bench --encoding auto``: each solver's recommended encoding, else the preset's.
 AUTO_ENCODING = "auto"
 
@@ -56,8 +55,10 @@ def cmd_match(args: argparse.Namespace) -> int:
     CommandError
         When the solver is not available here or the output suffix is not supported.
     """
+    from shared.cli_options import CommandError, config_from_args
     from shared.images import load_pair, preview_png, save_disparity
     from shared.pipeline import run_pipeline
+    from shared.progress_bar import LevelBar
     from shared.solve import ProcessPoolLevelSolver, bundle_width_setting
     from shared.solvers import get_solver
 
@@ -70,13 +71,12 @@ def cmd_match(args: argparse.Namespace) -> int:
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):
         raise CommandError(f"{args.output}: the output must end in .pfm, .png or .npy")
     left, right = load_pair(args.left, args.right)
-
-    def progress(done: int, total: int) -> None:
-        if not args.json:
-            print(f"level {done}/{total} done", file=sys.stderr)
-
-    with ProcessPoolLevelSolver(args.processes) as solve_level:
-        result = run_pipeline(left, right, config, solve_level, progress=progress)
+    bar = LevelBar(leave=False)  # stderr, in every mode: with --json stdout is JSON alone
+    try:
+        with ProcessPoolLevelSolver(args.processes) as solve_level:
+            result = run_pipeline(left, right, config, solve_level, progress=bar.update)
+    finally:
+        bar.close()
     save_disparity(result.disparity, args.output)
     if args.preview:
         top = result.max_disparity.max_disparity
@@ -211,6 +211,7 @@ def cmd_datasets_fetch(args: argparse.Namespace) -> int:
         When the download fails to connect.
     """
     from shared.bench import split_names
+    from shared.cli_options import CommandError
     from shared.config import get_settings
     from shared.datasets import fetch
 
@@ -270,6 +271,16 @@ def cmd_datasets_list(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from shared.cli_options import (
+        Parser,
+        add_json_option,
+        add_match_options,
+        add_processes_option,
+        int_or_auto,
+        model_option,
+    )
+    from shared.config import Encoding, MatchConfig
+
     parser = Parser(prog="qhsm", description=DESCRIPTION)
     commands = parser.add_subparsers(dest="command", required=True)
 
@@ -388,11 +399,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     Returns
     -------
     int
-        The command's exit status, or ``EXIT_FAILED`` (1) after a reported error.
+        The command's exit status, or ``EXIT_FAILED`` (1) after a reported error,
+        ``EXIT_INTERRUPTED`` after Ctrl-C, ``EXIT_BROKEN_PIPE`` when stdout was closed.
     """
+    try:
+        return _run(argv)
+    except KeyboardInterrupt:  # Ctrl-C, at any point: one line, no traceback
+        print("qhsm: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # stdout's reader went away; later writes (the interpreter flushes stdout at exit) go
+        # nowhere instead of failing again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings for the user (:class:`shared.disparity_range.ViewsWarning`) as one line, the
+    rest as Python shows them."""
+    from shared.disparity_range import ViewsWarning
+
+    if issubclass(category, ViewsWarning):
+        print(f"qhsm: warning: {message}", file=file or sys.stderr)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
+def _run(argv: Sequence[str] | None) -> int:
+    from shared.cli_options import CommandError
     from shared.images import ImageError
     from shared.solvers import SolverError, UnknownSolver
 
+    warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
     try:
         return args.handler(args)

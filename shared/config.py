@@ -325,7 +325,11 @@ class Settings(BaseSettings):
         pattern=r"^[A-Za-z0-9_.-]+$",
         description="Prefix of every Redis key the service writes (jobs, queues, results)",
     )
-    data_dir: Path = Field(Path("./data"), description="Uploads, results, embedding cache")
+    data_dir: Path = Field(
+        default_factory=lambda: default_data_dir(),
+        description="Uploads, the embedded Redis, the local admin key, logs, embedding cache, "
+        "demo output; the same wherever a command runs (default: the user's data folder)",
+    )
     result_ttl_seconds: int = Field(7 * 24 * 3600, ge=60)
     max_image_pixels: int = Field(4_000_000, ge=1)
     rows_per_task: int = Field(8, ge=1, description="Bundles' rows grouped into one Celery task")
@@ -462,6 +466,21 @@ class Settings(BaseSettings):
     grb_wls_access_id: SecretStr | None = Field(None, validation_alias="GRB_WLSACCESSID")
     grb_wls_secret: SecretStr | None = Field(None, validation_alias="GRB_WLSSECRET")
     grb_license_id: int | None = Field(None, validation_alias="GRB_LICENSEID")
+
+
+def default_data_dir() -> Path:
+    """The user's data folder for qhsm (platformdirs: ``~/.local/share/qhsm`` on Linux, or
+    under ``$XDG_DATA_HOME``; ``~/Library/Application Support/qhsm`` on macOS; ``%LOCALAPPDATA%``
+    on Windows): the same from every directory, so ``qhsm submit`` and ``qhsm admin`` find what
+    ``qhsm serve`` keeps wherever they are run.
+
+    Returns
+    -------
+    Path
+    """
+    import platformdirs
+
+    return platformdirs.user_data_path("qhsm", appauthor=False)
 
 
 def _local_api_url() -> str:

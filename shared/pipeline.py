@@ -21,6 +21,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -34,8 +35,11 @@ from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
 from shared.solve import solve_level_in_process
 
-SolveLevel = Callable[[LevelInputs, MatchConfig], LevelSolution]
-Progress = Callable[[int, int], None]
+SolveLevel = Callable[..., LevelSolution]
+"""``(inputs, config[, progress=shared.solve.BundleProgress]) -> LevelSolution``: one level."""
+Progress = Callable[[int, int, int, int], None]
+"""``(level, levels, units done, units total)``: the 1-based level being solved, the run's
+levels, and the level's :data:`shared.solve.BundleProgress`."""
 
 #: In process, a view's aggregated cost volume is computed once for all levels when it is at
 #: most this large; larger volumes are recomputed per block of rows (memory bound by rows).
@@ -363,9 +367,12 @@ def run_pipeline(
     config : MatchConfig
         The run's configuration.
     solve_level : callable, optional
-        ``(LevelInputs, MatchConfig) -> LevelSolution``; default: in process.
+        ``(LevelInputs, MatchConfig) -> LevelSolution``; default: in process. With
+        ``progress`` it is also given ``progress=``, the level's
+        :data:`shared.solve.BundleProgress`.
     progress : callable, optional
-        Called with (levels done, levels) after every level.
+        A :data:`Progress`: called as bundles of a level are solved (as often as
+        ``solve_level`` reports) and once more when the level is done.
 
     Returns
     -------
@@ -385,11 +392,16 @@ def run_pipeline(
         if volumes is None:
             volumes = _cached_volumes(inputs, config)
         inputs.volumes = volumes
-        solution = solve_level(inputs, config)
+        if progress is None:
+            solution = solve_level(inputs, config)
+        else:
+            solution = solve_level(
+                inputs, config, progress=partial(progress, plan.index + 1, len(plans))
+            )
         level_map = finish_level(inputs, solution, config)
         reports.append(report(inputs, solution, time.perf_counter() - level_started))
         if progress is not None:
-            progress(plan.index + 1, len(plans))
+            progress(plan.index + 1, len(plans), solution.bundles, solution.bundles)
     assert level_map is not None and inputs is not None  # plan() gives at least one level
     disparity = finish(
         level_map, left, right, config, plans[-1], inputs.views, volumes[0] if volumes else None

@@ -9,12 +9,16 @@ skips the QUBO and works on the costs of blocks of rows.
 from __future__ import annotations
 
 import os
+import signal
+import threading
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import replace
 from functools import partial
 from multiprocessing import get_context
+from multiprocessing.pool import Pool
 
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundles import Bundle, bundle_seed
@@ -24,6 +28,9 @@ from shared.energy import mrf_energy, row_energies
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, uses_warm_start
+
+BundleProgress = Callable[[int, int], None]
+"""``(units done, units total)`` within a level: bundles (rows for a row solver)."""
 
 #: Parameters in ``MatchConfig.solver_params`` that steer this module, not the solver.
 PIPELINE_PARAMS = {"warm_start"}
@@ -161,7 +168,10 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
 
 
 def solve_bundles(
-    inputs: LevelInputs, config: MatchConfig, bundles: Sequence[BundleSpec]
+    inputs: LevelInputs,
+    config: MatchConfig,
+    bundles: Sequence[BundleSpec],
+    progress: BundleProgress | None = None,
 ) -> list[BundleResult]:
     """Solve the given bundles (:class:`Bundle` or row ranges) of a level with
     ``config.solver``.
@@ -174,6 +184,9 @@ def solve_bundles(
         The run's configuration.
     bundles : list of Bundle or tuple of int
         The bundles to solve, e.g. one task's share of the level.
+    progress : callable, optional
+        Called with (bundles solved, bundles given) after each bundle (a row solver: after
+        each block of rows).
 
     Returns
     -------
@@ -193,7 +206,8 @@ def solve_bundles(
         width = inputs.shape[1]
         if any(b.col_start != 0 or b.col_stop != width for b in items):
             raise ValueError(f"{config.solver} solves whole rows only, not row segments")
-        return _solve_on_costs(solver, inputs, config, [(b.row_start, b.row_stop) for b in items])
+        row_ranges = [(b.row_start, b.row_stop) for b in items]
+        return _solve_on_costs(solver, inputs, config, row_ranges, progress)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     warm = uses_warm_start(config)
@@ -229,11 +243,17 @@ def solve_bundles(
                 col_stop=last,
             )
         )
+        if progress is not None:
+            progress(len(results), len(items))
     return results
 
 
 def _solve_on_costs(
-    solver: RowSolver, inputs: LevelInputs, config: MatchConfig, row_ranges: list[tuple[int, int]]
+    solver: RowSolver,
+    inputs: LevelInputs,
+    config: MatchConfig,
+    row_ranges: list[tuple[int, int]],
+    progress: BundleProgress | None = None,
 ) -> list[BundleResult]:
     """A row solver on blocks of consecutive bundles' rows at once (vectorised over rows, memory
     bounded by :data:`COST_BLOCK_BYTES`, not by the image)."""
@@ -241,10 +261,14 @@ def _solve_on_costs(
     rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
     blocks = _blocks(sorted(row_ranges), rows, inputs.view_height)
     inputs.binned_volumes()
+    results: list[BundleResult] = []
     # numpy releases the GIL inside its loops: threads overlap the blocks (both views)
     with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as pool:
-        solved = pool.map(partial(_solve_block, solver, inputs, config), blocks)
-        return [result for block_results in solved for result in block_results]
+        for block_results in pool.map(partial(_solve_block, solver, inputs, config), blocks):
+            results.extend(block_results)
+            if progress is not None:
+                progress(len(results), len(row_ranges))
+    return results
 
 
 def _solve_block(
@@ -298,7 +322,9 @@ def _blocks(
     return blocks
 
 
-def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
+def solve_level_in_process(
+    inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
+) -> LevelSolution:
     """The in-process ``solve_level``: every bundle of the level, one after another.
 
     Parameters
@@ -307,12 +333,17 @@ def solve_level_in_process(inputs: LevelInputs, config: MatchConfig) -> LevelSol
         The prepared level.
     config : MatchConfig
         The run's configuration (solver, encoding, seed).
+    progress : callable, optional
+        Called with (bundles solved, bundles of the level) as they are solved.
 
     Returns
     -------
     LevelSolution
     """
-    return assemble(inputs, solve_bundles(inputs, config, level_bundles(inputs, config)), config)
+    bundles = level_bundles(inputs, config)
+    if progress is not None:
+        progress(0, len(bundles))
+    return assemble(inputs, solve_bundles(inputs, config, bundles, progress), config)
 
 
 class ProcessPoolLevelSolver:
@@ -320,29 +351,38 @@ class ProcessPoolLevelSolver:
 
     Bundles are independent and seeded by position, so the result equals the sequential one.
     Row solvers (the exact DP) are vectorised over rows already and run in this process. Use as a
-    context manager so the pool lives across levels.
+    context manager so the pool lives across levels. The children ignore Ctrl-C (SIGINT reaches
+    the whole process group): the parent terminates them when it leaves the block on an
+    exception.
     """
 
     def __init__(self, processes: int | None = None) -> None:
         self.processes = processes or os.cpu_count() or 1
-        self._pool: ProcessPoolExecutor | None = None
+        self._pool: Pool | None = None
 
     def __enter__(self) -> ProcessPoolLevelSolver:
         if self.processes > 1:
             # spawn, not fork: forking a process that already runs threads (OpenBLAS, OpenCV,
             # an HTTP client) can deadlock the children. Solvers come from the registry's
             # importable factories, so every child sees the same adapters.
-            self._pool = ProcessPoolExecutor(self.processes, mp_context=get_context("spawn"))
+            with _sigint_ignored():  # inherited from birth: no child prints a traceback
+                self._pool = get_context("spawn").Pool(self.processes)
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+            if exc_type is None:
+                self._pool.close()
+            else:  # interrupted or failed: what the children solve now is not wanted
+                self._pool.terminate()
+            self._pool.join()
             self._pool = None
 
-    def __call__(self, inputs: LevelInputs, config: MatchConfig) -> LevelSolution:
+    def __call__(
+        self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
+    ) -> LevelSolution:
         if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
-            return solve_level_in_process(inputs, config)
+            return solve_level_in_process(inputs, config, progress)
         bundles = level_bundles(inputs, config)
         count = self.processes * 4
         # consecutive bundles stay together: segments of one row then share its costs
@@ -350,5 +390,25 @@ class ProcessPoolLevelSolver:
         chunks = [bundles[i : i + size] for i in range(0, len(bundles), size)]
         # the children build costs per bundle; the in-process volume cache is not worth sending
         solve = partial(solve_bundles, replace(inputs, volumes=None), config)
-        results = [r for chunk in self._pool.map(solve, chunks) for r in chunk]
+        results: list[BundleResult] = []
+        if progress is not None:
+            progress(0, len(bundles))
+        for chunk_results in self._pool.imap(solve, chunks):  # in order, as they finish
+            results.extend(chunk_results)
+            if progress is not None:
+                progress(len(results), len(bundles))
         return assemble(inputs, results, config)
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while the pool's children start: they inherit that and keep it (Python
+    leaves an ignored SIGINT alone), so Ctrl-C is the parent's alone, which terminates them."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal dispositions can only be changed from the main thread
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -228,6 +228,8 @@ class EmbeddedRedis:
             stderr=subprocess.PIPE,
             env=env,
             preexec_fn=_redis_child_setup,  # umask 077, dies with serve
+            # a group of its own: a terminal's Ctrl-C is serve's, which stops it in order
+            process_group=0,
         )
         write_private(folder / PID_FILE, f"{self.process.pid}\n")
         client = redis.Redis(port=self.port, password=self.password, socket_connect_timeout=0.5)

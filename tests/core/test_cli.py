@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 
 import cv2
 import numpy as np
@@ -48,12 +49,14 @@ def test_console_script_matches_and_reports_json(pair, tmp_path, scene):
     )
     summary = json.loads(completed.stdout)
     assert [level["bin_width"] for level in summary["levels"]] == [4, 2, 1]
-    assert summary["disparity_range"] == {
+    range_used = summary["disparity_range"]
+    assert {key: range_used[key] for key in ("max_disparity", "source", "note", "warning")} == {
         "max_disparity": 16,
         "source": "given",
-        "confirmed": 0.0,
         "note": "",
+        "warning": "",  # the views were checked, and are in order
     }
+    assert range_used["confirmed"] > 0.5
     assert all(level["energy"] > 0 and level["seconds"] > 0 for level in summary["levels"])
     assert evaluate(load_disparity(out), scene.disparity).bpp < 5
     assert (tmp_path / "p.png").stat().st_size > 0
@@ -122,3 +125,51 @@ def test_bundle_width_from_the_command_line(pair, tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     per_row = 3  # 128 px: segments at 0, 40 and 80 (the last one shifted left)
     assert [level["bundles"] for level in summary["levels"]] == [2 * 96 * per_row] * 3
+
+
+def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_c):
+    exe = shutil.which("qhsm")
+    assert exe, "the qhsm console script is not installed (pip install -e .)"
+    left, right = str(pair / "left.png"), str(pair / "right.png")
+    command = [exe, "match", left, right, "-o", str(tmp_path / "d.pfm"), "--solver", "sa"]
+    got = ctrl_c([*command, "--processes", "2", "--max-disparity", "16"], when="bundles")
+    assert got.returncode == 130
+    assert "Traceback" not in got.stderr and "KeyboardInterrupt" not in got.stderr
+    assert got.last_line == "qhsm: interrupted"
+    assert not got.left_processes  # the pool's children are gone too
+    assert not (tmp_path / "d.pfm").exists()
+
+
+def test_a_closed_stdout_ends_quietly(tmp_path):
+    """`qhsm solvers | head -0`: the reader is gone before anything is written."""
+    exe = shutil.which("qhsm")
+    assert exe, "the qhsm console script is not installed (pip install -e .)"
+    process = subprocess.Popen([exe, "solvers"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert process.stdout is not None and process.stderr is not None
+    process.stdout.close()
+    error = process.stderr.read().decode()
+    assert process.wait(60) == 141, error
+    assert error == ""
+
+
+def test_swapped_views_are_one_warning_line_before_the_run(pair, tmp_path, capsys):
+    left, right, out = str(pair / "left.png"), str(pair / "right.png"), str(tmp_path / "d.pfm")
+    assert main(["match", right, left, "-o", out, "--max-disparity", "16"]) == 0
+    error = capsys.readouterr().err
+    [warning] = [line for line in error.splitlines() if "warning" in line]
+    assert warning.startswith("qhsm: warning: the views look swapped: ")
+    assert error.index(warning) < error.index("level 1/3")  # before any work
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="XDG_DATA_HOME is the Linux convention")
+def test_the_data_directory_does_not_depend_on_the_current_directory(tmp_path, monkeypatch):
+    from shared.config import get_settings
+
+    monkeypatch.delenv("QHSM_DATA_DIR")
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))  # where platformdirs looks first
+    seen = set()
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        monkeypatch.chdir(tmp_path / folder)
+        seen.add(get_settings().data_dir)
+    assert seen == {tmp_path / "xdg" / "qhsm"}

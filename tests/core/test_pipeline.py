@@ -8,6 +8,7 @@ from pydantic import ValidationError
 
 from shared.assembly import BundleResult, assemble
 from shared.config import LevelConfig, MatchConfig, Preset, Regularizer
+from shared.disparity_range import ViewsWarning
 from shared.energy import mrf_energy
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
@@ -50,8 +51,10 @@ def test_the_paper_preset_keeps_its_image_pyramid_and_misses_the_accurate_thresh
 @pytest.mark.parametrize("preset", list(Preset))
 def test_matching_the_wrong_view_fails_the_same_threshold(scene, preset):
     config = MatchConfig(max_disparity=16, preset=preset)
-    swapped = run_pipeline(scene.right, scene.left, config)
+    with pytest.warns(ViewsWarning, match="swapped"):  # and it says so
+        swapped = run_pipeline(scene.right, scene.left, config)
     assert evaluate(swapped.disparity, scene.disparity).bpp > 40.0
+    assert "swapped" in swapped.max_disparity.warning
 
 
 @pytest.mark.parametrize("preset", list(Preset))
@@ -186,3 +189,33 @@ def test_fast_median_equals_the_reference_median():
     np.testing.assert_array_equal(median(values, 7), expected)
     fractional = values + 0.5
     np.testing.assert_array_equal(median(fractional, 7), expected + 0.5)
+
+
+def _check_progress(events, result):
+    """Per level, in order: bundles solved never go back and end at the level's bundles."""
+    levels = len(result.levels)
+    assert [event[0] for event in events] == sorted(event[0] for event in events)
+    assert {event[0] for event in events} == set(range(1, levels + 1))
+    for report in result.levels:
+        mine = [event for event in events if event[0] == report.index + 1]
+        assert all(event[1] == levels and event[3] == report.bundles for event in mine)
+        done = [event[2] for event in mine]
+        assert done == sorted(done) and done[0] == 0 and done[-1] == report.bundles
+        assert len(done) > 3  # reported from inside the level, not only at its ends
+
+
+@pytest.mark.parametrize("solver", ["steepest-descent", "exact"])
+def test_progress_reports_bundles_from_inside_each_level(scene, solver):
+    from shared.solve import ProcessPoolLevelSolver
+
+    config = MatchConfig(max_disparity=16, solver=solver, encoding="domain-wall")
+    small = scene.left[:32, :48], scene.right[:32, :48]
+    events: list[tuple[int, int, int, int]] = []
+    result = run_pipeline(*small, config, progress=lambda *event: events.append(event))
+    _check_progress(events, result)  # exact: per block of rows, here one block per view
+    if solver == "exact":  # vectorised: the pool leaves it in this process
+        return
+    pooled: list[tuple[int, int, int, int]] = []
+    with ProcessPoolLevelSolver(2) as pool:
+        again = run_pipeline(*small, config, pool, progress=lambda *event: pooled.append(event))
+    _check_progress(pooled, again)

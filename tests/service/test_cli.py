@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import sys
 
 import harness
 import numpy as np
@@ -117,7 +119,7 @@ def test_json_wait_prints_progress_to_stderr_and_only_json_to_stdout(api_url, im
     status = json.loads(captured.out)  # nothing else on stdout
     assert status["state"] == "succeeded"
     levels = status["progress"]["levels"]
-    assert f"succeeded level {levels}/{levels}" in " ".join(captured.err.split())  # the bar
+    assert f"succeeded: level {levels}/{levels}" in captured.err  # the progress
     written = os.path.join(os.getcwd(), f"{status['id']}.pfm")
     assert status["output"] == written and os.path.isfile(written)
     assert f"wrote {written} (no -o given: named after the job, in this directory)" in captured.err
@@ -160,3 +162,43 @@ def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_
     assert main(["estimate", str(left), str(right), *options, "--local", "--json"]) == 0
     local = json.loads(capsys.readouterr().out)
     assert local["seconds"] == pytest.approx(remote["seconds"]) and "fits" not in local
+
+
+# --- issue 22: wait, cancel, Ctrl-C, labels and warnings
+
+
+def test_submit_says_how_to_follow_and_wait_and_cancel_follow(api_url, images, capsys):
+    assert main(["submit", *images, "--url", api_url, "--label", "first pair"]) == 0
+    captured = capsys.readouterr()
+    job_id = captured.out.split()[0]
+    assert f"`qhsm wait {job_id} --url {api_url}`" in captured.err
+    assert f"`qhsm cancel {job_id} --url {api_url}`" in captured.err
+    assert main(["wait", job_id, "--url", api_url, "-o", "out.npy", "--json"]) == 0
+    status = json.loads(capsys.readouterr().out)
+    assert status["state"] == "succeeded" and status["label"] == "first pair"
+    assert status["files"] == ["l.png", "r.png"] and os.path.isfile("out.npy")
+    assert main(["cancel", job_id, "--url", api_url]) == 1  # finished: nothing to cancel
+    assert "already succeeded" in capsys.readouterr().err
+
+
+def test_ctrl_c_leaves_the_job_running_and_says_how_to_cancel_or_wait(
+    api_url, images, ctrl_c, capsys
+):
+    command = [sys.executable, "-m", "shared.cli", "submit", *images, "--url", api_url]
+    got = ctrl_c([*command, "--solver", "fake-slow", "--wait"], when="job ")
+    assert got.returncode == 130 and "Traceback" not in got.stderr
+    job_id = got.stderr.split("job ", 1)[1].split()[0]
+    assert re.match(
+        f"qhsm: interrupted; job {job_id} is still (queued|running) on the service: ", got.last_line
+    )
+    assert f"`qhsm cancel {job_id} --url {api_url}`" in got.last_line
+    assert f"`qhsm wait {job_id} --url {api_url}`" in got.last_line
+    assert main(["cancel", job_id, "--url", api_url]) == 0
+    assert capsys.readouterr().out.strip() == f"job {job_id} cancelled"
+
+
+def test_swapped_views_are_a_warning_on_stderr(api_url, images, capsys):
+    swapped = [images[1], images[0], *images[2:]]
+    assert main(["submit", *swapped, "--url", api_url]) == 0
+    error = capsys.readouterr().err
+    assert "qhsm: warning: the views look swapped" in error and "left view first" in error

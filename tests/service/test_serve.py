@@ -112,6 +112,22 @@ def alive(pid: int) -> bool:
     return state != "Z"
 
 
+def using(folder: Path) -> list[str]:
+    """Live processes whose command line or environment names ``folder`` (serve's children:
+    the workers get QHSM_DATA_DIR, redis-server its config file)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or not alive(int(entry.name)):
+            continue
+        try:
+            names = (entry / "cmdline").read_bytes() + (entry / "environ").read_bytes()
+        except OSError:
+            continue
+        if str(folder).encode() in names:
+            found.append(cmdline(int(entry.name)))
+    return found
+
+
 def cmdline(pid: int) -> str:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
@@ -305,8 +321,12 @@ def test_admin_without_serve_starts_the_data_dirs_store(tmp_path, capsys, monkey
     monkeypatch.delenv("QHSM_REDIS_URL", raising=False)
     monkeypatch.delenv("REDIS_URL", raising=False)
     data_dir = tmp_path / "data"
+    assert main(["admin", "--data-dir", str(data_dir), "list-users"]) == 1  # nothing served there
+    error = capsys.readouterr().err
+    assert f"no store in the data directory {data_dir}" in error and "--data-dir" in error
+    assert not data_dir.exists()  # and none was started
     assert main(["admin", "--data-dir", str(data_dir), "create-user", "bob"]) == 0
-    assert "store: the embedded Redis of data dir" in capsys.readouterr().err
+    assert "store: a NEW, empty store in data dir" in capsys.readouterr().err
     assert main(["admin", "--data-dir", str(data_dir), "list-users"]) == 0
     captured = capsys.readouterr()
     assert "started for this command" in captured.err
@@ -406,3 +426,26 @@ def test_the_aof_is_rewritten_instead_of_growing(tmp_path):
         assert size < 12 * 2**20, f"AOF is {size / 2**20:.1f} MB after 40 MB written and deleted"
     finally:
         server.stop()
+
+
+def test_ctrl_c_in_demo_is_one_line_and_stops_what_it_started(tmp_path, ctrl_c):
+    """Ctrl-C while the demo's job runs: one line, exit 130, Redis and workers gone."""
+    env = {k: v for k, v in os.environ.items() if k not in ("QHSM_REDIS_URL", "REDIS_URL")}
+    demo = [*QHSM, "demo", "--scene", "synthetic", "--data-dir", str(tmp_path / "data")]
+    got = ctrl_c([*demo, "--solver", "sa"], when="queued: waiting for a worker", env=env)
+    assert got.returncode == 130 and "Traceback" not in got.stderr
+    assert got.last_line == "qhsm: interrupted; stopping the demo's service"
+    assert not got.left_processes and not using(tmp_path / "data")
+    assert not (tmp_path / "data" / EMBEDDED_URL_FILE).exists()
+
+
+def test_ctrl_c_stops_serve_and_everything_it_started_in_order(tmp_path, ctrl_c):
+    """Ctrl-C reaches serve alone (its children have process groups of their own): no worker or
+    Redis stops by itself and gets restarted while serve shuts down."""
+    env = {k: v for k, v in os.environ.items() if k not in ("QHSM_REDIS_URL", "REDIS_URL")}
+    serve = [*QHSM, "serve", "--port", str(free_port()), "--data-dir", str(tmp_path / "data")]
+    got = ctrl_c(serve, when="web page: ", env=env)
+    assert got.returncode == 0 and "Traceback" not in got.stderr
+    assert "exited unexpectedly" not in got.stderr
+    assert got.last_line == "qhsm serve: stopping the workers and Redis ..."
+    assert not got.left_processes and not using(tmp_path / "data")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import cv2
@@ -168,3 +169,99 @@ def test_serve_prints_the_key_only_when_it_makes_it(settings, tmp_path, capsys):
     later = capsys.readouterr().err
     assert first_key not in later and "#key=" not in later
     assert "web page: http://127.0.0.1:8000/\n" in later and str(tmp_path / "api-key") in later
+
+
+# --- issue 22: what the page shows of a job, thumbnails, differences
+
+
+@pytest.fixture(scope="module")
+def scene_files():
+    from shared.synthetic import make_scene
+
+    scene = make_scene(48, 64, max_disparity=8, seed=3)
+    return scene, harness.png(scene.left), harness.png(scene.right)
+
+
+def _post(client, left, right, params, **form):
+    files = {"left": ("im2.ppm", left), "right": ("dir/im6.ppm", right)}
+    if "ground_truth" in form:
+        files["ground_truth"] = ("gt.npy", form.pop("ground_truth"))
+    return client.post("/v1/jobs", files=files, data={"params": json.dumps(params), **form})
+
+
+def test_a_ground_truth_without_scale_gets_one_inferred_and_says_so(client, scene_files):
+    scene, left, right = scene_files
+    params = {"solver": "exact", "max_disparity": 8}
+    created = _post(client, left, right, params, ground_truth=harness.npy(scene.disparity * 16))
+    assert created.status_code == 202, created.text
+    [note] = created.json()["warnings"]
+    assert note.startswith("ground-truth scale not given: inferred 16 ")
+    status = harness.wait_for(client, created.json()["id"])
+    assert status["ground_truth"] == {"scale": 16.0, "border": 0, "inferred": True}
+    assert status["warnings"] == [note] and status["metrics"]["rmse"] < 2
+    given = _post(
+        client, left, right, params, ground_truth=harness.npy(scene.disparity), gt_scale=1
+    )
+    assert given.json()["warnings"] == []
+    unrelated = np.random.default_rng(0).uniform(1, 200, scene.disparity.shape)
+    refused = _post(client, left, right, params, ground_truth=harness.npy(unrelated))
+    assert refused.status_code == 422
+    assert refused.json()["detail"].startswith("gt_scale: cannot infer the ground-truth scale")
+
+
+def test_swapped_views_are_a_warning_of_the_job(client, scene_files):
+    _, left, right = scene_files
+    created = _post(client, right, left, {"solver": "exact", "max_disparity": 8})
+    [warning] = created.json()["warnings"]
+    assert "the views look swapped" in warning
+    status = client.get(f"/v1/jobs/{created.json()['id']}").json()
+    assert status["warnings"] == [warning] and status["disparity_range"]["warning"] == warning
+
+
+def test_the_job_list_names_the_files_or_label_and_shows_scores_and_times(client, scene_files):
+    scene, left, right = scene_files
+    params = {"solver": "exact", "max_disparity": 8}
+    labelled = _post(client, left, right, params, label="  tsukuba\nretake ", gt_scale=1,
+                     ground_truth=harness.npy(scene.disparity)).json()["id"]  # fmt: skip
+    harness.wait_for(client, labelled)
+    items = {item["id"]: item for item in client.get("/v1/jobs").json()["items"]}
+    item = items[labelled]
+    assert item["label"] == "tsukuba retake"  # one line
+    assert item["files"] == ["im2.ppm", "im6.ppm"]  # no folder the client sent
+    assert item["metrics"]["rmse"] >= 0 and item["metrics"]["bpp"] >= 0
+    assert item["started_at"] <= item["finished_at"]
+    assert item["qpu_seconds"] is None  # exact is not metered
+    too_long = _post(client, left, right, params, label="x" * 201)
+    assert too_long.status_code == 422
+
+
+def test_a_thumbnail_of_any_accepted_format_is_a_png(client, scene_files):
+    scene, _, _ = scene_files
+    grey = cv2.resize(np.rint(scene.left * 255).astype(np.uint8), (640, 480))
+    for suffix in (".ppm", ".pgm", ".tiff"):
+        image = grey if suffix == ".pgm" else cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+        ok, data = cv2.imencode(suffix, image)
+        assert ok
+        response = client.post("/v1/thumbnail", files={"image": (f"v{suffix}", data.tobytes())})
+        assert response.status_code == 200 and response.headers["content-type"] == "image/png"
+        thumbnail = cv2.imdecode(np.frombuffer(response.content, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert thumbnail.shape[:2] == (240, 320), suffix
+    refused = client.post("/v1/thumbnail", files={"image": ("x.ppm", b"not an image")})
+    assert refused.status_code == 415
+
+
+def test_the_difference_of_two_jobs_is_an_image_with_its_share(client, scene_files):
+    _, left, right = scene_files
+    a = _post(client, left, right, {"solver": "exact", "max_disparity": 8}).json()["id"]
+    b = _post(client, left, right, {"solver": "exact", "max_disparity": 8, "lr_check": False})
+    b = b.json()["id"]
+    harness.wait_for(client, a), harness.wait_for(client, b)
+    expected = np.abs(harness.download(client, a) - harness.download(client, b))
+    response = client.get(f"/v1/jobs/{a}/difference.png", params={"with": b})
+    assert response.status_code == 200 and response.headers["x-scale-max"] == f"{ERROR_MAP_MAX:g}"
+    assert float(response.headers["x-differing-percent"]) == pytest.approx(
+        100 * np.mean(expected > 1), abs=0.01
+    )
+    same = client.get(f"/v1/jobs/{a}/difference.png", params={"with": a})
+    assert same.headers["x-differing-percent"] == "0.00"
+    assert client.get(f"/v1/jobs/{a}/difference.png", params={"with": "0" * 32}).status_code == 404

@@ -141,6 +141,12 @@ def pair_files(tmp_path_factory) -> dict[str, Path]:
     cv2.imwrite(str(files["small"]), np.rint(scene.right[:40, :50] * 255).astype(np.uint8))
     files["ground_truth"] = folder / "gt.npy"
     np.save(files["ground_truth"], scene.disparity)
+    files["ground_truth_x16"] = folder / "gt16.png"  # Tsukuba's convention, no scale given
+    cv2.imwrite(str(files["ground_truth_x16"]), np.rint(scene.disparity * 16).astype(np.uint8))
+    for name in ("left", "right"):  # Middlebury's own format, which browsers do not show
+        files[f"{name}_ppm"] = folder / f"{name}.ppm"
+        grey = np.rint(getattr(scene, name) * 255).astype(np.uint8)
+        cv2.imwrite(str(files[f"{name}_ppm"]), cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR))
     return files
 
 

@@ -92,7 +92,6 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     expect(page.get_by_alt_text("Left view", exact=True)).to_be_visible()
     expect(page.locator(".ticks").first).to_contain_text("8 px")  # the colour bar's top
     expect(page.locator("table.levels tbody tr")).to_have_count(len(status["levels"]))
-    screenshots(page, "job")
     with page.expect_download() as download:
         page.get_by_role("button", name="16-bit PNG").click()
     png = cv2.imread(download.value.path(), cv2.IMREAD_UNCHANGED)
@@ -122,6 +121,12 @@ def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_file
     for column in (columns.nth(0), columns.nth(1)):
         expect(column.get_by_alt_text("Disparity", exact=True)).to_be_visible()
         expect(column.get_by_label("metrics")).to_contain_text("RMSE")
+    difference = page.get_by_alt_text("Difference", exact=True)  # |sa - exact|
+    expect(difference).to_be_visible()
+    assert difference.evaluate("img => [img.naturalWidth, img.naturalHeight]") == [64, 48]
+    expect(page.locator(".difference figcaption")).to_contain_text(
+        re.compile(r"\|sa − exact\| in px: [\d.]+ % of the pixels differ by more than 1 px")
+    )
     screenshots(page, "compare")
 
 
@@ -317,3 +322,69 @@ def test_phone_width_has_no_sideways_scrolling(page: Page, server, view, screens
     width = page.evaluate("document.documentElement.scrollWidth")
     assert width <= 390, f"{view}: the page is {width} px wide on a 390 px screen"
     screenshots(page, f"phone-{view}")
+
+
+# --- issue 22: what a new user runs into
+
+
+def test_ppm_views_get_png_thumbnails_from_the_api(page: Page, server, pair_files):
+    sign_in(page, server)
+    page.get_by_role("link", name="Submit", exact=True).click()
+    page.get_by_label("Left image").set_input_files(pair_files["left_ppm"])
+    thumb = page.get_by_alt_text("chosen left file: left.ppm")
+    expect(thumb).to_be_visible()
+    assert thumb.evaluate("img => [img.naturalWidth, img.naturalHeight]") == [64, 48]
+    bad = {"name": "notes.ppm", "mimeType": "image/x-portable-pixmap", "buffer": b"P6 nonsense"}
+    page.get_by_label("Right image").set_input_files(bad)
+    expect(page.locator('.field-error[data-field="right"]')).to_contain_text("notes.ppm")
+
+
+def test_a_job_names_its_files_warns_and_explains_what_it_shows(
+    page: Page, server, pair_files, screenshots
+):
+    """A ground truth without its scale (inferred, and the page says so), a label, the list's
+    columns, the repair count explained, the parameters folded away."""
+    sign_in(page, server)
+    page.get_by_role("link", name="Submit", exact=True).click()
+    page.get_by_label("Left image").set_input_files(pair_files["left_ppm"])
+    page.get_by_label("Right image").set_input_files(pair_files["right_ppm"])
+    page.get_by_label("Solver").select_option("exact")
+    page.get_by_label("Label (optional)").fill("synthetic, scale inferred")
+    page.get_by_text("Ground truth (optional)").click()
+    expect(page.get_by_label("Ground-truth scale")).to_have_value("")  # no silent 1
+    page.get_by_label("Ground truth", exact=True).set_input_files(pair_files["ground_truth_x16"])
+    expect(page.get_by_alt_text("chosen right file: right.ppm")).to_be_visible()
+    screenshots(page, "submit-filled")
+    page.get_by_role("button", name="Submit").click()
+    page.wait_for_url(re.compile(r"#/job/[0-9a-f]{32}$"))
+    job_id = page.url.rsplit("/", 1)[1]
+    expect(page.get_by_role("heading", name="synthetic, scale inferred")).to_be_visible()
+    expect(page.get_by_label("warnings")).to_contain_text("inferred 16")
+    expect(page.get_by_label("metrics")).to_contain_text("RMSE", timeout=RESULT_TIMEOUT)
+    facts = page.locator(".kv").first
+    expect(facts).to_contain_text("scale 16 (inferred from the views)")
+    expect(facts).to_contain_text("left.ppm · right.ppm")
+    expect(page.locator("#repaired-note")).to_contain_text("not a valid label encoding")
+    expect(page.locator("pre.params")).to_be_hidden()  # folded: it used to fill half the page
+    screenshots(page, "job")
+    page.get_by_text("Parameters (JSON)", exact=True).click()
+    expect(page.locator("pre.params")).to_be_visible()
+    page.get_by_role("link", name="Jobs", exact=True).click()
+    row = page.locator(f'tr[data-job="{job_id}"]')
+    expect(row.locator("td.job-name a")).to_have_text("synthetic, scale inferred")
+    expect(row.locator('td[data-label="RMSE · BPP"]')).to_contain_text(" px · ")
+    expect(row.locator('td[data-label="Duration"]')).to_contain_text(" s")
+    expect(row.locator('td[data-label="QPU"]')).to_have_text("—")  # exact is not metered
+
+
+def test_swapped_views_warn_on_the_job_page(page: Page, server, pair_files):
+    sign_in(page, server)
+    page.get_by_role("link", name="Submit", exact=True).click()
+    page.get_by_label("Left image").set_input_files(pair_files["right"])
+    page.get_by_label("Right image").set_input_files(pair_files["left"])
+    page.get_by_label("Solver").select_option("exact")
+    page.get_by_role("button", name="Submit").click()
+    page.wait_for_url(re.compile(r"#/job/[0-9a-f]{32}$"))
+    warning = page.get_by_label("warnings")
+    expect(warning).to_contain_text("the views look swapped")
+    expect(warning).to_contain_text("pass the left view first")
