@@ -43,6 +43,16 @@ class LevelTiming(BaseModel):
     candidates: int
     bundles: int
     energy: float | None = Field(description="MRF energy of the level (null if not finite)")
+    lower_bound: float | None = Field(
+        None,
+        description="A lower bound on the level's least energy (grid inference with exact: "
+        "the dual decomposition's), null when the solver gives none",
+    )
+    gap: float | None = Field(
+        None,
+        description="(energy - lower_bound) / energy: how far above the optimum the level's "
+        "labelling can be, at most",
+    )
     repaired: int = Field(
         description="Pixels whose QUBO sample was not a valid label encoding (one-hot: no or "
         "several bits set; domain-wall: a broken wall) and that were given their cheapest "

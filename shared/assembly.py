@@ -10,7 +10,7 @@ from itertools import pairwise
 import numpy as np
 
 from shared.bundles import owned_columns
-from shared.config import MatchConfig
+from shared.config import Inference, MatchConfig
 from shared.energy import mrf_energy
 from shared.level_inputs import LevelInputs
 
@@ -30,6 +30,8 @@ class BundleResult:
     info: dict = field(default_factory=dict)
     col_start: int = 0
     col_stop: int | None = None
+    #: A lower bound on the bundle's least energy (dual decomposition), when the solver has one.
+    lower_bound: float | None = None
 
     @property
     def columns(self) -> tuple[int, int]:
@@ -48,6 +50,8 @@ class LevelSolution:
     timing: dict[str, float] = field(default_factory=dict)
     #: What the bundles' solver reports once per level (embeddings computed / reused, ...).
     info: dict = field(default_factory=dict)
+    #: The sum of the bundles' lower bounds, when every bundle has one.
+    lower_bound: float | None = None
 
 
 def assemble(
@@ -57,7 +61,8 @@ def assemble(
 
     Row segments are stitched (:func:`shared.bundles.owned_columns`: each pixel from the segment
     in which it lies farthest from a cut). The level's energy is the sum of the bundles' own;
-    for stitched rows it is that of the stitched labels, which needs ``config`` for the costs.
+    for stitched rows it is that of the stitched labels, and for the tiles of ``grid`` inference
+    that of the whole grid, which need ``config`` for the costs.
 
     Parameters
     ----------
@@ -110,8 +115,20 @@ def assemble(
             f"level {inputs.index}: rows missing {missing[:10]}, rows solved twice "
             f"{doubled[:10]} (counting rows with any such pixel)"
         )
+    bounds = [r.lower_bound for r in results]
+    if config is not None and config.inference is Inference.GRID and None in bounds:
+        # tiles priced their edges to the tiles around against starting labels: the level's
+        # energy is that of the assembled labels on the whole grid
+        height = inputs.view_height
+        energy = sum(
+            inputs.grid(config, view * height, (view + 1) * height).energy(
+                labels[view * height : (view + 1) * height]
+            )
+            for view in range(inputs.views)
+        )
     return LevelSolution(
         labels=labels,
+        lower_bound=None if None in bounds else float(sum(b for b in bounds if b is not None)),
         energy=float(energy),
         repaired=int(sum(r.repaired for r in results)),
         bundles=len(results),

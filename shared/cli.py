@@ -338,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument("--url", help="run the pipeline through the service at this URL")
     bench.add_argument("--out", default="out/bench", help="output folder")
-    model_option(bench, MatchConfig, "bundle_height", with_default=True)
+    model_option(bench, MatchConfig, "bundle_height")
     bench.add_argument(
         "--encoding",
         choices=[AUTO_ENCODING, *(e.value for e in Encoding)],

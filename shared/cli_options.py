@@ -270,6 +270,8 @@ MATCH_OPTIONS = (
     "rectifier",
     "data_term",
     "pyramid",
+    "inference",
+    "dual_iterations",
     "median",
     "bilateral",
     "lr_check",

@@ -48,6 +48,7 @@ class DataTerm(StrEnum):
 
     SQUARED = "squared"  # (I_L - I_R)^2 of the gray images (the paper)
     AD_CENSUS = "ad-census"  # absolute colour difference + census Hamming distance, 5x5 aggregated
+    CENSUS_GRADIENT = "census-gradient"  # census Hamming distance + gradient difference, 5x5
 
 
 class PyramidKind(StrEnum):
@@ -55,6 +56,14 @@ class PyramidKind(StrEnum):
 
     IMAGE = "image"  # the images are downsampled; labels are disparities of the level (the paper)
     BINS = "bins"  # full-resolution images; labels are disparity bins that halve each level
+
+
+class Inference(StrEnum):
+    """Which MRF a level is and how it is minimised."""
+
+    GRID = "grid"  # the 4-connected grid: dual decomposition into row and column chains (exact),
+    # or 2D tiles with their neighbours' labels as unaries (QUBO solvers)
+    ROWS = "rows"  # each bundle of rows alone, no edge between bundles (the paper)
 
 
 class Encoding(StrEnum):
@@ -87,6 +96,13 @@ class LevelConfig(BaseModel):
     slope: float = Field(0.0005, ge=0, description="s in min(trunc, s|dp-dq|)")
     truncation: float = Field(300.0, ge=0, description="trunc in min(trunc, s|dp-dq|)")
     edge_factor: float = Field(0.1, ge=0, description="m: smoothness weight across edges")
+    coarse_slope: float | None = Field(
+        None,
+        ge=0,
+        description="Bin pyramid: s on the coarse_levels coarsest levels (unset: slope), where "
+        "a bin spans several disparities and the data term is flatter",
+    )
+    coarse_levels: int = Field(3, ge=0, description="Bin pyramid: levels that take coarse_slope")
 
 
 def paper_levels() -> list[LevelConfig]:
@@ -103,16 +119,18 @@ def paper_levels() -> list[LevelConfig]:
 
 
 def accurate_levels() -> list[LevelConfig]:
-    """The bin pyramid's level template: 6 candidate bins, 0.1 per bin capped at 0.2, times 0.3
-    across gray steps above 0.06."""
+    """The bin pyramid's level template: 6 candidate bins, 0.1 per bin (0.2 on the three
+    coarsest levels) capped at 0.4, times 0.3 across gray steps above 0.06."""
     return [
         LevelConfig(
             downsample=1,
             candidates=6,
             edge_threshold=0.06,
             slope=0.1,
-            truncation=0.2,
+            truncation=0.4,
             edge_factor=0.3,
+            coarse_slope=0.2,
+            coarse_levels=3,
         )
     ]
 
@@ -122,7 +140,8 @@ PRESETS: dict[Preset, dict[str, Any]] = {
     Preset.ACCURATE: {
         "levels": accurate_levels,
         "pyramid": PyramidKind.BINS,
-        "data_term": DataTerm.AD_CENSUS,
+        "inference": Inference.GRID,
+        "data_term": DataTerm.CENSUS_GRADIENT,
         "encoding": Encoding.DOMAIN_WALL,
         "median_size": 3,
         "bilateral": False,
@@ -133,6 +152,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
     Preset.PAPER: {
         "levels": paper_levels,
         "pyramid": PyramidKind.IMAGE,
+        "inference": Inference.ROWS,
         "data_term": DataTerm.SQUARED,
         "encoding": Encoding.ONE_HOT,
         "median_size": 7,
@@ -144,6 +164,8 @@ PRESETS: dict[Preset, dict[str, Any]] = {
 }
 
 AUTO: Final = "auto"
+#: Rows of a QUBO solver's tile in ``grid`` inference when ``bundle_height`` is not given.
+GRID_TILE_ROWS: Final = 3
 
 
 class MatchConfig(BaseModel):
@@ -158,13 +180,28 @@ class MatchConfig(BaseModel):
 
     preset: Preset = Field(
         Preset.ACCURATE,
-        description="accurate: disparity-bin pyramid at full resolution, AD-census cost, both "
-        "views with a left-right check, weighted median, domain-wall bundles; paper: the "
-        "publication's image pyramid, squared difference, median + bilateral, one-hot bundles",
+        description="accurate: the 2D grid MRF of a disparity-bin pyramid at full resolution, "
+        "census + gradient cost, both views with a left-right check, weighted median, "
+        "domain-wall bundles; paper: the publication's image pyramid, independent rows, squared "
+        "difference, median + bilateral, one-hot bundles",
     )
     levels: list[LevelConfig] = Field(min_length=1, description="Pyramid levels (from preset)")
     pyramid: PyramidKind = Field(description="image or bins (from preset)")
-    data_term: DataTerm = Field(description="squared or ad-census (from preset)")
+    inference: Inference = Field(
+        description="grid: the 4-connected MRF of each level (exact: dual decomposition into "
+        "row and column chains, with a lower bound; QUBO solvers: tiles of bundle_height rows "
+        "given their neighbours' labels); rows: every bundle alone (from preset)"
+    )
+    dual_iterations: int = Field(
+        40,
+        ge=1,
+        le=1000,
+        description="grid inference with exact: most dual-decomposition iterations per level "
+        "(fewer when the row and column chains agree)",
+    )
+    data_term: DataTerm = Field(
+        description="squared, ad-census or census-gradient (from preset)"
+    )
     max_disparity: int | Literal["auto"] = Field(
         AUTO,
         description="Largest disparity in full-resolution pixels, or auto: estimated from "
@@ -173,7 +210,14 @@ class MatchConfig(BaseModel):
     max_coarse_bins: int = Field(
         8, ge=2, le=64, description="Bin pyramid: bins of the coarsest level, at most"
     )
-    bundle_height: int = Field(1, ge=1, le=64, description="Rows per QUBO bundle")
+    bundle_height: int = Field(
+        ge=1,
+        le=64,
+        description="Rows per QUBO bundle: with grid inference a tile's rows, their vertical "
+        f"edges inside (unset: {GRID_TILE_ROWS}); with rows inference rows solved together, "
+        "no edge to other bundles (unset: 1). exact solves single rows, or whole views by "
+        "dual decomposition with grid inference",
+    )
     bundle_width: int | Literal["auto"] | None = Field(
         None,
         description="Pixels per QUBO bundle along the row: an integer cuts rows into overlapping "
@@ -239,6 +283,8 @@ class MatchConfig(BaseModel):
         for name, value in PRESETS[preset].items():
             if filled.get(name) is None:
                 filled[name] = value() if callable(value) else value
+        if filled.get("bundle_height") is None:
+            filled["bundle_height"] = GRID_TILE_ROWS if filled["inference"] == "grid" else 1
         return filled
 
     @field_validator("median_size")
@@ -269,8 +315,10 @@ class MatchConfig(BaseModel):
                 f"bundle_margin ({self.bundle_margin}) must be below half the bundle_width "
                 f"({self.bundle_width}): lower --bundle-margin or widen the segments"
             )
-        if self.subpixel and self.data_term is not DataTerm.AD_CENSUS:
-            raise ValueError("subpixel fits the AD-census cost: use it with data_term ad-census")
+        if self.subpixel and self.pyramid is not PyramidKind.BINS:
+            raise ValueError(
+                "subpixel fits the final cost volume of the bin pyramid: use it with pyramid bins"
+            )
         if self.pyramid is PyramidKind.BINS:
             if len(self.levels) != 1 or self.levels[0].downsample != 1:
                 raise ValueError(

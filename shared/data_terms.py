@@ -10,21 +10,32 @@
 
 with AD the mean absolute colour difference on the 0..255 scale (gray inputs: the gray
 difference) and H the Hamming distance between the 5x5 census codes of the gray images
-(bit = neighbour darker than the centre). In both terms right-image columns x - d < 0 are clamped
-to column 0. Rows beyond a view's border replicate its first or last row, so a block of rows gets
-exactly the values it would get as part of the whole image: costs are computed per block of rows
-(memory bounded by the block, not the image) and blocks can be computed anywhere.
+(bit = neighbour darker than the centre).
+
+``census-gradient`` (the accurate default) replaces the colour term by a gradient term, which
+does not move with the exposure or colour balance of either camera:
+
+    c(y, x, d) = 1/2 [(1 - exp(-H / 30)) + (1 - exp(-G / 10))]
+    G = |dI_L/dx - dI_R/dx| + |dI_L/dy - dI_R/dy|       (Sobel 3x3 / 4, gray on 0..255)
+
+In every term right-image columns x - d < 0 are clamped to column 0. Rows beyond a view's
+border replicate its first or last row, so a block of rows gets exactly the values it would get
+as part of the whole image: costs are computed per block of rows (memory bounded by the block,
+not the image) and blocks can be computed anywhere.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import cv2
 import numpy as np
 
 from shared.images import to_gray
 
-#: AD-census constants: the exponential scales of the two terms and the window sizes.
+#: AD-census constants: the exponential scales of the terms and the window sizes.
 AD_SCALE = 10.0
+GRADIENT_SCALE = 10.0
 CENSUS_SCALE = 30.0
 CENSUS_WINDOW = 5
 AGGREGATION_WINDOW = 5
@@ -170,6 +181,102 @@ def ad_census_volume(
         aggregated = cv2.boxFilter(cost, -1, box, borderType=cv2.BORDER_REPLICATE)
         volume[d] = aggregated[reach:-reach]
     return volume
+
+
+def census_gradient_volume(
+    left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+) -> np.ndarray:
+    """Aggregated census + gradient costs (D + 1, stop - start, w) float32 of rows [start, stop).
+
+    Colour is not read (gray views in, or colour views turned gray); rows outside the block are
+    read as context, as in :func:`ad_census_volume`.
+
+    Parameters
+    ----------
+    left, right : numpy.ndarray
+        Whole views, gray or BGR in [0, 1]; the rows around the block are context.
+    max_disparity : int
+        D: the volume holds the disparities 0..D.
+    start, stop : int
+        The block of rows costed.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (D + 1, stop - start, w), float32.
+    """
+    height, width = left.shape[:2]
+    rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
+    gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
+    gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
+    census_left = census(gray_left)
+    census_right = _shifted(census(gray_right), max_disparity)
+    reach = CENSUS_WINDOW // 2
+    gradients_left = [g[reach:-reach] for g in _sobel(gray_left)]
+    gradients_right = [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)]
+    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - exp(-G / 10) / 2
+    table = np.zeros(256, dtype=np.float32)
+    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
+    table += 0.5
+    box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
+    aggregation_reach = AGGREGATION_WINDOW // 2
+    volume = np.empty((max_disparity + 1, stop - start, width), dtype=np.float32)
+    for d in range(max_disparity + 1):
+        columns = slice(max_disparity - d, max_disparity - d + width)
+        hamming = np.bitwise_count(census_left ^ census_right[:, columns]).astype(np.uint8)
+        gradient = cv2.add(
+            cv2.absdiff(gradients_left[0], gradients_right[0][:, columns]),
+            cv2.absdiff(gradients_left[1], gradients_right[1][:, columns]),
+        )
+        gradient_term = cv2.exp(gradient * np.float32(-1.0 / GRADIENT_SCALE))
+        cost = cv2.scaleAdd(gradient_term, -0.5, cv2.LUT(hamming, table))
+        aggregated = cv2.boxFilter(cost, -1, box, borderType=cv2.BORDER_REPLICATE)
+        volume[d] = aggregated[aggregation_reach:-aggregation_reach]
+    return volume
+
+
+def _sobel(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal and vertical Sobel 3x3 derivatives / 4 of gray rows (replicated borders)."""
+    return (
+        cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3, scale=0.25, borderType=cv2.BORDER_REPLICATE),
+        cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3, scale=0.25, borderType=cv2.BORDER_REPLICATE),
+    )
+
+
+VolumeFunction = Callable[[np.ndarray, np.ndarray, int, int, int], np.ndarray]
+"""``(left, right, max_disparity, start, stop) -> (D + 1, stop - start, w)`` costs."""
+
+#: Every data term as a cost volume over all disparities, by its ``MatchConfig.data_term`` name:
+#: a new data term is one function here and one name in :class:`shared.config.DataTerm`.
+VOLUMES: dict[str, VolumeFunction] = {
+    "squared": squared_volume,
+    "ad-census": ad_census_volume,
+    "census-gradient": census_gradient_volume,
+}
+
+
+def cost_volume(
+    data_term: str, left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+) -> np.ndarray:
+    """The cost volume of rows [start, stop) under the named data term (:data:`VOLUMES`).
+
+    Parameters
+    ----------
+    data_term : str
+        A :class:`shared.config.DataTerm` value.
+    left, right : numpy.ndarray
+        Whole views, gray or BGR in [0, 1].
+    max_disparity : int
+        D: the volume holds the disparities 0..D.
+    start, stop : int
+        The block of rows costed.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (D + 1, stop - start, w).
+    """
+    return VOLUMES[data_term](left, right, max_disparity, start, stop)
 
 
 def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:

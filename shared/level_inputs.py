@@ -10,14 +10,9 @@ import numpy as np
 
 from shared.bundles import Bundle, bundle_rows, segment_columns
 from shared.config import DataTerm, LevelConfig, MatchConfig
-from shared.data_terms import (
-    ad_census_volume,
-    bin_minimum,
-    gather,
-    squared_difference,
-    squared_volume,
-)
+from shared.data_terms import bin_minimum, cost_volume, gather, squared_difference
 from shared.energy import Costs, mrf_costs
+from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
 
@@ -172,7 +167,8 @@ class LevelInputs:
         width = self.prepared.get("bundle_width")
         if width is not None and width >= self.shape[1]:
             width = None
-        return self.bundles(config.bundle_height, width, config.bundle_margin)
+        height = self.prepared.get("bundle_height", config.bundle_height)
+        return self.bundles(height, width, config.bundle_margin)
 
     def as_bundle(self, spec: BundleSpec) -> Bundle:
         """A :class:`Bundle` from a bundle or a row range (whole rows).
@@ -211,8 +207,7 @@ class LevelInputs:
         """The data term of every label (bins, last - first, w) on rows of one view."""
         if self.volumes is None:
             left, right = self.view_images()[view]
-            volume_of = ad_census_volume if data_term is DataTerm.AD_CENSUS else squared_volume
-            volume = volume_of(left, right, self.plan.max_disparity, first, last)
+            volume = cost_volume(data_term, left, right, self.plan.max_disparity, first, last)
             return bin_minimum(volume, self.plan.bin_width)
         return self.binned_volumes()[view][:, first:last]
 
@@ -228,6 +223,65 @@ class LevelInputs:
         if self._binned is None and self.volumes is not None:
             self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
         return self._binned or []
+
+    def view_unary(
+        self, config: MatchConfig, view: int, first: int, last: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The data term of rows [first, last) of one view at its candidates.
+
+        Parameters
+        ----------
+        config : MatchConfig
+            The run's configuration (its data term).
+        view : int
+            0 (the left view's problem) or 1 (the mirrored pair's).
+        first, last : int
+            Rows within the view.
+
+        Returns
+        -------
+        unary : numpy.ndarray
+            (last - first, w, K) costs.
+        candidates : numpy.ndarray
+            (last - first, w, K) labels.
+        guide : numpy.ndarray
+            Gray rows (last - first, w) of the view's left image.
+        """
+        base = view * self.view_height
+        left, right = self.view_images()[view]
+        candidates = self.candidates[base + first : base + last]
+        guide = to_gray(left[first:last])
+        if config.data_term is DataTerm.SQUARED and self.plan.bin_width == 1:
+            # the paper's path: evaluated at the candidates only
+            unary = squared_difference(guide, to_gray(right[first:last]), candidates)
+        else:
+            unary = gather(self._bin_costs(config.data_term, view, first, last), candidates)
+        return unary, candidates, guide
+
+    def grid(self, config: MatchConfig, start: int, stop: int) -> GridMRF:
+        """The grid MRF of rows [start, stop) of one view (``grid`` inference).
+
+        Parameters
+        ----------
+        config : MatchConfig
+            The run's configuration.
+        start, stop : int
+            Rows of the stacked views, within one view.
+
+        Returns
+        -------
+        GridMRF
+
+        Raises
+        ------
+        ValueError
+            If the rows span both views.
+        """
+        parts = self.view_parts(start, stop)
+        if len(parts) != 1:
+            raise ValueError(f"rows [{start}, {stop}) span both views; a grid is one view's")
+        unary, candidates, guide = self.view_unary(config, *parts[0])
+        return grid_mrf(unary, candidates, guide, self.level, config.regularizer)
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
         """Costs of rows [start, stop) (a block that spans both views has no edge between).
@@ -247,19 +301,9 @@ class LevelInputs:
             Vertical edges only when ``config.bundle_height`` > 1.
         """
         stop = self.shape[0] if stop is None else stop
-        height = self.view_height
         blocks = []
         for view, first, last in self.view_parts(start, stop):
-            base = view * height
-            left, right = self.view_images()[view]
-            candidates = self.candidates[base + first : base + last]
-            guide = to_gray(left[first:last])
-            if config.data_term is DataTerm.SQUARED and self.plan.bin_width == 1:
-                # the paper's path: evaluated at the candidates only
-                unary = squared_difference(guide, to_gray(right[first:last]), candidates)
-            else:
-                bin_costs = self._bin_costs(config.data_term, view, first, last)
-                unary = gather(bin_costs, candidates)
+            unary, candidates, guide = self.view_unary(config, view, first, last)
             blocks.append(
                 mrf_costs(
                     unary,

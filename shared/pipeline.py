@@ -28,7 +28,7 @@ import numpy as np
 from shared import filters, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, MatchConfig, PyramidKind
-from shared.data_terms import ad_census_volume
+from shared.data_terms import cost_volume
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.level_inputs import LevelInputs
@@ -59,6 +59,10 @@ class LevelReport:
     candidates: int
     bundles: int
     energy: float
+    #: A lower bound on the level's least energy (``grid`` inference with ``exact``), and the
+    #: relative gap (energy - bound) / energy: how far from the optimum the level can be.
+    lower_bound: float | None
+    gap: float | None
     repaired: int
     seconds: float
     solver_seconds: float
@@ -267,7 +271,7 @@ def finish(
 ) -> np.ndarray:
     """The full-resolution left disparity from the finest level's map (both views stacked when
     ``views`` is 2) and the pair's :func:`match_views`; ``left_volume`` is the left view's
-    AD-census volume when already at hand (the sub-pixel fit reads it).
+    cost volume when already at hand (the sub-pixel fit reads it).
 
     Parameters
     ----------
@@ -282,7 +286,7 @@ def finish(
     views : int
         Views stacked in ``level_map`` (1 or 2).
     left_volume : numpy.ndarray, optional
-        The left view's AD-census volume (D + 1, h, w), if already computed.
+        The left view's cost volume (D + 1, h, w), if already computed.
 
     Returns
     -------
@@ -291,9 +295,9 @@ def finish(
     """
     height = level_map.shape[0] // views
     disparity = level_map[:height]
-    if config.subpixel:  # the cost of every disparity (ad-census: validated) around the label
+    if config.subpixel:  # the cost of every disparity around the label
         if left_volume is None:
-            left_volume = ad_census_volume(left, right, last.max_disparity, 0, height)
+            left_volume = cost_volume(config.data_term, left, right, last.max_disparity, 0, height)
         disparity = filters.subpixel(disparity, left_volume)
     if disparity.shape != left.shape[:2]:
         disparity = pyramid.upsample_disparity(disparity, left.shape[:2])
@@ -342,6 +346,10 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         candidates=inputs.plan.candidates,
         bundles=solution.bundles,
         energy=solution.energy,
+        lower_bound=solution.lower_bound,
+        gap=None
+        if solution.lower_bound is None
+        else (solution.energy - solution.lower_bound) / max(abs(solution.energy), 1e-12),
         repaired=solution.repaired,
         seconds=seconds,
         solver_seconds=solution.solver_seconds,
@@ -417,13 +425,13 @@ def run_pipeline(
 def _cached_volumes(inputs: LevelInputs, config: MatchConfig) -> list[np.ndarray] | None:
     """Every view's full cost volume when the bin pyramid reads the same one at each level and
     it fits :data:`VOLUME_CACHE_BYTES`; ``None`` otherwise (costs are then built per block)."""
-    if config.pyramid is not PyramidKind.BINS or config.data_term is not DataTerm.AD_CENSUS:
+    if config.pyramid is not PyramidKind.BINS or config.data_term is DataTerm.SQUARED:
         return None
     height, width = inputs.view_height, inputs.shape[1]
     size = (inputs.plan.max_disparity + 1) * height * width * 4 * inputs.views
     if size > VOLUME_CACHE_BYTES:
         return None
     return [
-        ad_census_volume(left, right, inputs.plan.max_disparity, 0, height)
+        cost_volume(config.data_term, left, right, inputs.plan.max_disparity, 0, height)
         for left, right in inputs.view_images()
     ]

@@ -81,6 +81,9 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
     for index, width in enumerate(widths):
         bins = bin_count(max_disparity, width)
         count = bins if index == 0 else min(template.candidates, bins)
+        mrf = template
+        if template.coarse_slope is not None and index < template.coarse_levels:
+            mrf = template.model_copy(update={"slope": template.coarse_slope})
         plans.append(
             LevelPlan(
                 index=index,
@@ -89,7 +92,7 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
                 candidates=count,
                 max_label=bins - 1,
                 max_disparity=max_disparity,
-                mrf=template,
+                mrf=mrf,
             )
         )
     return plans

@@ -4,6 +4,11 @@
 From a block of rows the worker computes the costs, encodes each bundle with the
 configured codec, calls the solver adapter, decodes and repairs. A ``RowSolver`` (the exact DP)
 skips the QUBO and works on the costs of blocks of rows.
+
+With ``grid`` inference a row solver's bundle is a whole view, minimised by dual decomposition
+into its row and column chains (:mod:`shared.grid`); a QUBO solver's bundle is a tile of
+``bundle_height`` rows (a segment of them with ``bundle_width``) whose edges to the pixels around
+it become unaries, given those pixels' starting labels (the coarser level's estimate).
 """
 
 from __future__ import annotations
@@ -20,11 +25,14 @@ from functools import partial
 from multiprocessing import get_context
 from multiprocessing.pool import Pool
 
+import numpy as np
+
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundles import Bundle, bundle_seed
-from shared.config import AUTO, MatchConfig
+from shared.config import AUTO, Inference, MatchConfig
 from shared.encodings import get_codec
-from shared.energy import mrf_energy, row_energies
+from shared.energy import Costs, mrf_energy, row_energies
+from shared.grid import boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, uses_warm_start
@@ -43,7 +51,7 @@ COST_BLOCK_BYTES = 32 * 2**20
 
 def bundle_width_setting(config: MatchConfig) -> int | str | None:
     """The run's ``bundle_width`` with the solver's default filled in, or a ``ValueError`` that
-    says what to change.
+    says what to change (also for a bundle height the solver cannot use).
 
     Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
     whole rows (None) otherwise; the row DP always solves whole rows.
@@ -71,6 +79,12 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
             raise ValueError(
                 f"{config.solver} solves whole rows exactly; leave bundle_width unset "
                 "(or pick a QUBO solver such as sa to solve row segments)"
+            )
+        if config.inference is Inference.ROWS and config.bundle_height != 1:
+            raise ValueError(
+                f"{config.solver} solves single-row bundles (rows inference) or each view's "
+                f"whole grid (grid inference); bundle_height {config.bundle_height} sets the "
+                "tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
             )
         return None
     if width is None:
@@ -131,6 +145,40 @@ def plans_with_solver(config: MatchConfig) -> bool:
     return getattr(get_solver(config.solver), "embed_shapes", None) is not None
 
 
+def solves_grids(config: MatchConfig) -> bool:
+    """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
+    inference with a row solver (``exact``).
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    bool
+    """
+    return config.inference is Inference.GRID and isinstance(get_solver(config.solver), RowSolver)
+
+
+def bundle_height(inputs: LevelInputs, config: MatchConfig) -> int:
+    """Rows per bundle of the level: a whole view for :func:`solves_grids`, else
+    ``config.bundle_height``.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level.
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    int
+    """
+    return inputs.view_height if solves_grids(config) else config.bundle_height
+
+
 def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     """Every bundle of the level (segments of the level's :func:`level_bundle_width`).
 
@@ -153,14 +201,16 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     cache = getattr(solver, "cache", None)
     before = getattr(cache, "computed", 0)
     width = level_bundle_width(inputs, config)
-    bundles = inputs.bundles(config.bundle_height, width, config.bundle_margin)
-    inputs.prepared = {"bundle_width": width}
+    height = bundle_height(inputs, config)
+    bundles = inputs.bundles(height, width, config.bundle_margin)
+    inputs.prepared = {"bundle_width": width, "bundle_height": height}
     embed = getattr(solver, "embed_shapes", None)
     if embed is not None:
         shapes = sorted({bundle.shape for bundle in bundles})
         embed(encoding=config.encoding, candidates=inputs.candidates.shape[2], shapes=shapes)
         inputs.prepared = {
             "bundle_width": bundles[0].shape[1],
+            "bundle_height": height,
             "embeddings_computed": getattr(cache, "computed", 0) - before,
             "preparation_seconds": time.perf_counter() - started,
         }
@@ -207,6 +257,8 @@ def solve_bundles(
         if any(b.col_start != 0 or b.col_stop != width for b in items):
             raise ValueError(f"{config.solver} solves whole rows only, not row segments")
         row_ranges = [(b.row_start, b.row_stop) for b in items]
+        if config.inference is Inference.GRID:
+            return _solve_grids(inputs, config, row_ranges, progress)
         return _solve_on_costs(solver, inputs, config, row_ranges, progress)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
@@ -218,6 +270,8 @@ def solve_bundles(
         if rows != (start, stop):  # segments of the same rows share one cost computation
             row_costs, rows = inputs.costs(config, start, stop), (start, stop)
         costs = row_costs.columns(first, last)
+        if config.inference is Inference.GRID:
+            costs = _with_boundary(inputs, config, bundle, costs)
         bqm = codec.encode(costs, config.rectifier)
         initial = (
             codec.encode_labels(
@@ -245,6 +299,54 @@ def solve_bundles(
         )
         if progress is not None:
             progress(len(results), len(items))
+    return results
+
+
+def _with_boundary(inputs: LevelInputs, config: MatchConfig, bundle: Bundle, costs: Costs) -> Costs:
+    """A tile's costs with its edges to the pixels around it as unaries, given their starting
+    labels (:meth:`LevelInputs.starting_labels`: the coarser estimate, or the data term's
+    minimum on the coarsest level)."""
+    start, stop, first, last = bundle.as_list()
+    view_start = (start // inputs.view_height) * inputs.view_height
+    above, below = max(start - 1, view_start), min(stop + 1, view_start + inputs.view_height)
+    grid = inputs.grid(config, above, below)
+    labels = inputs.initial_labels[above:below] if inputs.initial_labels is not None else None
+    if labels is None:
+        labels = grid.unary.argmin(axis=2).astype(np.int32)
+    tile = (slice(start - above, stop - above), slice(first, last))
+    return replace(costs, unary=costs.unary + boundary_unary(grid, labels, *tile))
+
+
+def _solve_grids(
+    inputs: LevelInputs,
+    config: MatchConfig,
+    row_ranges: list[tuple[int, int]],
+    progress: BundleProgress | None = None,
+) -> list[BundleResult]:
+    """Each bundle (a whole view) minimised as a grid by dual decomposition into chains; the
+    views side by side in threads (the compiled chain kernels release the GIL)."""
+    inputs.binned_volumes()
+
+    def solve(rows: tuple[int, int]) -> BundleResult:
+        started = time.perf_counter()
+        outcome = dual_decomposition(inputs.grid(config, *rows), config.dual_iterations)
+        return BundleResult(
+            row_start=rows[0],
+            row_stop=rows[1],
+            labels=outcome.labels,
+            energy=outcome.energy,
+            lower_bound=outcome.lower_bound,
+            repaired=0,
+            wall_time=time.perf_counter() - started,
+            info={"dual_iterations": outcome.iterations, "disagreeing": outcome.disagreeing},
+        )
+
+    results: list[BundleResult] = []
+    with ThreadPoolExecutor(min(len(row_ranges), os.cpu_count() or 1)) as pool:
+        for result in pool.map(solve, row_ranges):
+            results.append(result)
+            if progress is not None:
+                progress(len(results), len(row_ranges))
     return results
 
 

@@ -91,7 +91,8 @@ def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -
     """Bundles grouped into tasks (see ``task_chunks``; the watchdog regroups unsolved ones):
     about ``rows_per_task`` rows each, all segments of a row in the same task."""
     segments = max(1, sum(1 for bundle in bundles if bundle[0] == bundles[0][0])) if bundles else 1
-    per_task = max(1, rows_per_task // config.bundle_height) * segments
+    height = bundles[0][1] - bundles[0][0] if bundles else 1  # a whole view for grids
+    per_task = max(1, rows_per_task // height) * segments
     if is_metered(config.solver):
         per_task = 1
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
@@ -113,6 +114,7 @@ def encode_bundle(result: BundleResult) -> dict:
         "wall_time": result.wall_time,
         "timing": {key: float(value) for key, value in result.timing.items()},
         "info": {key: result.info[key] for key in BUNDLE_INFO if key in result.info},
+        "lower_bound": result.lower_bound,
     }
 
 
@@ -132,6 +134,7 @@ def decode_bundle(data: dict, width: int) -> BundleResult:
         info=data.get("info", {}),
         col_start=first,
         col_stop=last,
+        lower_bound=data.get("lower_bound"),
     )
 
 

@@ -15,6 +15,7 @@ from typing import Any
 from shared.config import (
     AUTO,
     DataTerm,
+    Inference,
     MatchConfig,
     Preset,
     PyramidKind,
@@ -50,6 +51,9 @@ ACCURATE_ABLATIONS: dict[str, dict[str, Any]] = {
         ],
     },
     "squared-difference": {"data_term": DataTerm.SQUARED},
+    "ad-census": {"data_term": DataTerm.AD_CENSUS},
+    "rows": {"inference": Inference.ROWS},
+    "one-slope": {"levels": [accurate_levels()[0].model_copy(update={"coarse_slope": None})]},
 }
 BASELINES = ("heidari", "sgbm")
 

@@ -138,6 +138,7 @@ def test_segmented_solves_through_the_pipeline_keep_the_row_optimum(small):
     that of the stitched rows."""
     config = MatchConfig(
         max_disparity=12,
+        inference="rows",
         solver="steepest-descent",
         bundle_width=30,
         bundle_margin=12,
@@ -156,6 +157,7 @@ def test_segmented_solves_through_the_pipeline_keep_the_row_optimum(small):
 def test_segmented_sa_matches_whole_rows_on_a_small_scene(small):
     config = MatchConfig(
         max_disparity=12,
+        inference="rows",
         solver="sa",
         bundle_width=36,
         bundle_margin=12,
@@ -171,7 +173,9 @@ def test_segmented_sa_matches_whole_rows_on_a_small_scene(small):
 
 
 def test_assemble_refuses_a_missing_segment(small):
-    config = MatchConfig(max_disparity=12, solver="sa", bundle_width=40, bundle_margin=8)
+    config = MatchConfig(
+        max_disparity=12, inference="rows", solver="sa", bundle_width=40, bundle_margin=8
+    )
     inputs = _finest_level(small, config)
     bundles = level_bundles(inputs, config)
     results = solve_bundles(inputs, config, bundles)

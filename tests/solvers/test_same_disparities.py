@@ -1,6 +1,10 @@
 """Every solver gives, for the same seed, the disparities it gave before the solvers became dimod
 samplers (digests taken at d67b742; tabu and qpu-sim re-pinned at 3e87ec1 with load-independent
-settings, solvers unchanged). A refactor of the solver layer must not change them."""
+settings, solvers unchanged). A refactor of the solver layer must not change them.
+
+:data:`CASES` run the row bundles of the accurate preset as it was then (``LEGACY``: rows
+inference, AD-census, one slope); :data:`GRID_CASES` pin the grid inference that replaced it as
+the default (digests taken when it landed), so a faster kernel must give the same maps."""
 
 from __future__ import annotations
 
@@ -22,6 +26,20 @@ QUICK_HYBRID = {"max_iter": 2, "sa_sweeps": 100, "qpu_reads": 10}
 #: time limit).
 SEEDED_TABU = {"num_restarts": 3, "timeout": 10_000, "num_reads": 2}
 FIXED_SEGMENTS = {"bundle_width": 16, "bundle_margin": 4}
+#: The accurate preset before grid inference: independent rows, AD-census, 0.1 per bin up to 0.2.
+LEGACY = {
+    "inference": "rows",
+    "data_term": "ad-census",
+    "levels": [
+        {
+            "candidates": 6,
+            "edge_threshold": 0.06,
+            "slope": 0.1,
+            "truncation": 0.2,
+            "edge_factor": 0.3,
+        }
+    ],
+}
 
 #: (solver, scene, options) -> digest of the disparity map (float32 bytes, sha256, 16 hex).
 CASES: list[tuple[str, dict[str, int], dict[str, Any], str]] = [
@@ -62,5 +80,24 @@ def test_a_solver_gives_the_disparities_it_gave_before(solver, scene, options, e
     size = dict(scene)
     max_disparity = size.pop("max_disparity")
     pair = make_scene(size["height"], size["width"], max_disparity=max_disparity, seed=5)
-    config = MatchConfig(solver=solver, max_disparity=max_disparity, seed=7, **options)
+    config = MatchConfig(
+        solver=solver, max_disparity=max_disparity, seed=7, **{**LEGACY, **options}
+    )
+    assert _digest(run_pipeline(pair.left, pair.right, config).disparity) == expected
+
+
+#: The default (grid) inference: exact by dual decomposition, sa on tiles.
+GRID_CASES: list[tuple[str, dict[str, Any], str]] = [
+    ("exact", {}, "e3c618f717317293"),
+    ("sa", {"encoding": "domain-wall"}, "57245b50c00eafd5"),
+    ("steepest-descent", {"encoding": "one-hot", **FIXED_SEGMENTS}, "42507954d13782c8"),
+]
+
+
+@pytest.mark.parametrize(
+    ("solver", "options", "expected"), GRID_CASES, ids=[case[0] for case in GRID_CASES]
+)
+def test_the_grid_inference_gives_the_disparities_it_gave_when_it_landed(solver, options, expected):
+    pair = make_scene(SMALL["height"], SMALL["width"], max_disparity=SMALL["max_disparity"], seed=5)
+    config = MatchConfig(solver=solver, max_disparity=SMALL["max_disparity"], seed=7, **options)
     assert _digest(run_pipeline(pair.left, pair.right, config).disparity) == expected

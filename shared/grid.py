@@ -1,0 +1,578 @@
+"""The 2D grid MRF of a level and its dual decomposition into row and column chains.
+
+A level's energy over the 4-connected grid of one view is
+
+    E(x) = sum_p U[p, x_p] + sum_(p,q) w_pq min(T, s |C[p, x_p] - C[q, x_q]|)
+
+over horizontal and vertical neighbours (C: the label, a disparity bin, that candidate x_p
+stands for; w_pq the edge weight, lower across gray steps). Minimising it is NP-hard with a
+truncated regulariser: the reason for annealers. Its chains are not: a row (or a column) alone is
+solved exactly by min-sum dynamic programming in O(w K^2).
+
+Dual decomposition (Komodakis et al., "MRF optimization via dual decomposition", 2007) splits the
+grid into the row chains (horizontal edges) and the column chains (vertical edges), each pixel's
+unary shared between its row copy (U/2 + lambda) and its column copy (U/2 - lambda). For every
+lambda the two sets of chain optima sum to a **lower bound** on min E; subgradient ascent on
+lambda where row and column labels disagree raises the bound (Polyak step
+gamma (E_best - LB) / |g|^2, gamma halved when the bound stalls), and where they all agree the
+labelling is optimal. Every :data:`PRIMAL_EVERY` iterations a primal labelling is built by chain
+solves too: rows given the column solution's vertical neighbours, then columns given that. The
+lowest energy seen is the result, reported with the bound and the gap.
+
+Each chain is one QUBO bundle like a row of the ``rows`` inference; ``exact`` solves all chains of
+an iteration at once with the compiled kernel :func:`solve_chains` (the same kernel reading the
+arrays along the other axis for columns).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from shared.config import LevelConfig, Regularizer
+
+#: The primal heuristic runs every this many dual iterations.
+PRIMAL_EVERY = 5
+#: Iterations without a higher bound after which the step factor gamma is halved.
+STALL_ITERATIONS = 2
+
+
+@dataclass(frozen=True)
+class GridMRF:
+    """A view's grid MRF in compact form: the pairwise cost of edge (p, q) for candidates
+    (l, m) is ``weight * min(truncation, slope * |C[p, l] - C[q, m]|)``.
+
+    Shapes: unary (h, w, K) float32, candidates (h, w, K) int32, weight_h (h, w - 1) and
+    weight_v (h - 1, w) float64 (0 where there is no edge). ``first`` (h, w) int32 is each
+    pixel's first candidate when its candidates are consecutive labels (the bin pyramid's
+    windows: the chains then take the O(K) kernel), else ``None``.
+    """
+
+    unary: np.ndarray
+    candidates: np.ndarray
+    weight_h: np.ndarray
+    weight_v: np.ndarray
+    slope: float
+    truncation: float
+    first: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.unary.shape[0], self.unary.shape[1]
+
+    def transposed(self) -> GridMRF:
+        """The same MRF with rows and columns swapped (columns become rows, contiguous).
+
+        Returns
+        -------
+        GridMRF
+        """
+        return GridMRF(
+            unary=np.ascontiguousarray(self.unary.transpose(1, 0, 2)),
+            candidates=np.ascontiguousarray(self.candidates.transpose(1, 0, 2)),
+            weight_h=np.ascontiguousarray(self.weight_v.T),
+            weight_v=np.ascontiguousarray(self.weight_h.T),
+            slope=self.slope,
+            truncation=self.truncation,
+            first=None if self.first is None else np.ascontiguousarray(self.first.T),
+        )
+
+    def pair_cost(self, labels_here: np.ndarray, labels_there: np.ndarray) -> np.ndarray:
+        """``min(T, s |a - b|)`` of label arrays (disparity bins), unweighted.
+
+        Parameters
+        ----------
+        labels_here, labels_there : numpy.ndarray
+            Labels (not candidate indices) that broadcast together.
+
+        Returns
+        -------
+        numpy.ndarray
+            The regulariser, float64.
+        """
+        penalty = np.abs(labels_here - labels_there).astype(np.float64)
+        penalty *= self.slope
+        return np.minimum(penalty, self.truncation, out=penalty)
+
+    def energy(self, labels: np.ndarray) -> float:
+        """E(x) of a labelling (h, w) of candidate indices.
+
+        Parameters
+        ----------
+        labels : numpy.ndarray
+            Candidate index of every pixel.
+
+        Returns
+        -------
+        float
+        """
+        per_row = _grid_energy(
+            self.unary,
+            self.candidates,
+            self.weight_h,
+            self.weight_v,
+            self.slope,
+            self.truncation,
+            np.ascontiguousarray(labels, dtype=np.int32),
+        )
+        return float(per_row.sum())
+
+    def picked(self, labels: np.ndarray) -> np.ndarray:
+        """The label (bin) each pixel's candidate index stands for.
+
+        Parameters
+        ----------
+        labels : numpy.ndarray
+            Candidate index (h, w) of every pixel.
+
+        Returns
+        -------
+        numpy.ndarray
+            (h, w) int32.
+        """
+        return np.take_along_axis(self.candidates, labels[:, :, None].astype(np.intp), axis=2)[
+            :, :, 0
+        ]
+
+    def windows(self) -> np.ndarray:
+        """``first``, or a placeholder when the candidates are not consecutive windows."""
+        return self.first if self.first is not None else np.zeros((1, 1), dtype=np.int32)
+
+    def neighbour_unary(self, labels: np.ndarray, vertical: bool = True) -> np.ndarray:
+        """The edges' cost of every candidate given the labels of the pixels above and below
+        (``vertical``) or left and right: what a row (column) chain adds to its unary when the
+        other rows (columns) are fixed.
+
+        Parameters
+        ----------
+        labels : numpy.ndarray
+            Candidate index (h, w) of every pixel (the fixed neighbours).
+        vertical : bool, optional
+            Vertical neighbours (for row chains) or horizontal ones (for column chains).
+
+        Returns
+        -------
+        numpy.ndarray
+            (h, w, K) float32.
+        """
+        out = np.empty(self.unary.shape, dtype=np.float32)
+        _neighbour_costs(
+            self.candidates,
+            self.windows(),
+            self.first is not None,
+            self.weight_h,
+            self.weight_v,
+            self.slope,
+            self.truncation,
+            np.ascontiguousarray(labels, dtype=np.int32),
+            vertical,
+            out,
+        )
+        return out
+
+
+def boundary_unary(mrf: GridMRF, labels: np.ndarray, rows: slice, columns: slice) -> np.ndarray:
+    """The cost of every candidate of a tile's pixels for their edges to the pixels just
+    outside the tile, whose labels are fixed: what a tile QUBO adds to its unary.
+
+    Parameters
+    ----------
+    mrf : GridMRF
+        A grid holding the tile and its neighbouring pixels.
+    labels : numpy.ndarray
+        Candidate index (h, w) of every pixel of ``mrf`` (those outside the tile are read).
+    rows, columns : slice
+        The tile within ``mrf`` (steps of 1, bounds given).
+
+    Returns
+    -------
+    numpy.ndarray
+        (tile rows, tile columns, K) float64.
+    """
+    height, width = mrf.shape
+    top, bottom, left, right = rows.start, rows.stop, columns.start, columns.stop
+    picked = mrf.picked(labels)
+    cands = mrf.candidates[rows, columns]
+    extra = np.zeros(cands.shape, dtype=np.float64)
+    if top > 0:
+        extra[0] += mrf.weight_v[top - 1, columns, None] * mrf.pair_cost(
+            cands[0], picked[top - 1, columns, None]
+        )
+    if bottom < height:
+        extra[-1] += mrf.weight_v[bottom - 1, columns, None] * mrf.pair_cost(
+            cands[-1], picked[bottom, columns, None]
+        )
+    if left > 0:
+        extra[:, 0] += mrf.weight_h[rows, left - 1, None] * mrf.pair_cost(
+            cands[:, 0], picked[rows, left - 1, None]
+        )
+    if right < width:
+        extra[:, -1] += mrf.weight_h[rows, right - 1, None] * mrf.pair_cost(
+            cands[:, -1], picked[rows, right, None]
+        )
+    return extra
+
+
+def grid_mrf(
+    unary: np.ndarray,
+    candidates: np.ndarray,
+    guide: np.ndarray,
+    level: LevelConfig,
+    regularizer: Regularizer,
+) -> GridMRF:
+    """A view's grid MRF: edge weights from its gray ``guide``, per axis (m where the gray step
+    between the two pixels exceeds the threshold, 1 elsewhere), as :func:`shared.energy.smoothness`.
+
+    Parameters
+    ----------
+    unary : numpy.ndarray
+        Data costs (h, w, K).
+    candidates : numpy.ndarray
+        Labels (h, w, K) the candidates stand for.
+    guide : numpy.ndarray
+        Gray view (h, w) in [0, 1].
+    level : LevelConfig
+        Slope, truncation, edge threshold and factor.
+    regularizer : Regularizer
+        ``truncated``, ``linear`` (no truncation, no edge weights) or ``none``.
+
+    Returns
+    -------
+    GridMRF
+    """
+    step_h = np.abs(guide[:, 1:] - guide[:, :-1])
+    step_v = np.abs(guide[1:] - guide[:-1])
+    slope, truncation = level.slope, level.truncation
+    if regularizer is Regularizer.TRUNCATED:
+        weight_h = np.where(step_h > level.edge_threshold, level.edge_factor, 1.0)
+        weight_v = np.where(step_v > level.edge_threshold, level.edge_factor, 1.0)
+    else:
+        weight_h, weight_v = np.ones(step_h.shape), np.ones(step_v.shape)
+        truncation = math.inf
+        slope = 0.0 if regularizer is Regularizer.NONE else slope
+    candidates = np.ascontiguousarray(candidates, dtype=np.int32)
+    return GridMRF(
+        unary=np.ascontiguousarray(unary, dtype=np.float32),
+        candidates=candidates,
+        first=np.ascontiguousarray(candidates[:, :, 0]) if consecutive(candidates) else None,
+        weight_h=np.ascontiguousarray(weight_h, dtype=np.float64),
+        weight_v=np.ascontiguousarray(weight_v, dtype=np.float64),
+        slope=float(slope),
+        truncation=float(truncation),
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _regulariser(a, b, slope, truncation):  # pragma: no cover - jit
+    penalty = abs(a - b) * slope
+    return truncation if penalty > truncation else penalty
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_energy(
+    unary, candidates, weight_h, weight_v, slope, truncation, labels
+):  # pragma: no cover - jit
+    """E(x) of a labelling: each row's unary, horizontal and downward vertical terms."""
+    height, width, _ = unary.shape
+    per_row = np.zeros(height)
+    for y in range(height):
+        total = 0.0
+        for x in range(width):
+            here = candidates[y, x, labels[y, x]]
+            total += unary[y, x, labels[y, x]]
+            if x + 1 < width:
+                there = candidates[y, x + 1, labels[y, x + 1]]
+                total += weight_h[y, x] * _regulariser(here, there, slope, truncation)
+            if y + 1 < height:
+                there = candidates[y + 1, x, labels[y + 1, x]]
+                total += weight_v[y, x] * _regulariser(here, there, slope, truncation)
+        per_row[y] = total
+    return per_row
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
+    """The label candidate ``k`` of pixel (y, x) stands for."""
+    return first[y, x] + k if windows else candidates[y, x, k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _chains_windows(
+    base, extra, sign, first, weight, slope, truncation, labels
+):  # pragma: no cover - jit
+    """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``base + sign *
+    extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
+    transform in O(K). The messages are kept and the labels read back from them (no
+    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum."""
+    chains, length, count = base.shape
+    energies = np.empty(chains)
+    for chain in range(chains):
+        messages = np.empty((length, count))
+        envelope = np.empty(count)
+        for k in range(count):
+            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+        for x in range(1, length):
+            w = weight[chain, x - 1]
+            step = w * slope
+            lowest = messages[x - 1, 0]
+            for j in range(count):
+                envelope[j] = messages[x - 1, j]
+                lowest = min(lowest, envelope[j])
+            for j in range(1, count):  # lower envelope of the cones s w |j - t|
+                envelope[j] = min(envelope[j], envelope[j - 1] + step)
+            for j in range(count - 2, -1, -1):
+                envelope[j] = min(envelope[j], envelope[j + 1] + step)
+            ceiling = lowest + w * truncation
+            shift = first[chain, x] - first[chain, x - 1]
+            for k in range(count):
+                t = k + shift
+                if t < 0:
+                    value = envelope[0] - step * t
+                elif t >= count:
+                    value = envelope[count - 1] + step * (t - count + 1)
+                else:
+                    value = envelope[t]
+                messages[x, k] = min(value, ceiling) + base[chain, x, k] + sign * extra[chain, x, k]
+        arg = 0
+        for k in range(1, count):
+            if messages[length - 1, k] < messages[length - 1, arg]:
+                arg = k
+        energies[chain] = messages[length - 1, arg]
+        labels[chain, length - 1] = arg
+        for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
+            w = weight[chain, x - 1]
+            here = first[chain, x] + arg
+            best = np.inf
+            for j in range(count):
+                value = messages[x - 1, j] + w * _regulariser(
+                    first[chain, x - 1] + j, here, slope, truncation
+                )
+                if value < best:
+                    best = value
+                    arg = j
+            labels[chain, x - 1] = arg
+    return energies
+
+
+@numba.njit(cache=True, nogil=True)
+def _chains_general(
+    base, extra, sign, candidates, weight, slope, truncation, labels
+):  # pragma: no cover - jit
+    """:func:`_chains_windows` for any candidate labels: each message in O(K^2)."""
+    chains, length, count = base.shape
+    energies = np.empty(chains)
+    for chain in range(chains):
+        messages = np.empty((length, count))
+        for k in range(count):
+            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+        for x in range(1, length):
+            w = weight[chain, x - 1]
+            lowest = messages[x - 1, 0]
+            for j in range(count):
+                lowest = min(lowest, messages[x - 1, j])
+            ceiling = lowest + w * truncation
+            for k in range(count):
+                here = candidates[chain, x, k]
+                value = ceiling
+                for j in range(count):
+                    penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
+                    value = min(value, messages[x - 1, j] + w * penalty)
+                messages[x, k] = value + base[chain, x, k] + sign * extra[chain, x, k]
+        arg = 0
+        for k in range(1, count):
+            if messages[length - 1, k] < messages[length - 1, arg]:
+                arg = k
+        energies[chain] = messages[length - 1, arg]
+        labels[chain, length - 1] = arg
+        for x in range(length - 1, 0, -1):
+            w = weight[chain, x - 1]
+            here = candidates[chain, x, arg]
+            best = np.inf
+            for j in range(count):
+                penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
+                value = messages[x - 1, j] + w * penalty
+                if value < best:
+                    best = value
+                    arg = j
+            labels[chain, x - 1] = arg
+    return energies
+
+
+@numba.njit(cache=True, nogil=True)
+def _neighbour_costs(
+    candidates, first, windows, weight_h, weight_v, slope, truncation, labels, vertical, out
+):  # pragma: no cover - jit
+    """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
+    its vertical (or horizontal) neighbours."""
+    height, width, count = out.shape
+    for y in range(height):
+        for x in range(width):
+            for k in range(count):
+                here = _label(candidates, first, windows, y, x, k)
+                total = 0.0
+                if vertical:
+                    if y > 0:
+                        there = _label(candidates, first, windows, y - 1, x, labels[y - 1, x])
+                        total += weight_v[y - 1, x] * _regulariser(here, there, slope, truncation)
+                    if y + 1 < height:
+                        there = _label(candidates, first, windows, y + 1, x, labels[y + 1, x])
+                        total += weight_v[y, x] * _regulariser(here, there, slope, truncation)
+                else:
+                    if x > 0:
+                        there = _label(candidates, first, windows, y, x - 1, labels[y, x - 1])
+                        total += weight_h[y, x - 1] * _regulariser(here, there, slope, truncation)
+                    if x + 1 < width:
+                        there = _label(candidates, first, windows, y, x + 1, labels[y, x + 1])
+                        total += weight_h[y, x] * _regulariser(here, there, slope, truncation)
+                out[y, x, k] = total
+
+
+def solve_chains(
+    mrf: GridMRF,
+    along_columns: bool = False,
+    extra: np.ndarray | None = None,
+    sign: float = 1.0,
+    base: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The exact optimum of every row (or column) of a grid MRF as an independent chain, with
+    unary ``base + sign * extra`` (default: the MRF's own).
+
+    Parameters
+    ----------
+    mrf : GridMRF
+        The grid (candidates, edge weights, regulariser; its unary unless ``base`` is given).
+    along_columns : bool, optional
+        Chains along the columns (vertical edges) instead of the rows (horizontal edges).
+    extra : numpy.ndarray, optional
+        (h, w, K) float32 added to the unary (times ``sign``).
+    sign : float, optional
+        +1 or -1 (the two copies of dual decomposition).
+    base : numpy.ndarray, optional
+        (h, w, K) float32 unary in place of the MRF's.
+
+    Returns
+    -------
+    labels : numpy.ndarray
+        (h, w) int32 optimal candidate indices of every chain.
+    energies : numpy.ndarray
+        Each chain's optimal energy (h or w values), float64.
+    """
+    base = mrf.unary if base is None else base
+    labels = np.zeros(mrf.shape, dtype=np.int32)
+    if extra is None:
+        extra, sign = base, 0.0
+    # columns: the same kernels on transposed views (numba compiles them for strided arrays)
+    turn = (lambda a: a.transpose(1, 0, 2)) if along_columns else (lambda a: a)
+    flip = (lambda a: a.T) if along_columns else (lambda a: a)
+    weight = mrf.weight_v if along_columns else mrf.weight_h
+    common = (turn(base), turn(extra), float(sign))
+    if mrf.first is not None:
+        energies = _chains_windows(
+            *common, flip(mrf.first), flip(weight), mrf.slope, mrf.truncation, flip(labels)
+        )
+    else:
+        energies = _chains_general(
+            *common, turn(mrf.candidates), flip(weight), mrf.slope, mrf.truncation, flip(labels)
+        )
+    return labels, energies
+
+
+def consecutive(candidates: np.ndarray) -> bool:
+    """Whether every pixel's candidates are consecutive labels (first, first + 1, ...).
+
+    Parameters
+    ----------
+    candidates : numpy.ndarray
+        (..., K) labels.
+
+    Returns
+    -------
+    bool
+    """
+    return bool(np.all(np.diff(candidates, axis=-1) == 1))
+
+
+@dataclass
+class DualResult:
+    """What dual decomposition found on one grid."""
+
+    labels: np.ndarray
+    energy: float
+    lower_bound: float
+    iterations: int
+    #: Pixels whose row and column labels disagreed in the last iteration (0: optimal).
+    disagreeing: int
+
+    @property
+    def gap(self) -> float:
+        """(E - LB) / |E|: how far the labelling can be from the optimum, relatively."""
+        return (self.energy - self.lower_bound) / max(abs(self.energy), 1e-12)
+
+
+def dual_decomposition(mrf: GridMRF, iterations: int) -> DualResult:
+    """Minimise the grid MRF by dual decomposition into row and column chains (module doc).
+
+    Parameters
+    ----------
+    mrf : GridMRF
+        One view's grid.
+    iterations : int
+        Most subgradient iterations (fewer when row and column labels agree).
+
+    Returns
+    -------
+    DualResult
+        The lowest-energy labelling seen, its energy, the best lower bound and the gap.
+    """
+    half = mrf.unary * np.float32(0.5)
+    multipliers = np.zeros_like(half)
+    best_labels, best_energy = np.zeros(mrf.shape, dtype=np.int32), math.inf
+    bound, gamma, stalled = -math.inf, 1.0, 0
+    disagreeing, done = -1, 0
+
+    def consider(labels: np.ndarray) -> None:
+        nonlocal best_labels, best_energy
+        energy = mrf.energy(labels)
+        if energy < best_energy:
+            best_labels, best_energy = labels, energy
+
+    for done in range(1, iterations + 1):
+        row_labels, row_energies = solve_chains(mrf, False, multipliers, 1.0, half)
+        column_labels, column_energies = solve_chains(mrf, True, multipliers, -1.0, half)
+        current = float(row_energies.sum() + column_energies.sum())
+        consider(row_labels)
+        consider(column_labels)
+        if done % PRIMAL_EVERY == 0:
+            consider(_primal(mrf, column_labels))
+        disagree = row_labels != column_labels
+        disagreeing = int(disagree.sum())
+        if current > bound:
+            bound, stalled = current, 0
+        else:
+            stalled += 1
+            if stalled >= STALL_ITERATIONS:
+                gamma, stalled = gamma / 2.0, 0
+        if disagreeing == 0:
+            break
+        step = np.float32(gamma * max(best_energy - current, 0.0) / (2 * disagreeing))
+        ys, xs = np.nonzero(disagree)
+        multipliers[ys, xs, row_labels[ys, xs]] += step
+        multipliers[ys, xs, column_labels[ys, xs]] -= step
+    return DualResult(
+        labels=best_labels,
+        energy=float(best_energy),
+        lower_bound=float(min(bound, best_energy)),
+        iterations=done,
+        disagreeing=disagreeing,
+    )
+
+
+def _primal(mrf: GridMRF, column_labels: np.ndarray) -> np.ndarray:
+    """A labelling by chains: rows given the column solution's vertical neighbours, then columns
+    given those rows' horizontal neighbours."""
+    rows, _ = solve_chains(mrf, False, mrf.neighbour_unary(column_labels, vertical=True))
+    refined, _ = solve_chains(mrf, True, mrf.neighbour_unary(rows, vertical=False))
+    return refined

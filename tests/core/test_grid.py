@@ -1,0 +1,169 @@
+"""The 2D grid MRF and its dual decomposition into row and column chains (``grid`` inference)."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.config import Inference, LevelConfig, MatchConfig, Regularizer
+from shared.encodings import get_codec
+from shared.energy import mrf_costs, mrf_energy
+from shared.grid import (
+    GridMRF,
+    boundary_unary,
+    dual_decomposition,
+    grid_mrf,
+    solve_chains,
+)
+from shared.pipeline import run_pipeline
+from shared.synthetic import make_scene
+
+LEVEL = LevelConfig(slope=0.2, truncation=0.4, edge_threshold=0.3, edge_factor=0.3)
+
+
+def random_grid(seed: int, height: int, width: int, labels: int, windows: bool = True) -> GridMRF:
+    """A random grid MRF: consecutive candidate windows (the bin pyramid) or arbitrary labels."""
+    rng = np.random.default_rng(seed)
+    unary = rng.random((height, width, labels)).astype(np.float32)
+    if windows:
+        first = rng.integers(0, 4, (height, width))
+        candidates = first[:, :, None] + np.arange(labels)
+    else:
+        candidates = np.sort(rng.choice(12, (height, width, labels)), axis=2)
+    guide = rng.random((height, width))
+    return grid_mrf(unary, candidates, guide, LEVEL, Regularizer.TRUNCATED)
+
+
+def brute_force(mrf: GridMRF) -> float:
+    """The least energy of a tiny grid, by enumerating every labelling at once."""
+    height, width, labels = mrf.unary.shape
+    every = np.array(list(itertools.product(range(labels), repeat=height * width)))
+    every = every.reshape(-1, height, width)
+    rows, cols = np.ogrid[:height, :width]
+    picked = mrf.candidates[rows, cols, every]
+    energy = mrf.unary[rows, cols, every].astype(np.float64).sum(axis=(1, 2))
+    energy += (mrf.weight_h * mrf.pair_cost(picked[:, :, :-1], picked[:, :, 1:])).sum(axis=(1, 2))
+    energy += (mrf.weight_v * mrf.pair_cost(picked[:, :-1], picked[:, 1:])).sum(axis=(1, 2))
+    return float(energy.min())
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), shape=st.sampled_from([(2, 2), (2, 3), (3, 3)]))
+def test_the_bound_never_exceeds_any_labelling_and_is_the_optimum_when_chains_agree(seed, shape):
+    mrf = random_grid(seed, *shape, labels=3)
+    optimum = brute_force(mrf)
+    result = dual_decomposition(mrf, iterations=60)
+    assert result.lower_bound <= optimum + 1e-4
+    assert result.energy >= optimum - 1e-9
+    assert result.energy == pytest.approx(mrf.energy(result.labels))
+    if result.disagreeing == 0:
+        assert result.energy == pytest.approx(optimum, abs=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), windows=st.booleans(), length=st.integers(1, 6))
+def test_a_column_chain_is_the_row_kernel_on_transposed_costs_and_the_optimum(
+    seed, windows, length
+):
+    mrf = random_grid(seed, length, 1, labels=3, windows=windows)  # one column
+    labels, energies = solve_chains(mrf, along_columns=True)
+    as_row_labels, as_row_energies = solve_chains(mrf.transposed())
+    optimum = brute_force(mrf)
+    assert energies[0] == pytest.approx(optimum)
+    assert as_row_energies[0] == pytest.approx(optimum)
+    assert mrf.energy(labels) == pytest.approx(optimum)
+    assert mrf.energy(np.ascontiguousarray(as_row_labels.T)) == pytest.approx(optimum)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), along_columns=st.booleans())
+def test_the_window_kernel_finds_the_optima_of_the_general_one(seed, along_columns):
+    mrf = random_grid(seed, 5, 9, labels=4)
+    assert mrf.first is not None  # consecutive windows: the O(K) distance transform
+    general = replace(mrf, first=None)
+    labels, energies = solve_chains(mrf, along_columns)
+    expected_labels, expected = solve_chains(general, along_columns)
+    np.testing.assert_allclose(energies, expected)
+    assert mrf.energy(labels) == pytest.approx(general.energy(expected_labels))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31))
+def test_the_compact_energy_is_the_cost_arrays_energy(seed):
+    rng = np.random.default_rng(seed)
+    mrf = random_grid(seed, 4, 5, labels=3, windows=False)
+    guide = rng.random((4, 5))
+    mrf = grid_mrf(mrf.unary, mrf.candidates, guide, LEVEL, Regularizer.TRUNCATED)
+    costs = mrf_costs(
+        mrf.unary.astype(np.float64), mrf.candidates, guide, LEVEL, Regularizer.TRUNCATED
+    )
+    labels = rng.integers(0, 3, (4, 5)).astype(np.int32)
+    assert mrf.energy(labels) == pytest.approx(mrf_energy(costs, labels))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), encoding=st.sampled_from(["one-hot", "domain-wall"]))
+def test_a_tile_bqm_is_the_grid_energy_restricted_to_the_tile_plus_its_boundary(seed, encoding):
+    rng = np.random.default_rng(seed)
+    guide = rng.random((5, 7))
+    mrf = random_grid(seed, 5, 7, labels=3)
+    mrf = grid_mrf(mrf.unary, mrf.candidates, guide, LEVEL, Regularizer.TRUNCATED)
+    labels = rng.integers(0, 3, (5, 7)).astype(np.int32)
+    rows, columns = slice(1, 3), slice(2, 6)
+    tile = mrf_costs(
+        mrf.unary[rows, columns].astype(np.float64),
+        mrf.candidates[rows, columns],
+        guide[rows, columns],
+        LEVEL,
+        Regularizer.TRUNCATED,
+    )
+    boundary = boundary_unary(mrf, labels, rows, columns)
+    codec = get_codec(encoding)
+    tile = replace(tile, unary=tile.unary + boundary)
+    bqm = codec.encode(tile, "local")
+    inside = labels[rows, columns]
+    sample = codec.encode_labels(inside, 3)
+    # the whole grid's energy changes with the tile's labels exactly as the tile BQM's does
+    other = labels.copy()
+    other[rows, columns] = rng.integers(0, 3, inside.shape)
+    other_sample = codec.encode_labels(other[rows, columns], 3)
+    grid_change = mrf.energy(other) - mrf.energy(labels)
+    bqm_change = bqm.energy(other_sample) - bqm.energy(sample)
+    assert bqm_change == pytest.approx(grid_change, abs=1e-6)
+
+
+def textureless_band_scene():
+    """A slanted plane whose middle rows carry no texture in either view: a row alone cannot
+    tell their disparity; the rows above and below can, through the vertical edges."""
+    scene = make_scene(height=48, width=64, max_disparity=12, layers=0, seed=3)
+    left, right = scene.left.copy(), scene.right.copy()
+    band = slice(16, 32)
+    left[band], right[band] = 0.5, 0.5
+    return left, right, scene.disparity, band
+
+
+def test_the_grid_recovers_a_textureless_band_that_rows_alone_miss():
+    left, right, truth, band = textureless_band_scene()
+    inner = (slice(band.start + 4, band.stop - 4), slice(16, 64))
+    errors = {}
+    for inference in Inference:
+        config = MatchConfig(max_disparity=12, inference=inference)
+        disparity = run_pipeline(left, right, config).disparity
+        errors[inference] = float(np.abs(disparity[inner] - truth[inner]).mean())
+    assert errors[Inference.GRID] < 1.0
+    assert errors[Inference.ROWS] > 2 * errors[Inference.GRID]
+
+
+def test_exact_grid_levels_report_energy_bound_and_gap():
+    scene = make_scene(height=32, width=48, max_disparity=8, seed=1)
+    result = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=8))
+    for level in result.levels:
+        assert level.lower_bound is not None and level.gap is not None
+        assert level.lower_bound <= level.energy + 1e-6
+        assert 0 <= level.gap < 0.05
+        assert level.bundles == 2  # one grid per view
