@@ -221,3 +221,33 @@ def test_a_job_runs_on_workers_in_another_network_namespace_with_no_shared_files
             stop(process)
         for home in homes.values():
             shutil.rmtree(home, ignore_errors=True)
+
+
+def test_qhsm_worker_needs_the_redis_url_and_gives_the_token_only_to_qpu_queues(
+    monkeypatch, capsys
+):
+    """What ``qhsm worker`` runs (captured instead of exec'd): the queues asked for, the D-Wave
+    token only for a queue that spends QPU time, the Redis password nowhere in its output."""
+    from shared.cli import main
+
+    ran = []
+    monkeypatch.setattr(os, "execve", lambda path, command, env: ran.append((command, env)))
+    for name in ("QHSM_REDIS_URL", "REDIS_URL"):
+        monkeypatch.delenv(name, raising=False)
+    assert main(["worker"]) == 1
+    assert "set QHSM_REDIS_URL" in capsys.readouterr().err and not ran
+
+    monkeypatch.setenv("QHSM_REDIS_URL", "redis://:pass-never-shown@worker-test:6379/0")
+    monkeypatch.setenv("DWAVE_API_TOKEN", "token-sentinel")
+    assert main(["worker", "--queues", "nope,sa"]) == 1
+    assert "unknown queue(s) nope" in capsys.readouterr().err and not ran
+    assert main(["worker", "--queues", "sa,exact", "--name", "solver"]) == 0
+    assert main(["worker", "--queues", "qpu"]) == 0
+    assert main(["worker", "--queues", "control"]) == 0
+    output = capsys.readouterr().err
+    assert "pass-never-shown" not in output and "Redis redis://:***@worker-test" in output
+    (cpu, cpu_env), (qpu, qpu_env), (control, _) = ran
+    assert cpu[cpu.index("-Q") + 1] == "sa,exact" and cpu[cpu.index("-n") + 1].startswith("solver@")
+    assert "DWAVE_API_TOKEN" not in cpu_env and qpu_env["DWAVE_API_TOKEN"] == "token-sentinel"
+    assert qpu[qpu.index("-c") + 1] == "1"
+    assert control[control.index("-c") + 1] == str(Settings().control_concurrency)
