@@ -2,7 +2,8 @@
 
 Workers need Redis and nothing else (no shared volume, no data directory of the API's): a
 worker on another host reads everything a job needs from here. Large arrays are stored as hash
-fields of bounded size (:mod:`workers.arrays`; uploads zlib-compressed), and everything expires.
+fields of bounded size (:mod:`workers.arrays`; views as the 8- or 16-bit integers they were
+decoded from), and everything expires.
 
 Keys (all under ``{key_prefix}:``):
 
@@ -11,8 +12,8 @@ Keys (all under ``{key_prefix}:``):
     jobs:owner:{user}        the same, one user's jobs
     jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
-    job:{id}:upload          hash of the decoded views ``left``, ``right`` (float32, zlib, in
-                             pieces): written by the API at submission, read by the control
+    job:{id}:upload          hash of the decoded views ``left``, ``right`` (their integer form,
+                             in pieces): written by the API at submission, read by the control
                              worker; deleted when the job ends
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
@@ -123,7 +124,7 @@ class JobStore:
     ) -> None:
         """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record.
 
-        The uploads go to Redis first, in one transaction (compressed, in bounded pieces), so
+        The uploads go to Redis first, in one transaction (integer form, bounded pieces), so
         a worker that sees the record finds them. With ``cap``, the owner may have at most
         that many jobs queued or running: the count and the record's write are one Redis
         script (:class:`ActiveJobsCap` when full), so simultaneous submits never get past it.
@@ -135,7 +136,7 @@ class JobStore:
             with self.redis.pipeline() as pipe:  # MULTI/EXEC: all of the uploads or none
                 for name, array in arrays.items():
                     key = written[1] if name == "ground_truth" else written[0]
-                    for field, value in array_fields(name, array, compress=True).items():
+                    for field, value in array_fields(name, array, images=True).items():
                         pipe.hset(key, field, value)  # one bounded write per piece
                 for key in written:
                     pipe.expire(key, self.view_ttl)
@@ -184,24 +185,28 @@ class JobStore:
         return self.key("job", job_id, "view", "ground_truth")
 
     def load_upload(self, job_id: str, name: str) -> np.ndarray:
-        """An upload of an active job (``left``, ``right`` or ``ground_truth``), from Redis.
-
-        Raises
-        ------
-        UploadsMissing
-            The job ended or expired (or was queued before uploads were kept in Redis)."""
+        """One upload of an active job: ``left``, ``right`` or ``ground_truth``."""
         if name == "ground_truth":
             truth = self.load_ground_truth(job_id)
             if truth is None:
                 raise UploadsMissing(f"job {job_id}: its ground truth is gone; submit it again")
             return truth
+        return self.load_views(job_id)[0 if name == "left" else 1]
+
+    def load_views(self, job_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """The uploaded left and right views of an active job, from Redis (one read).
+
+        Raises
+        ------
+        UploadsMissing
+            The job ended or expired (or was queued before uploads were kept in Redis)."""
         fields = self.redis.hgetall(self._upload_key(job_id))
-        if name.encode() not in fields:
+        if b"left" not in fields or b"right" not in fields:
             raise UploadsMissing(
                 f"job {job_id}: its uploaded views are gone (it ended or expired, or was "
                 "submitted before an upgrade of the service); submit it again"
             )
-        return array_from(fields, name)
+        return array_from(fields, "left"), array_from(fields, "right")
 
     def load_ground_truth(self, job_id: str) -> np.ndarray | None:
         """The job's ground truth (stored values) while its record lasts; None without one."""
