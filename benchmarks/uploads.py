@@ -5,16 +5,24 @@ encode (the API, once per job) and to decode (the control worker, once per level
 markdown table of docs/benchmarks.md ("Uploads in Redis").
 
     python benchmarks/uploads.py [DATA]     # DATA: default ../shared/data
+
+Then one Tsukuba job's round trip, median of 15, three times: the uploads kept as before this
+change (``np.save`` of both views into a job folder, ``np.load`` of both at each of 3 levels)
+against ``JobStore.create`` plus 3 x ``JobStore.load_views`` through the Redis of
+``QHSM_REDIS_URL`` (default 127.0.0.1:6379, database 13; a key prefix of its own, deleted).
 """
 
 from __future__ import annotations
 
 import statistics
 import sys
+import tempfile
 import time
+import uuid
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from api.uploads import decode_view
 from shared.config import Settings
@@ -53,6 +61,55 @@ def measure(name: str, data: bytes) -> str:
     )
 
 
+def median_ms(run, repeats: int = 15) -> float:
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - started)
+    return 1e3 * statistics.median(times)
+
+
+def round_trips(folder: Path) -> str:
+    """One job's uploads written once and read at 3 levels: on disk (before) and in Redis."""
+    from shared.config import MatchConfig
+    from workers.records import JobRecord, JobState, new_job_id, now
+    from workers.store import JobStore
+
+    settings = Settings()
+    url = settings.redis_url or "redis://127.0.0.1:6379/13"
+    prefix = f"qhsm-bench-uploads-{uuid.uuid4().hex[:8]}"
+    settings = settings.model_copy(update={"redis_url": url, "key_prefix": prefix})
+    views = [decode_view(path.read_bytes(), "view", settings) for path in
+             (left_file(folder), next(folder.glob("right.*")))]  # fmt: skip
+    store = JobStore.from_settings(settings)
+
+    def disk() -> None:
+        with tempfile.TemporaryDirectory() as job:
+            for name, view in zip(("left", "right"), views, strict=True):
+                np.save(Path(job) / f"{name}.npy", view, allow_pickle=False)
+            for _ in range(3):
+                [np.load(Path(job) / f"{name}.npy") for name in ("left", "right")]
+
+    def in_redis() -> None:
+        record = JobRecord(
+            id=new_job_id(), config=MatchConfig(), width=1, height=1, created_at=now()
+        )
+        store.create(record, {"left": views[0], "right": views[1]})
+        for _ in range(3):
+            store.load_views(record.id)
+        store.transition(record.id, JobState.CANCELLED, {JobState.QUEUED})
+
+    try:
+        rows = [(median_ms(disk), median_ms(in_redis)) for _ in range(3)]
+    finally:
+        for key in store.redis.scan_iter(match=f"{prefix}:*"):
+            store.redis.delete(key)
+    disk_ms = ", ".join(f"{d:.1f}" for d, _ in rows)
+    redis_ms = ", ".join(f"{r:.1f}" for _, r in rows)
+    return f"{folder.name}: disk (before) {disk_ms} ms; Redis {redis_ms} ms"
+
+
 def main(argv: list[str]) -> int:
     root = Path(argv[0]) if argv else default_middlebury_dir().parent
     print("| view | size | float32 (MB) | stored (MB) | ratio | pieces | encode (s) | decode (s) |")
@@ -73,6 +130,10 @@ def main(argv: list[str]) -> int:
         large = cv2.resize(image, size, interpolation=cv2.INTER_CUBIC)
         png = cv2.imencode(".png", large)[1].tobytes()
         print(measure(f"{last.parent.name} upscaled (largest accepted)", png))
+    tsukuba = root / "middlebury" / "tsukuba"
+    if tsukuba.is_dir():
+        print()
+        print(round_trips(tsukuba))
     return 0
 
 
