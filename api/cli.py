@@ -2,7 +2,8 @@
 
 qhsm serve    API + workers for every solver that runs here (+ an embedded Redis)
 qhsm demo     the same, then one job end to end on a sample scene, then stop
-qhsm api      the API alone (deployments run workers with ``celery -A workers worker``)
+qhsm api      the API alone
+qhsm worker   one worker of a running service, on any host (``workers/cli.py``)
 qhsm submit   the client: upload a pair, show progress, download the disparity map
 qhsm wait     follow a submitted job (again) and download its result
 qhsm cancel   cancel a submitted job
@@ -30,6 +31,7 @@ from shared.cli_options import (
     settings_from_args,
 )
 from shared.config import MatchConfig, Settings
+from workers import cli as worker_cli
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -110,6 +112,8 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     add_json_option(estimate, "the estimate")
     estimate.set_defaults(handler=cmd_estimate)
+
+    worker_cli.register(commands)
 
 
 def _result_options(parser: argparse.ArgumentParser, output_default: str) -> None:

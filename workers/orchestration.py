@@ -162,8 +162,7 @@ def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
 
 def job_views(store: JobStore, record: JobRecord) -> tuple[np.ndarray, np.ndarray]:
     """The job's uploads as the views its data term reads."""
-    left, right = store.load_upload(record.id, "left"), store.load_upload(record.id, "right")
-    return match_views(left, right, record.config)
+    return match_views(*store.load_views(record.id), record.config)
 
 
 def job_plans(record: JobRecord) -> list[LevelPlan]:

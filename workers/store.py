@@ -1,4 +1,9 @@
-"""Job records, level inputs and results in Redis; uploads on disk under ``Settings.data_dir``.
+"""Job records, uploads, level inputs and results: all in Redis, nothing on disk.
+
+Workers need Redis and nothing else (no shared volume, no data directory of the API's): a
+worker on another host reads everything a job needs from here. Large arrays are stored as hash
+fields of bounded size (:mod:`workers.arrays`; views as the 8- or 16-bit integers they were
+decoded from), and everything expires.
 
 Keys (all under ``{key_prefix}:``):
 
@@ -7,12 +12,17 @@ Keys (all under ``{key_prefix}:``):
     jobs:owner:{user}        the same, one user's jobs
     jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
+    job:{id}:upload          hash of the decoded views ``left``, ``right`` (their integer form,
+                             in pieces): written by the API at submission, read by the control
+                             worker; deleted when the job ends
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
     job:{id}:result          .npy bytes of the full-resolution disparity
     job:{id}:tasks           set of the ids of the job's solver tasks running now
-    job:{id}:view:{name}     what the web page shows next to the result: the left view (PNG) and
-                             the ground truth (.npy); they outlive the uploads like the result
+    job:{id}:view:{name}     what the web page shows next to the result: the left view
+                             (``left.png``) and the ground truth (``ground_truth``, a hash like
+                             the uploads, which the final scoring also reads); they outlive the
+                             uploads like the result
 
 Chunk reports and solved bundles are written with HSET, so a task that runs twice (a worker died
 after solving, or the watchdog re-sent it) is counted once. State changes go through
@@ -22,13 +32,11 @@ fan-in resolves to exactly one final state.
 
 from __future__ import annotations
 
-import io
+import contextlib
 import json
 import logging
-import shutil
 from collections.abc import Callable, Iterable
 from importlib.resources import files
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,6 +46,7 @@ from shared.bundles import bundle_key
 from shared.config import Settings
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
+from workers.arrays import array_fields, array_from, from_npy, npy
 from workers.records import (
     ACTIVE,
     JOB_ID,
@@ -63,6 +72,10 @@ class LevelInputsMissing(LookupError):
     """The level's inputs are gone (job finished, cancelled or expired)."""
 
 
+class UploadsMissing(ValueError):
+    """The job's uploads are gone from Redis (it ended, expired, or predates uploads in Redis)."""
+
+
 class ActiveJobsCap(Exception):
     """The owner already has ``cap`` jobs queued or running; nothing was written."""
 
@@ -75,51 +88,8 @@ def _text(value: bytes | str) -> str:
     return value.decode() if isinstance(value, bytes) else value
 
 
-def _npy(array: np.ndarray) -> bytes:
-    stream = io.BytesIO()
-    np.save(stream, np.ascontiguousarray(array), allow_pickle=False)
-    return stream.getvalue()
-
-
-def _from_npy(data: bytes) -> np.ndarray:
-    return np.load(io.BytesIO(data), allow_pickle=False)
-
-
-#: Largest value one write puts in Redis (each is a record of its append-only file): a level's
-#: arrays are written in pieces of at most this many bytes.
-MAX_VALUE_BYTES = 4 * 2**20
-
-
-def _array_fields(name: str, array: np.ndarray) -> dict[str, bytes]:
-    """``array`` as hash fields of at most :data:`MAX_VALUE_BYTES` each: ``name`` holds its
-    .npy header (dtype, shape) and ``name:0``, ``name:1``, ... its bytes. Integer arrays travel
-    in the narrowest dtype that holds their values (candidates are small disparities) and come
-    back in their own."""
-    array = np.ascontiguousarray(array)
-    stored = array
-    if array.dtype.kind in "iu" and array.size:
-        narrow = np.promote_types(np.min_scalar_type(array.min()), np.min_scalar_type(array.max()))
-        if narrow.itemsize < array.dtype.itemsize:
-            stored = array.astype(narrow)
-    data = stored.tobytes()
-    pieces = range(0, max(len(data), 1), MAX_VALUE_BYTES)
-    header = {"dtype": array.dtype.str, "stored": stored.dtype.str, "shape": list(array.shape)}
-    fields = {name: json.dumps({**header, "pieces": len(pieces)}).encode()}
-    for number, start in enumerate(pieces):
-        fields[f"{name}:{number}"] = data[start : start + MAX_VALUE_BYTES]
-    return fields
-
-
-def _array_from(fields: dict[bytes, bytes], name: str) -> np.ndarray:
-    """The array :func:`_array_fields` wrote under ``name``."""
-    header = json.loads(fields[name.encode()])
-    data = b"".join(fields[f"{name}:{number}".encode()] for number in range(header["pieces"]))
-    stored = np.frombuffer(data, dtype=np.dtype(header["stored"])).reshape(header["shape"])
-    return stored.astype(np.dtype(header["dtype"]))
-
-
 class JobStore:
-    """Job records in Redis and job files in ``data_dir/jobs/{id}``."""
+    """Job records, uploads, level inputs and results in Redis (see the module's keys)."""
 
     def __init__(self, client: redis.Redis, settings: Settings):
         self.redis = client
@@ -134,19 +104,18 @@ class JobStore:
 
         return cls(redis.Redis.from_url(redis_url(settings)), settings)
 
-    # keys and paths ---------------------------------------------------------------------------
+    # keys -------------------------------------------------------------------------------------
 
     def key(self, *parts: object) -> str:
         return ":".join([self.prefix, *map(str, parts)])
 
-    def job_dir(self, job_id: str) -> Path:
-        """The job's folder inside the data directory (ids are validated, never user paths)."""
-        if not JOB_ID.match(job_id):
-            raise ValueError(f"malformed job id {job_id!r}")
-        return self.settings.data_dir.resolve() / "jobs" / job_id
-
     def ping(self) -> bool:
         return bool(self.redis.ping())
+
+    @property
+    def view_ttl(self) -> int:
+        """Lifetime of uploads and views while the job runs (at its end: :attr:`ttl`)."""
+        return self.ttl + self.settings.task_visibility_timeout
 
     # records ----------------------------------------------------------------------------------
 
@@ -155,15 +124,23 @@ class JobStore:
     ) -> None:
         """Write the uploads (``left``, ``right``, optional ``ground_truth``) and the record.
 
-        With ``cap``, the owner may have at most that many jobs queued or running: the count
-        and the record's write are one Redis script (:class:`ActiveJobsCap` when full), so
-        simultaneous submits never get past it. Whatever fails on the way (the cap, a full
-        disk, Redis) leaves no upload folder behind."""
-        folder = self.job_dir(record.id)
-        folder.mkdir(parents=True, exist_ok=False)
+        The uploads go to Redis first, in one transaction (integer form, bounded pieces), so
+        a worker that sees the record finds them. With ``cap``, the owner may have at most
+        that many jobs queued or running: the count and the record's write are one Redis
+        script (:class:`ActiveJobsCap` when full), so simultaneous submits never get past it.
+        Whatever fails on the way (the cap, Redis full or gone) leaves no upload behind."""
+        if not JOB_ID.match(record.id):
+            raise ValueError(f"malformed job id {record.id!r}")
+        written = [self._upload_key(record.id), self._truth_key(record.id)]
         try:
-            for name, array in arrays.items():
-                np.save(folder / f"{name}.npy", np.ascontiguousarray(array), allow_pickle=False)
+            with self.redis.pipeline() as pipe:  # MULTI/EXEC: all of the uploads or none
+                for name, array in arrays.items():
+                    key = written[1] if name == "ground_truth" else written[0]
+                    for field, value in array_fields(name, array, images=True).items():
+                        pipe.hset(key, field, value)  # one bounded write per piece
+                for key in written:
+                    pipe.expire(key, self.view_ttl)
+                pipe.execute()
             owner = record.owner or ""
             keys = [
                 self.key("job", record.id),
@@ -183,15 +160,16 @@ class JobStore:
             if active < 0:
                 raise ActiveJobsCap(owner, -1 - active, cap or 0)
         except BaseException:
-            shutil.rmtree(folder, ignore_errors=True)
+            with contextlib.suppress(redis.RedisError):
+                self.redis.delete(*written)
             raise
 
     def discard(self, job_id: str) -> None:
         """Remove a job that was written but could not be queued (its submit failed after
-        :meth:`create`): record, indexes, views and uploads, as if it had never been."""
+        :meth:`create`): record, indexes, uploads and views, as if it had never been."""
         record = self.get(job_id)
         with self.redis.pipeline() as pipe:
-            pipe.delete(self.key("job", job_id))
+            pipe.delete(self.key("job", job_id), self._upload_key(job_id))
             pipe.zrem(self.key("jobs"), job_id)
             pipe.hdel(self.key("jobs", "active"), job_id)
             if record is not None and record.owner is not None:
@@ -200,8 +178,43 @@ class JobStore:
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.delete(key)
 
+    def _upload_key(self, job_id: str) -> str:
+        return self.key("job", job_id, "upload")
+
+    def _truth_key(self, job_id: str) -> str:
+        return self.key("job", job_id, "view", "ground_truth")
+
     def load_upload(self, job_id: str, name: str) -> np.ndarray:
-        return np.load(self.job_dir(job_id) / f"{name}.npy", allow_pickle=False)
+        """One upload of an active job: ``left``, ``right`` or ``ground_truth``."""
+        if name == "ground_truth":
+            truth = self.load_ground_truth(job_id)
+            if truth is None:
+                raise UploadsMissing(f"job {job_id}: its ground truth is gone; submit it again")
+            return truth
+        return self.load_views(job_id)[0 if name == "left" else 1]
+
+    def load_views(self, job_id: str) -> tuple[np.ndarray, np.ndarray]:
+        """The uploaded left and right views of an active job, from Redis (one read).
+
+        Raises
+        ------
+        UploadsMissing
+            The job ended or expired (or was queued before uploads were kept in Redis)."""
+        fields = self.redis.hgetall(self._upload_key(job_id))
+        if b"left" not in fields or b"right" not in fields:
+            raise UploadsMissing(
+                f"job {job_id}: its uploaded views are gone (it ended or expired, or was "
+                "submitted before an upgrade of the service); submit it again"
+            )
+        return array_from(fields, "left"), array_from(fields, "right")
+
+    def load_ground_truth(self, job_id: str) -> np.ndarray | None:
+        """The job's ground truth (stored values) while its record lasts; None without one."""
+        fields = self.redis.hgetall(self._truth_key(job_id))
+        if fields:
+            return array_from(fields, "ground_truth")
+        older = self.load_view(job_id, "ground_truth.npy")  # jobs of earlier versions
+        return None if older is None else from_npy(older)
 
     def get(self, job_id: str) -> JobRecord | None:
         if not JOB_ID.match(job_id):
@@ -278,9 +291,9 @@ class JobStore:
         self.redis.hdel(self.key("jobs", "active"), job_id)
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
+        self.redis.delete(self._upload_key(job_id))
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.expire(key, self.ttl)
-        shutil.rmtree(self.job_dir(job_id), ignore_errors=True)
 
     def list(
         self, offset: int = 0, limit: int = 20, owner: str | None = None
@@ -388,7 +401,7 @@ class JobStore:
         if inputs.initial_labels is not None:
             arrays["initial_labels"] = inputs.initial_labels
         for name, array in arrays.items():
-            fields.update(_array_fields(name, array))
+            fields.update(array_fields(name, array))
         key = self.key("job", job_id, "level", inputs.index)
         with self.redis.pipeline() as pipe:
             for name, value in fields.items():  # one bounded write per field
@@ -409,11 +422,11 @@ class JobStore:
         inputs = LevelInputs(
             plan=LevelPlan.model_validate_json(fields[b"plan"]),
             views=int(fields[b"views"]),
-            left=_array_from(fields, "left"),
-            right=_array_from(fields, "right"),
-            candidates=_array_from(fields, "candidates"),
+            left=array_from(fields, "left"),
+            right=array_from(fields, "right"),
+            candidates=array_from(fields, "candidates"),
             initial_labels=(
-                _array_from(fields, "initial_labels") if b"initial_labels" in fields else None
+                array_from(fields, "initial_labels") if b"initial_labels" in fields else None
             ),
             prepared=json.loads(fields.get(b"prepared", b"{}")),
         )
@@ -458,18 +471,17 @@ class JobStore:
     # results ----------------------------------------------------------------------------------
 
     def save_result(self, job_id: str, disparity: np.ndarray) -> None:
-        self.redis.set(self.key("job", job_id, "result"), _npy(disparity), ex=self.ttl)
+        self.redis.set(self.key("job", job_id, "result"), npy(disparity), ex=self.ttl)
 
     def load_result(self, job_id: str) -> np.ndarray | None:
         raw = self.redis.get(self.key("job", job_id, "result"))
-        return None if raw is None else _from_npy(raw)
+        return None if raw is None else from_npy(raw)
 
     # views ------------------------------------------------------------------------------------
 
     def save_view(self, job_id: str, name: str, data: bytes) -> None:
         """Keep ``data`` for the job's web view; it expires with the result once the job ends."""
-        ttl = self.ttl + self.settings.task_visibility_timeout
-        self.redis.set(self.key("job", job_id, "view", name), data, ex=ttl)
+        self.redis.set(self.key("job", job_id, "view", name), data, ex=self.view_ttl)
 
     def load_view(self, job_id: str, name: str) -> bytes | None:
         return self.redis.get(self.key("job", job_id, "view", name))

@@ -38,6 +38,42 @@ log = logging.getLogger(__name__)
 DWAVE_SECRETS = ("DWAVE_API_TOKEN", "DWAVE_API_REGION", "DWAVE_API_ENDPOINT", "DWAVE_SOLVER")
 
 
+def worker_command(
+    hostname: str, queues: list[str], concurrency: int, extra_args: list[str] | None = None
+) -> list[str]:
+    """``celery -A workers worker`` as serve, the tests and ``qhsm worker`` run it (prefork
+    pool; liveness comes from workers/liveness.py, not Celery's gossip)."""
+    return [
+        sys.executable, "-m", "celery", "-A", "workers", "worker",
+        "-Q", ",".join(queues),
+        "-c", str(concurrency),
+        "--pool", "prefork",
+        "-n", hostname,
+        "--loglevel", "INFO",
+        "--without-gossip", "--without-mingle", "--without-heartbeat",
+        *(extra_args or []),
+    ]  # fmt: skip
+
+
+def local_queues() -> tuple[list[str], list[str]]:
+    """Queues of the solvers that run on this machine: (CPU ones, with the dimod queue; those
+    that spend QPU time and need the D-Wave token)."""
+    from shared.solvers import get_solver, solver_names
+    from shared.solvers.registry import DIMOD_QUEUE, queue_of
+
+    cpu, dwave = [DIMOD_QUEUE], []
+    for name in solver_names():
+        try:
+            solver = get_solver(name)
+            runs_here = solver.available().ok
+        except Exception as error:  # an adapter with a missing dependency
+            log.warning("solver %s cannot load here: %s", name, error)
+            continue
+        if runs_here:
+            (dwave if solver.uses_qpu_time else cpu).append(queue_of(name))
+    return cpu, dwave
+
+
 @dataclass
 class WorkerProcess:
     """``celery -A workers worker -Q <queues>`` as a subprocess (prefork pool)."""
@@ -56,16 +92,7 @@ class WorkerProcess:
 
     def start(self) -> WorkerProcess:
         self.log_file.parent.mkdir(parents=True, exist_ok=True)
-        command = [
-            sys.executable, "-m", "celery", "-A", "workers", "worker",
-            "-Q", ",".join(self.queues),
-            "-c", str(self.concurrency),
-            "--pool", "prefork",
-            "-n", self.hostname,
-            "--loglevel", "INFO",
-            "--without-gossip", "--without-mingle", "--without-heartbeat",
-            *self.extra_args,
-        ]  # fmt: skip
+        command = worker_command(self.hostname, self.queues, self.concurrency, self.extra_args)
         with self.log_file.open("ab") as out:
             self.process = subprocess.Popen(
                 command,
@@ -247,8 +274,6 @@ class Stack:
     supervisor: Supervisor | None = None
 
     def start(self, wait: bool = True) -> Stack:
-        from shared.solvers import get_solver, solver_names
-        from shared.solvers.registry import DIMOD_QUEUE, queue_of
         from workers.app import make_celery
 
         stop_on_sigterm()
@@ -260,16 +285,7 @@ class Stack:
             settings = self.settings = settings.model_copy(update={"redis_url": self.redis.url})
             # where `qhsm admin` finds the embedded Redis while it runs (with its password)
             write_private(settings.data_dir / EMBEDDED_URL_FILE, self.redis.url + "\n")
-        cpu, dwave = [DIMOD_QUEUE], []
-        for name in solver_names():
-            try:
-                solver = get_solver(name)
-                runs_here = solver.available().ok
-            except Exception as error:  # an adapter with a missing dependency
-                log.warning("solver %s cannot load here: %s", name, error)
-                continue
-            if runs_here:
-                (dwave if solver.uses_qpu_time else cpu).append(queue_of(name))
+        cpu, dwave = local_queues()
         logs = settings.data_dir / "logs"
         count = self.concurrency or settings.worker_concurrency or os.cpu_count() or 1
         url = settings.redis_url

@@ -33,7 +33,7 @@ from workers.app import (
 )
 from workers.process import die_with_parent, limit_memory, lower_priority
 from workers.quota import QpuMeter, QuotaExceeded
-from workers.store import JobStore, LevelInputsMissing
+from workers.store import JobStore, LevelInputsMissing, UploadsMissing
 from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -124,7 +124,7 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
         orchestration.level_done(app, store(), results, job_id, index)
     except REDIS_DOWN as error:  # the watchdog re-sends the fan-in when Redis is back
         log.warning("job %s: Redis unavailable in the fan-in of level %d: %s", job_id, index, error)
-    except SolverError as error:  # preparing the next level's bundles (embedding) failed
+    except (SolverError, UploadsMissing) as error:  # e.g. the next level's embedding failed
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
     except MemoryError:

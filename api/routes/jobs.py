@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import io
 from typing import Annotated, Literal
 
 import cv2
@@ -82,13 +81,10 @@ def display_max(record: JobRecord, disparity: np.ndarray) -> float:
 
 
 def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> None:
-    """Keep what the web page shows beside the result (the uploads go when the job ends)."""
+    """Keep the left view the web page shows beside the result (8-bit PNG); the ground truth
+    is kept by :meth:`~workers.store.JobStore.create`, for the scoring and the error map."""
     view = np.rint(np.clip(arrays["left"], 0.0, 1.0) * 255).astype(np.uint8)
     svc.store.save_view(job_id, "left.png", cv2.imencode(".png", view)[1].tobytes())
-    if "ground_truth" in arrays:
-        stream = io.BytesIO()
-        np.save(stream, arrays["ground_truth"], allow_pickle=False)
-        svc.store.save_view(job_id, "ground_truth.npy", stream.getvalue())
 
 
 def links(job_id: str) -> Links:

@@ -5,7 +5,6 @@ the colour-mapped images (their scale in ``X-Scale-Max``)."""
 
 from __future__ import annotations
 
-import io
 from typing import Annotated, Literal
 
 import cv2
@@ -74,10 +73,9 @@ def errors_of(job_id: str, svc: Services, principal: Principal) -> np.ndarray:
             http.HTTP_404_NOT_FOUND,
             f"job {job_id} was submitted without a ground truth, so it has no error map",
         )
-    data = svc.store.load_view(job_id, "ground_truth.npy")
-    if data is None:
+    truth = svc.store.load_ground_truth(job_id)
+    if truth is None:
         raise gone(job_id, "ground truth")
-    truth = np.load(io.BytesIO(data), allow_pickle=False)
     return error_map(disparity, truth, record.ground_truth.scale, record.ground_truth.border)
 
 

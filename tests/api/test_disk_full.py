@@ -6,13 +6,13 @@ root, or no CAP_SYS_ADMIN)."""
 from __future__ import annotations
 
 import contextlib
-import errno
 import json
 import subprocess
 from pathlib import Path
 
 import harness
 import pytest
+import redis
 from fastapi.testclient import TestClient
 
 from api.app import create_app
@@ -79,9 +79,7 @@ def test_every_writing_endpoint_answers_507_on_a_full_disk(full_disk):
             data_dir=full_disk / "data",
             inspect_timeout=0.3,
         )
-        _, key = UserStore.from_settings(settings).create_user(
-            "full", admin=True, qpu_seconds=None
-        )
+        _, key = UserStore.from_settings(settings).create_user("full", admin=True, qpu_seconds=None)
         files = {"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
         fill(full_disk)
         redis_full(server)
@@ -103,28 +101,30 @@ def test_every_writing_endpoint_answers_507_on_a_full_disk(full_disk):
                 assert "out of storage" in response.json()["detail"], what
             assert client.get("/v1/usage").status_code in (200, 507)  # reads work if they can
             assert client.get("/v1/jobs").status_code == 200
-        jobs = settings.data_dir / "jobs"
-        assert not jobs.exists() or list(jobs.iterdir()) == []  # no partial upload left
+        uploads = redis.Redis.from_url(server.url).keys(f"{settings.key_prefix}:job:*")
+        assert uploads == []  # no partial upload left
     finally:
         server.stop()
 
 
-def test_uploads_cut_short_by_a_full_disk_leave_nothing_behind(api_settings, monkeypatch):
-    """The data disk fills while the uploads are written (Redis is fine): 507, and neither
-    the partial files nor a record remain."""
-    import numpy as np
-
+def test_a_submit_cut_short_by_a_full_redis_leaves_nothing_behind(api_settings, monkeypatch):
+    """Redis fills between the uploads and the record (they are written to Redis, not to
+    disk): 507, and neither the uploads nor a record remain."""
     from workers import store as store_module
 
-    written = []
+    original = store_module.JobStore.__init__
+    refused = []
 
-    def save(path, array, allow_pickle=False):
-        if written:
-            raise OSError(errno.ENOSPC, "No space left on device", str(path))
-        written.append(path)
-        np.lib.format.write_array(open(path, "wb"), array)  # noqa: SIM115
+    def init(self, client, settings):
+        original(self, client, settings)
 
-    monkeypatch.setattr(store_module.np, "save", save)
+        def create(**_):
+            refused.append(True)
+            raise redis.ResponseError("MISCONF Errors writing to the AOF file: No space left")
+
+        self._create = create
+
+    monkeypatch.setattr(store_module.JobStore, "__init__", init)
     users = UserStore.from_settings(api_settings)
     _, key = users.create_user(f"spill-{harness.unique_prefix()[-6:]}")
     with TestClient(
@@ -132,9 +132,12 @@ def test_uploads_cut_short_by_a_full_disk_leave_nothing_behind(api_settings, mon
         raise_server_exceptions=False,
         headers={"Authorization": f"Bearer {key}"},
     ) as client:
+        before = set(users.redis.scan_iter(match=f"{api_settings.key_prefix}:job:*:upload"))
         response = client.post(
             "/v1/jobs", files={"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
         )
         assert response.status_code == 507, response.text
         assert client.get("/v1/jobs").json()["total"] == 0
-    assert written and not written[0].parent.exists()
+    assert refused  # the uploads had been written when Redis refused the record
+    after = set(users.redis.scan_iter(match=f"{api_settings.key_prefix}:job:*:upload"))
+    assert after == before

@@ -97,6 +97,7 @@ def test_simultaneous_submits_never_pass_the_cap(api_settings):
     import threading
 
     import httpx
+    import redis
     import uvicorn
 
     from workers.embedded_redis import free_port
@@ -112,8 +113,9 @@ def test_simultaneous_submits_never_pass_the_cap(api_settings):
     thread.start()
     while not server.started:
         assert thread.is_alive()
-    jobs = settings.data_dir.resolve() / "jobs"
-    folders = len(list(jobs.iterdir())) if jobs.is_dir() else 0
+    client = redis.Redis.from_url(settings.redis_url)
+    uploads = f"{settings.key_prefix}:job:*:upload"
+    kept = len(list(client.scan_iter(match=uploads)))
     start = threading.Barrier(30)
     codes: list[int] = []
 
@@ -139,4 +141,4 @@ def test_simultaneous_submits_never_pass_the_cap(api_settings):
         thread.join(10)
     assert sorted(set(codes)) == [202, 429]
     assert codes.count(202) == 8, codes
-    assert len(list(jobs.iterdir())) == folders + 8  # refused submits leave no folder behind
+    assert len(list(client.scan_iter(match=uploads))) == kept + 8  # refused: no upload left

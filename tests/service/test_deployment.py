@@ -46,6 +46,15 @@ def test_compose_declares_every_role(compose):
     assert volume in compose["volumes"]
 
 
+def test_services_share_nothing_but_redis(compose):
+    """Issue 22: a worker on another host has only Redis in common with the API, so no service
+    but Redis mounts a volume (and none is told a shared data directory)."""
+    with_volumes = [name for name, s in compose["services"].items() if s.get("volumes")]
+    assert with_volumes == ["redis"]
+    assert set(compose["volumes"]) == {"redis"}
+    assert "QHSM_DATA_DIR" not in (ROOT / "docker-compose.yml").read_text()
+
+
 def test_every_command_is_a_real_entry_point_on_real_queues(compose):
     subcommands = build_parser()._subparsers._group_actions[0].choices
     queues = set(queue_names()) | {Settings().control_queue}

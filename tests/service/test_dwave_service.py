@@ -228,6 +228,7 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
                 continue
             env = worker_env(settings, url, dwave=False)
             env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(Path(__file__).parent)])
+            env["QHSM_DATA_DIR"] = str(tmp_path / name)  # its own, as in its container
             if token:
                 env.update(leap_env(sapi))
             tag = f"{name}-{settings.key_prefix}"
@@ -246,6 +247,8 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
         no_token_in_redis(url, settings.key_prefix)
         for worker in started:
             assert SENTINEL not in worker.log_file.read_text()
+        for name in split:  # the workers shared nothing with the API but Redis
+            assert not (tmp_path / name).exists() or not any((tmp_path / name).iterdir())
     finally:
         for worker in started:
             worker.stop()

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import settings as settings_
+from hypothesis import strategies as st
 
 from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
 from workers import orchestration
 from workers.records import ChunkReport, JobRecord, JobState, new_job_id, now
-from workers.store import JobStore, LevelInputsMissing
+from workers.store import JobStore, LevelInputsMissing, UploadsMissing
 
 
 @pytest.fixture
@@ -34,7 +37,7 @@ def test_a_finished_job_cannot_change_state_again(store):
     final = store.get(record.id)
     assert final.state is JobState.CANCELLED and final.finished_at is not None
     assert 0 < store.redis.ttl(store.key("job", record.id)) <= store.ttl
-    assert not store.job_dir(record.id).exists()  # uploads go when the job ends
+    assert not store.redis.exists(store.key("job", record.id, "upload"))  # gone at the end
 
 
 def test_a_chunk_reported_twice_counts_once(store):
@@ -77,10 +80,44 @@ def test_a_repeated_fan_in_is_ignored(store):
     assert store.get(record.id).state is JobState.RUNNING
 
 
-def test_job_ids_never_become_paths(store):
-    with pytest.raises(ValueError):
-        store.job_dir("../../etc")
+def test_malformed_job_ids_are_refused(store):
+    record = JobRecord(id="../../etc", config=MatchConfig(), width=8, height=4, created_at=now())
+    with pytest.raises(ValueError, match="malformed job id"):
+        store.create(record, {})
     assert store.get("../../etc") is None
+
+
+def test_uploads_live_in_redis_bit_exact_bounded_and_expiring(store, settings, tmp_path):
+    """Workers need Redis and nothing else (issue 22): the uploads of a job are in Redis,
+    in pieces of at most MAX_VALUE_BYTES, read back bit-exact, expiring; nothing
+    is written to the data directory; at the end the views go and the ground truth stays
+    with the result."""
+    from workers.arrays import MAX_VALUE_BYTES
+
+    rng = np.random.default_rng(5)
+    left = rng.random((700, 900, 3), dtype=np.float32)  # no integer form: 7.6 MB, two pieces
+    right = np.roll(left, 3, axis=1)
+    truth = rng.integers(0, 256, (700, 900)).astype(np.float32)
+    before = sorted(settings.data_dir.rglob("*")) if settings.data_dir.exists() else []
+    record = JobRecord(
+        id=new_job_id(), config=MatchConfig(), width=900, height=700, created_at=now()
+    )
+    store.create(record, {"left": left, "right": right, "ground_truth": truth})
+    for name, array in {"left": left, "right": right, "ground_truth": truth}.items():
+        loaded = store.load_upload(record.id, name)
+        assert loaded.dtype == array.dtype and loaded.tobytes() == array.tobytes(), name
+    upload = store.key("job", record.id, "upload")
+    sizes = [len(value) for value in store.redis.hvals(upload)]
+    assert len(sizes) > 4 and max(sizes) <= MAX_VALUE_BYTES
+    assert 0 < store.redis.ttl(upload) <= store.view_ttl
+    after = sorted(settings.data_dir.rglob("*")) if settings.data_dir.exists() else []
+    assert after == before  # nothing on disk
+    store.transition(record.id, JobState.CANCELLED, {JobState.QUEUED})
+    assert not store.redis.exists(upload)
+    with pytest.raises(UploadsMissing, match="submit it again"):
+        store.load_upload(record.id, "left")
+    assert np.array_equal(store.load_ground_truth(record.id), truth)  # the error map's
+    assert 0 < store.redis.ttl(store.key("job", record.id, "view", "ground_truth")) <= store.ttl
 
 
 def test_a_large_levels_inputs_are_written_in_bounded_pieces(store):
@@ -88,7 +125,7 @@ def test_a_large_levels_inputs_are_written_in_bounded_pieces(store):
     file); now no value is above MAX_VALUE_BYTES, and the level reads back exactly."""
     from shared import pyramid
     from shared.level_inputs import LevelInputs
-    from workers.store import MAX_VALUE_BYTES
+    from workers.arrays import MAX_VALUE_BYTES
 
     record = new_job(store, JobState.RUNNING)
     rng = np.random.default_rng(0)
@@ -109,3 +146,35 @@ def test_a_large_levels_inputs_are_written_in_bounded_pieces(store):
         assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), name
     store.fail(record.id, "x" * 100_000)
     assert len(store.get(record.id).error) < 2100  # a record's messages are bounded too
+
+
+@settings_(max_examples=200, deadline=None)
+@given(
+    values=st.lists(
+        st.one_of(
+            st.floats(width=32, allow_nan=True, allow_infinity=True),
+            st.integers(0, 255).map(lambda k: np.float32(k) / np.float32(255.0)),
+            st.integers(0, 65535).map(lambda k: np.float32(k) / np.float32(65535.0)),
+            st.integers(0, 65535).map(float),
+        ),
+        min_size=1,
+        max_size=64,
+    ),
+    kind=st.sampled_from(["float32", "float64", "uint16", "int32"]),
+)
+def test_stored_arrays_come_back_bit_for_bit(values, kind):
+    """Whatever the array (image-like or not, NaN, -0.0, inf, any dtype), what array_fields
+    stores reads back identical, in integer form or not."""
+    from workers.arrays import array_fields, array_from
+
+    if kind in ("uint16", "int32"):
+        values = [v for v in values if np.isfinite(v) and 0 <= v <= 65535] or [0.0]
+    array = np.array(values, dtype=np.float32).astype(kind).reshape(-1, 1)
+    for images in (False, True):
+        fields = {
+            key.encode(): value
+            for key, value in array_fields("a", array, images=images).items()
+        }
+        back = array_from(fields, "a")
+        assert back.dtype == array.dtype and back.shape == array.shape
+        assert back.tobytes() == array.tobytes()
