@@ -3,6 +3,8 @@ and a worker process killed mid-level."""
 
 from __future__ import annotations
 
+import json
+
 import os
 import signal
 import time
@@ -64,18 +66,31 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
     assert status["state"] == "succeeded", status["error"]
     assert np.array_equal(harness.download(client, job_id), reference(pair, params))
 
-    # max 8 px: bins of 2 then 1 px; both views' rows are bundles of each level's chord
-    assert status["progress"] == {"level": 2, "levels": 2, "bundles_done": 64, "bundles_total": 64}
+    # max 8 px: bins of 2 then 1 px; both views are bundles of each level's chord: exact takes
+    # each view's whole grid (with a lower bound), QUBO solvers its tiles of 3 rows
+    bundles = 2 if params["solver"] == "exact" else 2 * 11
+    assert status["progress"] == {
+        "level": 2,
+        "levels": 2,
+        "bundles_done": bundles,
+        "bundles_total": bundles,
+    }
+    bounds = [level["lower_bound"] for level in status["levels"]]
+    if params["solver"] == "exact":
+        assert all(b <= level["energy"] for b, level in zip(bounds, status["levels"], strict=True))
+    else:
+        assert bounds == [None, None]
     assert [(level["bin_width"], level["views"]) for level in status["levels"]] == [(2, 2), (1, 2)]
     assert [level["height"] for level in status["levels"]] == [32, 32]
     assert status["disparity_range"]["max_disparity"] == 8
     assert status["usage"]["solver_seconds"] > 0
     assert 0 <= status["metrics"]["bpp"] <= 100 and status["metrics"]["pixels"] > 0
-    # the finest level was really fanned out: several tasks, each a few rows
+    # the finest level was really fanned out: several tasks (exact: one per view)
     from workers.store import JobStore
 
     chunks = [c for c in JobStore.from_settings(settings).chunks(job_id) if c.level == 1]
-    assert len(chunks) == 2 * 32 // settings.rows_per_task
+    tiles_per_task = settings.rows_per_task // 3
+    assert len(chunks) == (2 if params["solver"] == "exact" else -(-bundles // tiles_per_task))
     for fmt, magic in [("pfm", b"Pf"), ("png", b"\x89PNG")]:
         response = client.get(f"/v1/jobs/{job_id}/disparity", params={"format": fmt})
         assert response.status_code == 200 and response.content.startswith(magic)
@@ -105,11 +120,15 @@ def test_cancel_stops_unsolved_bundles(client, pair):
 
 def test_permanent_solver_error_fails_the_job_with_its_message(client, pair):
     left, right, *_ = pair
-    job_id = harness.submit(client, left, right, {"solver": "exact", "bundle_height": 2})
-    status = harness.wait_for(client, job_id)
-    assert status["state"] == "failed"
-    assert "single-row bundles" in status["error"] and "bundle height 2" in status["error"]
-    assert "Traceback" not in status["error"]
+    # a bundle shape the solver cannot take is refused before any work
+    params = {"solver": "exact", "inference": "rows", "bundle_height": 2}
+    response = client.post(
+        "/v1/jobs",
+        files={"left": ("left.png", left), "right": ("right.png", right)},
+        data={"params": json.dumps(params)},
+    )
+    assert response.status_code == 422
+    assert "single-row bundles" in response.text and "bundle_height 2" in response.text
 
     job_id = harness.submit(client, left, right, harness.one_level(solver="fake-broken"))
     status = harness.wait_for(client, job_id)
@@ -202,7 +221,7 @@ def test_row_segments_through_the_service_equal_the_in_process_result(client, pa
     assert np.array_equal(harness.download(client, job_id), reference(pair, params))
     per_row = len(segment_columns(SMALL["width"], 20, 4))
     assert per_row == 3
-    total = 2 * SMALL["height"] * per_row
+    total = 2 * -(-SMALL["height"] // 3) * per_row  # tiles of 3 rows (grid inference)
     assert status["progress"]["bundles_total"] == status["progress"]["bundles_done"] == total
     assert [level["bundles"] for level in status["levels"]] == [total, total]
 
