@@ -28,6 +28,7 @@ from shared.energy import mrf_energy, row_energies
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, uses_warm_start
+from shared.threads import limit_threads, thread_budget, threads
 
 BundleProgress = Callable[[int, int], None]
 """``(units done, units total)`` within a level: bundles (rows for a row solver)."""
@@ -263,7 +264,7 @@ def _solve_on_costs(
     inputs.binned_volumes()
     results: list[BundleResult] = []
     # numpy releases the GIL inside its loops: threads overlap the blocks (both views)
-    with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(min(len(blocks), threads())) as pool:
         for block_results in pool.map(partial(_solve_block, solver, inputs, config), blocks):
             results.extend(block_results)
             if progress is not None:
@@ -366,7 +367,8 @@ class ProcessPoolLevelSolver:
             # an HTTP client) can deadlock the children. Solvers come from the registry's
             # importable factories, so every child sees the same adapters.
             with _sigint_ignored():  # inherited from birth: no child prints a traceback
-                self._pool = get_context("spawn").Pool(self.processes)
+                budget = (thread_budget(self.processes),)  # each child its share of the cores
+                self._pool = get_context("spawn").Pool(self.processes, limit_threads, budget)
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
