@@ -351,10 +351,11 @@ class ProcessPoolLevelSolver:
     """A ``solve_level`` that spreads a level's bundles over local worker processes.
 
     Bundles are independent and seeded by position, so the result equals the sequential one.
-    Row solvers (the exact DP) are vectorised over rows already and run in this process. Use as a
-    context manager so the pool lives across levels. The children ignore Ctrl-C (SIGINT reaches
-    the whole process group): the parent terminates them when it leaves the block on an
-    exception.
+    Row solvers (the exact DP) are vectorised over rows already and run in this process; the
+    pool is started by the first level that needs it (never for them: idle children cost a
+    second of CPU to start). Use as a context manager so the pool lives across levels. The
+    children ignore Ctrl-C (SIGINT reaches the whole process group): the parent terminates them
+    when it leaves the block on an exception.
     """
 
     def __init__(self, processes: int | None = None) -> None:
@@ -362,14 +363,18 @@ class ProcessPoolLevelSolver:
         self._pool: Pool | None = None
 
     def __enter__(self) -> ProcessPoolLevelSolver:
-        if self.processes > 1:
+        return self
+
+    def _started(self) -> Pool:
+        """The pool, started on first use."""
+        if self._pool is None:
             # spawn, not fork: forking a process that already runs threads (OpenBLAS, OpenCV,
             # an HTTP client) can deadlock the children. Solvers come from the registry's
             # importable factories, so every child sees the same adapters.
             with _sigint_ignored():  # inherited from birth: no child prints a traceback
                 budget = (thread_budget(self.processes),)  # each child its share of the cores
                 self._pool = get_context("spawn").Pool(self.processes, limit_threads, budget)
-        return self
+        return self._pool
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
         if self._pool is not None:
@@ -383,8 +388,9 @@ class ProcessPoolLevelSolver:
     def __call__(
         self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
     ) -> LevelSolution:
-        if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
+        if self.processes <= 1 or isinstance(get_solver(config.solver), RowSolver):
             return solve_level_in_process(inputs, config, progress)
+        pool = self._started()
         bundles = level_bundles(inputs, config)
         count = self.processes * 4
         # consecutive bundles stay together: segments of one row then share its costs
@@ -395,7 +401,7 @@ class ProcessPoolLevelSolver:
         results: list[BundleResult] = []
         if progress is not None:
             progress(0, len(bundles))
-        for chunk_results in self._pool.imap(solve, chunks):  # in order, as they finish
+        for chunk_results in pool.imap(solve, chunks):  # in order, as they finish
             results.extend(chunk_results)
             if progress is not None:
                 progress(len(results), len(bundles))
