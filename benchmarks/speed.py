@@ -25,7 +25,9 @@ the PFM. Ratios are of medians.
 
 The service part starts what ``qhsm serve`` starts (``workers.supervisor.Stack``: a control
 worker and a CPU worker, the API in a thread) and times the Tsukuba job from the POST to the
-downloaded PFM (status polled every 20 ms), alternated with ``qhsm match`` on the same pair.
+downloaded PFM, alternated with ``qhsm match`` on the same pair. The status is polled as
+``qhsm submit --wait`` polls it (``Client.wait``: every 50 ms, then every 10 % of the time waited
+so far), or every ``--poll`` seconds.
 Redis: QHSM_REDIS_URL when set, else an embedded one.
 """
 
@@ -64,6 +66,9 @@ raw = matcher.compute(cv2.imread(left), cv2.imread(right))
 cv2.imwrite(out, raw.astype(np.float32) / 16.0)
 """
 TIME = "/usr/bin/time"
+#: How the service part polls the job's status (``Client.wait``'s arguments): the default, as
+#: ``qhsm submit --wait`` polls; ``--poll 0.02`` polls every 20 ms like benchmarks/service.py.
+POLL: dict[str, float] = {}
 
 
 @dataclass(frozen=True)
@@ -231,7 +236,7 @@ def service_job(client, pair: Pair) -> Callable[[], float]:
     def run() -> float:
         started = time.perf_counter()
         job = client.submit(*raw, params, names=names)
-        status = client.wait(job["id"], interval=0.02, max_interval=0.02)
+        status = client.wait(job["id"], **POLL)
         if status["state"] != "succeeded":
             raise RuntimeError(f"service job {status['state']}: {status.get('error')}")
         client.disparity(job["id"], "pfm")
@@ -286,9 +291,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--large-repeats", type=int, default=1, help="runs of synthetic-2000")
     parser.add_argument("--service-repeats", type=int, default=3)
     parser.add_argument("--no-service", action="store_true", help="skip the service part")
+    parser.add_argument("--poll", type=float, help="poll the job every POLL s (default: as qhsm)")
     parser.add_argument("--quick", action="store_true", help="Tsukuba and Aloe once; service once")
     args = parser.parse_args(argv)
     names = args.pairs.split(",")
+    if args.poll:
+        POLL.update(interval=args.poll, max_interval=args.poll)
     if args.quick:
         names = [n for n in names if n in ("tsukuba", "aloe")]
         args.repeats = args.large_repeats = args.service_repeats = 1
