@@ -27,7 +27,9 @@ The service part starts what ``qhsm serve`` starts (``workers.supervisor.Stack``
 worker and a CPU worker, the API in a thread) and times the Tsukuba job from the POST to the
 downloaded PFM, alternated with ``qhsm match`` on the same pair. The status is polled as
 ``qhsm submit --wait`` polls it (``Client.wait``: every 50 ms, then every 10 % of the time waited
-so far), or every ``--poll`` seconds.
+so far), or every ``--poll`` seconds. It also reports the CPU seconds each took (the whole process
+trees: the CLI's process; the API, Redis and the workers), which the other users of a shared
+machine disturb far less than wall time.
 Redis: QHSM_REDIS_URL when set, else an embedded one.
 """
 
@@ -37,6 +39,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -245,26 +248,61 @@ def service_job(client, pair: Pair) -> Callable[[], float]:
     return run
 
 
+def tree_cpu() -> float:
+    """CPU seconds used so far by this process and every process it started (the API runs in
+    a thread here; Redis and the workers are children)."""
+    import psutil
+
+    total = 0.0
+    me = psutil.Process()
+    for process in [me, *me.children(recursive=True)]:
+        try:
+            times = process.cpu_times()
+        except psutil.Error:  # ended meanwhile
+            continue
+        total += times.user + times.system
+    return total
+
+
+def children_cpu() -> float:
+    """CPU seconds of this process's children that have ended (a finished ``qhsm match``)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def compare_service(pair: Pair, folder: Path, repeats: int) -> dict:
-    """The service's end-to-end job time against ``qhsm match``, alternated, medians."""
+    """The service's end-to-end job time against ``qhsm match``, alternated, medians; and the
+    CPU seconds each took (whole process trees: far less sensitive to other load than wall)."""
     command = qhsm_command(pair, folder / "service-cli.pfm")
+    times: dict[str, list[float]] = {"cli": [], "service": [], "cli_cpu": [], "service_cpu": []}
+
+    def run_cli() -> None:
+        before = children_cpu()
+        times["cli"].append(timed(command)[0])
+        times["cli_cpu"].append(children_cpu() - before)
+
     with served(folder / "service") as client:
         job = service_job(client, pair)
         job()  # the workers' first job imports the solvers
-        cli, service = [], []
+
+        def run_service() -> None:
+            before = tree_cpu()
+            times["service"].append(job())
+            times["service_cpu"].append(tree_cpu() - before)
+
         for repeat in range(repeats):
-            if repeat % 2:
-                service.append(job())
-                cli.append(timed(command)[0])
-            else:
-                cli.append(timed(command)[0])
-                service.append(job())
-            print(f"service {service[-1]:.2f} s, cli {cli[-1]:.2f} s", file=sys.stderr)
+            for run in (run_service, run_cli) if repeat % 2 else (run_cli, run_service):
+                run()
+            service, cli = times["service"][-1], times["cli"][-1]
+            print(f"service {service:.2f} s, cli {cli:.2f} s", file=sys.stderr)
+    median = {name: statistics.median(values) for name, values in times.items()}
     return {
         "pair": pair.name,
-        "qhsm_match_s": round(statistics.median(cli), 2),
-        "service_s": round(statistics.median(service), 2),
-        "service_over_cli": round(statistics.median(service) / statistics.median(cli), 2),
+        "qhsm_match_s": round(median["cli"], 2),
+        "service_s": round(median["service"], 2),
+        "service_over_cli": round(median["service"] / median["cli"], 2),
+        "qhsm_match_cpu_s": round(median["cli_cpu"], 2),
+        "service_cpu_s": round(median["service_cpu"], 2),
         "repeats": repeats,
     }
 
