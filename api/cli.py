@@ -369,8 +369,11 @@ def cmd_submit(args: argparse.Namespace) -> int:
             names=(files[0].name, files[1].name),
             label=args.label,
         )
-        _print_warnings(job)
+        shown: set[str] = set()
+        _print_warnings(job, shown)
         if not (args.wait or args.output):
+            # the views are checked when the job starts: wait a moment for that check's warning
+            _print_warnings(client.started(job["id"]), shown)
             if args.json:
                 print(json.dumps({**job, "url": f"{url.rstrip('/')}{job['links']['self']}"}))
             else:
@@ -378,7 +381,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
             print(f"follow it: {_job_commands(job['id'], args)}", file=sys.stderr)
             return 0
         print(f"job {job['id']} {job['state']}", file=sys.stderr)
-        return _follow(client, job["id"], args)
+        return _follow(client, job["id"], args, shown)
     except ClientError as error:
         raise CommandError(str(error)) from None
     finally:
@@ -391,8 +394,9 @@ def cmd_wait(args: argparse.Namespace) -> int:
 
     client = Client(settings_from_args(args).api_url, key=args.key, key_source="the --key option")
     try:
-        _print_warnings(client.status(args.job))
-        return _follow(client, args.job, args)
+        shown: set[str] = set()
+        _print_warnings(client.status(args.job), shown)
+        return _follow(client, args.job, args, shown)
     except ClientError as error:
         raise CommandError(str(error)) from None
     finally:
@@ -417,10 +421,13 @@ def cmd_cancel(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_warnings(job: dict) -> None:
-    """A job's warnings (views that look swapped, an inferred scale), one line each on stderr."""
+def _print_warnings(job: dict, shown: set[str]) -> None:
+    """A job's warnings (views that look swapped, an inferred scale) not in ``shown`` yet, one
+    line each on stderr (the views' check adds its warning when the job starts)."""
     for warning in job.get("warnings", []):
-        print(f"qhsm: warning: {warning}", file=sys.stderr)
+        if warning not in shown:
+            shown.add(warning)
+            print(f"qhsm: warning: {warning}", file=sys.stderr)
 
 
 def _job_commands(job_id: str, args: argparse.Namespace) -> str:
@@ -429,7 +436,7 @@ def _job_commands(job_id: str, args: argparse.Namespace) -> str:
     return f"`qhsm wait {job_id}{url}` (progress, then the result), `qhsm cancel {job_id}{url}`"
 
 
-def _follow(client, job_id: str, args: argparse.Namespace) -> int:
+def _follow(client, job_id: str, args: argparse.Namespace, shown: set[str]) -> int:
     """Show the job's progress until it ends, then download its result; Ctrl-C leaves it
     running on the service and says how to cancel it or follow it again."""
     from api.client import progress_bar, scores_text, write_result
@@ -440,6 +447,7 @@ def _follow(client, job_id: str, args: argparse.Namespace) -> int:
 
     def show(polled: dict) -> None:
         seen.update(polled)
+        _print_warnings(polled, shown)
         bar(polled)
 
     try:

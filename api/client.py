@@ -13,6 +13,8 @@ from typing import IO, Any
 import httpx
 
 TERMINAL = {"succeeded", "failed", "cancelled"}
+#: ``Client.wait`` polls every this share of the time waited so far (bounded both ways).
+POLL_SHARE = 0.1
 
 
 class ClientError(RuntimeError):
@@ -134,15 +136,31 @@ class Client:
         interval: float = 0.05,
         max_interval: float = 1.0,
     ) -> dict:
-        """Poll until the job ends (the interval grows from ``interval`` to ``max_interval``)."""
+        """Poll until the job ends: every ``interval`` seconds at first, then every
+        :data:`POLL_SHARE` of the time waited so far, at most every ``max_interval``; the end
+        of a short job is seen within a few hundredths of a second, that of a long one within
+        a small share of its time, with few requests."""
+        started = time.monotonic()
         while True:
             status = self.status(job_id)
             if on_progress:
                 on_progress(status)
             if status["state"] in TERMINAL:
                 return status
-            time.sleep(interval)
-            interval = min(interval * 1.5, max_interval)
+            waited = time.monotonic() - started
+            time.sleep(min(max(interval, POLL_SHARE * waited), max_interval))
+
+    def started(self, job_id: str, timeout: float = 3.0) -> dict:
+        """The job's status once it has started (its disparity range resolved and its views
+        checked, with their warnings) or ended; as it is after ``timeout`` seconds otherwise
+        (a long queue)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            status = self.status(job_id)
+            done = status["state"] in TERMINAL or status.get("disparity_range") is not None
+            if done or time.monotonic() >= deadline:
+                return status
+            time.sleep(0.05)
 
     def disparity(self, job_id: str, fmt: str = "pfm") -> bytes:
         return self._request("GET", f"/v1/jobs/{job_id}/disparity", params={"format": fmt}).content

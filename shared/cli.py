@@ -426,6 +426,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def _run(argv: Sequence[str] | None) -> int:
+    from shared.threads import limit_threads, thread_budget
+
+    limit_threads(thread_budget())  # one process: every core, once (before numba loads)
     from shared.cli_options import CommandError
     from shared.images import ImageError
     from shared.solvers import SolverError, UnknownSolver

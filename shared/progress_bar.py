@@ -62,7 +62,8 @@ def describe(level: int, levels: int, total: int, state: str = "running") -> str
     """
     if state == "queued":
         return "queued: waiting for a worker"
-    text = f"level {max(level, 1)}/{levels}" + ("" if total else ": preparing")
+    # levels 0: not known yet (a job's range is estimated when it starts)
+    text = f"level {max(level, 1)}/{levels or '?'}" + ("" if total else ": preparing")
     return text if state in LIVE else f"{state}: {text}"
 
 

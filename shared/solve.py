@@ -36,6 +36,7 @@ from shared.grid import boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, uses_warm_start
+from shared.threads import limit_threads, thread_budget, threads
 
 BundleProgress = Callable[[int, int], None]
 """``(units done, units total)`` within a level: bundles (rows for a row solver)."""
@@ -342,7 +343,7 @@ def _solve_grids(
         )
 
     results: list[BundleResult] = []
-    with ThreadPoolExecutor(min(len(row_ranges), os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(min(len(row_ranges), threads())) as pool:
         for result in pool.map(solve, row_ranges):
             results.append(result)
             if progress is not None:
@@ -365,7 +366,7 @@ def _solve_on_costs(
     inputs.binned_volumes()
     results: list[BundleResult] = []
     # numpy releases the GIL inside its loops: threads overlap the blocks (both views)
-    with ThreadPoolExecutor(min(len(blocks), os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(min(len(blocks), threads())) as pool:
         for block_results in pool.map(partial(_solve_block, solver, inputs, config), blocks):
             results.extend(block_results)
             if progress is not None:
@@ -452,10 +453,11 @@ class ProcessPoolLevelSolver:
     """A ``solve_level`` that spreads a level's bundles over local worker processes.
 
     Bundles are independent and seeded by position, so the result equals the sequential one.
-    Row solvers (the exact DP) are vectorised over rows already and run in this process. Use as a
-    context manager so the pool lives across levels. The children ignore Ctrl-C (SIGINT reaches
-    the whole process group): the parent terminates them when it leaves the block on an
-    exception.
+    Row solvers (the exact DP) are vectorised over rows already and run in this process; the
+    pool is started by the first level that needs it (never for them: idle children cost a
+    second of CPU to start). Use as a context manager so the pool lives across levels. The
+    children ignore Ctrl-C (SIGINT reaches the whole process group): the parent terminates them
+    when it leaves the block on an exception.
     """
 
     def __init__(self, processes: int | None = None) -> None:
@@ -463,13 +465,18 @@ class ProcessPoolLevelSolver:
         self._pool: Pool | None = None
 
     def __enter__(self) -> ProcessPoolLevelSolver:
-        if self.processes > 1:
+        return self
+
+    def _started(self) -> Pool:
+        """The pool, started on first use."""
+        if self._pool is None:
             # spawn, not fork: forking a process that already runs threads (OpenBLAS, OpenCV,
             # an HTTP client) can deadlock the children. Solvers come from the registry's
             # importable factories, so every child sees the same adapters.
             with _sigint_ignored():  # inherited from birth: no child prints a traceback
-                self._pool = get_context("spawn").Pool(self.processes)
-        return self
+                budget = (thread_budget(self.processes),)  # each child its share of the cores
+                self._pool = get_context("spawn").Pool(self.processes, limit_threads, budget)
+        return self._pool
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
         if self._pool is not None:
@@ -483,8 +490,9 @@ class ProcessPoolLevelSolver:
     def __call__(
         self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
     ) -> LevelSolution:
-        if self._pool is None or isinstance(get_solver(config.solver), RowSolver):
+        if self.processes <= 1 or isinstance(get_solver(config.solver), RowSolver):
             return solve_level_in_process(inputs, config, progress)
+        pool = self._started()
         bundles = level_bundles(inputs, config)
         count = self.processes * 4
         # consecutive bundles stay together: segments of one row then share its costs
@@ -495,7 +503,7 @@ class ProcessPoolLevelSolver:
         results: list[BundleResult] = []
         if progress is not None:
             progress(0, len(bundles))
-        for chunk_results in self._pool.imap(solve, chunks):  # in order, as they finish
+        for chunk_results in pool.imap(solve, chunks):  # in order, as they finish
             results.extend(chunk_results)
             if progress is not None:
                 progress(len(results), len(bundles))

@@ -1,7 +1,7 @@
 """The service's ``solve_level``: a Celery chord per pyramid level, driven by fan-in callbacks.
 
-    start_job      (control)  load uploads, plan the levels, prepare_level(0), write inputs,
-                              launch chord 0
+    start_job      (control)  load uploads, resolve the disparity range (and check the views),
+                              plan the levels, prepare_level(0), write inputs, launch chord 0
     plan_level     (solver)   only for solvers that plan on their QPU graph (qpu, qpu-sim): the
                               widest segment that embeds and the shapes' embeddings, found where
                               the solver (and its token) is, kept with the level and the
@@ -18,9 +18,9 @@ failed) and each hands the next its data.
 
 from __future__ import annotations
 
-import base64
 import logging
 import time
+import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict
@@ -32,6 +32,7 @@ from shared import pyramid
 from shared.assembly import BundleResult, assemble
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
+from shared.disparity_range import ViewsWarning, resolve_max_disparity
 from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
@@ -41,17 +42,20 @@ from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, task_time_limits
+from workers.chunks import (
+    RowRanges,
+    decode_bundle,
+    encode_bundle,
+    is_planned,
+    rows_per_task,
+    task_chunks,
+)
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, now
 from workers.store import JobStore, LevelInputsMissing
 
 log = logging.getLogger(__name__)
 
-#: Bundles as JSON-friendly lists: [row_start, row_stop] (whole rows, from older tasks) or
-#: [row_start, row_stop, col_start, col_stop].
-RowRanges = list[list[int]]
-#: The solver's report fields a bundle carries back for the level's summary.
-BUNDLE_INFO = ("embedding_cache", "qubits", "longest_chain")
 #: Level inputs a worker process keeps (a few jobs' current levels).
 LEVEL_CACHE_SIZE = 4
 _level_cache: OrderedDict[tuple[str, int], tuple[LevelInputs, MatchConfig]] = OrderedDict()
@@ -65,76 +69,6 @@ def internal_error(job_id: str, what: str) -> str:
     return (
         f"internal error while {what}; the traceback is in the worker log (job {job_id}). "
         "Resubmit the job; report it if it happens again"
-    )
-
-
-# --- chunks of bundles -----------------------------------------------------------------------
-
-
-def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
-    """The level's planned bundles (both views' with the left-right check; row segments with
-    a ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
-
-    Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
-    (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
-    """
-    bundles = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
-    return group_bundles(bundles, config, rows_per_task)
-
-
-def is_planned(inputs: LevelInputs) -> bool:
-    """Whether the level's bundles were planned (``level_bundles`` recorded their width)."""
-    return "bundle_width" in inputs.prepared
-
-
-def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
-    """Bundles grouped into tasks (see ``task_chunks``; the watchdog regroups unsolved ones):
-    about ``rows_per_task`` rows each, all segments of a row in the same task."""
-    segments = max(1, sum(1 for bundle in bundles if bundle[0] == bundles[0][0])) if bundles else 1
-    height = bundles[0][1] - bundles[0][0] if bundles else 1  # a whole view for grids
-    per_task = max(1, rows_per_task // height) * segments
-    if is_metered(config.solver):
-        per_task = 1
-    return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
-
-
-def rows_per_task(settings: Settings, solver: str) -> int:
-    return settings.solver_rows_per_task.get(solver, settings.rows_per_task)
-
-
-def encode_bundle(result: BundleResult) -> dict:
-    """A bundle result as JSON: labels travel as base64 uint8 (candidate indices are < 256)."""
-    first, last = result.columns
-    return {
-        "rows": [result.row_start, result.row_stop],
-        "columns": [first, last],
-        "labels": base64.b64encode(result.labels.astype(np.uint8).tobytes()).decode("ascii"),
-        "energy": result.energy,
-        "repaired": result.repaired,
-        "wall_time": result.wall_time,
-        "timing": {key: float(value) for key, value in result.timing.items()},
-        "info": {key: result.info[key] for key in BUNDLE_INFO if key in result.info},
-        "lower_bound": result.lower_bound,
-    }
-
-
-def decode_bundle(data: dict, width: int) -> BundleResult:
-    """A bundle result from :func:`encode_bundle` (``width``: the level's, for whole rows)."""
-    start, stop = data["rows"]
-    first, last = data.get("columns", [0, width])
-    labels = np.frombuffer(base64.b64decode(data["labels"]), dtype=np.uint8)
-    return BundleResult(
-        row_start=start,
-        row_stop=stop,
-        labels=labels.reshape(stop - start, last - first).astype(np.int32),
-        energy=data["energy"],
-        repaired=data["repaired"],
-        wall_time=data["wall_time"],
-        timing=data["timing"],
-        info=data.get("info", {}),
-        col_start=first,
-        col_stop=last,
-        lower_bound=data.get("lower_bound"),
     )
 
 
@@ -156,8 +90,42 @@ def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
         log.info("job %s: not queued any more (cancelled, gone or started); nothing to do", job_id)
         return
     left, right = job_views(store, record)
+    if record.disparity_range is None:
+        record = resolve_range(store, record, left, right)
+        if record is None:
+            return
     first = job_plans(record)[0]
     launch_level(celery, store, record, prepare_level(left, right, record.config, first))
+
+
+def resolve_range(
+    store: JobStore, record: JobRecord, left: np.ndarray, right: np.ndarray
+) -> JobRecord | None:
+    """The job's disparity range (given, or estimated for ``auto``) and the check of its views,
+    written to the running job's record: ``disparity_range``, the levels it makes, and the
+    views' warning first among the job's warnings. Done here, in the job's first control task,
+    rather than in the HTTP request that accepted it. None when the job is no longer running."""
+    with warnings.catch_warnings():  # the warning goes to the job's status, not the log
+        warnings.simplefilter("ignore", ViewsWarning)
+        estimate = resolve_max_disparity(left, right, record.config.max_disparity)
+    levels = len(pyramid.plan(record.config, estimate.max_disparity))
+
+    def record_range(current: JobRecord) -> JobRecord | None:
+        if current.state is not JobState.RUNNING or current.disparity_range is not None:
+            return None
+        notes = [estimate.warning] if estimate.warning else []
+        return current.model_copy(
+            update={
+                "disparity_range": estimate.as_dict(),
+                "levels_total": levels,
+                "warnings": [*notes, *current.warnings],
+            }
+        )
+
+    updated = store.update(record.id, record_range)
+    if updated is None or updated.state is not JobState.RUNNING:
+        return None
+    return updated
 
 
 def job_views(store: JobStore, record: JobRecord) -> tuple[np.ndarray, np.ndarray]:
@@ -166,7 +134,8 @@ def job_views(store: JobStore, record: JobRecord) -> tuple[np.ndarray, np.ndarra
 
 
 def job_plans(record: JobRecord) -> list[LevelPlan]:
-    """The job's levels, from the disparity range resolved when it was accepted."""
+    """The job's levels, from the disparity range resolved when it started (or, for a metered
+    solver with ``max_disparity: auto``, when it was accepted)."""
     if record.disparity_range is None:
         raise ValueError(f"job {record.id}: no disparity range recorded")
     return pyramid.plan(record.config, int(record.disparity_range["max_disparity"]))

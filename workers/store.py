@@ -16,6 +16,7 @@ Keys (all under ``{key_prefix}:``):
                              in pieces): written by the API at submission, read by the control
                              worker; deleted when the job ends
     job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
+    job:{id}:level:views:{s} hash of .npy arrays: the images of the levels downsampled by s
     job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
     job:{id}:result          .npy bytes of the full-resolution disparity
     job:{id}:tasks           set of the ids of the job's solver tasks running now
@@ -35,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from importlib.resources import files
 from typing import Any
@@ -62,6 +64,7 @@ log = logging.getLogger(__name__)
 
 #: Level inputs live this long at most (they are deleted as soon as the level is assembled).
 LEVEL_INPUTS_GRACE = 3600
+IMAGES_KEPT = 2  # jobs' level images one process keeps
 
 
 #: Writes a new job and takes a place under its owner's active-job cap, in one script.
@@ -97,6 +100,7 @@ class JobStore:
         self.prefix = settings.key_prefix
         self.ttl = settings.result_ttl_seconds
         self._create = client.register_script(_CREATE)
+        self._images: OrderedDict[tuple[str, str], tuple] = OrderedDict()  # _level_images
 
     @classmethod
     def from_settings(cls, settings: Settings) -> JobStore:
@@ -396,17 +400,26 @@ class JobStore:
             "views": str(inputs.views).encode(),
             "started": repr(started).encode(),
             "prepared": json.dumps(inputs.prepared).encode(),
+            "images": str(inputs.plan.downsample).encode(),
         }
-        arrays = {"left": inputs.left, "right": inputs.right, "candidates": inputs.candidates}
+        arrays = {"candidates": inputs.candidates}
         if inputs.initial_labels is not None:
             arrays["initial_labels"] = inputs.initial_labels
         for name, array in arrays.items():
             fields.update(array_fields(name, array))
         key = self.key("job", job_id, "level", inputs.index)
+        # a level's images depend on the job and the downsampling only (bin pyramid: one copy)
+        images = self.key("job", job_id, "level", "views", inputs.plan.downsample)
+        ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
         with self.redis.pipeline() as pipe:
-            for name, value in fields.items():  # one bounded write per field
+            if not self.redis.exists(images):  # once per job and downsampling
+                for name in ("left", "right"):
+                    for field, value in array_fields(name, getattr(inputs, name)).items():
+                        pipe.hset(images, field, value)  # one bounded write per field
+            pipe.expire(images, ttl)
+            for name, value in fields.items():
                 pipe.hset(key, name, value)
-            pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
+            pipe.expire(key, ttl)
             pipe.execute()
 
     def save_prepared(self, job_id: str, index: int, prepared: dict) -> None:
@@ -419,11 +432,12 @@ class JobStore:
         fields = self.redis.hgetall(self.key("job", job_id, "level", index))
         if not fields:
             raise LevelInputsMissing(f"job {job_id}: inputs of level {index} are gone")
+        left, right = self._level_images(job_id, fields)
         inputs = LevelInputs(
             plan=LevelPlan.model_validate_json(fields[b"plan"]),
             views=int(fields[b"views"]),
-            left=array_from(fields, "left"),
-            right=array_from(fields, "right"),
+            left=left,
+            right=right,
             candidates=array_from(fields, "candidates"),
             initial_labels=(
                 array_from(fields, "initial_labels") if b"initial_labels" in fields else None
@@ -431,6 +445,22 @@ class JobStore:
             prepared=json.loads(fields.get(b"prepared", b"{}")),
         )
         return inputs, float(fields[b"started"])
+
+    def _level_images(self, job_id: str, fields: dict[bytes, bytes]) -> tuple[np.ndarray, ...]:
+        """A level's images: this process's (read-only) copy when another level of the job had
+        them, else from Redis."""
+        cache_key = (job_id, _text(fields[b"images"]))
+        if cache_key not in self._images:
+            stored = self.redis.hgetall(self.key("job", job_id, "level", "views", cache_key[1]))
+            if not stored:
+                raise LevelInputsMissing(f"job {job_id}: the images of its levels are gone")
+            self._images[cache_key] = tuple(array_from(stored, n) for n in ("left", "right"))
+            for image in self._images[cache_key]:  # shared by the job's levels
+                image.setflags(write=False)
+        self._images.move_to_end(cache_key)
+        if len(self._images) > IMAGES_KEPT:
+            self._images.popitem(last=False)
+        return self._images[cache_key]
 
     def has_level(self, job_id: str, index: int) -> bool:
         return bool(self.redis.exists(self.key("job", job_id, "level", index)))

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from shared.config import Settings
+from shared.threads import thread_budget, thread_environment
 from workers.embedded_redis import (
     EMBEDDED_URL_FILE,
     DataDirLock,
@@ -85,6 +86,9 @@ class WorkerProcess:
     log_file: Path
     extra_args: list[str] = field(default_factory=list)
     process: subprocess.Popen | None = None
+    #: Threads per pool process for OpenCV, OpenMP/BLAS and numba (``shared.threads``); default:
+    #: the cores shared among the ``concurrency`` processes.
+    threads: int | None = None
 
     @property
     def hostname(self) -> str:
@@ -93,10 +97,12 @@ class WorkerProcess:
     def start(self) -> WorkerProcess:
         self.log_file.parent.mkdir(parents=True, exist_ok=True)
         command = worker_command(self.hostname, self.queues, self.concurrency, self.extra_args)
+        threads = self.threads or thread_budget(self.concurrency, self.env)
+        env = {**self.env, **thread_environment(threads, self.env)}
         with self.log_file.open("ab") as out:
             self.process = subprocess.Popen(
                 command,
-                env=self.env,
+                env=env,
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 preexec_fn=die_with_parent,  # dies with serve, even on SIGKILL
@@ -298,6 +304,8 @@ class Stack:
                 settings.control_concurrency,
                 cpu_env,
                 logs / "worker-control.log",
+                # between the levels it runs alone (the solvers wait for it): every core
+                threads=thread_budget(1, cpu_env),
             ).start()
         )
         self.workers.append(

@@ -20,6 +20,7 @@ from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
 from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
+from shared.threads import inherited_threads, limit_threads, thread_budget
 from workers import fair, orchestration, watchdog
 from workers.app import (
     FAN_OUT_LEVEL,
@@ -84,11 +85,25 @@ def install_embedding_store() -> None:
         log.info("embedding store installed")
 
 
+#: Threads per pool process when the worker was started without a budget in its environment
+#: (by hand: ``celery -A workers worker -c N``): the cores shared among its N processes.
+_pool_threads: int | None = None
+
+
+@signals.celeryd_init.connect
+def _share_cores(options: dict | None = None, **_: object) -> None:
+    global _pool_threads
+    concurrency = (options or {}).get("concurrency")
+    _pool_threads = thread_budget(int(concurrency)) if concurrency else None
+
+
 @signals.worker_process_init.connect
 def _init_process(**_: object) -> None:
     global _store, _meter, _telemetry
     die_with_parent()  # a pool process never outlives its worker (even a SIGKILLed one)
     limit_memory(settings.task_memory_limit_mb)  # one task cannot take the machine's memory
+    # OpenCV, OpenMP/BLAS and numba threads: this process's share of the cores (shared.threads)
+    limit_threads(inherited_threads() or _pool_threads or thread_budget())
     _store = None
     _meter = None
     _telemetry = None

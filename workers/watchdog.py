@@ -38,6 +38,7 @@ from shared.bundles import bundle_key
 from shared.solvers.registry import queue_names, queue_of
 from workers import fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, START_JOB
+from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
 from workers.store import JobStore
 from workers.telemetry import Telemetry
@@ -235,7 +236,7 @@ class Watchdog:
         settings = self.store.settings
         config = record.config
         inputs, _ = self.store.load_level(record.id, index)
-        if not orchestration.is_planned(inputs):  # its plan task (solver queue) was lost
+        if not is_planned(inputs):  # its plan task (solver queue) was lost
             if self.planning(record.id, index):
                 return "in-flight"
             log.warning("job %s: re-sending the plan of level %d", record.id, index + 1)
@@ -260,9 +261,7 @@ class Watchdog:
             )
             self.telemetry.resent(1)
             return "fan-in"
-        chunks = orchestration.group_bundles(
-            missing, config, orchestration.rows_per_task(settings, config.solver)
-        )
+        chunks = group_bundles(missing, config, rows_per_task(settings, config.solver))
         log.warning(
             "job %s: no progress for %g s; re-sending %d unsolved bundles of level %d",
             record.id, self.stall, len(missing), index + 1,

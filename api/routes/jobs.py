@@ -201,6 +201,17 @@ def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEst
     )
 
 
+def range_at_submit(left_image, right_image, config: MatchConfig) -> RangeEstimate | None:
+    """The range, resolved in the request only when the QPU budget check needs it: a metered
+    solver with ``max_disparity: auto`` (the estimate of its QPU time depends on it, and the
+    job is refused before it is queued when it does not fit). Every other job's range estimate
+    and views check run in its first control task (``workers.orchestration.start_job``), off
+    the HTTP request; their result appears in the job's status once it has started."""
+    if is_metered(config.solver) and not isinstance(config.max_disparity, int):
+        return disparity_range_of(left_image, right_image, config)
+    return None
+
+
 def ground_truth_protocol(
     left_image: np.ndarray,
     right_image: np.ndarray,
@@ -307,11 +318,14 @@ def create_job(
     left_image, right_image = decode_pair(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
-    # the range decides the levels, hence the job's size: resolved once, here, for good
-    disparity_range = disparity_range_of(left_image, right_image, config)
-    check_budget(config, left_image.shape[:2], disparity_range.max_disparity, principal, users, svc)
+    # the range decides the levels, hence the job's size: given, resolved here for a metered
+    # solver's budget, or else resolved once by the job's first control task
+    disparity_range = range_at_submit(left_image, right_image, config)
+    top = disparity_range.max_disparity if disparity_range else config.max_disparity
+    if isinstance(top, int):
+        check_budget(config, left_image.shape[:2], top, principal, users, svc)
     arrays = {"left": left_image, "right": right_image}
-    warnings = [disparity_range.warning] if disparity_range.warning else []
+    warnings = [disparity_range.warning] if disparity_range and disparity_range.warning else []
     truth = None
     if ground_truth is not None:
         arrays["ground_truth"] = decode_ground_truth(
@@ -332,8 +346,8 @@ def create_job(
         warnings=warnings,
         ground_truth=truth,
         created_at=now(),
-        disparity_range=disparity_range.as_dict(),
-        levels_total=len(plan(config, disparity_range.max_disparity)),
+        disparity_range=disparity_range.as_dict() if disparity_range else None,
+        levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
     )
     try:
         svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)

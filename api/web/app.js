@@ -415,7 +415,7 @@ function progressOf(job) {
   if (!p.level || !p.bundles_total) {
     // the level is being prepared (a QPU solver's embedding search can take minutes)
     return { fraction: Math.max(0, p.level - 1) / Math.max(p.levels, 1),
-      text: `preparing level ${Math.max(p.level, 1)}/${p.levels}` };
+      text: `preparing level ${Math.max(p.level, 1)}/${p.levels || "?"}` };
   }
   const within = p.bundles_total ? p.bundles_done / p.bundles_total : 0;
   return {

@@ -124,15 +124,10 @@ def test_queued_job_lifecycle_and_listing(api):
         ids.append(response.json()["id"])
 
     status = api.get(f"/v1/jobs/{ids[0]}").json()
-    # max 6 px: the bin pyramid has one level (7 bins of 1 px)
+    # max 6 px: the bin pyramid has one level (7 bins of 1 px); the range's record (with the
+    # views' check) is written by the job's first control task, which no worker runs here
     assert status["state"] == "queued" and status["progress"]["levels"] == 1
-    assert status["disparity_range"] == {
-        "max_disparity": 6,
-        "source": "given",
-        "confirmed": status["disparity_range"]["confirmed"],  # the views' check, in order
-        "note": "",
-        "warning": "",
-    }
+    assert status["disparity_range"] is None
     assert status["warnings"] == []
     assert (
         status["width"] == 32 and status["height"] == 24 and status["config"]["max_disparity"] == 6
@@ -237,6 +232,20 @@ def test_estimate_refuses_bad_input_like_job_submission(api):
     bad = estimate(api, params={"solver": "qpu", "solver_params": {"num_reads": "many"}})
     assert bad.status_code == 422 and "cannot estimate" in bad.json()["detail"]
     assert api.post("/v1/estimate", data={"params": "{"}).status_code == 422  # no images
+
+
+def test_the_range_is_resolved_in_the_request_only_where_the_budget_needs_it(api):
+    """``max_disparity: auto`` costs a dense match of the views: the job's first control task
+    does it (none runs here), except for a metered solver, whose QPU budget is checked against
+    the estimate before the job is accepted."""
+    free = api.get(f"/v1/jobs/{post(api, params={'max_disparity': 'auto'}).json()['id']}").json()
+    assert free["disparity_range"] is None and free["progress"]["levels"] == 0
+    metered = post(api, params={"solver": "qpu-sim", "max_disparity": "auto"}).json()["id"]
+    status = api.get(f"/v1/jobs/{metered}").json()
+    assert status["disparity_range"]["source"] in ("auto", "auto-fallback")
+    assert status["progress"]["levels"] >= 1
+    for job in (free["id"], metered):
+        assert api.delete(f"/v1/jobs/{job}").status_code == 200
 
 
 def test_a_metered_jobs_charge_is_listed_and_shown(api, api_settings):

@@ -180,6 +180,16 @@ def test_process_pool_gives_the_sequential_result(scene, preset):
     assert [lv.energy for lv in sequential.levels] == [lv.energy for lv in parallel.levels]
 
 
+def test_a_row_solver_never_starts_the_process_pool(scene):
+    """The exact DP runs in this process: spawning idle children would only cost CPU."""
+    from shared.solve import ProcessPoolLevelSolver
+
+    config = MatchConfig(max_disparity=8, solver="exact")
+    with ProcessPoolLevelSolver(2) as pool:
+        run_pipeline(scene.left[:16, :24], scene.right[:16, :24], config, pool)
+        assert pool._pool is None
+
+
 def test_fast_median_equals_the_reference_median():
     from scipy import ndimage
 

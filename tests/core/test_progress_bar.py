@@ -56,5 +56,6 @@ def test_a_log_gets_one_line_per_level_and_state():
 def test_the_words_for_each_state():
     assert describe(2, 3, 576) == "level 2/3"
     assert describe(0, 3, 0) == "level 1/3: preparing"
+    assert describe(0, 0, 0) == "level 1/?: preparing"  # a job's range is not estimated yet
     assert describe(1, 3, 0, "queued") == "queued: waiting for a worker"
     assert describe(2, 3, 576, "cancelled") == "cancelled: level 2/3"

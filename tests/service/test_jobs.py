@@ -4,7 +4,6 @@ and a worker process killed mid-level."""
 from __future__ import annotations
 
 import json
-
 import os
 import signal
 import time
@@ -96,6 +95,20 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
         assert response.status_code == 200 and response.content.startswith(magic)
     preview = client.get(f"/v1/jobs/{job_id}/preview.png")
     assert preview.status_code == 200 and preview.headers["content-type"] == "image/png"
+
+
+def test_an_auto_range_is_resolved_by_the_job_as_in_process(client, pair):
+    """The range estimate and the views' check run in the job's first control task (not in
+    the HTTP request); the job reports the same range and levels, and the same map, as the
+    in-process pipeline."""
+    left, right, left_view, right_view, _ = pair
+    params = {"solver": "exact", "max_disparity": "auto"}
+    status = harness.wait_for(client, harness.submit(client, left, right, params))
+    assert status["state"] == "succeeded", status["error"]
+    expected = run_pipeline(left_view, right_view, MatchConfig.model_validate(params))
+    assert status["disparity_range"] == expected.max_disparity.as_dict()
+    assert status["progress"]["levels"] == len(status["levels"]) == len(expected.levels)
+    assert np.array_equal(harness.download(client, status["id"]), expected.disparity)
 
 
 def test_cancel_stops_unsolved_bundles(client, pair):

@@ -72,6 +72,32 @@ def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
         store.load_level(record.id, 1)
 
 
+def test_the_levels_of_a_bin_pyramid_share_one_copy_of_their_images(store, settings, pair_arrays):
+    """A bin pyramid's levels all read the full-resolution views: they are written to Redis
+    once per job, and each process reads them once (read-only, shared by the levels)."""
+    record = new_job(store, JobState.RUNNING)
+    left, right = pair_arrays
+    config = MatchConfig(max_disparity=8)  # accurate preset: bin pyramid, 2 levels
+    _, plans = plan_run(left, right, config)
+    coarse = prepare_level(left, right, config, plans[0])
+    fine = prepare_level(left, right, config, plans[1], np.full(coarse.shape, 2.0, np.float32))
+    store.save_level(record.id, coarse, started=1.0)
+    images = store.key("job", record.id, "level", "views", plans[0].downsample)
+    written = store.redis.hgetall(images)
+    store.redis.hset(images, "marker", b"kept")  # not written again by the next level
+    store.save_level(record.id, fine, started=2.0)
+    assert store.redis.hget(images, "marker") == b"kept"
+    other = JobStore.from_settings(settings)  # another worker process
+    first, _ = other.load_level(record.id, 0)
+    second, _ = other.load_level(record.id, 1)
+    assert second.left is first.left and not first.left.flags.writeable
+    for name in ("left", "right"):
+        assert np.array_equal(getattr(second, name), getattr(fine, name))
+    assert len(written) >= 4  # headers and pieces of left and right
+    store.fail(record.id, "done")  # a finished job's level keys (images too) are removed
+    assert not store.redis.exists(images)
+
+
 def test_a_repeated_fan_in_is_ignored(store):
     record = new_job(store, JobState.RUNNING)
     store.update(record.id, lambda r: r.model_copy(update={"levels": [{"index": 0}]}))
@@ -137,9 +163,11 @@ def test_a_large_levels_inputs_are_written_in_bounded_pieces(store):
         initial_labels=candidates[..., 0].astype(np.int32),
     )  # fmt: skip
     store.save_level(record.id, inputs, started=1.0)
-    key = store.key("job", record.id, "level", inputs.index)
-    sizes = [store.redis.hstrlen(key, field) for field in store.redis.hkeys(key)]
-    assert max(sizes) <= MAX_VALUE_BYTES
+    level = store.key("job", record.id, "level", inputs.index)
+    images = store.key("job", record.id, "level", "views", plan.downsample)
+    for key in (level, images):
+        sizes = [store.redis.hstrlen(key, field) for field in store.redis.hkeys(key)]
+        assert max(sizes) <= MAX_VALUE_BYTES
     loaded, _ = store.load_level(record.id, inputs.index)
     for name in ("left", "right", "candidates", "initial_labels"):
         ours, theirs = getattr(loaded, name), getattr(inputs, name)

@@ -1,0 +1,61 @@
+"""Thread budgets (shared/threads.py): processes that share the cores never start a thread per
+core each in OpenCV, OpenMP/BLAS and numba, and a count the user set wins."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from shared.threads import (
+    THREAD_VARIABLES,
+    USER_VARIABLE,
+    cores,
+    inherited_threads,
+    thread_budget,
+    thread_environment,
+)
+
+
+@given(processes=st.integers(1, 64))
+def test_processes_share_the_cores(processes):
+    budget = thread_budget(processes, environ={})
+    assert budget == max(1, cores() // processes)
+    assert budget * processes <= max(cores(), processes)  # never more threads than cores
+
+
+@given(user=st.integers(1, 32), processes=st.integers(1, 8))
+def test_a_count_the_user_set_wins(user, processes):
+    environ = {"OMP_NUM_THREADS": str(user)}
+    assert thread_budget(processes, environ) == user
+    child = thread_environment(1, environ)
+    assert {child[name] for name in THREAD_VARIABLES} == {str(user)}
+    # a child of that child still sees the user's count, not the values written for it
+    assert thread_budget(processes, child) == user
+
+
+def test_values_a_qhsm_parent_wrote_are_not_taken_for_the_users():
+    """``qhsm serve`` itself runs with every core; its workers' pool processes get their share."""
+    parent = thread_environment(cores(), environ={})
+    assert parent[USER_VARIABLE] == ""
+    assert thread_budget(2, parent) == max(1, cores() // 2)
+    assert inherited_threads(parent) == cores()
+    assert inherited_threads({"NUMBA_NUM_THREADS": "3"}) is None  # set by a user, not a parent
+
+
+def test_limit_threads_sizes_opencv_and_numba_in_a_new_process():
+    code = (
+        "import json, cv2, numba\n"
+        "from shared.threads import limit_threads, threads\n"
+        "limit_threads(1)\n"
+        "print(json.dumps([cv2.getNumThreads(), numba.get_num_threads(), threads()]))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in (*THREAD_VARIABLES, USER_VARIABLE)}
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    assert json.loads(done.stdout) == [1, 1, 1]
