@@ -1,0 +1,91 @@
+"""Grid inference (issue 17): how close a QUBO solver's tiles come to the exact DD bound.
+
+    python benchmarks/grid_energy.py [--scenes tsukuba,middlebury2006/monopoly] [--solver sa]
+        [--processes 2]
+
+For each scene (range given: the ceil of the ground truth's maximum) it runs the default
+pipeline twice: with ``exact`` (dual decomposition: energy and lower bound per level) and with
+``--solver`` (3-row tiles given their neighbours' labels). On every level of the solver's run it
+also computes the DD lower bound of that same level (same candidates, which follow from the
+solver's own coarser levels), so the gap is the solver's labelling against a bound on the optimum
+of the very MRF it minimised. Prints per level: energy, bound, gap; and per run the all-pixel
+RMSE / BPP and time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from shared.config import MatchConfig
+from shared.datasets import Scene, default_middlebury_dir, load_scene
+from shared.grid import dual_decomposition
+from shared.level_inputs import LevelInputs
+from shared.metrics import evaluate
+from shared.pipeline import run_pipeline
+from shared.solve import ProcessPoolLevelSolver
+
+
+def bound_of(inputs: LevelInputs, config: MatchConfig) -> float:
+    """The DD lower bound of a level (both views), as ``exact`` would compute it."""
+    height = inputs.view_height
+    return sum(
+        dual_decomposition(
+            inputs.grid(config, view * height, (view + 1) * height), config.dual_iterations
+        ).lower_bound
+        for view in range(inputs.views)
+    )
+
+
+def find_scene(name: str) -> Scene:
+    """``tsukuba`` (in the Middlebury copies) or ``middlebury2006/monopoly`` (beside them)."""
+    folder = default_middlebury_dir()
+    if "/" in name:
+        dataset, scene = name.split("/")
+        candidates = [p for p in (folder.parent / dataset).iterdir() if p.name.lower() == scene]
+        return load_scene(candidates[0])
+    return load_scene(folder / name)
+
+
+def run(scene: Scene, solver: str, processes: int) -> list[str]:
+    left, right = scene.load()
+    truth = scene.ground_truth()
+    config = MatchConfig(solver=solver, max_disparity=scene.ground_truth_range())
+    bounds: list[float] = []
+
+    with ProcessPoolLevelSolver(processes) as pool:
+
+        def solve_level(inputs, config, **kwargs):
+            solution = pool(inputs, config, **kwargs)
+            bounds.append(bound_of(inputs, config))
+            return solution
+
+        started = time.perf_counter()
+        result = run_pipeline(left, right, config, solve_level)
+        seconds = time.perf_counter() - started
+    scores = evaluate(result.disparity, truth, scene.scale, scene.border)
+    summary = f"RMSE {scores.rmse:.3f} BPP {scores.bpp:.2f} ({seconds:.0f} s)"
+    lines = [f"{scene.name} {solver}: {summary}"]
+    for level, bound in zip(result.levels, bounds, strict=True):
+        gap = (level.energy - bound) / abs(level.energy)
+        lines.append(
+            f"  level {level.index} (bin {level.bin_width}): energy {level.energy:.1f} "
+            f"bound {bound:.1f} gap {100 * gap:.3f} %"
+        )
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", default="tsukuba,middlebury2006/monopoly")
+    parser.add_argument("--solver", default="sa")
+    parser.add_argument("--processes", type=int, default=2)
+    args = parser.parse_args()
+    for name in args.scenes.split(","):
+        scene = find_scene(name)
+        for solver in ("exact", args.solver):
+            print("\n".join(run(scene, solver, args.processes)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
