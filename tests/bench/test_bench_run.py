@@ -104,6 +104,9 @@ def test_accurate_ablations_switch_one_step_each(bench_result):
         "no-weighted-median": {"weighted_median"},
         "image-pyramid": {"pyramid", "levels"},
         "squared-difference": {"data_term"},
+        "ad-census": {"data_term"},
+        "one-slope": {"levels"},
+        "rows": {"inference", "bundle_height"},  # rows take single-row bundles by default
     }
 
 

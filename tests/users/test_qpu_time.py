@@ -99,7 +99,9 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
 
 def test_job_estimate_counts_row_segments(tmp_path):
     """Segments multiply the bundles and shrink them; auto uses the width a run chose."""
-    config = MatchConfig(solver="qpu-sim", bundle_width=24, bundle_margin=6, lr_check=False)
+    config = MatchConfig(
+        solver="qpu-sim", inference="rows", bundle_width=24, bundle_margin=6, lr_check=False
+    )
     got = qpu_time.job_seconds(config, (10, 50), 20).levels[-1]
     assert got.bundles == 10 * len(segment_columns(50, 24, 6)) == 10 * 3
     assert got.variables_per_bundle == 24 * (got_labels(config) - 1)
