@@ -179,8 +179,8 @@ def cmd_api(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     import logging
 
-    from api.server import PortBusy, bind_api_socket
-    from workers.embedded_redis import DataDirBusy
+    from api.server import PortBusyError, bind_api_socket
+    from workers.embedded_redis import DataDirBusyError
     from workers.supervisor import Stack
 
     logging.basicConfig(
@@ -189,14 +189,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     try:  # the port first: a busy one fails before Redis and workers start
         sock = bind_api_socket(settings.api_host, settings.api_port)
-    except PortBusy as error:
+    except PortBusyError as error:
         raise CommandError(str(error)) from None
     stack = Stack(settings, concurrency=args.worker_concurrency)
     print("starting Redis and workers ...", file=sys.stderr)
     try:
         try:
             stack.start()
-        except DataDirBusy as error:
+        except DataDirBusyError as error:
             raise CommandError(str(error)) from None
         settings = stack.settings
         print(f"data directory: {settings.data_dir.resolve()} (QHSM_DATA_DIR)", file=sys.stderr)
@@ -286,7 +286,7 @@ def _demo_scene(choice: str):
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from api.client import Client, progress_bar, scores_text
-    from api.server import ApiThread, PortBusy, bind_api_socket
+    from api.server import ApiThread, PortBusyError, bind_api_socket
     from workers.embedded_redis import free_port
     from workers.supervisor import Stack
 
@@ -296,7 +296,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     else:  # a busy port fails before Redis and workers start
         try:
             bind_api_socket(settings.api_host, settings.api_port).close()
-        except PortBusy as error:
+        except PortBusyError as error:
             raise CommandError(str(error)) from None
     name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
     stack = Stack(settings, concurrency=args.worker_concurrency)

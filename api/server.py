@@ -22,7 +22,7 @@ def bind_api_socket(host: str, port: int) -> socket.socket:
     except OSError as error:
         sock.close()
         reason = "is in use" if error.errno == errno.EADDRINUSE else f"cannot be bound: {error}"
-        raise PortBusy(
+        raise PortBusyError(
             f"port {port} on {host} {reason} (another `qhsm serve`?); pass --port or set "
             "QHSM_API_PORT"
         ) from None
@@ -31,7 +31,7 @@ def bind_api_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-class PortBusy(RuntimeError):
+class PortBusyError(RuntimeError):
     """The API port is taken."""
 
 

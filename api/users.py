@@ -33,6 +33,7 @@ from pydantic import BaseModel
 
 from shared.config import Settings
 from workers.quota import LOCAL_USER, QuotaLedger
+from workers.redis_client import client_for
 
 KEY_TAG = "qhsm"
 KEY_ID_BYTES = 4
@@ -93,10 +94,8 @@ class UserStore:
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> UserStore:
-        from workers.app import redis_url
-
         return cls(
-            client or redis.Redis.from_url(redis_url(settings)),
+            client or client_for(settings),
             settings.key_prefix,
             auth_enabled=settings.auth_enabled,
             default_qpu_seconds=settings.default_qpu_seconds,

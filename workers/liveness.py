@@ -35,6 +35,7 @@ from celery.worker import state
 
 from shared.config import Settings
 from workers import fair
+from workers.redis_client import client_for
 
 log = logging.getLogger(__name__)
 
@@ -104,9 +105,7 @@ class Heartbeat(bootsteps.StartStopStep):
         self.timer_ref: Any = None
 
     def start(self, parent: Any) -> None:
-        from workers.app import redis_url
-
-        self.client = redis.Redis.from_url(redis_url(self.settings))
+        self.client = client_for(self.settings)
         self.beat(parent)
         self.timer_ref = parent.timer.call_repeatedly(
             self.settings.worker_heartbeat_seconds, self.beat, (parent,), priority=10

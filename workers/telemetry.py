@@ -30,6 +30,7 @@ from prometheus_client.core import (
 from prometheus_client.registry import Collector
 
 from shared.config import Settings
+from workers.redis_client import client_for
 
 #: Upper bounds (seconds) of the task-time histogram's buckets.
 TASK_SECONDS_BUCKETS = (0.1, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1800.0)
@@ -54,9 +55,7 @@ class Telemetry:
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> Telemetry:
-        from workers.app import redis_url
-
-        return cls(client or redis.Redis.from_url(redis_url(settings)), settings.key_prefix)
+        return cls(client or client_for(settings), settings.key_prefix)
 
     def key(self, *parts: object) -> str:
         return ":".join([self.prefix, "metrics", *map(str, parts)])

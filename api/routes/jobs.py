@@ -40,7 +40,7 @@ from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.quota import LOCAL_USER, QuotaExceeded
 from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
-from workers.store import ActiveJobsCap
+from workers.store import ActiveJobsCapError
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -351,7 +351,7 @@ def create_job(
     )
     try:
         svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
-    except ActiveJobsCap as full:
+    except ActiveJobsCapError as full:
         raise too_many_jobs(principal.name, full.active, full.cap) from None
     try:
         keep_views(svc, record.id, arrays)
@@ -381,7 +381,7 @@ def list_jobs(
 ):
     """Your jobs, newest first (admins: everyone's)."""
     owner = None if principal.admin else principal.name
-    records, total = svc.store.list(offset, limit, owner=owner)
+    records, total = svc.store.list_jobs(offset, limit, owner=owner)
     items = [summary_of(r, users) for r in records if can_see(principal, r)]
     following = offset + limit
     next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None
