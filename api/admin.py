@@ -54,8 +54,9 @@ def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
     data_dir = settings.data_dir.resolve()
     lock, server = None, None
     try:
-        if args.redis_url or settings.redis_url:
-            url = args.redis_url or settings.redis_url
+        configured: str | None = args.redis_url or settings.redis_url
+        if configured:
+            url = configured
             source = "--redis-url" if args.redis_url else "QHSM_REDIS_URL"
             where = f"Redis at {safe_url(url)} (from {source})"
         elif DataDirLock(data_dir).held_by_other():

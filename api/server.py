@@ -8,8 +8,12 @@ import socket
 import threading
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from shared.config import Settings
+
+if TYPE_CHECKING:
+    import uvicorn  # imported when the thread starts (the CLI's start-up stays light)
 
 
 def bind_api_socket(host: str, port: int) -> socket.socket:
@@ -41,7 +45,7 @@ class ApiThread:
 
     settings: Settings
     log_level: str = "warning"
-    server: object | None = None
+    server: uvicorn.Server | None = None
     thread: threading.Thread | None = None
 
     @property

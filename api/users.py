@@ -33,7 +33,7 @@ from pydantic import BaseModel
 
 from shared.config import Settings
 from workers.quota import LOCAL_USER, QuotaLedger
-from workers.redis_client import client_for
+from workers.redis_client import client_for, text
 
 KEY_TAG = "qhsm"
 KEY_ID_BYTES = 4
@@ -148,7 +148,7 @@ class UserStore:
 
     def _raw(self, name: str) -> dict[str, str]:
         raw = self.redis.hgetall(self.key("user", name))
-        return {k.decode(): v.decode() for k, v in raw.items()}
+        return {text(k): text(v) for k, v in raw.items()}
 
     @staticmethod
     def _user(fields: dict[str, str]) -> User:
@@ -172,7 +172,7 @@ class UserStore:
         return user
 
     def list_users(self) -> list[User]:
-        names = sorted(n.decode() for n in self.redis.smembers(self.key("users")))
+        names = sorted(text(n) for n in self.redis.smembers(self.key("users")))
         return [user for user in map(self.get, names) if user is not None]
 
     def rotate_key(self, name: str) -> str:
@@ -218,7 +218,7 @@ class UserStore:
         name = self.redis.get(self.key("apikey", match.group(1)))
         if name is None:
             return None
-        fields = self._raw(name.decode())
+        fields = self._raw(text(name))
         stored = fields.get("key_hash", "")
         presented = key_digest(key.strip())
         if not stored or fields.get("revoked") == "1":

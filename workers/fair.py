@@ -24,7 +24,7 @@ import time
 import redis
 from kombu.utils.scheduling import round_robin_cycle
 
-from workers.redis_client import client_for
+from workers.redis_client import client_for, text
 
 #: Between a solver's queue and the owner in a user queue's name (not allowed in user names).
 SEPARATOR = "~"
@@ -56,7 +56,7 @@ def route(client: redis.Redis, prefix: str, queue: str, owner: str | None) -> st
 
 def user_queues(client: redis.Redis, prefix: str, queue: str) -> list[str]:
     """Every user queue of solver queue ``queue``."""
-    return sorted(raw.decode() for raw in client.smembers(_key(prefix, queue)))
+    return sorted(text(raw) for raw in client.smembers(_key(prefix, queue)))
 
 
 def with_user_queues(client: redis.Redis, prefix: str, queues: list[str]) -> list[str]:

@@ -24,6 +24,7 @@ import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict
+from typing import Any
 
 import numpy as np
 from celery import Celery, chain, chord
@@ -385,7 +386,7 @@ def _next_level_or_finish(
     result = finish(level_map, left, right, config, plans[-1], inputs.views)
     metrics, warning = _evaluate_result(store, record, result)
     store.save_result(record.id, result)
-    updates = {"metrics": metrics}
+    updates: dict[str, Any] = {"metrics": metrics}
     if warning:
         updates["error"] = warning
     store.transition(record.id, JobState.SUCCEEDED, {JobState.RUNNING}, **updates)

@@ -53,3 +53,14 @@ def members(reply: Iterable[object]) -> list[str]:
             raise TypeError(f"a sorted-set member, not {type(member).__name__}: read with scores?")
         names.append(text(member))
     return names
+
+
+def scored(reply: Iterable[object]) -> dict[str, float]:
+    """A sorted-set range read with scores (``ZRANGE ... WITHSCORES``): member -> score."""
+    scores = {}
+    for pair in reply:
+        if not isinstance(pair, tuple | list) or len(pair) != 2:
+            raise TypeError(f"a (member, score) pair, not {pair!r}: read without scores?")
+        member, score = pair
+        scores[text(member)] = float(score)
+    return scores

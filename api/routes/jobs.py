@@ -7,12 +7,12 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Request, UploadFile
+from fastapi import APIRouter, File, Form, HTTPException, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
 
-from api.auth import Principal, can_see, current_principal
-from api.deps import Services, load_solver, services
+from api.auth import Principal, can_see
+from api.deps import PrincipalDep, Responses, Services, ServicesDep, UsersDep, load_solver
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import (
     MAX_LABEL,
@@ -24,7 +24,7 @@ from api.uploads import (
     parse_config,
     read_upload,
 )
-from api.users import UserStore, user_store
+from api.users import UserStore
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import ScaleNotInferred, infer_gt_scale
@@ -44,9 +44,6 @@ from workers.store import ActiveJobsCapError
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
-ServicesDep = Annotated[Services, Depends(services)]
-PrincipalDep = Annotated[Principal, Depends(current_principal)]
-UsersDep = Annotated[UserStore, Depends(user_store)]
 DISPARITY_MEDIA = {
     "pfm": "image/x-portable-floatmap",
     "png": "image/png",
@@ -59,9 +56,9 @@ GT_SCALE_RANGE = (1e-3, 1e6)
 MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
-NOT_FOUND = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
+NOT_FOUND: Responses = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
 #: Errors of the upload form (POST /v1/jobs and /v1/estimate) for the OpenAPI docs.
-UPLOAD_ERRORS = {
+UPLOAD_ERRORS: Responses = {
     400: {"description": "params is not JSON"},
     413: {"description": "File or image too large"},
     415: {"description": "Not a supported image format"},
