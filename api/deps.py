@@ -62,11 +62,6 @@ class QueueInspector:
             self._cache = (time.monotonic(), consumers)
             return consumers
 
-    def forget(self) -> None:
-        with self._lock:
-            self._cache = None
-
-
 @dataclass
 class Services:
     settings: Settings

@@ -186,10 +186,6 @@ class Health(BaseModel):
     )
 
 
-class ErrorBody(BaseModel):
-    detail: str
-
-
 class LevelEstimate(BaseModel):
     """One pyramid level of an estimate: bundle count x per-bundle metered time."""
 

@@ -204,10 +204,6 @@ class UserStore:
             pipe.hset(self.key("user", name), mapping={"revoked": 1, "key_hash": ""})
             pipe.execute()
 
-    def set_admin(self, name: str, admin: bool) -> None:
-        self.require(name)
-        self.redis.hset(self.key("user", name), "admin", int(admin))
-
     # authentication ---------------------------------------------------------------------------
 
     def authenticate(self, key: str) -> User | None:

@@ -17,7 +17,6 @@ import numpy as np
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 #: 16-bit PNG disparity maps store disparity x this factor.
 PNG_DISPARITY_SCALE = 256.0
-IMAGE_SUFFIXES = {".png", ".ppm", ".pgm", ".pnm", ".jpg", ".jpeg", ".pfm", ".tif", ".tiff", ".bmp"}
 DISPARITY_SUFFIXES = (".pfm", ".png", ".npy")
 
 
