@@ -62,6 +62,7 @@ class QueueInspector:
             self._cache = (time.monotonic(), consumers)
             return consumers
 
+
 @dataclass
 class Services:
     settings: Settings
