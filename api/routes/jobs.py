@@ -27,12 +27,12 @@ from api.uploads import (
 from api.users import UserStore
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
-from shared.ground_truth import ScaleNotInferred, infer_gt_scale
+from shared.ground_truth import ScaleNotInferredError, infer_gt_scale
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.solve import bundle_width_setting
-from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
+from shared.solvers import InvalidSolverParamsError, UnknownSolver, check_params
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
 from shared.solvers.registry import queue_of
@@ -164,7 +164,7 @@ def bounded_params(config: MatchConfig) -> MatchConfig:
     """422 unless every solver parameter is inside the solver's schema (the registry's)."""
     try:
         params = check_params(config.solver, config.solver_params)
-    except InvalidSolverParams as error:
+    except InvalidSolverParamsError as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
     return config.model_copy(update={"solver_params": params})
 
@@ -222,7 +222,7 @@ def ground_truth_protocol(
         return GroundTruth(scale=scale, border=border), ""
     try:
         estimate = infer_gt_scale(left_image, right_image, values)
-    except ScaleNotInferred as error:
+    except ScaleNotInferredError as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"gt_scale: {error}") from None
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 
