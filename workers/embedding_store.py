@@ -12,7 +12,7 @@ import redis
 
 from shared.config import Settings
 from shared.solvers.embedding_cache import set_default_store
-from workers.redis_client import client_for, connect
+from workers.redis_client import client_for, connect, text
 
 KEY_PREFIX = "qhsm:embedding:"
 
@@ -30,9 +30,7 @@ class RedisEmbeddingStore:
 
     def get(self, key: str) -> str | None:
         value = self.client.get(self.prefix + key)
-        if isinstance(value, bytes):
-            return value.decode()
-        return value
+        return None if value is None else text(value)
 
     def set(self, key: str, value: str) -> None:
         self.client.set(self.prefix + key, value)
