@@ -21,7 +21,7 @@ class PollsAtDebug(logging.Filter):
         if not isinstance(args, tuple) or len(args) != 5:
             return True
         _, method, path, _, code = args
-        if method != "GET" or not POLL_PATH.match(str(path)) or int(code) >= 400:
+        if method != "GET" or not POLL_PATH.match(str(path)) or int(str(code)) >= 400:
             return True
         record.levelno, record.levelname = logging.DEBUG, logging.getLevelName(logging.DEBUG)
         return logging.getLogger(record.name).isEnabledFor(logging.DEBUG)

@@ -24,6 +24,7 @@ import sys
 from collections.abc import Iterator
 
 from shared.cli_options import CommandError, setting_option
+from workers.redis_client import connect
 
 
 @contextlib.contextmanager
@@ -41,7 +42,7 @@ def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
     from workers.embedded_redis import (
         EMBEDDED_URL_FILE,
         PASSWORD_FILE,
-        DataDirBusy,
+        DataDirBusyError,
         DataDirLock,
         EmbeddedRedis,
         safe_url,
@@ -53,8 +54,9 @@ def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
     data_dir = settings.data_dir.resolve()
     lock, server = None, None
     try:
-        if args.redis_url or settings.redis_url:
-            url = args.redis_url or settings.redis_url
+        configured: str | None = args.redis_url or settings.redis_url
+        if configured:
+            url = configured
             source = "--redis-url" if args.redis_url else "QHSM_REDIS_URL"
             where = f"Redis at {safe_url(url)} (from {source})"
         elif DataDirLock(data_dir).held_by_other():
@@ -75,7 +77,7 @@ def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
                 )
             try:
                 lock = DataDirLock(data_dir).acquire()
-            except DataDirBusy as error:
+            except DataDirBusyError as error:
                 raise CommandError(str(error)) from None
             server = EmbeddedRedis(data_dir / "redis").start()
             url = server.url
@@ -86,7 +88,7 @@ def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
                 else f"the embedded Redis of data dir {data_dir} (started for this command)"
             )
         print(f"store: {where}", file=sys.stderr)
-        client = redis.Redis.from_url(url, socket_connect_timeout=2)
+        client = connect(url, socket_connect_timeout=2)
         try:
             client.ping()
         except redis.RedisError as error:

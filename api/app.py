@@ -125,8 +125,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def http_error(request: Request, error: StarletteHTTPException) -> Response:
         # FastAPI turns any error while it reads a form into "400 error parsing the body",
         # a full disk under the spooled upload included
-        if storage_full(error.__cause__):
-            return storage_full_response(request, error.__cause__)
+        cause = error.__cause__
+        if cause is not None and storage_full(cause):
+            return storage_full_response(request, cause)
         return await http_exception_handler(request, error)
 
     @app.exception_handler(redis.ConnectionError)

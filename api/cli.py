@@ -9,7 +9,9 @@ qhsm wait     follow a submitted job (again) and download its result
 qhsm cancel   cancel a submitted job
 qhsm estimate a job's estimated QPU (or hybrid) seconds, without running it
 
-One function per command and its parser; they share the settings options and the client.
+One function per command and its parser; they share the settings options and the client. The
+commands that start the service (serve, demo, api) are in :mod:`api.serve_cli`, the worker in
+:mod:`workers.cli`, user administration in :mod:`api.admin`.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import json
 import sys
 from pathlib import Path
 
+from api.serve_cli import cmd_api, cmd_demo, cmd_serve
 from shared.cli import EXIT_INTERRUPTED
 from shared.cli_options import (
     CommandError,
@@ -30,7 +33,7 @@ from shared.cli_options import (
     setting_option,
     settings_from_args,
 )
-from shared.config import MatchConfig, Settings
+from shared.config import MatchConfig
 from workers import cli as worker_cli
 
 
@@ -154,192 +157,6 @@ def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None
         setting_option(parser, "api_port", "--port")
     setting_option(parser, "data_dir")
     setting_option(parser, "worker_concurrency", "--concurrency")
-
-
-# --- serve / api / demo ----------------------------------------------------------------------
-
-
-def _uvicorn_server(settings: Settings, log_level: str):
-    """The API in this thread (uvicorn handles Ctrl-C and SIGTERM)."""
-    import uvicorn
-
-    from api.app import create_app
-
-    config = uvicorn.Config(
-        create_app(settings), host=settings.api_host, port=settings.api_port, log_level=log_level
-    )
-    return uvicorn.Server(config)
-
-
-def cmd_api(args: argparse.Namespace) -> int:
-    _uvicorn_server(settings_from_args(args), args.log_level).run()
-    return 0
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    import logging
-
-    from api.server import PortBusy, bind_api_socket
-    from workers.embedded_redis import DataDirBusy
-    from workers.supervisor import Stack
-
-    logging.basicConfig(
-        level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
-    settings = settings_from_args(args)
-    try:  # the port first: a busy one fails before Redis and workers start
-        sock = bind_api_socket(settings.api_host, settings.api_port)
-    except PortBusy as error:
-        raise CommandError(str(error)) from None
-    stack = Stack(settings, concurrency=args.worker_concurrency)
-    print("starting Redis and workers ...", file=sys.stderr)
-    try:
-        try:
-            stack.start()
-        except DataDirBusy as error:
-            raise CommandError(str(error)) from None
-        settings = stack.settings
-        print(f"data directory: {settings.data_dir.resolve()} (QHSM_DATA_DIR)", file=sys.stderr)
-        print(stack.describe(), file=sys.stderr)
-        url = f"http://{settings.api_host}:{settings.api_port}"
-        print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
-        announce_web_page(settings, url)
-        _uvicorn_server(settings, args.log_level).run(sockets=[sock])
-    except KeyboardInterrupt:  # Ctrl-C is how serve is stopped (uvicorn re-raises it)
-        print("qhsm serve: stopping the workers and Redis ...", file=sys.stderr)
-    finally:
-        stack.stop()
-        sock.close()
-    return 0
-
-
-def sign_in_url(url: str, host: str, key: str | None) -> str:
-    """The web page's address; with a key just made and a loopback address it signs the local
-    admin in: the key is in the fragment, which browsers never send, so it stays out of every
-    server log (the page asks before it switches a signed-in tab to that account)."""
-    import ipaddress
-
-    try:
-        local = host == "localhost" or ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        local = False
-    return f"{url}/#key={key}" if key and local else f"{url}/"
-
-
-def _announce_key(settings: Settings) -> tuple[str | None, bool]:
-    """Make sure the local admin exists (auth on) and say where its key is: (the key, whether
-    it was just made). The key itself is printed only when it was just made, never in a log
-    line of a later start."""
-    if not settings.auth_enabled:
-        print("authentication is off (QHSM_AUTH_ENABLED=false)", file=sys.stderr)
-        return None, False
-    from api.users import LOCAL_ADMIN, LOCAL_KEY_FILE, UserStore, ensure_local_admin
-
-    key, new = ensure_local_admin(UserStore.from_settings(settings), settings.data_dir)
-    where = settings.data_dir / LOCAL_KEY_FILE
-    if new:
-        print(f"new API key of {LOCAL_ADMIN} (admin): {key}", file=sys.stderr)
-    print(
-        f"{LOCAL_ADMIN}'s API key is in {where} (sign in to the web page with it); "
-        "`qhsm submit` uses it unless --key or QHSM_API_KEY is given; add lab members with "
-        "`qhsm admin create-user NAME`",
-        file=sys.stderr,
-    )
-    return key, new
-
-
-def announce_web_page(settings: Settings, url: str) -> str | None:
-    """Print where the local admin's key is and the web page's address (with the key in its
-    fragment only when the key was just made); returns the key."""
-    key, new = _announce_key(settings)
-    print(f"web page: {sign_in_url(url, settings.api_host, key if new else None)}", file=sys.stderr)
-    return key
-
-
-def _demo_scene(choice: str):
-    """(name, left PNG, right PNG, ground truth .npy bytes, gt scale, gt border, max disparity)."""
-    import cv2
-    import numpy as np
-
-    from shared.datasets import default_middlebury_dir, load_scene
-
-    folder = default_middlebury_dir() / "tsukuba"
-    if choice == "tsukuba" or (choice == "auto" and folder.is_dir()):
-        if not folder.is_dir():
-            raise CommandError(f"Tsukuba not found at {folder} (set QHSM_MIDDLEBURY_DIR)")
-        scene = load_scene(folder)
-        gt = scene.gt.read_bytes() if scene.gt else None
-        return "tsukuba", scene.left.read_bytes(), scene.right.read_bytes(), gt, 16.0, 18, 16
-    from shared.synthetic import make_scene
-
-    synthetic = make_scene(120, 160, max_disparity=16, seed=0)
-
-    def png(image) -> bytes:
-        return cv2.imencode(".png", np.rint(image * 255).astype(np.uint8))[1].tobytes()
-
-    from io import BytesIO
-
-    stream = BytesIO()
-    np.save(stream, synthetic.disparity)
-    return "synthetic", png(synthetic.left), png(synthetic.right), stream.getvalue(), 1.0, 0, 16
-
-
-def cmd_demo(args: argparse.Namespace) -> int:
-    from api.client import Client, progress_bar, scores_text
-    from api.server import ApiThread, PortBusy, bind_api_socket
-    from workers.embedded_redis import free_port
-    from workers.supervisor import Stack
-
-    settings = settings_from_args(args)
-    if args.api_port is None:
-        settings = settings.model_copy(update={"api_port": free_port()})
-    else:  # a busy port fails before Redis and workers start
-        try:
-            bind_api_socket(settings.api_host, settings.api_port).close()
-        except PortBusy as error:
-            raise CommandError(str(error)) from None
-    name, left, right, gt, scale, border, max_disparity = _demo_scene(args.scene)
-    stack = Stack(settings, concurrency=args.worker_concurrency)
-    api = None
-    bar = progress_bar()
-    serving = False  # after the job with --keep-running: Ctrl-C is how one stops it
-    print("starting Redis, workers and the API ...", file=sys.stderr)
-    try:
-        stack.start()
-        print(stack.describe(), file=sys.stderr)
-        api = ApiThread(stack.settings).start()
-        key, new = _announce_key(stack.settings)
-        client = Client(api.url, key=key, key_source="the demo's local admin")
-        params = {"solver": args.solver, "max_disparity": max_disparity}
-        job = client.submit(left, right, params, ground_truth=gt, gt_scale=scale, gt_border=border)
-        print(f"job {job['id']}: {name}, solver {args.solver}  ({api.url}{job['links']['self']})")
-        status = client.wait(job["id"], on_progress=bar)
-        if status["state"] != "succeeded":
-            raise CommandError(f"the demo job {status['state']}: {status['error']}")
-        out = stack.settings.data_dir / "demo"
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "disparity.pfm").write_bytes(client.disparity(job["id"], "pfm"))
-        (out / "preview.png").write_bytes(client.preview(job["id"]))
-        seconds = sum(level["seconds"] for level in status["levels"])
-        scores = scores_text(status) or "no ground truth"
-        print(f"done in {seconds:.2f} s over {len(status['levels'])} levels; {scores}")
-        print(f"wrote {out / 'disparity.pfm'} and {out / 'preview.png'}")
-        if args.keep_running:
-            print(f"API still on {api.url} (docs: {api.url}/docs); Ctrl-C stops", file=sys.stderr)
-            page = sign_in_url(api.url, stack.settings.api_host, key if new else None)
-            print(f"web page: {page}", file=sys.stderr)
-            serving = True
-            api.join()
-    except KeyboardInterrupt:
-        bar.close()
-        if not serving:
-            print("qhsm: interrupted; stopping the demo's service", file=sys.stderr)
-            return EXIT_INTERRUPTED
-    finally:
-        if api is not None:
-            api.stop()
-        stack.stop()
-    return 0
 
 
 # --- submit ----------------------------------------------------------------------------------

@@ -8,9 +8,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import httpx
+
+if TYPE_CHECKING:
+    from shared.progress_bar import LevelBar
 
 TERMINAL = {"succeeded", "failed", "cancelled"}
 #: ``Client.wait`` polls every this share of the time waited so far (bounded both ways).
@@ -180,7 +183,7 @@ class JobBar:
 
     def __init__(self, stream: IO[str] | None = None) -> None:
         self.stream = stream
-        self._bar = None
+        self._bar: LevelBar | None = None
 
     def __call__(self, status: dict) -> None:
         from shared.progress_bar import LevelBar
@@ -214,12 +217,12 @@ def scores_text(status: dict) -> str | None:
 
     if not status.get("metrics"):
         return None
-    metrics = Metrics.model_validate(status["metrics"])
+    metrics = Metrics.model_validate(status["metrics"]).model_dump()  # a model made at import
 
     def text(value: float | None, digits: int) -> str:
         return "n/a" if value is None else f"{value:.{digits}f}"
 
-    return f"RMSE {text(metrics.rmse, 3)} px, BPP {text(metrics.bpp, 2)} %"
+    return f"RMSE {text(metrics['rmse'], 3)} px, BPP {text(metrics['bpp'], 2)} %"
 
 
 def write_result(client: Client, job_id: str, output: Path) -> Path:

@@ -1,4 +1,5 @@
-"""FastAPI dependencies: the settings, the job store and the Celery client of this app."""
+"""FastAPI dependencies: the settings, the job store and the Celery client of this app, and the
+``Annotated`` aliases the routes declare their parameters with (one place, not one per route)."""
 
 from __future__ import annotations
 
@@ -6,15 +7,21 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Annotated, Any
 
 from celery import Celery
-from fastapi import Request
+from fastapi import Depends, Request
 
+from api.auth import Principal, current_principal
+from api.users import UserStore, user_store
 from shared.config import Settings
 from shared.solvers import Availability, Solver, UnknownSolver, get_solver
 from workers.store import JobStore
 
 log = logging.getLogger(__name__)
+
+#: A route's OpenAPI ``responses``: status code -> description and content.
+Responses = dict[int | str, dict[str, Any]]
 
 #: How long the answer of ``inspect active_queues`` is reused, seconds.
 QUEUE_CACHE_SECONDS = 5.0
@@ -34,7 +41,7 @@ class QueueInspector:
         with self._lock:
             if self._cache and time.monotonic() - self._cache[0] < QUEUE_CACHE_SECONDS:
                 return self._cache[1]
-            consumers: dict[str, list[str]] | None = {}
+            consumers: dict[str, list[str]] | None
             try:
                 # a connection of our own, closed here: a pooled one would keep a pending BRPOP
                 # that kombu's after-fork cleanup blocks on in any process forked later
@@ -47,15 +54,13 @@ class QueueInspector:
                 log.warning("inspect active_queues failed: %s", error)
                 consumers = None
             else:
+                found: dict[str, list[str]] = {}
                 for worker, queues in (replies or {}).items():  # None: no worker answered
                     for queue in queues:
-                        consumers.setdefault(queue["name"], []).append(worker)
+                        found.setdefault(queue["name"], []).append(worker)
+                consumers = found
             self._cache = (time.monotonic(), consumers)
             return consumers
-
-    def forget(self) -> None:
-        with self._lock:
-            self._cache = None
 
 
 @dataclass
@@ -68,6 +73,11 @@ class Services:
 
 def services(request: Request) -> Services:
     return request.app.state.services
+
+
+ServicesDep = Annotated[Services, Depends(services)]
+PrincipalDep = Annotated[Principal, Depends(current_principal)]
+UsersDep = Annotated[UserStore, Depends(user_store)]
 
 
 def load_solver(name: str) -> tuple[Solver | None, Availability]:

@@ -37,7 +37,7 @@ def max_request_bytes(settings: Settings) -> int:
     return FILES_PER_REQUEST * settings.max_upload_bytes + FORM_OVERHEAD_BYTES
 
 
-class BodyTooLarge(HTTPException):
+class BodyTooLargeError(HTTPException):
     """A body without (or beyond) its ``Content-Length`` grew past the limit while read (an
     HTTPException, so FastAPI's form parsing passes it on as it is)."""
 
@@ -96,7 +96,7 @@ class RequestGuard:
             scope[USER_SCOPE_KEY] = user
         length = _header(scope, b"content-length")
         if length is not None and length.strip().isdigit() and int(length) > self.limit:
-            await self.refuse(scope, send, BodyTooLarge(self.limit))
+            await self.refuse(scope, send, BodyTooLargeError(self.limit))
             return
         received = 0
 
@@ -108,7 +108,7 @@ class RequestGuard:
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > self.limit:
-                    raise BodyTooLarge(self.limit)
+                    raise BodyTooLargeError(self.limit)
             return message
 
         await self.app(scope, counting_receive, send)

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, Field, create_model
 
@@ -66,19 +66,22 @@ class LevelTiming(BaseModel):
 def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:
     """The wire form of ``model``: the same fields (descriptions included), each of them null
     where the value is not a finite number (JSON has no Infinity or NaN)."""
-    fields: dict[str, Any] = {
-        field_name: (field.annotation | None, Field(description=field.description))
-        for field_name, field in model.model_fields.items()
-    }
+    fields: dict[str, Any] = {}
+    for field_name, field in model.model_fields.items():
+        annotation: Any = field.annotation  # a type at run time
+        fields[field_name] = (annotation | None, Field(description=field.description))
     return create_model(name, __doc__=doc, __module__=__name__, **fields)
 
 
-Metrics = nullable(
-    Scores,
-    "Metrics",
-    "Scores against the uploaded ground truth (``shared.metrics.Scores``); null where a score "
-    "is not a finite number.",
-)
+if TYPE_CHECKING:
+    Metrics = Any  # made at import from Scores: its fields are known at run time only
+else:
+    Metrics = nullable(
+        Scores,
+        "Metrics",
+        "Scores against the uploaded ground truth (``shared.metrics.Scores``); null where a "
+        "score is not a finite number.",
+    )
 
 
 class JobSummary(BaseModel):
@@ -181,10 +184,6 @@ class Health(BaseModel):
         description="The control queue and solver queues no worker consumes (null: unknown); "
         "jobs for those solvers wait until one starts",
     )
-
-
-class ErrorBody(BaseModel):
-    detail: str
 
 
 class LevelEstimate(BaseModel):

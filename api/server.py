@@ -8,8 +8,12 @@ import socket
 import threading
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from shared.config import Settings
+
+if TYPE_CHECKING:
+    import uvicorn  # imported when the thread starts (the CLI's start-up stays light)
 
 
 def bind_api_socket(host: str, port: int) -> socket.socket:
@@ -22,7 +26,7 @@ def bind_api_socket(host: str, port: int) -> socket.socket:
     except OSError as error:
         sock.close()
         reason = "is in use" if error.errno == errno.EADDRINUSE else f"cannot be bound: {error}"
-        raise PortBusy(
+        raise PortBusyError(
             f"port {port} on {host} {reason} (another `qhsm serve`?); pass --port or set "
             "QHSM_API_PORT"
         ) from None
@@ -31,7 +35,7 @@ def bind_api_socket(host: str, port: int) -> socket.socket:
     return sock
 
 
-class PortBusy(RuntimeError):
+class PortBusyError(RuntimeError):
     """The API port is taken."""
 
 
@@ -41,7 +45,7 @@ class ApiThread:
 
     settings: Settings
     log_level: str = "warning"
-    server: object | None = None
+    server: uvicorn.Server | None = None
     thread: threading.Thread | None = None
 
     @property

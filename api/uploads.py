@@ -142,6 +142,7 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
     name = "ground_truth"
     if not data:
         raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: the file is empty")
+    values: np.ndarray | None
     if data.startswith(NPY_MAGIC):
         values = read_npy(data, shape)
     else:
@@ -255,7 +256,7 @@ MAX_PARAMS_CHARS = 64 * 1024
 def parse_config(params: str | None) -> MatchConfig:
     """``params`` JSON (MatchConfig fields, as for ``qhsm match``) -> a validated config."""
     if params is None or not params.strip():
-        return MatchConfig()
+        return MatchConfig.model_validate({})  # every field from the default preset
     if len(params) > MAX_PARAMS_CHARS:
         raise UploadError(
             status.HTTP_422_UNPROCESSABLE_CONTENT,

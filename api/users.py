@@ -33,6 +33,7 @@ from pydantic import BaseModel
 
 from shared.config import Settings
 from workers.quota import LOCAL_USER, QuotaLedger
+from workers.redis_client import client_for, text
 
 KEY_TAG = "qhsm"
 KEY_ID_BYTES = 4
@@ -93,10 +94,8 @@ class UserStore:
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> UserStore:
-        from workers.app import redis_url
-
         return cls(
-            client or redis.Redis.from_url(redis_url(settings)),
+            client or client_for(settings),
             settings.key_prefix,
             auth_enabled=settings.auth_enabled,
             default_qpu_seconds=settings.default_qpu_seconds,
@@ -149,7 +148,7 @@ class UserStore:
 
     def _raw(self, name: str) -> dict[str, str]:
         raw = self.redis.hgetall(self.key("user", name))
-        return {k.decode(): v.decode() for k, v in raw.items()}
+        return {text(k): text(v) for k, v in raw.items()}
 
     @staticmethod
     def _user(fields: dict[str, str]) -> User:
@@ -173,7 +172,7 @@ class UserStore:
         return user
 
     def list_users(self) -> list[User]:
-        names = sorted(n.decode() for n in self.redis.smembers(self.key("users")))
+        names = sorted(text(n) for n in self.redis.smembers(self.key("users")))
         return [user for user in map(self.get, names) if user is not None]
 
     def rotate_key(self, name: str) -> str:
@@ -205,10 +204,6 @@ class UserStore:
             pipe.hset(self.key("user", name), mapping={"revoked": 1, "key_hash": ""})
             pipe.execute()
 
-    def set_admin(self, name: str, admin: bool) -> None:
-        self.require(name)
-        self.redis.hset(self.key("user", name), "admin", int(admin))
-
     # authentication ---------------------------------------------------------------------------
 
     def authenticate(self, key: str) -> User | None:
@@ -219,7 +214,7 @@ class UserStore:
         name = self.redis.get(self.key("apikey", match.group(1)))
         if name is None:
             return None
-        fields = self._raw(name.decode())
+        fields = self._raw(text(name))
         stored = fields.get("key_hash", "")
         presented = key_digest(key.strip())
         if not stored or fields.get("revoked") == "1":

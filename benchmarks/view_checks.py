@@ -19,7 +19,7 @@ import numpy as np
 
 from shared.datasets import default_middlebury_dir, find_scenes
 from shared.disparity_range import ViewsWarning, quick_match, views_warning
-from shared.ground_truth import ScaleNotInferred, infer_gt_scale
+from shared.ground_truth import ScaleNotInferredError, infer_gt_scale
 from shared.synthetic import make_scene
 
 #: Ground-truth scale per dataset folder (PROVENANCE-2005-2006.md); 2001/2003 scenes: protocol.
@@ -67,7 +67,7 @@ def row(name: str, left, right, truth, scale: float, other) -> str:
         inferred = infer_gt_scale(left, right, truth, forward)
         scale_text = f"{inferred.scale:g} ({inferred.ratio:.2f})"
         scale_text += "" if inferred.scale == scale else " **wrong**"
-    except ScaleNotInferred as error:
+    except ScaleNotInferredError as error:
         scale_text = f"refused: {str(error)[:40]}"
     return (
         f"| {name} | {width}x{height} | {100 * forward.share:.0f} % / {100 * reverse.share:.0f} % "

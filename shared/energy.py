@@ -289,22 +289,3 @@ def row_energies(costs: Costs, labels: np.ndarray) -> np.ndarray:
     if width > 1:
         total += costs.pair_h[rows, cols[:, :-1], labels[:, :-1], labels[:, 1:]].sum(axis=1)
     return total
-
-
-def disparities(costs: Costs, labels: np.ndarray) -> np.ndarray:
-    """The disparity each pixel's label stands for (float32, level pixels).
-
-    Parameters
-    ----------
-    costs : Costs
-        The MRF whose ``candidates`` the labels index.
-    labels : numpy.ndarray
-        Candidate index (h, w) of every pixel.
-
-    Returns
-    -------
-    numpy.ndarray
-        Disparities (h, w), float32.
-    """
-    picked = np.take_along_axis(costs.candidates, labels[:, :, None].astype(np.intp), axis=2)
-    return picked[:, :, 0].astype(np.float32)

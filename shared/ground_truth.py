@@ -31,7 +31,7 @@ MIN_PIXELS = 200
 MAX_SPREAD = 0.5
 
 
-class ScaleNotInferred(ValueError):
+class ScaleNotInferredError(ValueError):
     """The views and the ground truth do not tell the scale; the message says why and asks
     for it."""
 
@@ -75,7 +75,7 @@ def infer_gt_scale(
 
     Raises
     ------
-    ScaleNotInferred
+    ScaleNotInferredError
         Too few pixels to compare, ratios too spread, or a ratio near no conventional scale.
     """
     match = match or quick_match(left, right)
@@ -85,21 +85,21 @@ def infer_gt_scale(
     usable = match.confirmed & (shrunk > 0) & (match.disparity >= MIN_DISPARITY * match.factor)
     ask = "give the ground truth's scale (stored value per pixel of disparity)"
     if int(usable.sum()) < MIN_PIXELS:
-        raise ScaleNotInferred(
+        raise ScaleNotInferredError(
             f"cannot infer the ground-truth scale: only {int(usable.sum())} pixels both match "
             f"reliably and have a ground truth; {ask}"
         )
     ratios = shrunk[usable] / match.disparity[usable]
     low, median, high = (float(q) for q in np.percentile(ratios, [25, 50, 75]))
     if median <= 0 or (high - low) / median > MAX_SPREAD:
-        raise ScaleNotInferred(
+        raise ScaleNotInferredError(
             f"cannot infer the ground-truth scale: its values do not follow the disparities "
             f"the views show (ratios {low:.2f} to {high:.2f}); is it this pair's left ground "
             f"truth? {ask}"
         )
     nearest = min(CONVENTIONAL_SCALES, key=lambda scale: abs(np.log(median / scale)))
     if abs(median / nearest - 1) > TOLERANCE:
-        raise ScaleNotInferred(
+        raise ScaleNotInferredError(
             f"cannot infer the ground-truth scale: its values are {median:.2f} x the "
             f"disparities the views show, which is no usual scale; {ask}"
         )

@@ -4,8 +4,6 @@ Views are float32 in [0, 1] whatever their bit depth (8/16-bit PNG, PPM/PGM, JPE
 gray (h, w) or colour (h, w, 3) in OpenCV's BGR order; :func:`to_gray` gives Rec. 709 luma.
 Disparity maps are written as Middlebury PFM (float32), 16-bit PNG
 (disparity x 256, the KITTI convention) or ``.npy``.
-
-(About 160 lines of code; the rest is the numpydoc of the formats each function reads or writes.)
 """
 
 from __future__ import annotations
@@ -19,7 +17,6 @@ import numpy as np
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 #: 16-bit PNG disparity maps store disparity x this factor.
 PNG_DISPARITY_SCALE = 256.0
-IMAGE_SUFFIXES = {".png", ".ppm", ".pgm", ".pnm", ".jpg", ".jpeg", ".pfm", ".tif", ".tiff", ".bmp"}
 DISPARITY_SUFFIXES = (".pfm", ".png", ".npy")
 
 

@@ -4,6 +4,7 @@ views stacked, and its candidate array), and the bundles it is cut into. Workers
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -16,9 +17,9 @@ from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
 
-#: A bundle as given to :func:`shared.solve.solve_bundles`: a :class:`Bundle`, or a row range
-#: (whole rows).
-BundleSpec = Bundle | tuple[int, int]
+#: A bundle as given to :func:`shared.solve.solve_bundles`: a :class:`Bundle`, a row range
+#: ``(row_start, row_stop)`` (whole rows) or ``(row_start, row_stop, col_start, col_stop)``.
+BundleSpec = Bundle | Sequence[int]
 
 
 @dataclass

@@ -10,8 +10,6 @@
     finish                   full-resolution left disparity: left-right check and background
                              fill, sub-pixel fit, weighted median, bilateral (as configured)
 
-(About 240 lines of code; the rest is the numpydoc of the seam every runner calls.)
-
 ``run_pipeline`` runs the loop synchronously. The service calls the same functions from its
 fan-in callbacks, so the level logic lives only here.
 """

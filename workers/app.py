@@ -19,6 +19,7 @@ import logging
 from celery import Celery
 
 from shared.config import Settings, get_settings
+from workers.redis_client import redis_url  # quota modules import it from here
 
 log = logging.getLogger(__name__)
 
@@ -28,13 +29,6 @@ PLAN_LEVEL = "qhsm.plan_level"
 FAN_OUT_LEVEL = "qhsm.fan_out_level"
 SOLVE_ROWS = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
-
-DEFAULT_REDIS_URL = "redis://127.0.0.1:6379/0"
-
-
-def redis_url(settings: Settings) -> str:
-    """The configured Redis, or a local one on the default port."""
-    return settings.redis_url or DEFAULT_REDIS_URL
 
 
 def celery_config(settings: Settings) -> dict:

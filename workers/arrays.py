@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Mapping
 
 import numpy as np
+
+from workers.redis_client import as_bytes
 
 
 def npy(array: np.ndarray) -> bytes:
@@ -84,12 +87,13 @@ def array_fields(name: str, array: np.ndarray, *, images: bool = False) -> dict[
 HEADER_KEYS = {"dtype", "stored", "shape", "pieces", "divisor"}
 
 
-def array_from(fields: dict[bytes, bytes], name: str) -> np.ndarray:
-    """The array :func:`array_fields` wrote under ``name``."""
+def array_from(fields: Mapping[bytes | str, bytes | str], name: str) -> np.ndarray:
+    """The array :func:`array_fields` wrote under ``name`` (``fields``: the hash as read)."""
     header = json.loads(fields[name.encode()])
     if unknown := set(header) - HEADER_KEYS:
         raise ValueError(f"array {name!r} was stored with {sorted(unknown)}: a newer version")
-    data = b"".join(fields[f"{name}:{number}".encode()] for number in range(header["pieces"]))
+    pieces = range(header["pieces"])
+    data = b"".join(as_bytes(fields[f"{name}:{number}".encode()]) for number in pieces)
     stored = np.frombuffer(data, dtype=np.dtype(header["stored"])).reshape(header["shape"])
     array = stored.astype(np.dtype(header["dtype"]))
     if "divisor" in header:

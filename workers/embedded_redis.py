@@ -52,7 +52,7 @@ def free_port() -> int:
         return sock.getsockname()[1]
 
 
-class DataDirBusy(RuntimeError):
+class DataDirBusyError(RuntimeError):
     """Another process runs this data directory's embedded Redis."""
 
 
@@ -81,7 +81,7 @@ class DataDirLock:
         except BlockingIOError:
             holder = os.read(fd, 64).decode(errors="replace").strip() or "?"
             os.close(fd)
-            raise DataDirBusy(
+            raise DataDirBusyError(
                 f"{self.path.parent} is in use by another qhsm process (pid {holder}); stop it "
                 "or use another --data-dir"
             ) from None

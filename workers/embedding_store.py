@@ -12,6 +12,7 @@ import redis
 
 from shared.config import Settings
 from shared.solvers.embedding_cache import set_default_store
+from workers.redis_client import client_for, connect, text
 
 KEY_PREFIX = "qhsm:embedding:"
 
@@ -25,13 +26,11 @@ class RedisEmbeddingStore:
 
     @classmethod
     def from_url(cls, url: str) -> RedisEmbeddingStore:
-        return cls(redis.Redis.from_url(url, decode_responses=True))
+        return cls(connect(url, decode_responses=True))
 
     def get(self, key: str) -> str | None:
         value = self.client.get(self.prefix + key)
-        if isinstance(value, bytes):
-            return value.decode()
-        return value
+        return None if value is None else text(value)
 
     def set(self, key: str, value: str) -> None:
         self.client.set(self.prefix + key, value)
@@ -40,9 +39,7 @@ class RedisEmbeddingStore:
 def for_settings(settings: Settings, client: redis.Redis | None = None) -> RedisEmbeddingStore:
     """The service's embedding store (``client``: an existing connection to its Redis)."""
     if client is None:
-        from workers.app import redis_url
-
-        client = redis.Redis.from_url(redis_url(settings), decode_responses=True)
+        client = client_for(settings, decode_responses=True)
     return RedisEmbeddingStore(client, prefix=f"{settings.key_prefix}:embedding:")
 
 

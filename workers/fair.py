@@ -24,6 +24,8 @@ import time
 import redis
 from kombu.utils.scheduling import round_robin_cycle
 
+from workers.redis_client import client_for, text
+
 #: Between a solver's queue and the owner in a user queue's name (not allowed in user names).
 SEPARATOR = "~"
 #: The owner of jobs made without authentication (``workers.quota.LOCAL_USER``'s queue).
@@ -54,7 +56,7 @@ def route(client: redis.Redis, prefix: str, queue: str, owner: str | None) -> st
 
 def user_queues(client: redis.Redis, prefix: str, queue: str) -> list[str]:
     """Every user queue of solver queue ``queue``."""
-    return sorted(raw.decode() for raw in client.smembers(_key(prefix, queue)))
+    return sorted(text(raw) for raw in client.smembers(_key(prefix, queue)))
 
 
 def with_user_queues(client: redis.Redis, prefix: str, queues: list[str]) -> list[str]:
@@ -130,9 +132,7 @@ class FewestRunningFirst(round_robin_cycle):
         try:
             settings = get_settings()
             if self._client is None:
-                from workers.app import redis_url
-
-                self._client = redis.Redis.from_url(redis_url(settings), socket_timeout=1)
+                self._client = client_for(settings, socket_timeout=1)
             counts = running(self._client, settings.key_prefix, owners)
         except redis.RedisError:
             return None

@@ -35,6 +35,7 @@ from celery.worker import state
 
 from shared.config import Settings
 from workers import fair
+from workers.redis_client import client_for, scored, text
 
 log = logging.getLogger(__name__)
 
@@ -104,9 +105,7 @@ class Heartbeat(bootsteps.StartStopStep):
         self.timer_ref: Any = None
 
     def start(self, parent: Any) -> None:
-        from workers.app import redis_url
-
-        self.client = redis.Redis.from_url(redis_url(self.settings))
+        self.client = client_for(self.settings)
         self.beat(parent)
         self.timer_ref = parent.timer.call_repeatedly(
             self.settings.worker_heartbeat_seconds, self.beat, (parent,), priority=10
@@ -157,7 +156,7 @@ def install(celery: Celery) -> None:
 def live_holdings(client: redis.Redis, prefix: str) -> dict[str, set[str]]:
     """Live worker instance -> the delivery tags it holds; instances whose heartbeat expired
     are forgotten."""
-    instances = sorted(raw.decode() for raw in client.smembers(workers_key(prefix)))
+    instances = sorted(text(raw) for raw in client.smembers(workers_key(prefix)))
     if not instances:
         return {}
     records = client.mget([instance_key(prefix, instance) for instance in instances])
@@ -179,11 +178,11 @@ def orphans(client: redis.Redis, prefix: str, grace: float, now: float | None = 
     """Delivery tags of unacknowledged messages that no live worker holds, delivered more than
     ``grace`` seconds ago (younger ones may not be in their worker's heartbeat yet)."""
     unacked, index = unacked_keys(prefix)
-    tags = [raw.decode() for raw in client.hkeys(unacked)]
+    tags = [text(raw) for raw in client.hkeys(unacked)]
     if not tags:
         return []
     now = time.time() if now is None else now
-    delivered = {raw.decode(): score for raw, score in client.zrange(index, 0, -1, withscores=True)}
+    delivered = scored(client.zrange(index, 0, -1, withscores=True))
     held = set().union(*live_holdings(client, prefix).values())
     return [tag for tag in tags if tag not in held and now - delivered.get(tag, now) > grace]
 

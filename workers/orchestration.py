@@ -24,6 +24,7 @@ import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import asdict
+from typing import Any
 
 import numpy as np
 from celery import Celery, chain, chord
@@ -50,9 +51,10 @@ from workers.chunks import (
     rows_per_task,
     task_chunks,
 )
+from workers.level_store import LevelInputsMissingError
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, now
-from workers.store import JobStore, LevelInputsMissing
+from workers.store import JobStore
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +63,7 @@ LEVEL_CACHE_SIZE = 4
 _level_cache: OrderedDict[tuple[str, int], tuple[LevelInputs, MatchConfig]] = OrderedDict()
 
 
-class JobGone(LookupError):
+class JobGoneError(LookupError):
     """The job record has expired or never existed."""
 
 
@@ -225,7 +227,7 @@ def plan_level(store: JobStore, job_id: str, index: int) -> dict | None:
         return None
     record = store.get(job_id)
     if record is None:
-        raise JobGone(job_id)
+        raise JobGoneError(job_id)
     inputs, _ = store.load_level(job_id, index)
     if not is_planned(inputs):
         level_bundles(inputs, record.config)
@@ -305,7 +307,7 @@ def _level_inputs(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs
     finished the level, or they expired in the queue (the job is failed saying so)."""
     try:
         return store.load_level(job_id, index)
-    except LevelInputsMissing:
+    except LevelInputsMissingError:
         record = store.get(job_id)
         if record is None or record.state is not JobState.RUNNING or len(record.levels) > index:
             return None  # a concurrent fan-in of the same level finished it
@@ -384,7 +386,7 @@ def _next_level_or_finish(
     result = finish(level_map, left, right, config, plans[-1], inputs.views)
     metrics, warning = _evaluate_result(store, record, result)
     store.save_result(record.id, result)
-    updates = {"metrics": metrics}
+    updates: dict[str, Any] = {"metrics": metrics}
     if warning:
         updates["error"] = warning
     store.transition(record.id, JobState.SUCCEEDED, {JobState.RUNNING}, **updates)
@@ -420,7 +422,7 @@ def level_for(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, Ma
         return _level_cache[key]
     record = store.get(job_id)
     if record is None:
-        raise JobGone(job_id)
+        raise JobGoneError(job_id)
     inputs, _ = store.load_level(job_id, index)
     _level_cache[key] = (inputs, record.config)
     while len(_level_cache) > LEVEL_CACHE_SIZE:

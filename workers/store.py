@@ -15,9 +15,7 @@ Keys (all under ``{key_prefix}:``):
     job:{id}:upload          hash of the decoded views ``left``, ``right`` (their integer form,
                              in pieces): written by the API at submission, read by the control
                              worker; deleted when the job ends
-    job:{id}:level:{k}       hash of .npy arrays: the ``LevelInputs`` a worker needs
-    job:{id}:level:views:{s} hash of .npy arrays: the images of the levels downsampled by s
-    job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
+    job:{id}:level:...       level inputs and solved bundles (:mod:`workers.level_store`)
     job:{id}:result          .npy bytes of the full-resolution disparity
     job:{id}:tasks           set of the ids of the job's solver tasks running now
     job:{id}:view:{name}     what the web page shows next to the result: the left view
@@ -44,11 +42,9 @@ from typing import Any
 import numpy as np
 import redis
 
-from shared.bundles import bundle_key
 from shared.config import Settings
-from shared.level_inputs import LevelInputs
-from shared.pyramid import LevelPlan
 from workers.arrays import array_fields, array_from, from_npy, npy
+from workers.level_store import LevelStorage
 from workers.records import (
     ACTIVE,
     JOB_ID,
@@ -59,27 +55,19 @@ from workers.records import (
     load_record,
     now,
 )
+from workers.redis_client import as_bytes, client_for, members, text
 
 log = logging.getLogger(__name__)
-
-#: Level inputs live this long at most (they are deleted as soon as the level is assembled).
-LEVEL_INPUTS_GRACE = 3600
-IMAGES_KEPT = 2  # jobs' level images one process keeps
-
 
 #: Writes a new job and takes a place under its owner's active-job cap, in one script.
 _CREATE = files(__package__).joinpath("create_job.lua").read_text(encoding="utf-8")
 
 
-class LevelInputsMissing(LookupError):
-    """The level's inputs are gone (job finished, cancelled or expired)."""
-
-
-class UploadsMissing(ValueError):
+class UploadsMissingError(ValueError):
     """The job's uploads are gone from Redis (it ended, expired, or predates uploads in Redis)."""
 
 
-class ActiveJobsCap(Exception):
+class ActiveJobsCapError(Exception):
     """The owner already has ``cap`` jobs queued or running; nothing was written."""
 
     def __init__(self, owner: str, active: int, cap: int):
@@ -87,11 +75,7 @@ class ActiveJobsCap(Exception):
         self.owner, self.active, self.cap = owner, active, cap
 
 
-def _text(value: bytes | str) -> str:
-    return value.decode() if isinstance(value, bytes) else value
-
-
-class JobStore:
+class JobStore(LevelStorage):
     """Job records, uploads, level inputs and results in Redis (see the module's keys)."""
 
     def __init__(self, client: redis.Redis, settings: Settings):
@@ -100,13 +84,11 @@ class JobStore:
         self.prefix = settings.key_prefix
         self.ttl = settings.result_ttl_seconds
         self._create = client.register_script(_CREATE)
-        self._images: OrderedDict[tuple[str, str], tuple] = OrderedDict()  # _level_images
+        self._images = OrderedDict()  # LevelStorage._level_images
 
     @classmethod
     def from_settings(cls, settings: Settings) -> JobStore:
-        from workers.app import redis_url
-
-        return cls(redis.Redis.from_url(redis_url(settings)), settings)
+        return cls(client_for(settings), settings)
 
     # keys -------------------------------------------------------------------------------------
 
@@ -131,7 +113,7 @@ class JobStore:
         The uploads go to Redis first, in one transaction (integer form, bounded pieces), so
         a worker that sees the record finds them. With ``cap``, the owner may have at most
         that many jobs queued or running: the count and the record's write are one Redis
-        script (:class:`ActiveJobsCap` when full), so simultaneous submits never get past it.
+        script (:class:`ActiveJobsCapError` when full), so simultaneous submits never get past it.
         Whatever fails on the way (the cap, Redis full or gone) leaves no upload behind."""
         if not JOB_ID.match(record.id):
             raise ValueError(f"malformed job id {record.id!r}")
@@ -152,7 +134,7 @@ class JobStore:
                 self.key("jobs", "active"),
                 self.key("jobs", "owner", owner),
             ]
-            args = [
+            args: list[str | int] = [
                 record.id,
                 owner,
                 record.model_dump_json(),
@@ -162,7 +144,7 @@ class JobStore:
             ]
             active = int(self._create(keys=keys, args=args))
             if active < 0:
-                raise ActiveJobsCap(owner, -1 - active, cap or 0)
+                raise ActiveJobsCapError(owner, -1 - active, cap or 0)
         except BaseException:
             with contextlib.suppress(redis.RedisError):
                 self.redis.delete(*written)
@@ -193,7 +175,9 @@ class JobStore:
         if name == "ground_truth":
             truth = self.load_ground_truth(job_id)
             if truth is None:
-                raise UploadsMissing(f"job {job_id}: its ground truth is gone; submit it again")
+                raise UploadsMissingError(
+                    f"job {job_id}: its ground truth is gone; submit it again"
+                )
             return truth
         return self.load_views(job_id)[0 if name == "left" else 1]
 
@@ -202,11 +186,11 @@ class JobStore:
 
         Raises
         ------
-        UploadsMissing
+        UploadsMissingError
             The job ended or expired (or was queued before uploads were kept in Redis)."""
         fields = self.redis.hgetall(self._upload_key(job_id))
         if b"left" not in fields or b"right" not in fields:
-            raise UploadsMissing(
+            raise UploadsMissingError(
                 f"job {job_id}: its uploaded views are gone (it ended or expired, or was "
                 "submitted before an upgrade of the service); submit it again"
             )
@@ -299,13 +283,13 @@ class JobStore:
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.expire(key, self.ttl)
 
-    def list(
+    def list_jobs(
         self, offset: int = 0, limit: int = 20, owner: str | None = None
     ) -> tuple[list[JobRecord], int]:
         """Jobs newest first (only ``owner``'s when given), and how many there are; expired
         records are dropped on the way."""
         index = self.key("jobs") if owner is None else self.key("jobs", "owner", owner)
-        ids = [raw.decode() for raw in self.redis.zrevrange(index, offset, offset + limit - 1)]
+        ids = members(self.redis.zrevrange(index, offset, offset + limit - 1))
         raws = self.redis.mget([self.key("job", job_id) for job_id in ids]) if ids else []
         records, expired = [], []
         for job_id, raw in zip(ids, raws, strict=True):
@@ -323,9 +307,7 @@ class JobStore:
         Reads the small ``jobs:active`` index, not the owner's history; entries whose record
         is gone or already final (a crash between the two writes) are dropped on the way."""
         index = self.key("jobs", "active")
-        ids = [
-            job.decode() for job, who in self.redis.hgetall(index).items() if who.decode() == owner
-        ]
+        ids = [text(job) for job, who in self.redis.hgetall(index).items() if text(who) == owner]
         if not ids:
             return 0
         raws = self.redis.mget([self.key("job", job_id) for job_id in ids])
@@ -389,114 +371,7 @@ class JobStore:
 
     def running_tasks(self, job_id: str) -> list[str]:
         """Ids of the job's solver tasks that started and have not ended (or were killed)."""
-        return sorted(raw.decode() for raw in self.redis.smembers(self.key("job", job_id, "tasks")))
-
-    # level inputs -----------------------------------------------------------------------------
-
-    def save_level(self, job_id: str, inputs: LevelInputs, started: float) -> None:
-        """Write a level's inputs once; every worker of the level reads them (by reference)."""
-        fields = {
-            "plan": inputs.plan.model_dump_json().encode(),
-            "views": str(inputs.views).encode(),
-            "started": repr(started).encode(),
-            "prepared": json.dumps(inputs.prepared).encode(),
-            "images": str(inputs.plan.downsample).encode(),
-        }
-        arrays = {"candidates": inputs.candidates}
-        if inputs.initial_labels is not None:
-            arrays["initial_labels"] = inputs.initial_labels
-        for name, array in arrays.items():
-            fields.update(array_fields(name, array))
-        key = self.key("job", job_id, "level", inputs.index)
-        # a level's images depend on the job and the downsampling only (bin pyramid: one copy)
-        images = self.key("job", job_id, "level", "views", inputs.plan.downsample)
-        ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
-        with self.redis.pipeline() as pipe:
-            if not self.redis.exists(images):  # once per job and downsampling
-                for name in ("left", "right"):
-                    for field, value in array_fields(name, getattr(inputs, name)).items():
-                        pipe.hset(images, field, value)  # one bounded write per field
-            pipe.expire(images, ttl)
-            for name, value in fields.items():
-                pipe.hset(key, name, value)
-            pipe.expire(key, ttl)
-            pipe.execute()
-
-    def save_prepared(self, job_id: str, index: int, prepared: dict) -> None:
-        """Record what planning the level's bundles chose (``LevelInputs.prepared``)."""
-        key = self.key("job", job_id, "level", index)
-        self.redis.hset(key, "prepared", json.dumps(prepared))
-
-    def load_level(self, job_id: str, index: int) -> tuple[LevelInputs, float]:
-        """The level's inputs and when the level was started (epoch seconds)."""
-        fields = self.redis.hgetall(self.key("job", job_id, "level", index))
-        if not fields:
-            raise LevelInputsMissing(f"job {job_id}: inputs of level {index} are gone")
-        left, right = self._level_images(job_id, fields)
-        inputs = LevelInputs(
-            plan=LevelPlan.model_validate_json(fields[b"plan"]),
-            views=int(fields[b"views"]),
-            left=left,
-            right=right,
-            candidates=array_from(fields, "candidates"),
-            initial_labels=(
-                array_from(fields, "initial_labels") if b"initial_labels" in fields else None
-            ),
-            prepared=json.loads(fields.get(b"prepared", b"{}")),
-        )
-        return inputs, float(fields[b"started"])
-
-    def _level_images(self, job_id: str, fields: dict[bytes, bytes]) -> tuple[np.ndarray, ...]:
-        """A level's images: this process's (read-only) copy when another level of the job had
-        them, else from Redis."""
-        cache_key = (job_id, _text(fields[b"images"]))
-        if cache_key not in self._images:
-            stored = self.redis.hgetall(self.key("job", job_id, "level", "views", cache_key[1]))
-            if not stored:
-                raise LevelInputsMissing(f"job {job_id}: the images of its levels are gone")
-            self._images[cache_key] = tuple(array_from(stored, n) for n in ("left", "right"))
-            for image in self._images[cache_key]:  # shared by the job's levels
-                image.setflags(write=False)
-        self._images.move_to_end(cache_key)
-        if len(self._images) > IMAGES_KEPT:
-            self._images.popitem(last=False)
-        return self._images[cache_key]
-
-    def has_level(self, job_id: str, index: int) -> bool:
-        return bool(self.redis.exists(self.key("job", job_id, "level", index)))
-
-    def drop_level(self, job_id: str, index: int) -> None:
-        level = self.key("job", job_id, "level", index)
-        self.redis.delete(level, f"{level}:solved")
-
-    def save_bundles(self, job_id: str, index: int, bundles: list[dict]) -> None:
-        """Solved bundles (JSON, keyed by first row): the fan-in assembles the level from these,
-        whichever task, re-sent or redelivered, solved them (idempotent)."""
-        if not bundles:
-            return
-        key = self.key("job", job_id, "level", index, "solved")
-        with self.redis.pipeline() as pipe:
-            mapping = {
-                bundle_key([*b["rows"], *b.get("columns", [0])]): json.dumps(b) for b in bundles
-            }
-            pipe.hset(key, mapping=mapping)
-            pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
-            pipe.execute()
-
-    def solved_bundles(self, job_id: str, index: int) -> dict[str, dict]:
-        """The level's solved bundles by ``bundle_key``."""
-        raw = self.redis.hgetall(self.key("job", job_id, "level", index, "solved"))
-        return {_text(key): json.loads(value) for key, value in raw.items()}
-
-    def solved_rows(self, job_id: str, index: int) -> set[str]:
-        """``bundle_key`` of the level's solved bundles (without their labels)."""
-        return {
-            _text(key)
-            for key in self.redis.hkeys(self.key("job", job_id, "level", index, "solved"))
-        }
-
-    def solved_count(self, job_id: str, index: int) -> int:
-        return int(self.redis.hlen(self.key("job", job_id, "level", index, "solved")))
+        return sorted(text(raw) for raw in self.redis.smembers(self.key("job", job_id, "tasks")))
 
     # results ----------------------------------------------------------------------------------
 
@@ -504,8 +379,8 @@ class JobStore:
         self.redis.set(self.key("job", job_id, "result"), npy(disparity), ex=self.ttl)
 
     def load_result(self, job_id: str) -> np.ndarray | None:
-        raw = self.redis.get(self.key("job", job_id, "result"))
-        return None if raw is None else from_npy(raw)
+        data = self.redis.get(self.key("job", job_id, "result"))
+        return None if data is None else from_npy(as_bytes(data))
 
     # views ------------------------------------------------------------------------------------
 
@@ -514,4 +389,5 @@ class JobStore:
         self.redis.set(self.key("job", job_id, "view", name), data, ex=self.view_ttl)
 
     def load_view(self, job_id: str, name: str) -> bytes | None:
-        return self.redis.get(self.key("job", job_id, "view", name))
+        data = self.redis.get(self.key("job", job_id, "view", name))
+        return None if data is None else as_bytes(data)

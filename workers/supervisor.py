@@ -32,6 +32,7 @@ from workers.embedded_redis import (
     write_private,
 )
 from workers.process import die_with_parent, kill_now
+from workers.redis_client import redis_url
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +63,8 @@ def local_queues() -> tuple[list[str], list[str]]:
     from shared.solvers import get_solver, solver_names
     from shared.solvers.registry import DIMOD_QUEUE, queue_of
 
-    cpu, dwave = [DIMOD_QUEUE], []
+    cpu: list[str] = [DIMOD_QUEUE]
+    dwave: list[str] = []
     for name in solver_names():
         try:
             solver = get_solver(name)
@@ -294,7 +296,7 @@ class Stack:
         cpu, dwave = local_queues()
         logs = settings.data_dir / "logs"
         count = self.concurrency or settings.worker_concurrency or os.cpu_count() or 1
-        url = settings.redis_url
+        url = redis_url(settings)  # the embedded one's when none is configured (set above)
         tag = os.getpid()
         cpu_env = worker_env(settings, url, dwave=False)
         self.workers.append(  # orchestration never waits behind solver work
@@ -330,7 +332,7 @@ class Stack:
 
     def children(self) -> list[tuple[str, bool, int | None, Callable[[], object]]]:
         """(name, alive, exit code, restart) of every process this stack started."""
-        rows = []
+        rows: list[tuple[str, bool, int | None, Callable[[], object]]] = []
         if self.redis is not None:
             server = self.redis
             code = server.process.poll() if server.process else None

@@ -32,9 +32,10 @@ from workers.app import (
     task_time_limits,
     terminate_tasks,
 )
+from workers.level_store import LevelInputsMissingError
 from workers.process import die_with_parent, limit_memory, lower_priority
 from workers.quota import QpuMeter, QuotaExceeded
-from workers.store import JobStore, LevelInputsMissing, UploadsMissing
+from workers.store import JobStore, UploadsMissingError
 from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -139,7 +140,7 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
         orchestration.level_done(app, store(), results, job_id, index)
     except REDIS_DOWN as error:  # the watchdog re-sends the fan-in when Redis is back
         log.warning("job %s: Redis unavailable in the fan-in of level %d: %s", job_id, index, error)
-    except (SolverError, UploadsMissing) as error:  # e.g. the next level's embedding failed
+    except (SolverError, UploadsMissingError) as error:  # e.g. the next level's embedding failed
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
     except MemoryError:
@@ -176,7 +177,7 @@ def plan_level(self, job_id: str, index: int) -> None:
         _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
     except SolverError as error:  # e.g. no segment embeds, or no token here: what to change
         _fail(job_id, str(error))
-    except (LevelInputsMissing, orchestration.JobGone):
+    except (LevelInputsMissingError, orchestration.JobGoneError):
         return
     except REDIS_DOWN as error:  # the watchdog re-sends the plan when Redis is back
         log.warning("job %s: Redis unavailable planning level %d: %s", job_id, index, error)
@@ -195,7 +196,7 @@ def fan_out_level(self, job_id: str, index: int) -> None:
         orchestration.fan_out_level(app, store(), job_id, index)
     except REDIS_DOWN as error:
         log.warning("job %s: Redis unavailable fanning out level %d: %s", job_id, index, error)
-    except LevelInputsMissing:
+    except LevelInputsMissingError:
         return
     except Exception:
         log.exception("job %s: fan-out of level %d failed", job_id, index)
@@ -239,7 +240,7 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
         return {"error": message}
     except SolverError as error:
         return _fail(job_id, str(error), task_id)
-    except (LevelInputsMissing, orchestration.JobGone):
+    except (LevelInputsMissingError, orchestration.JobGoneError):
         return {"skipped": True}
     except REDIS_DOWN as error:  # not the job's fault: the watchdog re-sends it later
         log.warning("job %s: Redis unavailable while solving level %d: %s", job_id, index, error)

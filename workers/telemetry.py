@@ -30,6 +30,7 @@ from prometheus_client.core import (
 from prometheus_client.registry import Collector
 
 from shared.config import Settings
+from workers.redis_client import client_for, members, text
 
 #: Upper bounds (seconds) of the task-time histogram's buckets.
 TASK_SECONDS_BUCKETS = (0.1, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1800.0)
@@ -54,9 +55,7 @@ class Telemetry:
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> Telemetry:
-        from workers.app import redis_url
-
-        return cls(client or redis.Redis.from_url(redis_url(settings)), settings.key_prefix)
+        return cls(client or client_for(settings), settings.key_prefix)
 
     def key(self, *parts: object) -> str:
         return ":".join([self.prefix, "metrics", *map(str, parts)])
@@ -105,8 +104,8 @@ class ServiceCollector(Collector):
 
         states: Counter[str] = Counter({state.value: 0 for state in JobState})
         index, start = self._key("jobs"), 0
-        while ids := self.redis.zrange(index, start, start + BATCH - 1):
-            raws = self.redis.mget([self._key("job", raw.decode()) for raw in ids])
+        while ids := members(self.redis.zrange(index, start, start + BATCH - 1)):
+            raws = self.redis.mget([self._key("job", job_id) for job_id in ids])
             states.update(json.loads(raw).get("state", "unknown") for raw in raws if raw)
             start += BATCH
         family = GaugeMetricFamily(
@@ -121,7 +120,7 @@ class ServiceCollector(Collector):
             "qhsm_bundles_solved", "Bundles solved, by solver", labels=["solver"]
         )
         for solver, count in sorted(self.redis.hgetall(self.telemetry.key("bundles")).items()):
-            family.add_metric([solver.decode()], float(count))
+            family.add_metric([text(solver)], float(count))
         return family
 
     def _task_seconds(self) -> Metric:
@@ -129,9 +128,9 @@ class ServiceCollector(Collector):
             "qhsm_task_seconds", "Run time of solver tasks, seconds", labels=["solver"]
         )
         solvers = self.redis.smembers(self.telemetry.key("task_seconds", "solvers"))
-        for solver in sorted(raw.decode() for raw in solvers):
+        for solver in sorted(text(raw) for raw in solvers):
             counts = {
-                key.decode(): value
+                text(key): value
                 for key, value in self.redis.hgetall(
                     self.telemetry.key("task_seconds", solver)
                 ).items()

@@ -40,6 +40,7 @@ from workers import fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, START_JOB
 from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
+from workers.redis_client import text
 from workers.store import JobStore
 from workers.telemetry import Telemetry
 
@@ -92,7 +93,7 @@ class Watchdog:
     def active(self) -> Iterator[JobRecord]:
         """Every queued or running job (records that fail to load are skipped)."""
         index = self.store.key("jobs", "active")
-        ids = sorted(raw.decode() for raw in self.store.redis.hkeys(index))
+        ids = sorted(text(raw) for raw in self.store.redis.hkeys(index))
         for start in range(0, len(ids), PAGE):
             page = ids[start : start + PAGE]
             raws = self.store.redis.mget([self.store.key("job", job_id) for job_id in page])

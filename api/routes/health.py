@@ -3,12 +3,10 @@ the queues nobody consumes are listed)."""
 
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from api.deps import Services, services
+from api.deps import ServicesDep
 from api.schemas import Health
 from shared.solvers.registry import queue_names
 
@@ -21,7 +19,7 @@ def healthz():
 
 
 @router.get("/readyz", response_model=Health, responses={503: {"model": Health}})
-def readyz(svc: Annotated[Services, Depends(services)]):
+def readyz(svc: ServicesDep):
     """503 while Redis is unreachable or no worker consumes the control queue (jobs could not
     start); otherwise 200, listing solver queues without a worker (`inspect active_queues`,
     cached a few seconds)."""

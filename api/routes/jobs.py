@@ -7,12 +7,12 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Request, UploadFile
+from fastapi import APIRouter, File, Form, HTTPException, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
 
-from api.auth import Principal, can_see, current_principal
-from api.deps import Services, load_solver, services
+from api.auth import Principal, can_see
+from api.deps import PrincipalDep, Responses, Services, ServicesDep, UsersDep, load_solver
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import (
     MAX_LABEL,
@@ -24,15 +24,15 @@ from api.uploads import (
     parse_config,
     read_upload,
 )
-from api.users import UserStore, user_store
+from api.users import UserStore
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
-from shared.ground_truth import ScaleNotInferred, infer_gt_scale
+from shared.ground_truth import ScaleNotInferredError, infer_gt_scale
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.solve import bundle_width_setting
-from shared.solvers import InvalidSolverParams, UnknownSolver, check_params
+from shared.solvers import InvalidSolverParamsError, UnknownSolver, check_params
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
 from shared.solvers.registry import queue_of
@@ -40,13 +40,10 @@ from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.quota import LOCAL_USER, QuotaExceeded
 from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
-from workers.store import ActiveJobsCap
+from workers.store import ActiveJobsCapError
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
-ServicesDep = Annotated[Services, Depends(services)]
-PrincipalDep = Annotated[Principal, Depends(current_principal)]
-UsersDep = Annotated[UserStore, Depends(user_store)]
 DISPARITY_MEDIA = {
     "pfm": "image/x-portable-floatmap",
     "png": "image/png",
@@ -59,9 +56,9 @@ GT_SCALE_RANGE = (1e-3, 1e6)
 MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
-NOT_FOUND = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
+NOT_FOUND: Responses = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
 #: Errors of the upload form (POST /v1/jobs and /v1/estimate) for the OpenAPI docs.
-UPLOAD_ERRORS = {
+UPLOAD_ERRORS: Responses = {
     400: {"description": "params is not JSON"},
     413: {"description": "File or image too large"},
     415: {"description": "Not a supported image format"},
@@ -167,7 +164,7 @@ def bounded_params(config: MatchConfig) -> MatchConfig:
     """422 unless every solver parameter is inside the solver's schema (the registry's)."""
     try:
         params = check_params(config.solver, config.solver_params)
-    except InvalidSolverParams as error:
+    except InvalidSolverParamsError as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}") from None
     return config.model_copy(update={"solver_params": params})
 
@@ -225,7 +222,7 @@ def ground_truth_protocol(
         return GroundTruth(scale=scale, border=border), ""
     try:
         estimate = infer_gt_scale(left_image, right_image, values)
-    except ScaleNotInferred as error:
+    except ScaleNotInferredError as error:
         raise UploadError(http.HTTP_422_UNPROCESSABLE_CONTENT, f"gt_scale: {error}") from None
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 
@@ -351,7 +348,7 @@ def create_job(
     )
     try:
         svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
-    except ActiveJobsCap as full:
+    except ActiveJobsCapError as full:
         raise too_many_jobs(principal.name, full.active, full.cap) from None
     try:
         keep_views(svc, record.id, arrays)
@@ -381,7 +378,7 @@ def list_jobs(
 ):
     """Your jobs, newest first (admins: everyone's)."""
     owner = None if principal.admin else principal.name
-    records, total = svc.store.list(offset, limit, owner=owner)
+    records, total = svc.store.list_jobs(offset, limit, owner=owner)
     items = [summary_of(r, users) for r in records if can_see(principal, r)]
     following = offset + limit
     next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None

@@ -6,14 +6,12 @@ It needs an admin's key (per-user QPU seconds are in it): Prometheus sends it wi
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from fastapi import APIRouter, Depends
 from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST
 
 from api.auth import admin_user
-from api.deps import Services, services
+from api.deps import ServicesDep
 from shared.solvers.registry import queue_names
 from workers.telemetry import exposition
 
@@ -26,7 +24,7 @@ router = APIRouter(tags=["metrics"])
     dependencies=[Depends(admin_user)],
     responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}, 403: {"description": "Not an admin"}},
 )
-def metrics(svc: Annotated[Services, Depends(services)]) -> Response:
+def metrics(svc: ServicesDep) -> Response:
     """Jobs by state, bundles solved and task times per solver, queue depths, QPU seconds per
     user and watchdog re-sends, in Prometheus' text format."""
     queues = [svc.settings.control_queue, *queue_names()]

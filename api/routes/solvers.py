@@ -3,11 +3,9 @@ solver too (``dimod:PACKAGE.MODULE.CLASS``, queue ``dimod``), though not listed 
 
 from __future__ import annotations
 
-from typing import Annotated
+from fastapi import APIRouter
 
-from fastapi import APIRouter, Depends
-
-from api.deps import Services, load_solver, services
+from api.deps import ServicesDep, load_solver
 from api.schemas import SolverInfo
 from shared.solvers import solver_names, spec
 
@@ -15,7 +13,7 @@ router = APIRouter(prefix="/v1/solvers", tags=["solvers"])
 
 
 @router.get("", response_model=list[SolverInfo])
-def list_solvers(svc: Annotated[Services, Depends(services)]):
+def list_solvers(svc: ServicesDep):
     """Every registered solver, whether it can run, and the workers consuming its queue."""
     consumers = svc.queues.consumers()
     infos = []

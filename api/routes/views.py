@@ -9,12 +9,12 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, Depends, File, HTTPException, Query, UploadFile
+from fastapi import APIRouter, File, HTTPException, Query, UploadFile
 from fastapi import status as http
 from fastapi.responses import Response
 
-from api.auth import Principal, current_principal
-from api.deps import Services, services
+from api.auth import Principal
+from api.deps import PrincipalDep, Responses, Services, ServicesDep
 from api.routes.jobs import (
     NOT_FOUND,
     SCALE_HEADER,
@@ -30,13 +30,11 @@ from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 thumbnails = APIRouter(prefix="/v1", tags=["web"])
 
-ServicesDep = Annotated[Services, Depends(services)]
-PrincipalDep = Annotated[Principal, Depends(current_principal)]
 #: Errors at or above this many pixels get the top colour of the error map.
 ERROR_MAP_MAX = 4 * BAD_PIXEL_THRESHOLD
 #: Colour (BGR) of the pixels the error map does not evaluate.
 NOT_EVALUATED = (128, 128, 128)
-PNG = {200: {"content": {"image/png": {}}}}
+PNG: Responses = {200: {"content": {"image/png": {}}}}
 #: Longest side of a thumbnail, pixels.
 THUMBNAIL_SIDE = 320
 #: Response header of the difference map: share of the pixels (%) that differ by more than the

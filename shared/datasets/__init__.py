@@ -12,7 +12,7 @@ Modules, one job each:
 
 from shared.datasets.download import (
     MANIFESTS,
-    ChecksumMismatch,
+    ChecksumMismatchError,
     FetchedFile,
     Manifest,
     RemoteFile,
@@ -49,7 +49,7 @@ __all__ = [
     "MANIFESTS",
     "MASKS",
     "MASK_FILES",
-    "ChecksumMismatch",
+    "ChecksumMismatchError",
     "DatasetConvention",
     "FetchedFile",
     "Layout",

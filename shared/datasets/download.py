@@ -157,7 +157,7 @@ MANIFESTS: dict[str, Manifest] = {
 }
 
 
-class ChecksumMismatch(ValueError):
+class ChecksumMismatchError(ValueError):
     """A downloaded file differs from the manifest's checksum (nothing is kept)."""
 
 
@@ -249,7 +249,7 @@ def fetch(
     """Download dataset ``name`` into ``directory/<scene>/`` and check the known checksums.
 
     A file already present with the expected checksum is not downloaded again. A checksum
-    mismatch keeps nothing (a stale copy is deleted) and raises :class:`ChecksumMismatch`.
+    mismatch keeps nothing (a stale copy is deleted) and raises :class:`ChecksumMismatchError`.
 
     Parameters
     ----------
@@ -277,7 +277,7 @@ def fetch(
         An unknown dataset or scene.
     ConnectionError
         A file could not be downloaded.
-    ChecksumMismatch
+    ChecksumMismatchError
         A file differs from its known checksum.
     """
     if name not in MANIFESTS:
@@ -318,7 +318,7 @@ def _fetch_one(
         raise ConnectionError(f"could not download {url}: {error}") from None
     except ValueError:  # pooch's hash check: the download was not kept
         target.unlink(missing_ok=True)
-        raise ChecksumMismatch(
+        raise ChecksumMismatchError(
             f"{url}: sha256 {download.sha256} differs from the expected "
             f"{remote.sha256}; the file was deleted (check the mirror)"
         ) from None

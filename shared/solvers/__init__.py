@@ -9,7 +9,7 @@ from shared.solvers.base import (
     TransientSolverError,
     solve,
 )
-from shared.solvers.params import InvalidSolverParams
+from shared.solvers.params import InvalidSolverParamsError
 from shared.solvers.registry import (
     SolverSpec,
     UnknownSolver,
@@ -26,7 +26,7 @@ Solver = Sampler
 
 __all__ = [
     "Availability",
-    "InvalidSolverParams",
+    "InvalidSolverParamsError",
     "Sampler",
     "SolveResult",
     "Solver",

@@ -266,7 +266,7 @@ def schema_defaults(model: type[SolverParams]) -> dict[str, Any]:
     }
 
 
-class InvalidSolverParams(ValueError):
+class InvalidSolverParamsError(ValueError):
     """``solver_params`` outside the solver's schema; the message lists the allowed ranges."""
 
 
@@ -311,7 +311,7 @@ def _kind(annotation: Any) -> str:
 def check(model: type[SolverParams], solver: str, params: dict[str, Any]) -> dict[str, Any]:
     """``params`` validated against ``model``: the parameters as given, with coerced types.
 
-    Raises :class:`InvalidSolverParams` naming each bad parameter and the allowed ranges.
+    Raises :class:`InvalidSolverParamsError` naming each bad parameter and the allowed ranges.
 
     Parameters
     ----------
@@ -329,7 +329,7 @@ def check(model: type[SolverParams], solver: str, params: dict[str, Any]) -> dic
 
     Raises
     ------
-    InvalidSolverParams
+    InvalidSolverParamsError
         When a parameter is unknown or out of range.
     """
     try:
@@ -339,7 +339,7 @@ def check(model: type[SolverParams], solver: str, params: dict[str, Any]) -> dic
             f"{'.'.join(map(str, e['loc'])) or 'solver_params'}: {_message(e)}"
             for e in error.errors()
         )
-        raise InvalidSolverParams(
+        raise InvalidSolverParamsError(
             f"solver_params for {solver!r}: {problems}. Allowed parameters: {allowed(model)}"
         ) from None
     return parsed.model_dump(mode="json", exclude_unset=True)

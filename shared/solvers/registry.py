@@ -308,7 +308,7 @@ def params_schema(name: str) -> type[schemas.SolverParams]:
 
 
 def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
-    """``params`` checked against the solver's schema (``InvalidSolverParams`` says why not).
+    """``params`` checked against the solver's schema (``InvalidSolverParamsError`` says why not).
 
     Parameters
     ----------
@@ -324,7 +324,7 @@ def check_params(name: str, params: dict[str, Any]) -> dict[str, Any]:
 
     Raises
     ------
-    InvalidSolverParams
+    InvalidSolverParamsError
         When they do not fit the schema.
     """
     return schemas.check(params_schema(name), name, params)

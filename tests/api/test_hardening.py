@@ -394,7 +394,7 @@ def test_after_a_500_the_connection_is_still_usable(live_api, admin_headers, mon
     def broken(*args, **kwargs):
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(live_api.app.state.services.store, "list", broken)
+    monkeypatch.setattr(live_api.app.state.services.store, "list_jobs", broken)
     connection = http.client.HTTPConnection(live_api.host, live_api.port, timeout=10)
     for _ in range(3):
         connection.request("GET", "/v1/jobs", headers=admin_headers)

@@ -12,7 +12,7 @@ import pytest
 from shared import datasets
 from shared.cli import main
 from shared.datasets import (
-    ChecksumMismatch,
+    ChecksumMismatchError,
     Manifest,
     RemoteFile,
     fetch,
@@ -117,7 +117,7 @@ def test_fetch_downloads_unverified_files_again_and_drops_a_corrupt_copy(mirror,
     (root / "x/one/disp2.pgm").write_bytes(b"newer gt")
     (target / "one" / "im6.ppm").write_bytes(b"stale")
     (root / "x/one/im6.ppm").write_bytes(b"tampered")
-    with pytest.raises(ChecksumMismatch, match="differs"):
+    with pytest.raises(ChecksumMismatchError, match="differs"):
         fetch("toy", target, mirror=url)
     assert not (target / "one" / "im6.ppm").exists()  # neither the stale nor the bad copy
     (root / "x/one/im6.ppm").write_bytes(b"right")
@@ -164,7 +164,7 @@ def test_http_downloads_go_through_pooch_and_are_retried(mirror, tmp_path, monke
 def test_fetch_rejects_a_corrupt_file_and_keeps_nothing(mirror, tmp_path: Path):
     url, root = mirror
     (root / "x/one/im6.ppm").write_bytes(b"tampered")
-    with pytest.raises(ChecksumMismatch, match="differs"):
+    with pytest.raises(ChecksumMismatchError, match="differs"):
         fetch("toy", tmp_path / "out", mirror=url)
     assert not (tmp_path / "out" / "one" / "im6.ppm").exists()
 

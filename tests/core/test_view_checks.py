@@ -15,7 +15,7 @@ from shared.disparity_range import (
     resolve_max_disparity,
     views_warning,
 )
-from shared.ground_truth import CONVENTIONAL_SCALES, ScaleNotInferred, infer_gt_scale
+from shared.ground_truth import CONVENTIONAL_SCALES, ScaleNotInferredError, infer_gt_scale
 
 
 @pytest.fixture(scope="module")
@@ -78,12 +78,12 @@ def test_an_unknown_border_and_unknown_pixels_do_not_matter(scene, forward):
 
 
 def test_no_scale_is_guessed_where_none_fits(scene, forward):
-    with pytest.raises(ScaleNotInferred, match="no usual scale"):
+    with pytest.raises(ScaleNotInferredError, match="no usual scale"):
         infer_gt_scale(scene.left, scene.right, scene.disparity * 13.5, forward)
     unrelated = np.random.default_rng(1).uniform(1, 255, scene.disparity.shape)
-    with pytest.raises(ScaleNotInferred, match="do not follow the disparities"):
+    with pytest.raises(ScaleNotInferredError, match="do not follow the disparities"):
         infer_gt_scale(scene.left, scene.right, unrelated, forward)
-    with pytest.raises(ScaleNotInferred, match="only 0 pixels"):
+    with pytest.raises(ScaleNotInferredError, match="only 0 pixels"):
         infer_gt_scale(scene.left, scene.right, np.zeros_like(scene.disparity), forward)
 
 

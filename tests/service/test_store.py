@@ -11,8 +11,9 @@ from hypothesis import strategies as st
 from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
 from workers import orchestration
+from workers.level_store import LevelInputsMissingError
 from workers.records import ChunkReport, JobRecord, JobState, new_job_id, now
-from workers.store import JobStore, LevelInputsMissing, UploadsMissing
+from workers.store import JobStore, UploadsMissingError
 
 
 @pytest.fixture
@@ -68,7 +69,7 @@ def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
     for name in ("left", "right", "candidates", "initial_labels"):
         assert np.array_equal(getattr(loaded, name), getattr(fine, name))
     store.drop_level(record.id, 1)
-    with pytest.raises(LevelInputsMissing):
+    with pytest.raises(LevelInputsMissingError):
         store.load_level(record.id, 1)
 
 
@@ -140,7 +141,7 @@ def test_uploads_live_in_redis_bit_exact_bounded_and_expiring(store, settings, t
     assert after == before  # nothing on disk
     store.transition(record.id, JobState.CANCELLED, {JobState.QUEUED})
     assert not store.redis.exists(upload)
-    with pytest.raises(UploadsMissing, match="submit it again"):
+    with pytest.raises(UploadsMissingError, match="submit it again"):
         store.load_upload(record.id, "left")
     assert np.array_equal(store.load_ground_truth(record.id), truth)  # the error map's
     assert 0 < store.redis.ttl(store.key("job", record.id, "view", "ground_truth")) <= store.ttl

@@ -132,7 +132,7 @@ def test_the_page_is_served_with_a_self_only_policy(client):
     [("127.0.0.1", True), ("localhost", True), ("::1", True), ("0.0.0.0", False), ("lab", False)],
 )
 def test_serve_puts_the_key_in_the_address_only_on_loopback(host, signs_in):
-    from api.cli import sign_in_url
+    from api.serve_cli import sign_in_url
 
     url = sign_in_url(f"http://{host}:8000", host, "qhsm_k")
     assert url == (f"http://{host}:8000/#key=qhsm_k" if signs_in else f"http://{host}:8000/")
@@ -158,7 +158,7 @@ def test_a_colour_pair_keeps_its_colour_and_takes_a_ground_truth(client):
 def test_serve_prints_the_key_only_when_it_makes_it(settings, tmp_path, capsys):
     """The full key is in serve's output once, when it is created; a later start says where
     it is and prints the plain address."""
-    from api.cli import announce_web_page
+    from api.serve_cli import announce_web_page
 
     local = settings.model_copy(update={"data_dir": tmp_path, "auth_enabled": True})
     url = "http://127.0.0.1:8000"

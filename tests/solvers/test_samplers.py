@@ -175,7 +175,7 @@ def test_a_bad_dimod_name_says_what_to_do_and_imports_nothing_not_allowed(
 
 def test_allowed_dimod_samplers_have_bounded_parameters(monkeypatch):
     """As for the built-in solvers: a sweep count that would run for hours is refused."""
-    from shared.solvers import InvalidSolverParams, check_params
+    from shared.solvers import InvalidSolverParamsError, check_params
 
     anneal = "dimod:dwave.samplers.SimulatedAnnealingSampler"
     assert check_params(anneal, {"num_reads": 10, "num_sweeps": 1000}) == {
@@ -183,13 +183,13 @@ def test_allowed_dimod_samplers_have_bounded_parameters(monkeypatch):
         "num_sweeps": 1000,
     }
     for bad in ({"num_sweeps": 10**8}, {"num_reads": 1000, "num_sweeps": 100_000}, {"x": 1}):
-        with pytest.raises(InvalidSolverParams):
+        with pytest.raises(InvalidSolverParamsError):
             check_params(anneal, bad)
-    with pytest.raises(InvalidSolverParams, match="unknown parameter"):
+    with pytest.raises(InvalidSolverParamsError, match="unknown parameter"):
         check_params("dimod:dimod.ExactSolver", {"num_reads": 2})
     monkeypatch.setenv("QHSM_DIMOD_SAMPLERS", '{"dimod.NullSampler": {"num_reads": [1, 5]}}')
     assert check_params("dimod:dimod.NullSampler", {"num_reads": 5}) == {"num_reads": 5}
-    with pytest.raises(InvalidSolverParams, match="less than or equal to 5"):
+    with pytest.raises(InvalidSolverParamsError, match="less than or equal to 5"):
         check_params("dimod:dimod.NullSampler", {"num_reads": 6})
 
 

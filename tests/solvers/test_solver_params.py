@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from shared.solvers import InvalidSolverParams, check_params, params_schema, solver_names
+from shared.solvers import InvalidSolverParamsError, check_params, params_schema, solver_names
 from shared.solvers.params import AnnealParams, NoParams, SolverParams
 
 
@@ -55,7 +55,7 @@ def test_adapter_defaults_and_presets_are_inside_their_schemas():
     ],
 )
 def test_out_of_range_parameters_are_refused_with_the_allowed_range(solver, params, said):
-    with pytest.raises(InvalidSolverParams) as error:
+    with pytest.raises(InvalidSolverParamsError) as error:
         check_params(solver, params)
     message = str(error.value)
     assert message.startswith(f"solver_params for {solver!r}: ")
@@ -69,7 +69,7 @@ def test_sa_sweeps_inside_the_range_pass_unchanged(sweeps):
 
 @given(st.integers(min_value=100_001) | st.integers(max_value=0))
 def test_sa_sweeps_outside_the_range_are_refused(sweeps):
-    with pytest.raises(InvalidSolverParams, match="num_sweeps"):
+    with pytest.raises(InvalidSolverParamsError, match="num_sweeps"):
         check_params("sa", {"num_sweeps": sweeps})
 
 

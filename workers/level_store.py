@@ -1,0 +1,154 @@
+"""Level inputs and solved bundles in Redis: the part of :class:`workers.store.JobStore` the
+level tasks use (plan, write, read and assemble one pyramid level).
+
+Keys (under ``{key_prefix}:``; see :mod:`workers.store` for the rest):
+
+    job:{id}:level:{k}         hash of .npy arrays: the ``LevelInputs`` a worker needs
+    job:{id}:level:views:{s}   hash of .npy arrays: the images of the levels downsampled by s
+    job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
+
+A level's images are read from Redis once per process and job (an LRU of :data:`IMAGES_KEPT`
+jobs), since every level of a job and downsampling shares them.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import OrderedDict
+from collections.abc import Mapping
+
+import numpy as np
+import redis
+from redis.typing import EncodableT
+
+from shared.bundles import bundle_key
+from shared.config import Settings
+from shared.level_inputs import LevelInputs
+from shared.pyramid import LevelPlan
+from workers.arrays import array_fields, array_from
+from workers.redis_client import text
+
+#: Level inputs live this long at most (they are deleted as soon as the level is assembled).
+LEVEL_INPUTS_GRACE = 3600
+IMAGES_KEPT = 2  # jobs' level images one process keeps
+
+
+class LevelInputsMissingError(LookupError):
+    """The level's inputs are gone (job finished, cancelled or expired)."""
+
+
+class LevelStorage:
+    """Level inputs and solved bundles of a job's pyramid levels (mixed into ``JobStore``)."""
+
+    redis: redis.Redis
+    settings: Settings
+    _images: OrderedDict[tuple[str, str], tuple[np.ndarray, ...]]
+
+    def key(self, *parts: object) -> str:
+        raise NotImplementedError  # JobStore's
+
+    def save_level(self, job_id: str, inputs: LevelInputs, started: float) -> None:
+        """Write a level's inputs once; every worker of the level reads them (by reference)."""
+        fields = {
+            "plan": inputs.plan.model_dump_json().encode(),
+            "views": str(inputs.views).encode(),
+            "started": repr(started).encode(),
+            "prepared": json.dumps(inputs.prepared).encode(),
+            "images": str(inputs.plan.downsample).encode(),
+        }
+        arrays = {"candidates": inputs.candidates}
+        if inputs.initial_labels is not None:
+            arrays["initial_labels"] = inputs.initial_labels
+        for name, array in arrays.items():
+            fields.update(array_fields(name, array))
+        key = self.key("job", job_id, "level", inputs.index)
+        # a level's images depend on the job and the downsampling only (bin pyramid: one copy)
+        images = self.key("job", job_id, "level", "views", inputs.plan.downsample)
+        ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
+        with self.redis.pipeline() as pipe:
+            if not self.redis.exists(images):  # once per job and downsampling
+                for name in ("left", "right"):
+                    for field, value in array_fields(name, getattr(inputs, name)).items():
+                        pipe.hset(images, field, value)  # one bounded write per field
+            pipe.expire(images, ttl)
+            for name, value in fields.items():
+                pipe.hset(key, name, value)
+            pipe.expire(key, ttl)
+            pipe.execute()
+
+    def save_prepared(self, job_id: str, index: int, prepared: dict) -> None:
+        """Record what planning the level's bundles chose (``LevelInputs.prepared``)."""
+        key = self.key("job", job_id, "level", index)
+        self.redis.hset(key, "prepared", json.dumps(prepared))
+
+    def load_level(self, job_id: str, index: int) -> tuple[LevelInputs, float]:
+        """The level's inputs and when the level was started (epoch seconds)."""
+        fields = self.redis.hgetall(self.key("job", job_id, "level", index))
+        if not fields:
+            raise LevelInputsMissingError(f"job {job_id}: inputs of level {index} are gone")
+        left, right = self._level_images(job_id, fields)
+        inputs = LevelInputs(
+            plan=LevelPlan.model_validate_json(fields[b"plan"]),
+            views=int(fields[b"views"]),
+            left=left,
+            right=right,
+            candidates=array_from(fields, "candidates"),
+            initial_labels=(
+                array_from(fields, "initial_labels") if b"initial_labels" in fields else None
+            ),
+            prepared=json.loads(fields.get(b"prepared", b"{}")),
+        )
+        return inputs, float(fields[b"started"])
+
+    def _level_images(
+        self, job_id: str, fields: Mapping[bytes | str, bytes | str]
+    ) -> tuple[np.ndarray, ...]:
+        """A level's images: this process's (read-only) copy when another level of the job had
+        them, else from Redis."""
+        cache_key = (job_id, text(fields[b"images"]))
+        if cache_key not in self._images:
+            stored = self.redis.hgetall(self.key("job", job_id, "level", "views", cache_key[1]))
+            if not stored:
+                raise LevelInputsMissingError(f"job {job_id}: the images of its levels are gone")
+            self._images[cache_key] = tuple(array_from(stored, n) for n in ("left", "right"))
+            for image in self._images[cache_key]:  # shared by the job's levels
+                image.setflags(write=False)
+        self._images.move_to_end(cache_key)
+        if len(self._images) > IMAGES_KEPT:
+            self._images.popitem(last=False)
+        return self._images[cache_key]
+
+    def has_level(self, job_id: str, index: int) -> bool:
+        return bool(self.redis.exists(self.key("job", job_id, "level", index)))
+
+    def drop_level(self, job_id: str, index: int) -> None:
+        level = self.key("job", job_id, "level", index)
+        self.redis.delete(level, f"{level}:solved")
+
+    def save_bundles(self, job_id: str, index: int, bundles: list[dict]) -> None:
+        """Solved bundles (JSON, keyed by first row): the fan-in assembles the level from these,
+        whichever task, re-sent or redelivered, solved them (idempotent)."""
+        if not bundles:
+            return
+        key = self.key("job", job_id, "level", index, "solved")
+        with self.redis.pipeline() as pipe:
+            mapping: dict[EncodableT, EncodableT] = {
+                bundle_key([*b["rows"], *b.get("columns", [0])]): json.dumps(b) for b in bundles
+            }
+            pipe.hset(key, mapping=mapping)
+            pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
+            pipe.execute()
+
+    def solved_bundles(self, job_id: str, index: int) -> dict[str, dict]:
+        """The level's solved bundles by ``bundle_key``."""
+        raw = self.redis.hgetall(self.key("job", job_id, "level", index, "solved"))
+        return {text(key): json.loads(value) for key, value in raw.items()}
+
+    def solved_rows(self, job_id: str, index: int) -> set[str]:
+        """``bundle_key`` of the level's solved bundles (without their labels)."""
+        return {
+            text(key) for key in self.redis.hkeys(self.key("job", job_id, "level", index, "solved"))
+        }
+
+    def solved_count(self, job_id: str, index: int) -> int:
+        return int(self.redis.hlen(self.key("job", job_id, "level", index, "solved")))
