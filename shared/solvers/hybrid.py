@@ -16,6 +16,7 @@ import dimod
 import numpy as np
 
 from shared.solvers.base import Availability, Sampler, SolverError
+from shared.solvers.composites import reduce
 from shared.solvers.dwave import LeapCloudSolver, mock_qpu
 
 
@@ -27,7 +28,11 @@ class LeapHybridSolver(LeapCloudSolver):
 
     name = "hybrid"
     simulated = False
-    parameters: dict[str, list] = {"time_limit": [], "initial_states": []}  # noqa: RUF012
+    parameters: dict[str, list] = {  # noqa: RUF012
+        "time_limit": [],
+        "initial_states": [],
+        "preprocess": [],
+    }
 
     def _make_sampler(self):
         from dwave.system import LeapHybridSampler
@@ -58,6 +63,12 @@ class LeapHybridSolver(LeapCloudSolver):
         SolverError
             When the problem has too many variables for the solver.
         """
+        reduction = reduce(bqm, params.pop("preprocess", "roof-duality"))
+        if reduction.rest is None:
+            return reduction.complete(None, {"timing": {}, "simulated": False})
+        return reduction.complete(self._sample_rest(reduction.rest, params, initial_states))
+
+    def _sample_rest(self, bqm, params: dict[str, Any], initial_states) -> dimod.SampleSet:
         with self._lock:
             if self._sampler is None:
                 self._sampler = self._make_sampler()
@@ -102,7 +113,7 @@ class KerberosSolver(Sampler):
     """
 
     name = "hybrid-sim"
-    parameters: dict[str, list] = {"seed": [], "initial_states": []}  # noqa: RUF012
+    parameters: dict[str, list] = {"seed": [], "initial_states": [], "preprocess": []}  # noqa: RUF012
     properties: dict[str, Any] = {"simulated": True}  # noqa: RUF012
 
     def __init__(self) -> None:
@@ -130,6 +141,13 @@ class KerberosSolver(Sampler):
         dimod.SampleSet
             Kerberos' result; info has a simulated ``timing`` (``charge_time``, ``run_time``).
         """
+        reduction = reduce(bqm, params.pop("preprocess", "roof-duality"))
+        if reduction.rest is None:
+            return reduction.complete(None, {"timing": {}, "simulated": True})
+        rest = self._sample_rest(reduction.rest, params, seed, reduction.states(initial_states))
+        return reduction.complete(rest)
+
+    def _sample_rest(self, bqm, params: dict[str, Any], seed, initial_states) -> dimod.SampleSet:
         from hybrid.reference.kerberos import KerberosSampler
 
         from shared.solvers.qpu_time import hybrid_charge_seconds

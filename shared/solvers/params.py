@@ -131,7 +131,17 @@ class GurobiParams(SolverParams):
 SchedulePoint = tuple[Annotated[float, Ge(0), Le(2000)], Annotated[float, Ge(0), Le(1)]]
 
 
-class QPUParams(SolverParams):
+class MeteredParams(SolverParams):
+    """What every metered solver takes: the exact classical step before anything is sent."""
+
+    preprocess: Literal["roof-duality", "none"] = Field(
+        "roof-duality",
+        description="Fix what roof duality proves on the host first; only the rest is sent "
+        "(and charged)",
+    )
+
+
+class QPUParams(MeteredParams):
     """``qpu`` and ``qpu-sim``: D-Wave's sampler (ranges of Advantage systems).
 
     The parameters that set the work done are bounded here; any other ``DWaveSampler``
@@ -226,13 +236,13 @@ def bounds_schema(name: str, bounds: Mapping[str, tuple[float, float]]) -> type[
     return create_model(f"Params[{name}]", __base__=SolverParams, **fields)
 
 
-class LeapHybridParams(SolverParams):
+class LeapHybridParams(MeteredParams):
     """``hybrid``: Leap's hybrid BQM solver."""
 
     time_limit: float | None = Field(None, ge=3, le=MAX_BUNDLE_SECONDS, description="Seconds")
 
 
-class KerberosParams(SolverParams):
+class KerberosParams(MeteredParams):
     """``hybrid-sim``: dwave-hybrid's Kerberos with the mock QPU."""
 
     max_iter: int = Field(10, ge=1, le=1000)

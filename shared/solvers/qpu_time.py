@@ -54,6 +54,7 @@ from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
 from shared.pyramid import level_shape, plan
+from shared.residual import LevelResidual
 from shared.solvers.base import uses_warm_start
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
 from shared.solvers.params import DEFAULT_NUM_READS, schema_defaults
@@ -516,6 +517,16 @@ class LevelEstimate:
     seconds: float
     qubits_per_bundle: int | None = None
     embedding_known: bool = False
+    #: Bundles expected to reach the metered solver (the rest roof duality solves on the host).
+    bundles_sent: int | None = None
+    #: Share of the level's variables expected to reach it.
+    variables_share: float = 1.0
+
+    @property
+    def classical_share(self) -> float:
+        """Share of the level's bundles solved on the host (charged nothing)."""
+        sent = self.bundles if self.bundles_sent is None else self.bundles_sent
+        return 1.0 - sent / max(self.bundles, 1)
 
     def as_dict(self) -> dict[str, Any]:
         """The wire form (``POST /v1/estimate``, ``qhsm estimate --json``)."""
@@ -524,6 +535,9 @@ class LevelEstimate:
             "height": self.shape[0],
             "width": self.shape[1],
             "bundles": self.bundles,
+            "bundles_sent": self.bundles if self.bundles_sent is None else self.bundles_sent,
+            "classical_share": self.classical_share,
+            "variables_share": self.variables_share,
             "variables_per_bundle": self.variables_per_bundle,
             "qubits_per_bundle": self.qubits_per_bundle,
             "embedding_known": self.embedding_known,
@@ -540,12 +554,20 @@ class JobEstimate:
     bundles: int
     levels: list[LevelEstimate] = field(default_factory=list)
 
+    @property
+    def bundles_sent(self) -> int:
+        """Bundles expected to reach the metered solver."""
+        return sum(level.bundles - round(level.classical_share * level.bundles)
+                   for level in self.levels)  # fmt: skip
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "solver": self.solver,
             "metered": is_metered(self.solver),
             "seconds": self.seconds,
             "bundles": self.bundles,
+            "bundles_sent": self.bundles_sent,
+            "classical_share": 1.0 - self.bundles_sent / max(self.bundles, 1),
             "levels": [level.as_dict() for level in self.levels],
         }
 
@@ -584,6 +606,7 @@ def level_estimate(
     candidates: int,
     views: int = 1,
     cache: EmbeddingCache | None = None,
+    residual: LevelResidual | None = None,
 ) -> LevelEstimate:
     """Bundle count x per-bundle time of level ``index`` (``shape`` = one view's height, width;
     ``views`` = 2 with the left-right check, whose right view has as many bundles again).
@@ -605,6 +628,9 @@ def level_estimate(
         1, or 2 with the left-right check.
     cache : EmbeddingCache, optional
         Where known embedding sizes and ``auto`` widths are looked up.
+    residual : LevelResidual, optional
+        What roof duality leaves of the level's bundles (:func:`shared.residual.survey`);
+        None: every bundle is assumed sent whole (an upper bound).
 
     Returns
     -------
@@ -622,18 +648,27 @@ def level_estimate(
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
-    each = bundle_seconds(config.solver, variables, params, embedding=embedding)
+    if residual is None or params.get("preprocess") == "none":
+        residual = LevelResidual(0, 1.0, 1.0, 1.0)
+    sent = round(residual.sent_share * bundles)
+    kept = residual.sent_variables_share  # of a sent bundle's variables (and qubits)
     qubits = None
     if meter_of(config.solver) == "qpu":
-        qubits = embedding.qubits if embedding else assumed_qubits(variables)
+        whole = embedding.qubits if embedding else assumed_qubits(variables)
+        qubits = max(1, round(whole * kept))
+        seconds = sent * bundle_seconds(config.solver, variables, params, num_qubits=qubits)
+    else:
+        seconds = sent * bundle_seconds(config.solver, max(1, round(variables * kept)), params)
     return LevelEstimate(
         index=index,
         shape=(height, width),
         bundles=bundles,
         variables_per_bundle=variables,
-        seconds=each * bundles,
+        seconds=seconds,
         qubits_per_bundle=qubits,
         embedding_known=embedding is not None,
+        bundles_sent=sent,
+        variables_share=residual.variables_share,
     )
 
 
@@ -642,6 +677,7 @@ def job_seconds(
     shape: tuple[int, int],
     max_disparity: int,
     cache: EmbeddingCache | None = None,
+    residual: list[LevelResidual] | None = None,
 ) -> JobEstimate:
     """Estimate a job before accepting it, from the image ``shape`` (height, width), its
     resolved ``max_disparity``, the pyramid and the solver parameters: nothing is embedded or
@@ -658,6 +694,8 @@ def job_seconds(
         The resolved maximum disparity, pixels.
     cache : EmbeddingCache, optional
         The shared embedding cache; None: assumptions only.
+    residual : list of LevelResidual, optional
+        Per level, what roof duality leaves (:func:`job_residual`); None: bundles sent whole.
 
     Returns
     -------
@@ -673,8 +711,9 @@ def job_seconds(
             level.candidates,
             views,
             cache,
+            residual[position] if residual else None,
         )
-        for level in plan(config, max_disparity)
+        for position, level in enumerate(plan(config, max_disparity))
     ]
     return JobEstimate(
         solver=config.solver,
@@ -682,3 +721,4 @@ def job_seconds(
         bundles=sum(level.bundles for level in levels),
         levels=levels,
     )
+

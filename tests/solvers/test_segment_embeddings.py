@@ -59,7 +59,7 @@ def test_a_level_embeds_its_shape_once_across_workers(redis_store):
         encoding="domain-wall",
         bundle_width=24,
         bundle_margin=6,
-        solver_params={"num_reads": 5},
+        solver_params={"num_reads": 5, "preprocess": "none"},
     )
     left, right = match_views(scene.left, scene.right, config)
     _, plans = plan_run(left, right, config)
