@@ -19,7 +19,7 @@ import numpy as np
 from shared.config import MatchConfig
 
 #: Bundles per level the survey reduces at most (evenly spread): a few seconds on Tsukuba.
-SURVEY_BUNDLES = 384
+SURVEY_BUNDLES = 160
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
 from shared.solve import level_bundles, plans_with_solver, solve_bundles
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.qpu_time import is_metered, meter_of
 from shared.solvers.registry import queue_of
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, task_time_limits
@@ -75,8 +75,10 @@ def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) ->
     """The level's planned bundles (both views' with the left-right check; row segments with
     a ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
 
-    Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
-    (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
+    Metered solvers (QPU) get one bundle per task: a retried task then never re-sends (and
+    re-bills) bundles that were already solved, and the lab-wide slots are shared fairly. The
+    hybrid solvers get the whole level in one task: it is one problem for them (Leap bills its
+    minimum time per problem), so splitting it would multiply the bill.
     """
     bundles = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
     return group_bundles(bundles, config, rows_per_task)
@@ -92,7 +94,9 @@ def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -
     about ``rows_per_task`` rows each, all segments of a row in the same task."""
     segments = max(1, sum(1 for bundle in bundles if bundle[0] == bundles[0][0])) if bundles else 1
     per_task = max(1, rows_per_task // config.bundle_height) * segments
-    if is_metered(config.solver):
+    if meter_of(config.solver) == "hybrid":
+        per_task = max(1, len(bundles))
+    elif is_metered(config.solver):
         per_task = 1
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
 

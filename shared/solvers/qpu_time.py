@@ -104,6 +104,10 @@ HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
     [1000000, 600.0],
 ]
 
+#: Variables of one hybrid problem at most (Leap's hybrid BQM solver's
+#: ``maximum_number_of_variables``): a level's bundles are joined into blocks of this size.
+HYBRID_MAX_VARIABLES = 1_000_000
+
 #: Qubits per binary variable assumed before an embedding exists (see the module docstring).
 QUBITS_PER_VARIABLE = 2.0
 #: Working qubits of an Advantage (Pegasus P16) QPU: no embedding uses more.
@@ -260,6 +264,28 @@ def hybrid_charge_seconds(
     minimum = float(np.interp(num_variables, curve[:, 0], curve[:, 1]))
     requested = params.get("time_limit")
     return max(minimum, float(requested)) if requested is not None else minimum
+
+
+def hybrid_level_seconds(variables: float, params: dict[str, Any] | None = None) -> float:
+    """Charge of ``variables`` sent to the hybrid solver as blocks of at most
+    :data:`HYBRID_MAX_VARIABLES` (``shared.solvers.hybrid``: a level's rests, joined).
+
+    Parameters
+    ----------
+    variables : float
+        Variables left of the level's bundles (0: nothing is sent).
+    params : dict, optional
+        Solver parameters (``time_limit``).
+
+    Returns
+    -------
+    float
+        Seconds: the blocks' charges, the variables shared evenly between them.
+    """
+    if variables <= 0:
+        return 0.0
+    count = int(np.ceil(variables / HYBRID_MAX_VARIABLES))
+    return count * hybrid_charge_seconds(max(1, round(variables / count)), params)
 
 
 def assumed_qubits(num_variables: int) -> int:
@@ -657,6 +683,8 @@ def level_estimate(
         whole = embedding.qubits if embedding else assumed_qubits(variables)
         qubits = max(1, round(whole * kept))
         seconds = sent * bundle_seconds(config.solver, variables, params, num_qubits=qubits)
+    elif meter_of(config.solver) == "hybrid":  # the level's rests joined into blocks
+        seconds = hybrid_level_seconds(bundles * variables * residual.variables_share, params)
     else:
         seconds = sent * bundle_seconds(config.solver, max(1, round(variables * kept)), params)
     return LevelEstimate(

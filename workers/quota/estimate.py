@@ -82,3 +82,30 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     )
     live = live_timing_solver(config.solver)
     return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
+
+
+def batch_estimate(inputs, config, bundles: list) -> float:
+    """Estimated charge of bundles sent as one batch (the hybrid solvers join them): their
+    variables as blocks of the solver's size, before roof duality (an upper bound).
+
+    Parameters
+    ----------
+    inputs
+        The level's inputs.
+    config
+        The job's ``MatchConfig``.
+    bundles : list of Bundle
+        The batch.
+
+    Returns
+    -------
+    float
+        Seconds to reserve.
+    """
+    from shared.encodings import get_codec
+    from shared.solvers.qpu_time import hybrid_level_seconds, sampler_params
+
+    per_pixel = get_codec(config.encoding).variables_per_pixel(inputs.candidates.shape[2])
+    variables = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    return hybrid_level_seconds(variables * per_pixel, params)
