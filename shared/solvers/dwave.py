@@ -449,7 +449,8 @@ def mock_qpu():
     :data:`MOCK_TOPOLOGY`, sampling with its default substitute (dwave-samplers'
     ``SteepestDescentSampler``: one descent from a random state per read), parameter warnings
     off (we pass QPU parameters such as ``annealing_time`` that it accepts but does not
-    simulate).
+    simulate). A reverse anneal's ``initial_state`` (a warm start) is the first read's start:
+    the mock's stand-in for an anneal that begins at the given state.
 
     Returns
     -------
@@ -459,7 +460,21 @@ def mock_qpu():
     """
     from dwave.system.testing import MockDWaveSampler
 
+    class WarmMock(MockDWaveSampler):
+        def sample(self, bqm, **kwargs):
+            state = kwargs.get("initial_state")
+            if not state:
+                return super().sample(bqm, **kwargs)
+            qubits = list(state)
+            self.substitute_kwargs.update(
+                initial_states=([list(state.values())], qubits),
+                initial_states_generator="random",
+            )
+            try:
+                return super().sample(bqm, **kwargs)
+            finally:
+                self.substitute_kwargs.pop("initial_states")
+                self.substitute_kwargs.pop("initial_states_generator")
+
     topology_type, shape = MOCK_TOPOLOGY
-    return MockDWaveSampler(
-        topology_type=topology_type, topology_shape=shape, parameter_warnings=False
-    )
+    return WarmMock(topology_type=topology_type, topology_shape=shape, parameter_warnings=False)

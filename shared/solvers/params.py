@@ -151,7 +151,11 @@ class QPUParams(MeteredParams):
 
     model_config = ConfigDict(extra="allow")
 
-    num_reads: int = Field(500, ge=1, le=10_000)
+    #: 20 reads: measured on qpu-sim (warm start, roof duality), reads past the first did not
+    #: lower any bundle's energy gap (docs/benchmarks.md, "QPU economy"); a real QPU's reads are
+    #: noisy samples, and at 20 they are a quarter of a bundle's QPU time (programming ~15 ms,
+    #: a read ~0.25 ms), so fewer would save little. 500 was a habit.
+    num_reads: int = Field(20, ge=1, le=10_000)
     annealing_time: float | None = Field(None, ge=0.5, le=2000, description="Microseconds")
     chain_strength: Annotated[float, Gt(0), Le(1e6)] | None = None
     anneal_schedule: list[SchedulePoint] | None = Field(None, min_length=2, max_length=12)
@@ -166,18 +170,10 @@ DEFAULT_NUM_READS: int = QPUParams.model_fields["num_reads"].default
 
 
 class SimulatedQPUParams(QPUParams):
-    """``qpu-sim``: the ``qpu`` parameters with the stand-in's own read budget.
-
-    A QPU read costs about 0.1 ms of QPU time, so ``qpu`` asks for 500. A read of the offline mock
-    is a full steepest descent on the embedded problem (about 1 ms of CPU for a 96-120 px Tsukuba
-    segment on 1,200-1,650 qubits), 57 % of a bundle's time at 500 reads; descents from random
-    states add nothing measurable past the first hundred (the segments' energy gaps to their
-    optimum are the same with 100 and 500 reads: docs/benchmarks.md, "Row segments"). The
-    simulated QPU time it reports, estimates and charges is the timing model's for the reads it
-    took.
-    """
-
-    num_reads: int = Field(100, ge=1, le=10_000)
+    """``qpu-sim``: the ``qpu`` parameters, read budget included, so that the stand-in is charged
+    what ``qpu`` would be for the same bundles (a mock read is a steepest descent on the embedded
+    problem, about 1 ms of CPU; reads past the first added nothing measurable with a warm start
+    and roof duality: docs/benchmarks.md, "QPU economy")."""
 
 
 class DimodAnnealParams(SolverParams):

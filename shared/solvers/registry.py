@@ -122,6 +122,7 @@ _BUILTIN = [
         schemas.QPUParams,
         meter="qpu",
         encoding="domain-wall",
+        warm_start_default=True,
     ),
     _spec(
         "qpu-sim",
@@ -131,6 +132,7 @@ _BUILTIN = [
         meter="qpu",
         offline=True,
         encoding="domain-wall",
+        warm_start_default=True,
     ),
     _spec(
         "hybrid",

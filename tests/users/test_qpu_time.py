@@ -81,7 +81,8 @@ def test_charged_seconds_prefers_the_hybrid_charge_time():
 def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
     # whole rows (a width beyond the row's; qpu-sim's default is --bundle-width auto)
     config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
-                         bundle_width=4096, solver_params={"num_reads": 10})  # fmt: skip
+                         bundle_width=4096, solver_params={"num_reads": 10},
+                         warm_start=False)  # fmt: skip
     estimate = qpu_time.job_seconds(config, (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
     views = 2 if preset == "accurate" else 1  # the right view's bundles too
@@ -125,7 +126,7 @@ def test_unmetered_solvers_cost_nothing():
 
 
 def test_warm_started_levels_are_estimated_as_reverse_anneals():
-    cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100})
+    cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": False})
     warm = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": True})
     cold_levels = qpu_time.job_seconds(cold, (60, 80), 16).levels
     warm_levels = qpu_time.job_seconds(warm, (60, 80), 16).levels
