@@ -210,7 +210,7 @@ class MatchConfig(BaseModel):
     warm_start: bool | None = Field(
         description="Start every bundle from the best guess at hand (the coarser level's "
         "estimate; on the coarsest level the data term's minimum); unset: the solver's choice "
-        "(on for the classical annealers, local searches and the QPU, off for the hybrid solvers) "
+        "(on for the classical annealers and local searches, off for QPU and cloud solvers) "
         "(from preset)"
     )
     subpixel: bool = Field(

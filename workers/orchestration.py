@@ -37,6 +37,7 @@ from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
 from shared.solve import level_bundles, plans_with_solver, solve_bundles
+from shared.solvers.packing import MAX_COPIES
 from shared.solvers.qpu_time import is_metered, meter_of
 from shared.solvers.registry import queue_of
 from workers import fair
@@ -75,10 +76,11 @@ def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) ->
     """The level's planned bundles (both views' with the left-right check; row segments with
     a ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
 
-    Metered solvers (QPU) get one bundle per task: a retried task then never re-sends (and
-    re-bills) bundles that were already solved, and the lab-wide slots are shared fairly. The
-    hybrid solvers get the whole level in one task: it is one problem for them (Leap bills its
-    minimum time per problem), so splitting it would multiply the bill.
+    Metered solvers send a task's bundles as few problems as they can (``solve_batch``): the
+    QPU solvers get :data:`QPU_BUNDLES_PER_TASK` bundles a task (packed a shape's disjoint
+    embeddings at a time into one QPU call), the hybrid solvers the whole level (one problem:
+    Leap bills its minimum time per problem, so splitting the level would multiply the bill). A
+    retried task re-sends its own bundles only.
     """
     bundles = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
     return group_bundles(bundles, config, rows_per_task)
@@ -97,8 +99,13 @@ def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -
     if meter_of(config.solver) == "hybrid":
         per_task = max(1, len(bundles))
     elif is_metered(config.solver):
-        per_task = 1
+        per_task = QPU_BUNDLES_PER_TASK
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
+
+
+#: Bundles of a QPU solver's task: several QPU calls of a shape's disjoint copies each (the
+#: estimate assumes full calls; a task's last call may carry fewer, <= 1 call in 8 here).
+QPU_BUNDLES_PER_TASK = 8 * MAX_COPIES
 
 
 def rows_per_task(settings: Settings, solver: str) -> int:

@@ -45,6 +45,7 @@ from shared.solvers.embedding_cache import (
     default_cache,
     graph_fingerprint,
 )
+from shared.solvers.packing import PackedCalls
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 
 log = logging.getLogger(__name__)
@@ -352,7 +353,7 @@ class LeapCloudSolver(_EmbeddedQPU):
         return sampler
 
 
-class _SegmentsOnGraph(_EmbeddedQPU):
+class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
     """What planning a level asks of a QPU solver (``shared.solve.level_bundles``): the widest
     row segment that embeds on its graph, and each bundle shape's embedding, found once."""
 
@@ -381,19 +382,23 @@ class _SegmentsOnGraph(_EmbeddedQPU):
     def embed_shapes(
         self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
     ) -> None:
-        """Embed each bundle shape (rows, columns) of a level once, before its bundles fan out,
-        so that no two workers compute the same embedding at the same time."""
+        """Embed each bundle shape (rows, columns) of a level once, with its disjoint copies
+        (:func:`~shared.solvers.packing.copies`), before its bundles fan out, so that no two
+        workers compute the same embedding at the same time."""
+        from shared.solvers.packing import copies
         from shared.solvers.qpu_time import shape_bqm
 
         try:
             composite = self.composite()
             for height, width in shapes:
-                composite.embedding(shape_bqm(str(encoding), height, width, candidates))
+                bqm = shape_bqm(str(encoding), height, width, candidates)
+                embedding, _, _ = composite.embedding(bqm)
+                copies(self.cache, bqm, embedding, self.sampler().edgelist, self._target,
+                       get_settings().embedding_timeout, solver=self.name)  # fmt: skip
         except SolverError:
             raise
         except Exception as error:
             raise self.translate(error) from None
-
 
 
 class QPUSolver(_SegmentsOnGraph, LeapCloudSolver):
@@ -478,3 +483,4 @@ def mock_qpu():
 
     topology_type, shape = MOCK_TOPOLOGY
     return WarmMock(topology_type=topology_type, topology_shape=shape, parameter_warnings=False)
+

@@ -27,6 +27,7 @@ import numpy as np
 from shared.solvers.base import Availability, Sampler, SolverError, SolveResult, result_of
 from shared.solvers.composites import reduce
 from shared.solvers.dwave import LeapCloudSolver, mock_qpu
+from shared.solvers.packing import joined, split
 
 
 def blocks(sizes: list[int], limit: int) -> list[list[int]]:
@@ -54,25 +55,6 @@ def blocks(sizes: list[int], limit: int) -> list[list[int]]:
         groups[-1].append(index)
         total += size
     return groups
-
-
-def joined(rests: list[dimod.BinaryQuadraticModel]) -> dimod.BinaryQuadraticModel:
-    """The disjoint union of BINARY BQMs on 0..m_i-1: the i-th on the next m_i variables."""
-    linear, rows, cols, quadratic, offset, start = [], [], [], [], 0.0, 0
-    for rest in rests:
-        h, (r, c, q), o, *_ = rest.to_numpy_vectors(variable_order=range(rest.num_variables))
-        linear.append(h)
-        rows.append(r + start)
-        cols.append(c + start)
-        quadratic.append(q)
-        offset += float(o)
-        start += rest.num_variables
-    return dimod.BinaryQuadraticModel.from_numpy_vectors(
-        np.concatenate(linear),
-        (np.concatenate(rows), np.concatenate(cols), np.concatenate(quadratic)),
-        offset,
-        dimod.BINARY,
-    )
 
 
 class _HybridBatch(Sampler):
@@ -235,17 +217,9 @@ class LeapHybridSolver(_HybridBatch, LeapCloudSolver):
         """One Leap problem for the block: the rests' disjoint union, split back per rest."""
         sampleset = self._sample_rest(joined(rests), params, None)
         timing = dict(sampleset.info["timing"])
-        position = {v: i for i, v in enumerate(sampleset.variables)}
-        samples = sampleset.record.sample
-        out, start = [], 0
-        for rest in rests:
-            columns = [position[v] for v in range(start, start + rest.num_variables)]
-            part = dimod.SampleSet.from_samples_bqm(
-                (samples[:, columns], range(rest.num_variables)), rest
-            )
+        out = split(sampleset, rests)
+        for part in out:
             part.info.update(simulated=False, warm_start=False)
-            out.append(part)
-            start += rest.num_variables
         return out, timing
 
     def _check_size(self, bqm: dimod.BinaryQuadraticModel) -> None:

@@ -679,10 +679,17 @@ def level_estimate(
     sent = round(residual.sent_share * bundles)
     kept = residual.sent_variables_share  # of a sent bundle's variables (and qubits)
     qubits = None
-    if meter_of(config.solver) == "qpu":
+    if meter_of(config.solver) == "qpu":  # rests packed: `together` per QPU call
         whole = embedding.qubits if embedding else assumed_qubits(variables)
         qubits = max(1, round(whole * kept))
-        seconds = sent * bundle_seconds(config.solver, variables, params, num_qubits=qubits)
+        from shared.solvers.packing import packed_copies
+
+        shape = (tallest, columns)
+        together = min(max(sent, 1), packed_copies(cache, config, shape, candidates, whole))
+        calls = -(-sent // together)
+        seconds = calls * bundle_seconds(
+            config.solver, variables, params, num_qubits=min(MAX_QUBITS, together * qubits)
+        )
     elif meter_of(config.solver) == "hybrid":  # the level's rests joined into blocks
         seconds = hybrid_level_seconds(bundles * variables * residual.variables_share, params)
     else:

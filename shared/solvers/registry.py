@@ -122,7 +122,6 @@ _BUILTIN = [
         schemas.QPUParams,
         meter="qpu",
         encoding="domain-wall",
-        warm_start_default=True,
     ),
     _spec(
         "qpu-sim",
@@ -132,7 +131,6 @@ _BUILTIN = [
         meter="qpu",
         offline=True,
         encoding="domain-wall",
-        warm_start_default=True,
     ),
     _spec(
         "hybrid",

@@ -15,7 +15,8 @@ from solver_helpers import optimum, stereo_costs
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
 from shared.solvers import get_solver, qpu_time
-from shared.solvers.hybrid import blocks, joined
+from shared.solvers.hybrid import blocks
+from shared.solvers.packing import joined
 
 QUICK_HYBRID = {"max_iter": 2, "sa_sweeps": 100, "qpu_reads": 10}
 

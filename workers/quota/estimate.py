@@ -85,8 +85,8 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
 
 
 def batch_estimate(inputs, config, bundles: list) -> float:
-    """Estimated charge of bundles sent as one batch (the hybrid solvers join them): their
-    variables as blocks of the solver's size, before roof duality (an upper bound).
+    """Estimated charge of bundles sent as one batch, before roof duality (an upper bound):
+    the hybrid solvers' blocks of their size; the QPU solvers' bundles one call each.
 
     Parameters
     ----------
@@ -103,8 +103,13 @@ def batch_estimate(inputs, config, bundles: list) -> float:
         Seconds to reserve.
     """
     from shared.encodings import get_codec
-    from shared.solvers.qpu_time import hybrid_level_seconds, sampler_params
+    from shared.solvers.qpu_time import hybrid_level_seconds, meter_of, sampler_params
 
+    if meter_of(config.solver) != "hybrid":
+        return sum(
+            bundle_estimate(inputs, config, b.row_start, b.row_stop, b.col_stop - b.col_start)
+            for b in bundles
+        )
     per_pixel = get_codec(config.encoding).variables_per_pixel(inputs.candidates.shape[2])
     variables = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
     params = sampler_params(config.solver_params, warm=uses_warm_start(config))
