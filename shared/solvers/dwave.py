@@ -394,7 +394,7 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
                 bqm = shape_bqm(str(encoding), height, width, candidates)
                 embedding, _, _ = composite.embedding(bqm)
                 copies(self.cache, bqm, embedding, self.sampler().edgelist, self._target,
-                       get_settings().embedding_timeout, solver=self.name)  # fmt: skip
+                       get_settings().embedding_search_timeout, solver=self.name)  # fmt: skip
         except SolverError:
             raise
         except Exception as error:

@@ -293,7 +293,7 @@ class PackedCalls:
                     embedding, source, key = composite.embedding(reduction.bqm)
                     groups.setdefault(key, []).append(i)
                     shapes.setdefault(key, (reduction.bqm, embedding, source))
-            timeout = get_settings().embedding_timeout
+            timeout = get_settings().embedding_search_timeout
             for key, members in groups.items():
                 bqm, first, source = shapes[key]
                 found = copies(self.cache, bqm, first, self.sampler().edgelist, self._target,
