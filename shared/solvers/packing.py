@@ -139,11 +139,10 @@ def packed_copies(
     config: Any,
     shape: tuple[int, int],
     candidates: int,
-    qubits: int,
 ) -> int:
     """Bundles of a shape per QPU call: the disjoint embeddings a run found
-    (:func:`shared.solvers.packing.copies`), else as many as fill a :data:`PACKED_FILL` share
-    of the chip (at most ``MAX_COPIES``).
+    (:func:`copies`), else 1 (on Tsukuba's ``auto`` widths the search found no second copy
+    within its time limit, so packing is not assumed before it has been seen).
 
     Parameters
     ----------
@@ -155,8 +154,6 @@ def packed_copies(
         Bundle rows and columns.
     candidates : int
         Labels per pixel.
-    qubits : int
-        Qubits of one bundle's embedding (known or assumed).
 
     Returns
     -------
@@ -166,18 +163,11 @@ def packed_copies(
     from shared.encodings import get_codec
     from shared.solvers.qpu_time import MAX_QUBITS, bundle_digest
 
-    if shape[0] * shape[1] * get_codec(config.encoding).variables_per_pixel(candidates) <= (
-        MAX_QUBITS
-    ):
-        digest = bundle_digest(str(config.encoding), shape[0], shape[1], candidates)
-        known = known_copies(cache, config.solver, digest)
-        if known:
-            return known
-    return max(1, min(MAX_COPIES, int(PACKED_FILL * MAX_QUBITS) // max(qubits, 1)))
-
-
-#: Share of the chip disjoint copies of a shape are assumed to fill before a run has found them.
-PACKED_FILL = 0.5
+    per_pixel = get_codec(config.encoding).variables_per_pixel(candidates)
+    if shape[0] * shape[1] * per_pixel > MAX_QUBITS:
+        return 1
+    digest = bundle_digest(str(config.encoding), shape[0], shape[1], candidates)
+    return known_copies(cache, config.solver, digest) or 1
 
 
 def joined(rests: list[dimod.BinaryQuadraticModel]) -> dimod.BinaryQuadraticModel:

@@ -685,7 +685,7 @@ def level_estimate(
         from shared.solvers.packing import packed_copies
 
         shape = (tallest, columns)
-        together = min(max(sent, 1), packed_copies(cache, config, shape, candidates, whole))
+        together = min(max(sent, 1), packed_copies(cache, config, shape, candidates))
         calls = -(-sent // together)
         seconds = calls * bundle_seconds(
             config.solver, variables, params, num_qubits=min(MAX_QUBITS, together * qubits)

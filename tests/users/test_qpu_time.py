@@ -92,7 +92,8 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
         height, width = level_shape((37, 50), level.downsample)
         assert got.bundles == views * len(bundle_rows(height, 2))
         assert got.variables_per_bundle == 2 * width * (level.candidates + per_pixel)
-        assert got.seconds == pytest.approx(packed_seconds(got, "qpu-sim", {"num_reads": 10}))
+        each = qpu_time.bundle_seconds("qpu-sim", got.variables_per_bundle, {"num_reads": 10})
+        assert got.seconds == pytest.approx(each * got.bundles)  # one call each: no copies known
     assert estimate.bundles == sum(level.bundles for level in estimate.levels)
     assert estimate.seconds == pytest.approx(sum(level.seconds for level in estimate.levels))
 
@@ -113,20 +114,6 @@ def test_job_estimate_counts_row_segments(tmp_path):
     assert level.bundles == 10 * len(segment_columns(50, 30, 6))
     cache.record_width(key, None)  # whole rows embed
     assert qpu_time.job_seconds(auto, (10, 50), 20, cache).levels[-1].bundles == 10
-
-
-def packed_seconds(level, solver: str, params: dict) -> float:
-    """A level's QPU seconds with its bundles packed as many per call as the assumption of
-    ``shared.solvers.packing.packed_copies`` allows (no run has found copies here)."""
-    from shared.solvers.packing import MAX_COPIES, PACKED_FILL
-
-    qubits = level.qubits_per_bundle
-    together = min(level.bundles, MAX_COPIES, int(PACKED_FILL * qpu_time.MAX_QUBITS) // qubits)
-    together = max(1, together)
-    calls = -(-level.bundles // together)
-    return calls * qpu_time.qpu_access_seconds(
-        min(qpu_time.MAX_QUBITS, together * qubits), {"num_reads": params["num_reads"]}
-    )
 
 
 def got_labels(config: MatchConfig) -> int:
@@ -202,9 +189,8 @@ def test_known_embeddings_replace_the_assumed_qubits_level_by_level():
     assert [level.embedding_known for level in known.levels] == [False, False, True]
     assert known.levels[:2] == assumed.levels[:2]
     assert known.levels[-1].qubits_per_bundle == 150
-    assert known.levels[-1].seconds == pytest.approx(
-        packed_seconds(known.levels[-1], "qpu", {"num_reads": 100})
-    )
+    each = qpu_time.qpu_access_seconds(150, {"num_reads": 100})
+    assert known.levels[-1].seconds == pytest.approx(each * finest.bundles)
     # another solver's embedding of the same structure is not used
     other = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu-sim", digest): size}))
     assert other == assumed
