@@ -174,8 +174,8 @@ def test_hybrid_sim_solves_a_small_row():
 
 
 def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys):
-    """Before any embedding the estimate assumes 2 qubits per variable (within 2x of the
-    charge); after a run, `qhsm estimate --local` uses the embeddings and what roof duality
+    """Before any embedding the estimate assumes 2 qubits per variable and one bundle per call
+    (an upper bound); after a run, `qhsm estimate --local` uses the embeddings and what roof duality
     leaves of the bundles, and is the charge within 10 %."""
     import cv2
 
@@ -207,7 +207,9 @@ def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys)
 
     run_pipeline(scene.left, scene.right, config, solve_level)
     charge = sum(charged)
-    assert 0.5 <= before["seconds"] / charge <= 2.0
+    # before any run: 2 qubits a variable and one bundle per QPU call (no copies known yet,
+    # while the run packed several into each call): an upper bound
+    assert charge <= before["seconds"]
     # not the mock's fixed demonstration timing
     assert charge / before["bundles"] != pytest.approx(MOCK_QPU_ACCESS_US * 1e-6, rel=0.05)
 

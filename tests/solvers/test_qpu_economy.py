@@ -140,3 +140,25 @@ def test_hybrid_sim_estimate_is_its_charge_within_10_percent(tmp_path, capsys):
     assert estimate["seconds"] == pytest.approx(charge, rel=0.1)
     for level in result.levels:
         assert 0 < level.info["variables_sent"] < level.info["variables"]
+
+
+def test_qpu_sim_packs_rests_into_one_call_on_disjoint_copies(tmp_path):
+    from shared.solvers.dwave import SimulatedQPUSolver
+    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
+    from shared.solvers.packing import MAX_COPIES
+
+    solver = SimulatedQPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path)))
+    bqms = [frustrated(8, s) for s in range(MAX_COPIES + 2)]
+    results = solver.solve_batch([(bqm, s, None) for s, bqm in enumerate(bqms)], num_reads=5)
+    per_call = [r.info["bundles_per_call"] for r in results]
+    assert per_call == [MAX_COPIES] * MAX_COPIES + [2, 2]  # a small row: 8 copies fit
+    first = results[:MAX_COPIES]
+    call = qpu_time.qpu_access_seconds(first[0].info["call_qubits"], {"num_reads": 5})
+    # one programming for eight bundles, shared by their qubits
+    assert sum(r.timing["qpu_access_time"] for r in first) == pytest.approx(call)
+    for r in first:
+        share = r.info["qubits"] / r.info["call_qubits"]
+        assert r.timing["qpu_access_time"] == pytest.approx(call * share)
+    for bqm, result in zip(bqms, results, strict=True):
+        assert result.energy == pytest.approx(bqm.energy(result.sample))
+        assert 0 < result.info["residual_variables"] < bqm.num_variables
