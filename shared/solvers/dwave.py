@@ -131,6 +131,7 @@ class _EmbeddedQPU(Sampler):
         "seed": [],
         "initial_states": [],
         "preprocess": [],
+        "bundles_per_call": [],
     }
 
     def __init__(self, cache: EmbeddingCache | None = None) -> None:
@@ -189,6 +190,7 @@ class _EmbeddedQPU(Sampler):
         nothing left never reaches the QPU and is charged nothing); the rest is sampled on the
         QPU through the bundle shape's embedding restricted to it (:meth:`sample_residual`)."""
         reduction = reduce(bqm, params.pop("preprocess", "roof-duality"))
+        params.pop("bundles_per_call", None)  # one bundle here
         if reduction.rest is None:
             return reduction.complete(None, {"timing": {}, "simulated": self.simulated})
         sampleset = self.sample_residual(

@@ -31,11 +31,13 @@ from shared.solvers.embedding_cache import (
     find_embedding,
     structure_digest,
 )
+from shared.solvers.params import MAX_BUNDLES_PER_CALL
 
 log = logging.getLogger(__name__)
 
-#: Copies of one bundle shape per QPU call at most (a call's reads serve all of them).
-MAX_COPIES = 8
+#: Copies of one bundle shape per QPU call at most (a call's reads serve all of them): the
+#: ``bundles_per_call`` parameter's default and bound.
+MAX_COPIES: int = MAX_BUNDLES_PER_CALL
 
 
 def copies_key(target: str, digest: str) -> str:
@@ -167,7 +169,8 @@ def packed_copies(
     if shape[0] * shape[1] * per_pixel > MAX_QUBITS:
         return 1
     digest = bundle_digest(str(config.encoding), shape[0], shape[1], candidates)
-    return known_copies(cache, config.solver, digest) or 1
+    found = known_copies(cache, config.solver, digest) or 1
+    return min(found, int(config.solver_params.get("bundles_per_call", MAX_COPIES)))
 
 
 def joined(rests: list[dimod.BinaryQuadraticModel]) -> dimod.BinaryQuadraticModel:
@@ -272,6 +275,7 @@ class PackedCalls:
         started = time.perf_counter()
         params = {**self.defaults, **params}
         preprocess = params.pop("preprocess", "roof-duality")
+        per_call = int(params.pop("bundles_per_call", MAX_COPIES))
         try:
             reductions = [reduce(bqm, preprocess) for bqm, _, _ in problems]
             sets: list[dimod.SampleSet | None] = [None] * len(problems)
@@ -287,7 +291,7 @@ class PackedCalls:
             for key, members in groups.items():
                 bqm, first, source = shapes[key]
                 found = copies(self.cache, bqm, first, self.sampler().edgelist, self._target,
-                               timeout, solver=self.name)  # fmt: skip
+                               timeout, solver=self.name)[:per_call]  # fmt: skip
                 for start in range(0, len(members), len(found)):
                     chunk = members[start : start + len(found)]
                     states = [reductions[i].states(_states(problems[i][2])) for i in chunk]

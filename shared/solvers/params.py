@@ -131,6 +131,10 @@ class GurobiParams(SolverParams):
 SchedulePoint = tuple[Annotated[float, Ge(0), Le(2000)], Annotated[float, Ge(0), Le(1)]]
 
 
+#: Bundles packed into one QPU call at most (``shared.solvers.packing``).
+MAX_BUNDLES_PER_CALL = 8
+
+
 class MeteredParams(SolverParams):
     """What every metered solver takes: the exact classical step before anything is sent."""
 
@@ -156,6 +160,13 @@ class QPUParams(MeteredParams):
     #: noisy samples, and at 20 they are a quarter of a bundle's QPU time (programming ~15 ms,
     #: a read ~0.25 ms), so fewer would save little. 500 was a habit.
     num_reads: int = Field(20, ge=1, le=10_000)
+    bundles_per_call: int = Field(
+        MAX_BUNDLES_PER_CALL,
+        ge=1,
+        le=MAX_BUNDLES_PER_CALL,
+        description="Bundles packed into one QPU call at most (disjoint copies of their "
+        "shape's embedding, as many as were found)",
+    )
     annealing_time: float | None = Field(None, ge=0.5, le=2000, description="Microseconds")
     chain_strength: Annotated[float, Gt(0), Le(1e6)] | None = None
     anneal_schedule: list[SchedulePoint] | None = Field(None, min_length=2, max_length=12)
