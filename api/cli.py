@@ -343,6 +343,7 @@ def _local_estimate(config, files: list[Path]) -> dict:
     from shared.disparity_range import resolve_max_disparity
     from shared.images import load_pair
     from shared.pipeline import match_views
+    from shared.residual import job_residual
     from shared.solvers import get_solver
     from shared.solvers.embedding_cache import default_cache
     from shared.solvers.qpu_time import job_seconds
@@ -350,7 +351,9 @@ def _local_estimate(config, files: list[Path]) -> dict:
     get_solver(config.solver)  # UnknownSolver lists the valid names
     left, right = load_pair(files[0], files[1])
     top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
-    estimate = job_seconds(config, left.shape[:2], top.max_disparity, default_cache())
+    cache = default_cache()
+    residual = job_residual(config, left, right, top.max_disparity, cache)
+    estimate = job_seconds(config, left.shape[:2], top.max_disparity, cache, residual)
     return {**estimate.as_dict(), "max_disparity": top.max_disparity}
 
 
@@ -360,10 +363,13 @@ def format_estimate(result: dict) -> str:
     if not result["metered"]:
         return f"{solver}: not metered (no QPU or hybrid time is charged)"
     kind = "QPU access" if result["levels"][0]["qubits_per_bundle"] is not None else "hybrid"
+    sent = result.get("bundles_sent", result["bundles"])
     lines = [
         f"{solver}: {result['seconds']:.2f} s of {kind} time estimated "
         f"({result['bundles']} bundles, {len(result['levels'])} levels, "
-        f"max disparity {result['max_disparity']})"
+        f"max disparity {result['max_disparity']}); "
+        f"{1 - sent / max(result['bundles'], 1):.0%} of the bundles solved classically "
+        "(roof duality), the rest sent"
     ]
     for level in result["levels"]:
         qubits = ""
@@ -372,7 +378,9 @@ def format_estimate(result: dict) -> str:
             qubits = f", {level['qubits_per_bundle']} qubits ({source})"
         lines.append(
             f"  level {level['index']}: {level['height']}x{level['width']}, "
-            f"{level['bundles']} bundles of {level['variables_per_bundle']} variables{qubits}: "
+            f"{level['bundles']} bundles of {level['variables_per_bundle']} variables, "
+            f"{level.get('bundles_sent', level['bundles'])} sent with "
+            f"{level.get('variables_share', 1.0):.0%} of the variables{qubits}: "
             f"{level['seconds']:.2f} s"
         )
     if "fits" in result:

@@ -193,6 +193,12 @@ class LevelEstimate(BaseModel):
     height: int
     width: int
     bundles: int
+    bundles_sent: int = Field(
+        description="Bundles expected to reach the metered solver; roof duality solves the "
+        "others on the host, charged nothing"
+    )
+    classical_share: float = Field(description="Share of the bundles solved classically")
+    variables_share: float = Field(description="Share of the variables sent to the solver")
     variables_per_bundle: int
     qubits_per_bundle: int | None = Field(
         description="QPU qubits per bundle the estimate used (null: hybrid, no embedding)"
@@ -212,6 +218,10 @@ class Estimate(BaseModel):
     seconds: float = Field(description="Estimated QPU access (hybrid: charge) time of the job")
     max_disparity: int = Field(description="The disparity range the job would use (resolved)")
     bundles: int
+    bundles_sent: int = Field(description="Bundles expected to reach the metered solver")
+    classical_share: float = Field(
+        description="Share of the bundles solved classically (roof duality), charged nothing"
+    )
     levels: list[LevelEstimate]
     remaining_seconds: float | None = Field(
         description="Your budget left; null: unlimited, or the solver is not metered"

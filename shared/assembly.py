@@ -150,8 +150,9 @@ def _tiles(spans: list[tuple[int, int]], width: int) -> bool:
 def embedding_summary(results: list[BundleResult], prepared: dict | None = None) -> dict:
     """Per level: minor embeddings computed (while preparing the level, including the widths
     ``auto`` tried, and by the bundles) vs reused by bundles (from memory or the shared store),
-    and the qubits and longest chain of the embeddings used; empty for solvers that do not
-    embed.
+    and the qubits and longest chain of the embeddings used; for the metered solvers, the
+    bundles and variables that roof duality left for the solver (``bundles_sent``,
+    ``variables_sent`` of ``variables``). Empty for solvers that do neither.
 
     Parameters
     ----------
@@ -165,10 +166,17 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
     dict
         ``prepared`` plus embedding counts, bundle shapes, qubits and longest chain.
     """
-    prepared = prepared or {}
+    prepared = dict(prepared or {})
+    reduced = [r.info for r in results if "residual_variables" in r.info]
+    if reduced:  # the metered solvers' classical step: what reached the solver
+        prepared.update(
+            bundles_sent=sum(1 for info in reduced if info["residual_variables"]),
+            variables=sum(int(info["variables"]) for info in reduced),
+            variables_sent=sum(int(info["residual_variables"]) for info in reduced),
+        )
     embedded = [r.info for r in results if "embedding_cache" in r.info]
     if not embedded:
-        return dict(prepared)
+        return prepared
     computed = sum(1 for info in embedded if info["embedding_cache"] == "computed")
     shapes = {(r.row_stop - r.row_start, r.labels.shape[1]) for r in results}
     return {

@@ -17,7 +17,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import replace
@@ -263,26 +263,18 @@ def solve_bundles(
         return _solve_on_costs(solver, inputs, config, row_ranges, progress)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
-    warm = uses_warm_start(config)
+    problems: Iterable[tuple] = _encoded(inputs, config, items)
+    batch = getattr(solver, "solve_batch", None)
+    if batch is not None:  # one problem for many bundles (hybrid: a level's BQM)
+        problems = list(problems)
+        outcomes = iter(batch([p[2:] for p in problems], **params))
     results = []
-    rows: tuple[int, int] | None = None
-    for bundle in items:
+    for bundle, costs, bqm, seed, initial in problems:
         start, stop, first, last = bundle.as_list()
-        if rows != (start, stop):  # segments of the same rows share one cost computation
-            row_costs, rows = inputs.costs(config, start, stop), (start, stop)
-        costs = row_costs.columns(first, last)
-        if config.inference is Inference.GRID:
-            costs = _with_boundary(inputs, config, bundle, costs)
-        bqm = codec.encode(costs, config.rectifier)
-        initial = (
-            codec.encode_labels(
-                inputs.starting_labels(row_costs, start, stop)[:, first:last], costs.num_labels
-            )
-            if warm
-            else None
-        )
-        seed = bundle_seed(config.seed, inputs.index, start, first)
-        outcome = solver.solve(bqm, seed=seed, initial_state=initial, **params)
+        if batch is not None:
+            outcome = next(outcomes)
+        else:
+            outcome = solver.solve(bqm, seed=seed, initial_state=initial, **params)
         decoded = codec.decode(costs, outcome.sample)
         results.append(
             BundleResult(
@@ -349,6 +341,29 @@ def _solve_grids(
             if progress is not None:
                 progress(len(results), len(row_ranges))
     return results
+
+
+def _encoded(inputs: LevelInputs, config: MatchConfig, items: list[Bundle]) -> Iterator[tuple]:
+    """Each bundle as ``(bundle, costs, bqm, seed, warm start or None)``, one at a time."""
+    codec = get_codec(config.encoding)
+    warm = uses_warm_start(config)
+    rows: tuple[int, int] | None = None
+    for bundle in items:
+        start, stop, first, last = bundle.as_list()
+        if rows != (start, stop):  # segments of the same rows share one cost computation
+            row_costs, rows = inputs.costs(config, start, stop), (start, stop)
+        costs = row_costs.columns(first, last)
+        if config.inference is Inference.GRID:
+            costs = _with_boundary(inputs, config, bundle, costs)
+        initial = (
+            codec.encode_labels(
+                inputs.starting_labels(row_costs, start, stop)[:, first:last], costs.num_labels
+            )
+            if warm
+            else None
+        )
+        seed = bundle_seed(config.seed, inputs.index, start, first)
+        yield bundle, costs, codec.encode(costs, config.rectifier), seed, initial
 
 
 def _solve_on_costs(
@@ -490,7 +505,9 @@ class ProcessPoolLevelSolver:
     def __call__(
         self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
     ) -> LevelSolution:
-        if self.processes <= 1 or isinstance(get_solver(config.solver), RowSolver):
+        solver = get_solver(config.solver)
+        if self.processes <= 1 or isinstance(solver, RowSolver) or hasattr(solver, "solve_batch"):
+            # a batch solver sends the level as one problem (split, it would be billed per part)
             return solve_level_in_process(inputs, config, progress)
         pool = self._started()
         bundles = level_bundles(inputs, config)

@@ -10,7 +10,8 @@ import numpy as np
 from shared.assembly import BundleResult
 from shared.config import MatchConfig, Settings
 from shared.level_inputs import LevelInputs
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.packing import MAX_COPIES
+from shared.solvers.qpu_time import is_metered, meter_of
 
 #: Bundles as JSON-friendly lists: [row_start, row_stop] (whole rows, from older tasks) or
 #: [row_start, row_stop, col_start, col_stop].
@@ -23,8 +24,11 @@ def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) ->
     """The level's planned bundles (both views' with the left-right check; row segments with
     a ``bundle_width``) grouped so each task covers about ``rows_per_task`` rows.
 
-    Metered solvers (QPU, hybrid) get one bundle per task: a retried task then never re-sends
-    (and re-bills) bundles that were already solved, and the lab-wide slots are shared fairly.
+    Metered solvers send a task's bundles as few problems as they can (``solve_batch``): the
+    QPU solvers get :data:`QPU_BUNDLES_PER_TASK` bundles a task (packed a shape's disjoint
+    embeddings at a time into one QPU call), the hybrid solvers the whole level (one problem:
+    Leap bills its minimum time per problem, so splitting the level would multiply the bill). A
+    retried task re-sends its own bundles only.
     """
     bundles = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
     return group_bundles(bundles, config, rows_per_task)
@@ -41,9 +45,16 @@ def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -
     segments = max(1, sum(1 for bundle in bundles if bundle[0] == bundles[0][0])) if bundles else 1
     height = bundles[0][1] - bundles[0][0] if bundles else 1  # a whole view for grids
     per_task = max(1, rows_per_task // height) * segments
-    if is_metered(config.solver):
-        per_task = 1
+    if meter_of(config.solver) == "hybrid":
+        per_task = max(1, len(bundles))
+    elif is_metered(config.solver):
+        per_task = QPU_BUNDLES_PER_TASK
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
+
+
+#: Bundles of a QPU solver's task: several QPU calls of a shape's disjoint copies each (the
+#: estimate assumes full calls; a task's last call may carry fewer, <= 1 call in 8 here).
+QPU_BUNDLES_PER_TASK = 8 * MAX_COPIES
 
 
 def rows_per_task(settings: Settings, solver: str) -> int:

@@ -45,7 +45,7 @@ def estimate(
         read_upload(left, "left", settings), read_upload(right, "right", settings), settings
     )
     top = disparity_range_of(left_image, right_image, config).max_disparity
-    job = estimate_job(config, left_image.shape[:2], top, svc)
+    job = estimate_job(config, left_image, right_image, top, svc)
     remaining = users.ledger.status(principal.name).remaining if job.seconds > 0 else math.inf
     return Estimate(
         **job.as_dict(),

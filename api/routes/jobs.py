@@ -31,6 +31,7 @@ from shared.ground_truth import ScaleNotInferredError, infer_gt_scale
 from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
+from shared.residual import job_residual
 from shared.solve import bundle_width_setting
 from shared.solvers import InvalidSolverParamsError, UnknownSolver, check_params
 from shared.solvers.embedding_cache import EmbeddingCache
@@ -228,13 +229,15 @@ def ground_truth_protocol(
 
 
 def estimate_job(
-    config: MatchConfig, shape: tuple[int, int], max_disparity: int, svc: Services
+    config: MatchConfig, left_image, right_image, max_disparity: int, svc: Services
 ) -> JobEstimate:
     """The job's metered time, with the actual embeddings the workers have already found
-    (shared through Redis) for bundle shapes they have met; 422 for unusable solver_params."""
+    (shared through Redis) for bundle shapes they have met and what roof duality leaves of the
+    bundles (surveyed on the pair); 422 for unusable solver_params."""
     cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
     try:
-        return job_seconds(config, shape, max_disparity, cache)
+        residual = job_residual(config, left_image, right_image, max_disparity, cache)
+        return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
     except (TypeError, ValueError, KeyError) as error:
         raise UploadError(
             http.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -244,7 +247,8 @@ def estimate_job(
 
 def check_budget(
     config: MatchConfig,
-    shape: tuple[int, int],
+    left_image,
+    right_image,
     max_disparity: int,
     principal: Principal,
     users: UserStore,
@@ -253,7 +257,7 @@ def check_budget(
     """403 when a metered job's estimate exceeds what is left of its owner's QPU budget."""
     if not is_metered(config.solver):
         return
-    estimate = estimate_job(config, shape, max_disparity, svc)
+    estimate = estimate_job(config, left_image, right_image, max_disparity, svc)
     try:
         users.ledger.check(
             principal.name, estimate.seconds, f"this job ({estimate.bundles} bundles)"
@@ -320,7 +324,7 @@ def create_job(
     disparity_range = range_at_submit(left_image, right_image, config)
     top = disparity_range.max_disparity if disparity_range else config.max_disparity
     if isinstance(top, int):
-        check_budget(config, left_image.shape[:2], top, principal, users, svc)
+        check_budget(config, left_image, right_image, top, principal, users, svc)
     arrays = {"left": left_image, "right": right_image}
     warnings = [disparity_range.warning] if disparity_range and disparity_range.warning else []
     truth = None

@@ -313,9 +313,8 @@ function fieldOfError(detail) {
   return [["form", text]];
 }
 
-async function submitJob(event) {
-  event.preventDefault();
-  const form = event.currentTarget;
+/** The form as the API's multipart body (null, with the fields' errors shown, when invalid). */
+async function jobRequest(form) {
   clearErrors(form);
   await state.submitReady;
   const left = $("#left").files[0];
@@ -338,7 +337,7 @@ async function submitJob(event) {
       invalid = true;
     }
   }
-  if (invalid) return;
+  if (invalid) return null;
   const data = new FormData();
   data.append("left", left);
   data.append("right", right);
@@ -352,6 +351,37 @@ async function submitJob(event) {
     if (scale) data.append("gt_scale", scale); // empty: the service infers it, and says so
     data.append("gt_border", $("#gt-border").value || "0");
   }
+  return data;
+}
+
+/** Before submitting: the QPU (hybrid) seconds the job would be charged and the share of its
+ * bundles that roof duality solves classically (POST /v1/estimate). */
+async function estimateJob() {
+  const form = $("#submit-form");
+  const out = $("#estimate-result");
+  const data = await jobRequest(form);
+  if (!data) return;
+  for (const name of ["ground_truth", "gt_scale", "gt_border", "label"]) data.delete(name);
+  out.textContent = "Estimating…";
+  try {
+    const e = await json("/v1/estimate", { method: "POST", body: data });
+    out.textContent = !e.metered ? `${e.solver} is not metered: no QPU time is charged.`
+      : `${seconds(e.seconds)} of ${e.levels[0]?.qubits_per_bundle === null ? "hybrid" : "QPU"} time; ` +
+        `${fmt(100 * e.classical_share, 2)} % of ${e.bundles} bundles solved classically (roof duality); ` +
+        (e.fits ? "fits your budget." : "does NOT fit your budget.");
+  } catch (error) {
+    out.textContent = "";
+    if (error.status !== 401) {
+      for (const [field, message] of fieldOfError(error.detail)) showFieldError(form, field, message);
+    }
+  }
+}
+
+async function submitJob(event) {
+  event.preventDefault();
+  const form = event.currentTarget;
+  const data = await jobRequest(form);
+  if (!data) return;
   const button = $("#submit-button");
   button.disabled = true;
   try {
@@ -543,7 +573,8 @@ const REPAIRED_NOTE = "Repaired: pixels whose QUBO sample was not a valid label 
 function levelsTable(job) {
   if (!job.levels.length) return null;
   const timingNames = [...new Set(job.levels.flatMap((level) => Object.keys(level.timing || {})))];
-  const headings = ["Level", "Size", "Candidates", "Bundles", "Energy", "Repaired", "Time",
+  const sent = job.levels.some((level) => level.info?.bundles_sent !== undefined);
+  const headings = ["Level", "Size", "Candidates", "Bundles", ...(sent ? ["Sent to solver"] : []), "Energy", "Repaired", "Time",
     "Solver time", ...timingNames.map((name) => name.replaceAll("_", " "))];
   const timing = (level, name) => {
     const value = level.timing?.[name];
@@ -559,6 +590,9 @@ function levelsTable(job) {
     el("td", {}, `${level.width}×${level.height}${level.views > 1 ? ` ×${level.views} views` : ""}`),
     el("td", {}, level.candidates),
     el("td", {}, level.bundles),
+    sent ? el("td", { title: "the other bundles were solved classically (roof duality), charged nothing" },
+      level.info?.bundles_sent === undefined ? "—"
+        : `${level.info.bundles_sent} (${fmt((100 * level.info.variables_sent) / Math.max(level.info.variables, 1), 1)} % of the variables)`) : null,
     el("td", {}, fmt(level.energy, 5)),
     el("td", { class: "repaired" }, repaired(level)),
     el("td", {}, seconds(level.seconds)),
@@ -801,6 +835,7 @@ async function start() {
   });
   $("#sign-out").addEventListener("click", () => signOut(""));
   $("#submit-form").addEventListener("submit", submitJob);
+  $("#estimate-button").addEventListener("click", estimateJob);
   $("#solver").addEventListener("change", describeSolver);
   $("#create-user-form").addEventListener("submit", createUser);
   $("#jobs-more").addEventListener("click", () => { state.jobsLimit = Math.min(100, state.jobsLimit + 20); refreshJobs(); });

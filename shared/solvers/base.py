@@ -348,13 +348,35 @@ def solve(
         if mapped is None:
             raise
         raise mapped from None
+    return result_of(sampleset, bqm, time.perf_counter() - started)
+
+
+def result_of(
+    sampleset: dimod.SampleSet, bqm: dimod.BinaryQuadraticModel, wall_time: float
+) -> SolveResult:
+    """The pipeline's :class:`SolveResult` of a resolved sample set of ``bqm``.
+
+    Parameters
+    ----------
+    sampleset : dimod.SampleSet
+        Samples on the variables 0..n-1, ``info["timing"]`` as :func:`seconds` reads it.
+    bqm : dimod.BinaryQuadraticModel
+        The bundle's QUBO (its energy of the best sample is reported).
+    wall_time : float
+        Seconds the bundle took.
+
+    Returns
+    -------
+    SolveResult
+        Best sample, its energy, timing in seconds and the JSON-friendly info.
+    """
     sample = sample_array(sampleset.first.sample, bqm.num_variables)
     info = dict(sampleset.info)
     timing = seconds(info.pop("timing", None) or {})
     return SolveResult(
         sample=sample,
         energy=float(bqm.energy(sample)),
-        wall_time=time.perf_counter() - started,
+        wall_time=wall_time,
         timing=timing,
         info={key: value for key, value in info.items() if _plain(value)},
         sampleset=sampleset,

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import dimod
@@ -181,13 +182,126 @@ def fix_variables(
     return reduced, free
 
 
-class RoofDualityComposite(dimod.ComposedSampler):
-    """Roof-duality fixing (exact: a max-flow, milliseconds) before the child samples the rest.
+@dataclass(frozen=True)
+class Reduction:
+    """A bundle after the exact classical step: what roof duality fixed and the BQM left.
 
-    On Tsukuba's domain-wall rows this fixes every variable at the 1/2 and full-resolution
-    levels (convex smoothness makes them submodular) and about 60% at 1/4. BINARY BQMs on the
-    variables 0..n-1 (the codecs' bundles). ``preprocess="none"`` fixes nothing. Given
-    ``initial_states`` (when the child takes them) are restricted to the free variables.
+    ``rest`` is the BQM on the free variables relabelled 0..m-1 (None when nothing is left:
+    the bundle is solved on the host), ``free`` their numbers in the bundle."""
+
+    bqm: dimod.BinaryQuadraticModel
+    fixed: dict[int, int]
+    rest: dimod.BinaryQuadraticModel | None
+    free: np.ndarray
+    preprocess: str
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """What a sample set reports about the reduction (per-level counts add these up)."""
+        n = self.bqm.num_variables
+        return {
+            "preprocess": self.preprocess,
+            "fixed_fraction": len(self.fixed) / max(n, 1),
+            "variables": n,
+            "residual_variables": int(self.free.size),
+        }
+
+    def states(self, initial_states: Any) -> Any:
+        """A warm start over the bundle's variables, restricted to the free ones."""
+        if initial_states is None:
+            return None
+        states, _ = dimod.as_samples(initial_states)
+        return states[:, self.free], list(range(self.free.size))
+
+    def complete(self, sampleset: dimod.SampleSet | None, info: dict | None = None):
+        """Every sample of ``sampleset`` (on ``rest``; None: nothing was left) with the fixed
+        values filled in, as a BINARY sample set on the bundle's variables 0..n-1.
+
+        Parameters
+        ----------
+        sampleset : dimod.SampleSet or None
+            The child's samples of ``rest``.
+        info : dict, optional
+            Info of the result (default: the child's, plus :attr:`info`).
+
+        Returns
+        -------
+        dimod.SampleSet
+            Energies are the bundle's: ``rest`` carries the fixed part in its offset, and
+            keeping them (not recomputing) keeps which of two near-equal reads is best.
+        """
+        n = self.bqm.num_variables
+        samples = np.zeros((1, n), dtype=np.int8)
+        if self.fixed:
+            samples[:, list(self.fixed)] = list(self.fixed.values())
+        variables = list(range(n))
+        if sampleset is None:
+            return dimod.SampleSet.from_samples(
+                (samples, variables),
+                vartype=dimod.BINARY,
+                energy=self.bqm.energies((samples, variables)),
+                info={**self.info, **(info or {})},
+            )
+        sampleset.resolve()
+        order = np.fromiter(sampleset.variables, dtype=np.int64, count=self.free.size)
+        record = sampleset.record
+        samples = np.repeat(samples, len(record), axis=0)
+        samples[:, self.free[order]] = record.sample
+        return dimod.SampleSet.from_samples(
+            (samples, variables),
+            vartype=dimod.BINARY,
+            energy=record.energy,
+            info={**sampleset.info, **self.info, **(info or {})},
+            num_occurrences=record.num_occurrences,
+        )
+
+
+def reduce(bqm: dimod.BinaryQuadraticModel, preprocess: str = "roof-duality") -> Reduction:
+    """Fix what roof duality (dwave-preprocessing; exact: a max-flow, milliseconds) proves to
+    take the same value in every optimum of a BINARY BQM on the variables 0..n-1.
+
+    Parameters
+    ----------
+    bqm : dimod.BinaryQuadraticModel
+        The bundle's QUBO.
+    preprocess : str, default "roof-duality"
+        ``"roof-duality"`` or ``"none"`` (nothing fixed).
+
+    Returns
+    -------
+    Reduction
+        The fixed values and the BQM left (None when every variable is fixed).
+
+    Raises
+    ------
+    SolverError
+        For an unknown ``preprocess``.
+    """
+    if preprocess not in PREPROCESSORS:
+        raise SolverError(
+            f"unknown preprocess {preprocess!r}; choose from {', '.join(PREPROCESSORS)}"
+        )
+    fixed: dict[int, int] = {}
+    if preprocess == "roof-duality":
+        from dwave.preprocessing import roof_duality
+
+        _, fixed = roof_duality(bqm, strict=True)
+    if len(fixed) == bqm.num_variables:
+        return Reduction(bqm, fixed, None, np.zeros(0, dtype=np.int64), preprocess)
+    if not fixed:  # the bundle itself, on its own variables 0..n-1
+        return Reduction(bqm, fixed, bqm, np.arange(bqm.num_variables), preprocess)
+    rest, free = fix_variables(bqm, fixed)
+    return Reduction(bqm, fixed, rest, free, preprocess)
+
+
+class RoofDualityComposite(dimod.ComposedSampler):
+    """Roof-duality fixing (:func:`reduce`) before the child samples the rest.
+
+    Fixes most variables of domain-wall rows whose smoothness is convex (submodular rows); with
+    the accurate preset's truncated smoothness about 59 %, 29 % and 19 % of Tsukuba's at its
+    three levels (docs/benchmarks.md). BINARY BQMs on the variables 0..n-1 (the codecs'
+    bundles). ``preprocess="none"`` fixes nothing. Given ``initial_states`` (when the child takes
+    them) are restricted to the free variables.
     """
 
     def __init__(self, child: dimod.Sampler) -> None:
@@ -229,56 +343,15 @@ class RoofDualityComposite(dimod.ComposedSampler):
         Returns
         -------
         dimod.SampleSet
-            BINARY samples on 0..n-1; info has ``preprocess`` and ``fixed_fraction``.
-
-        Raises
-        ------
-        SolverError
-            For an unknown ``preprocess``.
+            BINARY samples on 0..n-1; info has ``preprocess``, ``fixed_fraction``,
+            ``variables`` and ``residual_variables``.
         """
-        if preprocess not in PREPROCESSORS:
-            raise SolverError(
-                f"unknown preprocess {preprocess!r}; choose from {', '.join(PREPROCESSORS)}"
-            )
-        fixed: dict[int, int] = {}
-        if preprocess == "roof-duality":
-            from dwave.preprocessing import roof_duality
-
-            _, fixed = roof_duality(bqm, strict=True)
-        n = bqm.num_variables
-        info: dict[str, Any] = {
-            "preprocess": preprocess,
-            "fixed_fraction": len(fixed) / max(n, 1),
-        }
-        samples = np.zeros((1, n), dtype=np.int8)
-        if fixed:
-            samples[:, list(fixed)] = list(fixed.values())
-        occurrences = None
-        energies = None
-        if len(fixed) < n:
-            rest, free = fix_variables(bqm, fixed)
-            if initial_states is not None:
-                states, _ = dimod.as_samples(initial_states)
-                params["initial_states"] = (states[:, free], list(range(free.size)))
-            sampleset = self._child.sample(rest, **params)
-            sampleset.resolve()
-            order = np.fromiter(sampleset.variables, dtype=np.int64, count=free.size)
-            record = sampleset.record
-            samples = np.repeat(samples, len(record), axis=0)
-            samples[:, free[order]] = record.sample
-            occurrences = record.num_occurrences
-            # the reduced BQM carries the fixed part in its offset: its energies are the BQM's,
-            # and keeping them (not recomputing) keeps which of two near-equal reads is best
-            energies = record.energy
-            info = {**sampleset.info, **info}
-        variables = list(range(n))
-        return dimod.SampleSet.from_samples(
-            (samples, variables),
-            vartype=dimod.BINARY,
-            energy=bqm.energies((samples, variables)) if energies is None else energies,
-            info=info,
-            num_occurrences=occurrences,
-        )
+        reduction = reduce(bqm, preprocess)
+        if reduction.rest is None:
+            return reduction.complete(None)
+        if initial_states is not None:
+            params["initial_states"] = reduction.states(initial_states)
+        return reduction.complete(self._child.sample(reduction.rest, **params))
 
 
 class EmbeddingCacheComposite(dimod.ComposedSampler):
@@ -332,13 +405,19 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
         """
         return self.cache.lookup(bqm, self._child.edgelist, self.target, seed=0, solver=self.solver)
 
-    def sample(self, bqm: dimod.BinaryQuadraticModel, **params: Any) -> dimod.SampleSet:
+    def sample(
+        self, bqm: dimod.BinaryQuadraticModel, reduction: Reduction | None = None, **params: Any
+    ) -> dimod.SampleSet:
         """Sample ``bqm`` on the child through the cached embedding of its structure.
 
         Parameters
         ----------
         bqm : dimod.BinaryQuadraticModel
-            The bundle's QUBO.
+            The bundle's QUBO, or the BQM left of it by ``reduction``.
+        reduction : Reduction, optional
+            When ``bqm`` is ``reduction.rest``: the bundle's embedding restricted to the free
+            variables is used (a sub-structure of the bundle's, so its chains and couplers are
+            there): one embedding per bundle shape whatever roof duality left.
         **params
             Parameters of ``FixedEmbeddingComposite`` and the child (``chain_strength``, ...).
 
@@ -351,10 +430,17 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
 
         from shared.solvers.embedding_cache import EmbeddingSize
 
-        embedding, source, key = self.embedding(bqm)
-        composite = self._composites.get(key)
-        if composite is None:
-            composite = self._composites[key] = FixedEmbeddingComposite(self._child, embedding)
+        if reduction is None or not reduction.fixed:
+            embedding, source, key = self.embedding(bqm)
+            composite = self._composites.get(key)
+            if composite is None:
+                composite = self._composites[key] = FixedEmbeddingComposite(
+                    self._child, embedding
+                )
+        else:
+            whole, source, key = self.embedding(reduction.bqm)
+            embedding = {i: whole[int(v)] for i, v in enumerate(reduction.free)}
+            composite = FixedEmbeddingComposite(self._child, embedding)
         sampleset = composite.sample(bqm, return_embedding=False, **params)
         sampleset.resolve()
         size = EmbeddingSize.of(embedding)

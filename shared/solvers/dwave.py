@@ -34,12 +34,18 @@ from shared.solvers.base import (
     SolverUnavailable,
     TransientSolverError,
 )
-from shared.solvers.composites import EMBEDDING_INFO, EmbeddingCacheComposite
+from shared.solvers.composites import (
+    EMBEDDING_INFO,
+    EmbeddingCacheComposite,
+    Reduction,
+    reduce,
+)
 from shared.solvers.embedding_cache import (
     EmbeddingCache,
     default_cache,
     graph_fingerprint,
 )
+from shared.solvers.packing import PackedCalls
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 
 log = logging.getLogger(__name__)
@@ -124,6 +130,8 @@ class _EmbeddedQPU(Sampler):
         "anneal_schedule": [],
         "seed": [],
         "initial_states": [],
+        "preprocess": [],
+        "bundles_per_call": [],
     }
 
     def __init__(self, cache: EmbeddingCache | None = None) -> None:
@@ -178,9 +186,28 @@ class _EmbeddedQPU(Sampler):
         return kept
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
+        """Classical first: what roof duality fixes is solved on the host (a bundle with
+        nothing left never reaches the QPU and is charged nothing); the rest is sampled on the
+        QPU through the bundle shape's embedding restricted to it (:meth:`sample_residual`)."""
+        reduction = reduce(bqm, params.pop("preprocess", "roof-duality"))
+        params.pop("bundles_per_call", None)  # one bundle here
+        if reduction.rest is None:
+            return reduction.complete(None, {"timing": {}, "simulated": self.simulated})
+        sampleset = self.sample_residual(
+            reduction, params, seed=seed, initial_states=reduction.states(initial_states)
+        )
+        return reduction.complete(sampleset)
+
+    def sample_residual(
+        self, reduction: Reduction, params: dict[str, Any], *, seed, initial_states
+    ) -> dimod.SampleSet:
+        """Sample ``reduction.rest`` on the QPU: the paper's chain strength, majority vote, a
+        warm start as a reverse anneal, the timing in seconds."""
         from dwave.embedding.chain_breaks import majority_vote
 
         composite = self.composite()
+        bqm = reduction.rest
+        assert bqm is not None
         strength = float(params.pop("chain_strength", None) or chain_strength(bqm))
         settings = params
         if initial_states is not None:
@@ -196,7 +223,11 @@ class _EmbeddedQPU(Sampler):
         with self._lock if self.simulated else contextlib.nullcontext():
             self._seed_sampler(composite.children[0], seed)
             sampleset = composite.sample(
-                bqm, chain_strength=strength, chain_break_method=majority_vote, **settings
+                bqm,
+                reduction,
+                chain_strength=strength,
+                chain_break_method=majority_vote,
+                **settings,
             )
         best = sampleset.first
         record = sampleset.record
@@ -324,7 +355,7 @@ class LeapCloudSolver(_EmbeddedQPU):
         return sampler
 
 
-class _SegmentsOnGraph(_EmbeddedQPU):
+class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
     """What planning a level asks of a QPU solver (``shared.solve.level_bundles``): the widest
     row segment that embeds on its graph, and each bundle shape's embedding, found once."""
 
@@ -353,19 +384,23 @@ class _SegmentsOnGraph(_EmbeddedQPU):
     def embed_shapes(
         self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
     ) -> None:
-        """Embed each bundle shape (rows, columns) of a level once, before its bundles fan out,
-        so that no two workers compute the same embedding at the same time."""
+        """Embed each bundle shape (rows, columns) of a level once, with its disjoint copies
+        (:func:`~shared.solvers.packing.copies`), before its bundles fan out, so that no two
+        workers compute the same embedding at the same time."""
+        from shared.solvers.packing import copies
         from shared.solvers.qpu_time import shape_bqm
 
         try:
             composite = self.composite()
             for height, width in shapes:
-                composite.embedding(shape_bqm(str(encoding), height, width, candidates))
+                bqm = shape_bqm(str(encoding), height, width, candidates)
+                embedding, _, _ = composite.embedding(bqm)
+                copies(self.cache, bqm, embedding, self.sampler().edgelist, self._target,
+                       get_settings().embedding_search_timeout, solver=self.name)  # fmt: skip
         except SolverError:
             raise
         except Exception as error:
             raise self.translate(error) from None
-
 
 
 class QPUSolver(_SegmentsOnGraph, LeapCloudSolver):
@@ -421,7 +456,8 @@ def mock_qpu():
     :data:`MOCK_TOPOLOGY`, sampling with its default substitute (dwave-samplers'
     ``SteepestDescentSampler``: one descent from a random state per read), parameter warnings
     off (we pass QPU parameters such as ``annealing_time`` that it accepts but does not
-    simulate).
+    simulate). A reverse anneal's ``initial_state`` (a warm start) is the first read's start:
+    the mock's stand-in for an anneal that begins at the given state.
 
     Returns
     -------
@@ -431,7 +467,22 @@ def mock_qpu():
     """
     from dwave.system.testing import MockDWaveSampler
 
+    class WarmMock(MockDWaveSampler):
+        def sample(self, bqm, **kwargs):
+            state = kwargs.get("initial_state")
+            if not state:
+                return super().sample(bqm, **kwargs)
+            qubits = list(state)
+            self.substitute_kwargs.update(
+                initial_states=([list(state.values())], qubits),
+                initial_states_generator="random",
+            )
+            try:
+                return super().sample(bqm, **kwargs)
+            finally:
+                self.substitute_kwargs.pop("initial_states")
+                self.substitute_kwargs.pop("initial_states_generator")
+
     topology_type, shape = MOCK_TOPOLOGY
-    return MockDWaveSampler(
-        topology_type=topology_type, topology_shape=shape, parameter_warnings=False
-    )
+    return WarmMock(topology_type=topology_type, topology_shape=shape, parameter_warnings=False)
+

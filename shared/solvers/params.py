@@ -131,7 +131,21 @@ class GurobiParams(SolverParams):
 SchedulePoint = tuple[Annotated[float, Ge(0), Le(2000)], Annotated[float, Ge(0), Le(1)]]
 
 
-class QPUParams(SolverParams):
+#: Bundles packed into one QPU call at most (``shared.solvers.packing``).
+MAX_BUNDLES_PER_CALL = 8
+
+
+class MeteredParams(SolverParams):
+    """What every metered solver takes: the exact classical step before anything is sent."""
+
+    preprocess: Literal["roof-duality", "none"] = Field(
+        "roof-duality",
+        description="Fix what roof duality proves on the host first; only the rest is sent "
+        "(and charged)",
+    )
+
+
+class QPUParams(MeteredParams):
     """``qpu`` and ``qpu-sim``: D-Wave's sampler (ranges of Advantage systems).
 
     The parameters that set the work done are bounded here; any other ``DWaveSampler``
@@ -141,7 +155,18 @@ class QPUParams(SolverParams):
 
     model_config = ConfigDict(extra="allow")
 
-    num_reads: int = Field(500, ge=1, le=10_000)
+    #: 20 reads: measured on qpu-sim (warm start, roof duality), reads past the first did not
+    #: lower any bundle's energy gap (docs/benchmarks.md, "QPU economy"); a real QPU's reads are
+    #: noisy samples, and at 20 they are a quarter of a bundle's QPU time (programming ~15 ms,
+    #: a read ~0.25 ms), so fewer would save little. 500 was a habit.
+    num_reads: int = Field(20, ge=1, le=10_000)
+    bundles_per_call: int = Field(
+        MAX_BUNDLES_PER_CALL,
+        ge=1,
+        le=MAX_BUNDLES_PER_CALL,
+        description="Bundles packed into one QPU call at most (disjoint copies of their "
+        "shape's embedding, as many as were found)",
+    )
     annealing_time: float | None = Field(None, ge=0.5, le=2000, description="Microseconds")
     chain_strength: Annotated[float, Gt(0), Le(1e6)] | None = None
     anneal_schedule: list[SchedulePoint] | None = Field(None, min_length=2, max_length=12)
@@ -156,18 +181,10 @@ DEFAULT_NUM_READS: int = QPUParams.model_fields["num_reads"].default
 
 
 class SimulatedQPUParams(QPUParams):
-    """``qpu-sim``: the ``qpu`` parameters with the stand-in's own read budget.
-
-    A QPU read costs about 0.1 ms of QPU time, so ``qpu`` asks for 500. A read of the offline mock
-    is a full steepest descent on the embedded problem (about 1 ms of CPU for a 96-120 px Tsukuba
-    segment on 1,200-1,650 qubits), 57 % of a bundle's time at 500 reads; descents from random
-    states add nothing measurable past the first hundred (the segments' energy gaps to their
-    optimum are the same with 100 and 500 reads: docs/benchmarks.md, "Row segments"). The
-    simulated QPU time it reports, estimates and charges is the timing model's for the reads it
-    took.
-    """
-
-    num_reads: int = Field(100, ge=1, le=10_000)
+    """``qpu-sim``: the ``qpu`` parameters, read budget included, so that the stand-in is charged
+    what ``qpu`` would be for the same bundles (a mock read is a steepest descent on the embedded
+    problem, about 1 ms of CPU; reads past the first added nothing measurable with a warm start
+    and roof duality: docs/benchmarks.md, "QPU economy")."""
 
 
 class DimodAnnealParams(SolverParams):
@@ -226,13 +243,13 @@ def bounds_schema(name: str, bounds: Mapping[str, tuple[float, float]]) -> type[
     return create_model(f"Params[{name}]", __base__=SolverParams, **fields)
 
 
-class LeapHybridParams(SolverParams):
+class LeapHybridParams(MeteredParams):
     """``hybrid``: Leap's hybrid BQM solver."""
 
     time_limit: float | None = Field(None, ge=3, le=MAX_BUNDLE_SECONDS, description="Seconds")
 
 
-class KerberosParams(SolverParams):
+class KerberosParams(MeteredParams):
     """``hybrid-sim``: dwave-hybrid's Kerberos with the mock QPU."""
 
     max_iter: int = Field(10, ge=1, le=1000)

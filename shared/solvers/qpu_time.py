@@ -54,6 +54,7 @@ from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
 from shared.pyramid import level_shape, plan
+from shared.residual import LevelResidual
 from shared.solvers.base import uses_warm_start
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
 from shared.solvers.params import DEFAULT_NUM_READS, schema_defaults
@@ -102,6 +103,10 @@ HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
     [100000, 600.0],
     [1000000, 600.0],
 ]
+
+#: Variables of one hybrid problem at most (Leap's hybrid BQM solver's
+#: ``maximum_number_of_variables``): a level's bundles are joined into blocks of this size.
+HYBRID_MAX_VARIABLES = 1_000_000
 
 #: Qubits per binary variable assumed before an embedding exists (see the module docstring).
 QUBITS_PER_VARIABLE = 2.0
@@ -259,6 +264,28 @@ def hybrid_charge_seconds(
     minimum = float(np.interp(num_variables, curve[:, 0], curve[:, 1]))
     requested = params.get("time_limit")
     return max(minimum, float(requested)) if requested is not None else minimum
+
+
+def hybrid_level_seconds(variables: float, params: dict[str, Any] | None = None) -> float:
+    """Charge of ``variables`` sent to the hybrid solver as blocks of at most
+    :data:`HYBRID_MAX_VARIABLES` (``shared.solvers.hybrid``: a level's rests, joined).
+
+    Parameters
+    ----------
+    variables : float
+        Variables left of the level's bundles (0: nothing is sent).
+    params : dict, optional
+        Solver parameters (``time_limit``).
+
+    Returns
+    -------
+    float
+        Seconds: the blocks' charges, the variables shared evenly between them.
+    """
+    if variables <= 0:
+        return 0.0
+    count = int(np.ceil(variables / HYBRID_MAX_VARIABLES))
+    return count * hybrid_charge_seconds(max(1, round(variables / count)), params)
 
 
 def assumed_qubits(num_variables: int) -> int:
@@ -516,6 +543,16 @@ class LevelEstimate:
     seconds: float
     qubits_per_bundle: int | None = None
     embedding_known: bool = False
+    #: Bundles expected to reach the metered solver (the rest roof duality solves on the host).
+    bundles_sent: int | None = None
+    #: Share of the level's variables expected to reach it.
+    variables_share: float = 1.0
+
+    @property
+    def classical_share(self) -> float:
+        """Share of the level's bundles solved on the host (charged nothing)."""
+        sent = self.bundles if self.bundles_sent is None else self.bundles_sent
+        return 1.0 - sent / max(self.bundles, 1)
 
     def as_dict(self) -> dict[str, Any]:
         """The wire form (``POST /v1/estimate``, ``qhsm estimate --json``)."""
@@ -524,6 +561,9 @@ class LevelEstimate:
             "height": self.shape[0],
             "width": self.shape[1],
             "bundles": self.bundles,
+            "bundles_sent": self.bundles if self.bundles_sent is None else self.bundles_sent,
+            "classical_share": self.classical_share,
+            "variables_share": self.variables_share,
             "variables_per_bundle": self.variables_per_bundle,
             "qubits_per_bundle": self.qubits_per_bundle,
             "embedding_known": self.embedding_known,
@@ -540,12 +580,20 @@ class JobEstimate:
     bundles: int
     levels: list[LevelEstimate] = field(default_factory=list)
 
+    @property
+    def bundles_sent(self) -> int:
+        """Bundles expected to reach the metered solver."""
+        return sum(level.bundles - round(level.classical_share * level.bundles)
+                   for level in self.levels)  # fmt: skip
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "solver": self.solver,
             "metered": is_metered(self.solver),
             "seconds": self.seconds,
             "bundles": self.bundles,
+            "bundles_sent": self.bundles_sent,
+            "classical_share": 1.0 - self.bundles_sent / max(self.bundles, 1),
             "levels": [level.as_dict() for level in self.levels],
         }
 
@@ -584,6 +632,7 @@ def level_estimate(
     candidates: int,
     views: int = 1,
     cache: EmbeddingCache | None = None,
+    residual: LevelResidual | None = None,
 ) -> LevelEstimate:
     """Bundle count x per-bundle time of level ``index`` (``shape`` = one view's height, width;
     ``views`` = 2 with the left-right check, whose right view has as many bundles again).
@@ -605,6 +654,9 @@ def level_estimate(
         1, or 2 with the left-right check.
     cache : EmbeddingCache, optional
         Where known embedding sizes and ``auto`` widths are looked up.
+    residual : LevelResidual, optional
+        What roof duality leaves of the level's bundles (:func:`shared.residual.survey`);
+        None: every bundle is assumed sent whole (an upper bound).
 
     Returns
     -------
@@ -622,18 +674,36 @@ def level_estimate(
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
-    each = bundle_seconds(config.solver, variables, params, embedding=embedding)
+    if residual is None or params.get("preprocess") == "none":
+        residual = LevelResidual(0, 1.0, 1.0, 1.0)
+    sent = round(residual.sent_share * bundles)
+    kept = residual.sent_variables_share  # of a sent bundle's variables (and qubits)
     qubits = None
-    if meter_of(config.solver) == "qpu":
-        qubits = embedding.qubits if embedding else assumed_qubits(variables)
+    if meter_of(config.solver) == "qpu":  # rests packed: `together` per QPU call
+        whole = embedding.qubits if embedding else assumed_qubits(variables)
+        qubits = max(1, round(whole * kept))
+        from shared.solvers.packing import packed_copies
+
+        shape = (tallest, columns)
+        together = min(max(sent, 1), packed_copies(cache, config, shape, candidates))
+        calls = -(-sent // together)
+        seconds = calls * bundle_seconds(
+            config.solver, variables, params, num_qubits=min(MAX_QUBITS, together * qubits)
+        )
+    elif meter_of(config.solver) == "hybrid":  # the level's rests joined into blocks
+        seconds = hybrid_level_seconds(bundles * variables * residual.variables_share, params)
+    else:
+        seconds = sent * bundle_seconds(config.solver, max(1, round(variables * kept)), params)
     return LevelEstimate(
         index=index,
         shape=(height, width),
         bundles=bundles,
         variables_per_bundle=variables,
-        seconds=each * bundles,
+        seconds=seconds,
         qubits_per_bundle=qubits,
         embedding_known=embedding is not None,
+        bundles_sent=sent,
+        variables_share=residual.variables_share,
     )
 
 
@@ -642,6 +712,7 @@ def job_seconds(
     shape: tuple[int, int],
     max_disparity: int,
     cache: EmbeddingCache | None = None,
+    residual: list[LevelResidual] | None = None,
 ) -> JobEstimate:
     """Estimate a job before accepting it, from the image ``shape`` (height, width), its
     resolved ``max_disparity``, the pyramid and the solver parameters: nothing is embedded or
@@ -658,6 +729,8 @@ def job_seconds(
         The resolved maximum disparity, pixels.
     cache : EmbeddingCache, optional
         The shared embedding cache; None: assumptions only.
+    residual : list of LevelResidual, optional
+        Per level, what roof duality leaves (:func:`job_residual`); None: bundles sent whole.
 
     Returns
     -------
@@ -673,8 +746,9 @@ def job_seconds(
             level.candidates,
             views,
             cache,
+            residual[position] if residual else None,
         )
-        for level in plan(config, max_disparity)
+        for position, level in enumerate(plan(config, max_disparity))
     ]
     return JobEstimate(
         solver=config.solver,
@@ -682,3 +756,4 @@ def job_seconds(
         bundles=sum(level.bundles for level in levels),
         levels=levels,
     )
+

@@ -153,11 +153,12 @@ def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_
     remote = json.loads(capsys.readouterr().out)
     config = MatchConfig(solver="qpu", encoding="domain-wall", max_disparity=8)
     expected = qpu_time.job_seconds(config, (24, 32), 8)
-    assert remote["seconds"] == pytest.approx(expected.seconds) and remote["metered"]
+    # what roof duality solves on the host is not estimated (the model alone: every bundle)
+    assert 0 < remote["seconds"] <= expected.seconds * (1 + 1e-9) and remote["metered"]
     assert remote["bundles"] == expected.bundles and remote["fits"] is True
     assert main(["estimate", str(left), str(right), *options, "--url", api_url]) == 0
     text = capsys.readouterr().out
-    assert f"qpu: {expected.seconds:.2f} s of QPU access time" in text
+    assert f"qpu: {remote['seconds']:.2f} s of QPU access time" in text
     assert "qubits (assumed)" in text and "fits" in text
     assert main(["estimate", str(left), str(right), *options, "--local", "--json"]) == 0
     local = json.loads(capsys.readouterr().out)

@@ -23,7 +23,10 @@ from shared.solvers import (
 )
 from shared.solvers.dwave import SimulatedQPUSolver
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
+from shared.solvers.exact import solve_chains
 
+#: These tests are about the QPU path itself: roof duality would solve their tiny rows on the host.
+WHOLE = {"preprocess": "none"}
 MOCK_QPU_ACCESS_US = 8550.28  # MockDWaveSampler's fixed demonstration timing (not charged)
 
 
@@ -47,7 +50,7 @@ def test_qpu_sim_solves_a_small_row(encoding, mock_qpu, tmp_path):
     solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
     # qpu's 500 reads (qpu-sim's default is 100: test_mock_qpu); 100 descents from random
     # states can miss this row's optimum
-    result = solver.solve(bqm, seed=4, num_reads=500)
+    result = solver.solve(bqm, seed=4, num_reads=500, preprocess="none")
     decoded = codec.decode(costs, result.sample)
     assert mrf_energy(costs, decoded.labels) == pytest.approx(optimum(costs), rel=1e-9)
     assert result.energy == pytest.approx(bqm.energy(result.sample))
@@ -64,7 +67,9 @@ def test_qpu_sim_solves_a_small_row(encoding, mock_qpu, tmp_path):
 
 def test_chain_strength_is_uniform_torque_compensation_with_prefactor_1414(mock_qpu, tmp_path):
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 6))
-    result = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path))).solve(bqm, seed=0)
+    result = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path))).solve(
+        bqm, seed=0, preprocess="none"
+    )
     _, (_, _, quadratic), _ = bqm.to_numpy_vectors()
     average_degree = 2 * bqm.num_interactions / bqm.num_variables
     expected = 1.414 * np.sqrt(np.mean(quadratic**2)) * np.sqrt(average_degree)
@@ -75,20 +80,20 @@ def test_embedding_is_found_once_per_structure_and_persisted(mock_qpu, tmp_path)
     store = DirectoryStore(tmp_path / "embeddings")
     solver = sim_solver(mock_qpu, EmbeddingCache(store))
     codec = get_codec("domain-wall")
-    first = solver.solve(codec.encode(stereo_costs(1, 6, seed=1)), seed=0, num_reads=10)
+    first = solver.solve(codec.encode(stereo_costs(1, 6, seed=1)), seed=0, num_reads=10, **WHOLE)
     # Another row with other biases but the same structure: served from memory.
-    second = solver.solve(codec.encode(stereo_costs(1, 6, seed=2)), seed=0, num_reads=10)
+    second = solver.solve(codec.encode(stereo_costs(1, 6, seed=2)), seed=0, num_reads=10, **WHOLE)
     assert first.info["embedding_cache"] == "computed"
     assert first.info["embedding_cache_hit"] is False
     assert second.info["embedding_cache"] == "memory"
     assert second.info["embedding_key"] == first.info["embedding_key"]
     # A fresh cache on the same directory (another worker): served from the store.
     again = sim_solver(mock_qpu, EmbeddingCache(store)).solve(
-        codec.encode(stereo_costs(1, 6, seed=3)), seed=0, num_reads=10
+        codec.encode(stereo_costs(1, 6, seed=3)), seed=0, num_reads=10, **WHOLE
     )
     assert again.info["embedding_cache"] == "store"
     # A different structure (wider row) needs its own embedding.
-    wider = solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=10)
+    wider = solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=10, **WHOLE)
     assert wider.info["embedding_cache"] == "computed"
     files = [path.name for path in Path(tmp_path / "embeddings").glob("*.json")]
     assert len([name for name in files if not name.startswith("size-")]) == 2
@@ -103,7 +108,7 @@ def test_embedding_is_found_once_per_structure_and_persisted(mock_qpu, tmp_path)
 def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
     """The default cache keeps embeddings under QHSM_DATA_DIR/embeddings across processes."""
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 5))
-    first = SimulatedQPUSolver().solve(bqm, seed=0, num_reads=10)
+    first = SimulatedQPUSolver().solve(bqm, seed=0, num_reads=10, **WHOLE)
     assert first.info["embedding_cache"] == "computed"
     assert default_cache().store.directory == tmp_path / "data" / "embeddings"
     script = (
@@ -112,7 +117,7 @@ def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
         "from shared.encodings import get_codec;"
         "from shared.solvers import get_solver;"
         "bqm = get_codec('domain-wall').encode(stereo_costs(1, 5, seed=9));"
-        "r = get_solver('qpu-sim').solve(bqm, seed=0, num_reads=10);"
+        "r = get_solver('qpu-sim').solve(bqm, seed=0, num_reads=10, preprocess='none');"
         "print(json.dumps([r.info['embedding_cache'], r.info['embedding_key']]))"
     )
     output = subprocess.run(
@@ -152,13 +157,13 @@ def test_cloud_solvers_without_token_say_what_to_configure(name):
     assert not availability.ok and "set DWAVE_API_TOKEN" in availability.reason
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
     with pytest.raises(SolverUnavailable, match="set DWAVE_API_TOKEN"):
-        solver.solve(bqm, seed=0)
+        solver.solve(bqm, seed=0, **WHOLE)
 
 
 def test_hybrid_sim_solves_a_small_row():
     costs = stereo_costs(1, 6)
     codec = get_codec("domain-wall")
-    result = get_solver("hybrid-sim").solve(codec.encode(costs), seed=1, max_iter=3)
+    result = get_solver("hybrid-sim").solve(codec.encode(costs), seed=1, max_iter=3, **WHOLE)
     assert result.info["simulated"] is True
     # charged what Leap's hybrid solver would bill for this size (its minimum time limit)
     bqm_size = codec.encode(costs).num_variables
@@ -169,8 +174,9 @@ def test_hybrid_sim_solves_a_small_row():
 
 
 def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys):
-    """Before any embedding the estimate assumes 2 qubits per variable (within 2x of the
-    charge); after a run, `qhsm estimate --local` uses the embeddings and equals the charge."""
+    """Before any embedding the estimate assumes 2 qubits per variable and one bundle per call
+    (an upper bound); after a run, `qhsm estimate --local` uses the embeddings and what roof duality
+    leaves of the bundles, and is the charge within 10 %."""
     import cv2
 
     from shared.cli import main
@@ -201,14 +207,18 @@ def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys)
 
     run_pipeline(scene.left, scene.right, config, solve_level)
     charge = sum(charged)
-    assert 0.5 <= before["seconds"] / charge <= 2.0
+    # before any run: 2 qubits a variable and one bundle per QPU call (no copies known yet,
+    # while the run packed several into each call): an upper bound
+    assert charge <= before["seconds"]
     # not the mock's fixed demonstration timing
     assert charge / before["bundles"] != pytest.approx(MOCK_QPU_ACCESS_US * 1e-6, rel=0.05)
 
     assert main(argv) == 0
     after = json.loads(capsys.readouterr().out)
     assert all(level["embedding_known"] for level in after["levels"])
-    assert after["seconds"] == pytest.approx(charge, rel=1e-9)
+    # what roof duality leaves is surveyed with exact's coarser maps, not qpu-sim's: within 10 %
+    assert after["seconds"] == pytest.approx(charge, rel=0.1)
+    assert 0 < after["bundles_sent"] <= after["bundles"]
 
 
 def test_warm_started_qpu_sim_is_charged_the_reverse_anneal_its_estimate_assumes(
@@ -220,7 +230,9 @@ def test_warm_started_qpu_sim_is_charged_the_reverse_anneal_its_estimate_assumes
     start = codec.encode_labels(np.zeros((1, 5), dtype=np.int32), costs.num_labels)
     solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
     params = {"num_reads": 30, "annealing_time": 80.0, "warm_start": True}
-    result = solver.solve(bqm, seed=0, initial_state=start, num_reads=30, annealing_time=80.0)
+    result = solver.solve(
+        bqm, seed=0, initial_state=start, num_reads=30, annealing_time=80.0, **WHOLE
+    )
     expected = qpu_time.bundle_seconds(
         "qpu-sim",
         bqm.num_variables,
@@ -243,26 +255,35 @@ def test_the_stand_in_is_a_pegasus_p16_mock_sampling_by_steepest_descent(mock_qp
     assert mock_qpu.parameter_warnings is False
 
 
-def test_qpu_sim_takes_its_own_read_budget_and_is_charged_the_reads_it_took(mock_qpu, tmp_path):
+def test_qpu_sim_takes_qpus_read_budget_and_is_charged_the_reads_it_took(mock_qpu, tmp_path):
     from shared.solvers.embedding_cache import EmbeddingSize
     from shared.solvers.params import DEFAULT_NUM_READS, SimulatedQPUParams
 
-    sim_reads = SimulatedQPUParams.model_fields["num_reads"].default
-    assert sim_reads < DEFAULT_NUM_READS
+    # the stand-in reads what qpu reads (20, measured: docs/benchmarks.md), charged the same
+    assert SimulatedQPUParams.model_fields["num_reads"].default == DEFAULT_NUM_READS == 20
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 6, seed=3))
     solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
-    default = solver.solve(bqm, seed=1)
-    asked = solver.solve(bqm, seed=1, num_reads=7)
-    assert default.info["num_reads"] == sim_reads and asked.info["num_reads"] == 7
+    default = solver.solve(bqm, seed=1, **WHOLE)
+    asked = solver.solve(bqm, seed=1, num_reads=7, **WHOLE)
+    assert default.info["num_reads"] == DEFAULT_NUM_READS and asked.info["num_reads"] == 7
     # a bundle's estimate (no num_reads given) is what the bundle is charged
     size = EmbeddingSize(default.info["qubits"], default.info["chains"], 1)
     estimated = qpu_time.bundle_seconds("qpu-sim", bqm.num_variables, {}, embedding=size)
     assert default.timing["qpu_access_time"] == pytest.approx(estimated)
     assert asked.timing["qpu_access_time"] < default.timing["qpu_access_time"]
-    # qpu's estimate keeps its 500 reads
     qpu = qpu_time.bundle_seconds("qpu", bqm.num_variables, {}, embedding=size)
-    assert qpu == pytest.approx(qpu_time.qpu_access_seconds(size.qubits, {"num_reads": 500}))
+    assert qpu == pytest.approx(estimated)
 
+
+def test_qpu_sim_starts_its_first_read_from_the_warm_start(mock_qpu, tmp_path):
+    costs = stereo_costs(1, 12, labels=5, seed=3)
+    codec = get_codec("domain-wall")
+    best = codec.encode_labels(solve_chains(costs), costs.num_labels)
+    solver = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path)))
+    result = solver.solve(codec.encode(costs), seed=0, initial_state=best, num_reads=2, **WHOLE)
+    assert result.info["warm_start"] is True
+    labels = codec.decode(costs, result.sample).labels
+    assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)
 
 def test_one_embedding_composite_per_shape_whatever_the_biases(mock_qpu, tmp_path):
     from unittest import mock
@@ -275,11 +296,11 @@ def test_one_embedding_composite_per_shape_whatever_the_biases(mock_qpu, tmp_pat
         dwave.system, "FixedEmbeddingComposite", wraps=dwave.system.FixedEmbeddingComposite
     ) as built:
         results = [
-            solver.solve(codec.encode(stereo_costs(1, 6, seed=s)), seed=s, num_reads=5)
+            solver.solve(codec.encode(stereo_costs(1, 6, seed=s)), seed=s, num_reads=5, **WHOLE)
             for s in range(3)
         ]
         assert built.call_count == 1
-        solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=5)
+        solver.solve(codec.encode(stereo_costs(1, 7)), seed=0, num_reads=5, **WHOLE)
         assert built.call_count == 2
     assert [r.info["embedding_cache"] for r in results] == ["computed", "memory", "memory"]
 
@@ -288,8 +309,8 @@ def test_a_reused_embedding_composite_gives_what_a_fresh_one_gives(mock_qpu, tmp
     codec = get_codec("domain-wall")
     first, second = (codec.encode(stereo_costs(1, 6, seed=s)) for s in (4, 5))
     warm = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path / "a")))
-    warm.solve(first, seed=2, num_reads=20)
-    reused = warm.solve(second, seed=9, num_reads=20)
+    warm.solve(first, seed=2, num_reads=20, **WHOLE)
+    reused = warm.solve(second, seed=9, num_reads=20, **WHOLE)
     fresh = sim_solver(mock_qpu, EmbeddingCache(DirectoryStore(tmp_path / "b")))
-    again = fresh.solve(second, seed=9, num_reads=20)
+    again = fresh.solve(second, seed=9, num_reads=20, **WHOLE)
     assert (reused.sample == again.sample).all() and reused.energy == again.energy

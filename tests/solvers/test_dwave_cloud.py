@@ -192,7 +192,7 @@ def test_qpu_submits_our_embedding_with_torque_compensated_chains(leap, tmp_path
         return np.asarray([[row[q] for q in order]], dtype=np.int8)
 
     leap.answer = answer
-    result = solver.solve(bqm, num_reads=7, annealing_time=50.0)
+    result = solver.solve(bqm, num_reads=7, annealing_time=50.0, preprocess="none")
 
     [(submitted, params)] = leap.submissions
     assert set(submitted.variables) == {q for chain in embedding.values() for q in chain}
@@ -233,8 +233,8 @@ def test_qpu_solves_a_row_optimally_when_the_cloud_answers_the_optimum(leap, tmp
 
     leap.answer = answer
     solver = qpu_solver(tmp_path)
-    result = solver.solve(bqm)
-    assert leap.submissions[0][1]["num_reads"] == 500  # our default
+    result = solver.solve(bqm, preprocess="none")
+    assert leap.submissions[0][1]["num_reads"] == 20  # our default (docs/benchmarks.md)
     assert result.info["num_reads"] == 3 and result.info["chain_break_fraction"] == 0.0
     labels = codec.decode(costs, result.sample).labels
     assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)
@@ -265,7 +265,7 @@ def test_hybrid_reports_leaps_charge_time_in_seconds(leap, caplog):
     bqm = codec.encode(costs)
     leap.answer = lambda b, p: np.zeros((2, b.num_variables), dtype=np.int8)
     solver = hybrid_solver(leap)
-    result = solver.solve(bqm, initial_state=np.zeros(bqm.num_variables))
+    result = solver.solve(bqm, initial_state=np.zeros(bqm.num_variables), preprocess="none")
     [(_, params)] = leap.submissions
     # Leap's minimum for this size (the mock solver's curve: 1 s at 1 variable, 2 s at 1024)
     assert params["time_limit"] == pytest.approx(1.0 + (bqm.num_variables - 1) / 1023)
@@ -278,7 +278,7 @@ def test_hybrid_reports_leaps_charge_time_in_seconds(leap, caplog):
 def test_hybrid_time_limit_is_passed_on(leap):
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 4))
     leap.answer = lambda b, p: np.zeros((1, b.num_variables), dtype=np.int8)
-    hybrid_solver(leap).solve(bqm, time_limit=12.5)
+    hybrid_solver(leap).solve(bqm, time_limit=12.5, preprocess="none")
     assert leap.submissions[0][1]["time_limit"] == 12.5
 
 
@@ -317,7 +317,7 @@ def test_cloud_errors_become_typed_token_free_errors(
     solver = qpu_solver(tmp_path) if name == "qpu" else hybrid_solver(leap)
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
     with pytest.raises(kind, match=words) as caught:
-        solver.solve(bqm, seed=0)
+        solver.solve(bqm, seed=0, preprocess="none")
     assert type(caught.value) is kind
     assert caught.value.args[0].startswith(f"{name}: ")
     assert_no_token(caught.value, caplog)
@@ -330,7 +330,7 @@ def test_authentication_failure_when_connecting(name, leap, tmp_path, caplog):
     leap.fetch_error = cloud.SolverAuthenticationError(f"Invalid token {SENTINEL}")
     solver = qpu_solver(tmp_path) if name == "qpu" else hybrid_solver(leap)
     with pytest.raises(SolverUnavailable, match="rejected the API token") as caught:
-        solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 3)))
+        solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 3)), preprocess="none")
     assert_no_token(caught.value, caplog)
     assert not leap.submissions
 
@@ -342,7 +342,7 @@ def test_a_bundle_too_large_for_the_qpu_is_refused_before_submission(leap, tmp_p
         np.ones(size), (np.arange(size - 1), np.arange(1, size), np.ones(size - 1)), 0.0, "BINARY"
     )
     with pytest.raises(SolverError, match="too large for the QPU: 6000 variables") as caught:
-        qpu_solver(tmp_path).solve(bqm)
+        qpu_solver(tmp_path).solve(bqm, preprocess="none")
     assert type(caught.value) is SolverError and not leap.submissions
 
 
@@ -350,8 +350,8 @@ def test_a_problem_too_large_for_the_hybrid_solver_is_refused_before_upload(leap
     """The hybrid solver's maximum_number_of_variables is checked here, not by a failed upload."""
     leap.answer = lambda b, p: np.zeros((1, b.num_variables), dtype=np.int8)
     solver = hybrid_solver(leap)
-    solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 3)))  # connects
+    solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 3)), preprocess="none")
     solver._sampler.properties["maximum_number_of_variables"] = 10
     with pytest.raises(SolverError, match="too large") as caught:
-        solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 6)))
+        solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 6)), preprocess="none")
     assert "10 variables" in str(caught.value) and len(leap.submissions) == 1

@@ -80,7 +80,7 @@ def test_sentinel_token_never_appears_in_errors_logs_or_results(monkeypatch, cap
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 4))
 
     with pytest.raises(SolverUnavailable) as caught:
-        get_solver("qpu").solve(bqm, seed=0)
+        get_solver("qpu").solve(bqm, seed=0, preprocess="none")
     assert LeakyDWaveSampler.tokens[-1] == SENTINEL  # the token did reach the sampler
     assert "DWAVE_API_TOKEN" in str(caught.value)
 

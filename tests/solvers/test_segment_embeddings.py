@@ -59,7 +59,7 @@ def test_a_level_embeds_its_shape_once_across_workers(redis_store):
         encoding="domain-wall",
         bundle_width=24,
         bundle_margin=6,
-        solver_params={"num_reads": 5},
+        solver_params={"num_reads": 5, "preprocess": "none"},
     )
     left, right = match_views(scene.left, scene.right, config)
     _, plans = plan_run(left, right, config)
@@ -80,5 +80,8 @@ def test_a_level_embeds_its_shape_once_across_workers(redis_store):
     assert solution.info["embeddings_reused"] == len(bundles)
     assert solution.info["bundle_shapes"] == ["1x24"]
     assert solution.info["qubits"] >= 24 * 2 and solution.info["longest_chain"] >= 1
-    embeddings = [key for key in client.keys("*") if "size-" not in key and "nofit-" not in key]
+    kinds = ("size-", "nofit-", "copies-")
+    embeddings = [key for key in client.keys("*") if not any(k in key for k in kinds)]
     assert len(embeddings) == 1
+    # and its disjoint copies, found while planning, for packing bundles into QPU calls
+    assert len([key for key in client.keys("*") if "copies-count-" in key]) == 1

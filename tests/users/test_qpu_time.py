@@ -83,7 +83,8 @@ def test_charged_seconds_prefers_the_hybrid_charge_time():
 def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
     # whole rows (a width beyond the row's; qpu-sim's default is --bundle-width auto)
     config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
-                         bundle_width=4096, solver_params={"num_reads": 10})  # fmt: skip
+                         bundle_width=4096, solver_params={"num_reads": 10},
+                         warm_start=False)  # fmt: skip
     estimate = qpu_time.job_seconds(config, (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
     views = 2 if preset == "accurate" else 1  # the right view's bundles too
@@ -94,7 +95,7 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
         assert got.bundles == views * len(bundle_rows(height, 2))
         assert got.variables_per_bundle == 2 * width * (level.candidates + per_pixel)
         each = qpu_time.bundle_seconds("qpu-sim", got.variables_per_bundle, {"num_reads": 10})
-        assert got.seconds == pytest.approx(each * got.bundles)
+        assert got.seconds == pytest.approx(each * got.bundles)  # one call each: no copies known
     assert estimate.bundles == sum(level.bundles for level in estimate.levels)
     assert estimate.seconds == pytest.approx(sum(level.seconds for level in estimate.levels))
 
@@ -109,7 +110,7 @@ def test_job_estimate_counts_row_segments(tmp_path):
     assert got.variables_per_bundle == 24 * (got_labels(config) - 1)
 
     cache = EmbeddingCache(DirectoryStore(tmp_path))
-    auto = MatchConfig(solver="qpu-sim", lr_check=False, bundle_margin=6)
+    auto = MatchConfig(solver="qpu-sim", inference="rows", lr_check=False, bundle_margin=6)
     labels = got_labels(auto)
     key = qpu_time.auto_width_key("qpu-sim", "domain-wall", 1, labels, 50, 6)
     cache.record_width(key, 30)
@@ -129,7 +130,7 @@ def test_unmetered_solvers_cost_nothing():
 
 
 def test_warm_started_levels_are_estimated_as_reverse_anneals():
-    cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100})
+    cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": False})
     warm = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": True})
     cold_levels = qpu_time.job_seconds(cold, (60, 80), 16).levels
     warm_levels = qpu_time.job_seconds(warm, (60, 80), 16).levels

@@ -82,3 +82,67 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     )
     live = live_timing_solver(config.solver)
     return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
+
+
+def batch_estimate(inputs, config, bundles: list) -> float:
+    """Estimated charge of bundles sent as one batch, before roof duality (an upper bound):
+    the hybrid solvers' blocks of their size; the QPU solvers' bundles one call each.
+
+    Parameters
+    ----------
+    inputs
+        The level's inputs.
+    config
+        The job's ``MatchConfig``.
+    bundles : list of Bundle
+        The batch.
+
+    Returns
+    -------
+    float
+        Seconds to reserve.
+    """
+    from shared.encodings import get_codec
+    from shared.solvers.qpu_time import hybrid_level_seconds, meter_of, sampler_params
+
+    if meter_of(config.solver) != "hybrid":  # QPU: packed calls, as the job's estimate counts
+        return sum(_packed_estimate(inputs, config, group) for group in _by_shape(bundles))
+    per_pixel = get_codec(config.encoding).variables_per_pixel(inputs.candidates.shape[2])
+    variables = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    return hybrid_level_seconds(variables * per_pixel, params)
+
+
+def _by_shape(bundles: list) -> list[list]:
+    groups: dict[tuple[int, int], list] = {}
+    for bundle in bundles:
+        groups.setdefault(bundle.shape, []).append(bundle)
+    return list(groups.values())
+
+
+def _packed_estimate(inputs, config, bundles: list) -> float:
+    """Bundles of one shape sent as calls of the shape's known disjoint copies (else one each),
+    before roof duality (an upper bound)."""
+    from shared.encodings import get_codec
+    from shared.solvers.embedding_cache import default_cache
+    from shared.solvers.packing import packed_copies
+    from shared.solvers.qpu_time import (
+        MAX_QUBITS,
+        assumed_qubits,
+        bundle_seconds,
+        known_embedding,
+        sampler_params,
+    )
+
+    height, width = bundles[0].shape
+    labels = inputs.candidates.shape[2]
+    variables = height * width * get_codec(config.encoding).variables_per_pixel(labels)
+    cache = default_cache()
+    together = min(len(bundles), packed_copies(cache, config, (height, width), labels))
+    size = known_embedding(cache, config.solver, config.encoding, (height, width), labels)
+    qubits = size.qubits if size else assumed_qubits(variables)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    live = live_timing_solver(config.solver)
+    each = bundle_seconds(config.solver, variables, params,
+                          num_qubits=min(MAX_QUBITS, together * qubits), solver=live)  # fmt: skip
+    return -(-len(bundles) // together) * each

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import redis
 
 from shared.config import Settings
-from workers.quota.estimate import bundle_estimate
+from workers.quota.estimate import batch_estimate, bundle_estimate
 from workers.quota.ledger import QuotaLedger
 from workers.quota.semaphore import QpuSemaphore
 
@@ -94,7 +94,9 @@ def solve_metered(
     still_running=lambda: True,
 ):
     """``solve_bundles`` for a metered solver: one bundle at a time, each inside a lab-wide
-    slot and a reservation of its estimate, charged what its sample set reports.
+    slot and a reservation of its estimate, charged what its sample set reports; a solver that
+    joins bundles into one problem (``solve_batch``: the hybrid solvers) takes all of them in one
+    slot and one reservation, charged what their results report together.
 
     Parameters
     ----------
@@ -117,8 +119,18 @@ def solve_metered(
         budget cannot cover the next bundle.
     """
     from shared.solve import solve_bundles
+    from shared.solvers import get_solver
     from shared.solvers.qpu_time import charged_seconds
 
+    solver = get_solver(config.solver)
+    if hasattr(solver, "solve_batch"):  # one problem for all of them: one slot, one reservation
+        if not still_running():
+            return None
+        given = [inputs.as_bundle(spec) for spec in bundles]
+        with meter.problem(owner, job_id, batch_estimate(inputs, config, given)) as charge:
+            results = solve_bundles(inputs, config, given)
+            charge.report(sum(charged_seconds(result.timing) for result in results))
+        return results
     results = []
     for spec in bundles:
         if not still_running():
