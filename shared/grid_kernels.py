@@ -1,0 +1,204 @@
+"""The compiled kernels of :mod:`shared.grid`: chain min-sum DP, grid energy, neighbour costs
+and the dual decomposition's multiplier step. Serial on purpose (a numba-parallel launch costs
+more than it saves on small levels); ``nogil`` so that views run side by side in threads.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def _regulariser(a, b, slope, truncation):  # pragma: no cover - jit
+    penalty = abs(a - b) * slope
+    return truncation if penalty > truncation else penalty
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_energy(
+    unary, candidates, weight_h, weight_v, slope, truncation, labels
+):  # pragma: no cover - jit
+    """E(x) of a labelling: each row's unary, horizontal and downward vertical terms."""
+    height, width, _ = unary.shape
+    per_row = np.zeros(height)
+    for y in range(height):
+        total = 0.0
+        for x in range(width):
+            here = candidates[y, x, labels[y, x]]
+            total += unary[y, x, labels[y, x]]
+            if x + 1 < width:
+                there = candidates[y, x + 1, labels[y, x + 1]]
+                total += weight_h[y, x] * _regulariser(here, there, slope, truncation)
+            if y + 1 < height:
+                there = candidates[y + 1, x, labels[y + 1, x]]
+                total += weight_v[y, x] * _regulariser(here, there, slope, truncation)
+        per_row[y] = total
+    return per_row
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
+    """The label candidate ``k`` of pixel (y, x) stands for."""
+    return first[y, x] + k if windows else candidates[y, x, k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _chains_windows(
+    base, extra, sign, first, weight, slope, truncation, labels
+):  # pragma: no cover - jit
+    """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``base + sign *
+    extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
+    transform in O(K). The messages are kept and the labels read back from them (no
+    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum."""
+    chains, length, count = base.shape
+    energies = np.empty(chains)
+    for chain in range(chains):
+        messages = np.empty((length, count))
+        envelope = np.empty(count)
+        for k in range(count):
+            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+        for x in range(1, length):
+            w = weight[chain, x - 1]
+            step = w * slope
+            lowest = messages[x - 1, 0]
+            for j in range(count):
+                envelope[j] = messages[x - 1, j]
+                lowest = min(lowest, envelope[j])
+            for j in range(1, count):  # lower envelope of the cones s w |j - t|
+                envelope[j] = min(envelope[j], envelope[j - 1] + step)
+            for j in range(count - 2, -1, -1):
+                envelope[j] = min(envelope[j], envelope[j + 1] + step)
+            ceiling = lowest + w * truncation
+            shift = first[chain, x] - first[chain, x - 1]
+            for k in range(count):
+                t = k + shift
+                if t < 0:
+                    value = envelope[0] - step * t
+                elif t >= count:
+                    value = envelope[count - 1] + step * (t - count + 1)
+                else:
+                    value = envelope[t]
+                messages[x, k] = min(value, ceiling) + base[chain, x, k] + sign * extra[chain, x, k]
+        arg = 0
+        for k in range(1, count):
+            if messages[length - 1, k] < messages[length - 1, arg]:
+                arg = k
+        energies[chain] = messages[length - 1, arg]
+        labels[chain, length - 1] = arg
+        for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
+            w = weight[chain, x - 1]
+            here = first[chain, x] + arg
+            best = np.inf
+            for j in range(count):
+                value = messages[x - 1, j] + w * _regulariser(
+                    first[chain, x - 1] + j, here, slope, truncation
+                )
+                if value < best:
+                    best = value
+                    arg = j
+            labels[chain, x - 1] = arg
+    return energies
+
+
+@numba.njit(cache=True, nogil=True)
+def _chains_general(
+    base, extra, sign, candidates, weight, slope, truncation, labels
+):  # pragma: no cover - jit
+    """:func:`_chains_windows` for any candidate labels: each message in O(K^2)."""
+    chains, length, count = base.shape
+    energies = np.empty(chains)
+    for chain in range(chains):
+        messages = np.empty((length, count))
+        for k in range(count):
+            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+        for x in range(1, length):
+            w = weight[chain, x - 1]
+            lowest = messages[x - 1, 0]
+            for j in range(count):
+                lowest = min(lowest, messages[x - 1, j])
+            ceiling = lowest + w * truncation
+            for k in range(count):
+                here = candidates[chain, x, k]
+                value = ceiling
+                for j in range(count):
+                    penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
+                    value = min(value, messages[x - 1, j] + w * penalty)
+                messages[x, k] = value + base[chain, x, k] + sign * extra[chain, x, k]
+        arg = 0
+        for k in range(1, count):
+            if messages[length - 1, k] < messages[length - 1, arg]:
+                arg = k
+        energies[chain] = messages[length - 1, arg]
+        labels[chain, length - 1] = arg
+        for x in range(length - 1, 0, -1):
+            w = weight[chain, x - 1]
+            here = candidates[chain, x, arg]
+            best = np.inf
+            for j in range(count):
+                penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
+                value = messages[x - 1, j] + w * penalty
+                if value < best:
+                    best = value
+                    arg = j
+            labels[chain, x - 1] = arg
+    return energies
+
+
+@numba.njit(cache=True, nogil=True)
+def _neighbour_costs(
+    candidates, first, windows, weight_h, weight_v, slope, truncation, labels, vertical, out
+):  # pragma: no cover - jit
+    """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
+    its vertical (or horizontal) neighbours."""
+    height, width, count = out.shape
+    for y in range(height):
+        for x in range(width):
+            for k in range(count):
+                here = _label(candidates, first, windows, y, x, k)
+                total = 0.0
+                if vertical:
+                    if y > 0:
+                        there = _label(candidates, first, windows, y - 1, x, labels[y - 1, x])
+                        total += weight_v[y - 1, x] * _regulariser(here, there, slope, truncation)
+                    if y + 1 < height:
+                        there = _label(candidates, first, windows, y + 1, x, labels[y + 1, x])
+                        total += weight_v[y, x] * _regulariser(here, there, slope, truncation)
+                else:
+                    if x > 0:
+                        there = _label(candidates, first, windows, y, x - 1, labels[y, x - 1])
+                        total += weight_h[y, x - 1] * _regulariser(here, there, slope, truncation)
+                    if x + 1 < width:
+                        there = _label(candidates, first, windows, y, x + 1, labels[y, x + 1])
+                        total += weight_h[y, x] * _regulariser(here, there, slope, truncation)
+                out[y, x, k] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def _disagreements(row_labels, column_labels_turned):  # pragma: no cover - jit
+    """Pixels whose row label differs from their column label (the latter stored transposed)."""
+    height, width = row_labels.shape
+    count = 0
+    for y in range(height):
+        for x in range(width):
+            if row_labels[y, x] != column_labels_turned[x, y]:
+                count += 1
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _subgradient_step(
+    multipliers, multipliers_turned, row_labels, column_labels_turned, step
+):  # pragma: no cover - jit
+    """Where row and column labels disagree: + step on the row label's multiplier, - step on the
+    column label's, in both copies of the multipliers (by rows, and transposed for the column
+    chains); float32 like numpy's in-place update."""
+    height, width = row_labels.shape
+    for y in range(height):
+        for x in range(width):
+            here, there = row_labels[y, x], column_labels_turned[x, y]
+            if here != there:
+                multipliers[y, x, here] += step
+                multipliers[y, x, there] -= step
+                multipliers_turned[x, y, here] += step
+                multipliers_turned[x, y, there] -= step
