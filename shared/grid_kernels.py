@@ -15,6 +15,28 @@ def _regulariser(a, b, slope, truncation):  # pragma: no cover - jit
     return truncation if penalty > truncation else penalty
 
 
+#: Label differences whose regulariser the chain kernels look up rather than compute.
+TABLE_SIZE = 64
+
+
+@numba.njit(cache=True, nogil=True)
+def _regulariser_table(slope, truncation):  # pragma: no cover - jit
+    """``_regulariser(d, 0)`` for d = 0..TABLE_SIZE - 1 (the same floats, computed once)."""
+    table = np.empty(TABLE_SIZE)
+    for d in range(TABLE_SIZE):
+        table[d] = _regulariser(d, 0, slope, truncation)
+    return table
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _tabled(table, difference, slope, truncation):  # pragma: no cover - jit
+    """``_regulariser`` of a label difference: from the table when it holds it."""
+    distance = abs(difference)
+    if distance < TABLE_SIZE:
+        return table[distance]
+    return _regulariser(distance, 0, slope, truncation)
+
+
 @numba.njit(cache=True, nogil=True)
 def _grid_energy(
     unary, candidates, weight_h, weight_v, slope, truncation, labels
@@ -53,20 +75,20 @@ def _chains_windows(
     back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum."""
     chains, length, count = base.shape
     energies = np.empty(chains)
+    table = _regulariser_table(slope, truncation)
+    messages = np.empty((length, count))
+    envelope = np.empty(count)
     for chain in range(chains):
-        messages = np.empty((length, count))
-        envelope = np.empty(count)
         for k in range(count):
             messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
         for x in range(1, length):
             w = weight[chain, x - 1]
             step = w * slope
             lowest = messages[x - 1, 0]
-            for j in range(count):
-                envelope[j] = messages[x - 1, j]
-                lowest = min(lowest, envelope[j])
+            envelope[0] = lowest
             for j in range(1, count):  # lower envelope of the cones s w |j - t|
-                envelope[j] = min(envelope[j], envelope[j - 1] + step)
+                lowest = min(lowest, messages[x - 1, j])
+                envelope[j] = min(messages[x - 1, j], envelope[j - 1] + step)
             for j in range(count - 2, -1, -1):
                 envelope[j] = min(envelope[j], envelope[j + 1] + step)
             ceiling = lowest + w * truncation
@@ -88,12 +110,10 @@ def _chains_windows(
         labels[chain, length - 1] = arg
         for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
             w = weight[chain, x - 1]
-            here = first[chain, x] + arg
+            offset = first[chain, x - 1] - first[chain, x] - arg  # label difference at j = 0
             best = np.inf
             for j in range(count):
-                value = messages[x - 1, j] + w * _regulariser(
-                    first[chain, x - 1] + j, here, slope, truncation
-                )
+                value = messages[x - 1, j] + w * _tabled(table, offset + j, slope, truncation)
                 if value < best:
                     best = value
                     arg = j
