@@ -43,6 +43,7 @@ def _grid_energy(
 ):  # pragma: no cover - jit
     """E(x) of a labelling: each row's unary, horizontal and downward vertical terms."""
     height, width, _ = unary.shape
+    table = _regulariser_table(slope, truncation)
     per_row = np.zeros(height)
     for y in range(height):
         total = 0.0
@@ -51,10 +52,10 @@ def _grid_energy(
             total += unary[y, x, labels[y, x]]
             if x + 1 < width:
                 there = candidates[y, x + 1, labels[y, x + 1]]
-                total += weight_h[y, x] * _regulariser(here, there, slope, truncation)
+                total += weight_h[y, x] * _tabled(table, here - there, slope, truncation)
             if y + 1 < height:
                 there = candidates[y + 1, x, labels[y + 1, x]]
-                total += weight_v[y, x] * _regulariser(here, there, slope, truncation)
+                total += weight_v[y, x] * _tabled(table, here - there, slope, truncation)
         per_row[y] = total
     return per_row
 
@@ -85,12 +86,18 @@ def _chains_windows(
             w = weight[chain, x - 1]
             step = w * slope
             lowest = messages[x - 1, 0]
-            envelope[0] = lowest
-            for j in range(1, count):  # lower envelope of the cones s w |j - t|
-                lowest = min(lowest, messages[x - 1, j])
-                envelope[j] = min(messages[x - 1, j], envelope[j - 1] + step)
+            # lower envelope of the cones s w |j - t|; the running value in a register, not
+            # read back from the array (the passes are latency-bound)
+            running = lowest
+            envelope[0] = running
+            for j in range(1, count):
+                value = messages[x - 1, j]
+                lowest = min(lowest, value)
+                running = min(value, running + step)
+                envelope[j] = running
             for j in range(count - 2, -1, -1):
-                envelope[j] = min(envelope[j], envelope[j + 1] + step)
+                running = min(envelope[j], running + step)
+                envelope[j] = running
             ceiling = lowest + w * truncation
             shift = first[chain, x] - first[chain, x - 1]
             for k in range(count):
@@ -172,25 +179,33 @@ def _neighbour_costs(
     """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
     its vertical (or horizontal) neighbours."""
     height, width, count = out.shape
+    table = _regulariser_table(slope, truncation)
     for y in range(height):
         for x in range(width):
+            # the two neighbours' labels and edge weights, once per pixel (not per candidate)
+            has_before, has_after = (y > 0, y + 1 < height) if vertical else (x > 0, x + 1 < width)
+            before, after, weight_before, weight_after = 0, 0, 0.0, 0.0
+            if vertical:
+                if has_before:
+                    before = _label(candidates, first, windows, y - 1, x, labels[y - 1, x])
+                    weight_before = weight_v[y - 1, x]
+                if has_after:
+                    after = _label(candidates, first, windows, y + 1, x, labels[y + 1, x])
+                    weight_after = weight_v[y, x]
+            else:
+                if has_before:
+                    before = _label(candidates, first, windows, y, x - 1, labels[y, x - 1])
+                    weight_before = weight_h[y, x - 1]
+                if has_after:
+                    after = _label(candidates, first, windows, y, x + 1, labels[y, x + 1])
+                    weight_after = weight_h[y, x]
             for k in range(count):
                 here = _label(candidates, first, windows, y, x, k)
                 total = 0.0
-                if vertical:
-                    if y > 0:
-                        there = _label(candidates, first, windows, y - 1, x, labels[y - 1, x])
-                        total += weight_v[y - 1, x] * _regulariser(here, there, slope, truncation)
-                    if y + 1 < height:
-                        there = _label(candidates, first, windows, y + 1, x, labels[y + 1, x])
-                        total += weight_v[y, x] * _regulariser(here, there, slope, truncation)
-                else:
-                    if x > 0:
-                        there = _label(candidates, first, windows, y, x - 1, labels[y, x - 1])
-                        total += weight_h[y, x - 1] * _regulariser(here, there, slope, truncation)
-                    if x + 1 < width:
-                        there = _label(candidates, first, windows, y, x + 1, labels[y, x + 1])
-                        total += weight_h[y, x] * _regulariser(here, there, slope, truncation)
+                if has_before:
+                    total += weight_before * _tabled(table, here - before, slope, truncation)
+                if has_after:
+                    total += weight_after * _tabled(table, here - after, slope, truncation)
                 out[y, x, k] = total
 
 
