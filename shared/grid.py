@@ -20,8 +20,9 @@ solves too: rows given the column solution's vertical neighbours, then columns g
 lowest energy seen is the result, reported with the bound and the gap.
 
 Each chain is one QUBO bundle like a row of the ``rows`` inference; ``exact`` solves all chains of
-an iteration at once with the compiled kernel :func:`solve_chains` (the same kernel reading the
-arrays along the other axis for columns).
+an iteration at once with the compiled kernels of :mod:`shared.grid_kernels` (:func:`solve_chains`;
+dual decomposition runs the column chains as the rows of a transposed copy, contiguous in memory,
+and keeps its multipliers in both layouts).
 """
 
 from __future__ import annotations
