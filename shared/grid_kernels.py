@@ -1,0 +1,239 @@
+"""The compiled kernels of :mod:`shared.grid`: chain min-sum DP, grid energy, neighbour costs
+and the dual decomposition's multiplier step. Serial on purpose (a numba-parallel launch costs
+more than it saves on small levels); ``nogil`` so that views run side by side in threads.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def _regulariser(a, b, slope, truncation):  # pragma: no cover - jit
+    penalty = abs(a - b) * slope
+    return truncation if penalty > truncation else penalty
+
+
+#: Label differences whose regulariser the chain kernels look up rather than compute.
+TABLE_SIZE = 64
+
+
+@numba.njit(cache=True, nogil=True)
+def _regulariser_table(slope, truncation):  # pragma: no cover - jit
+    """``_regulariser(d, 0)`` for d = 0..TABLE_SIZE - 1 (the same floats, computed once)."""
+    table = np.empty(TABLE_SIZE)
+    for d in range(TABLE_SIZE):
+        table[d] = _regulariser(d, 0, slope, truncation)
+    return table
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _tabled(table, difference, slope, truncation):  # pragma: no cover - jit
+    """``_regulariser`` of a label difference: from the table when it holds it."""
+    distance = abs(difference)
+    if distance < TABLE_SIZE:
+        return table[distance]
+    return _regulariser(distance, 0, slope, truncation)
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_energy(
+    unary, candidates, weight_h, weight_v, slope, truncation, labels
+):  # pragma: no cover - jit
+    """E(x) of a labelling: each row's unary, horizontal and downward vertical terms."""
+    height, width, _ = unary.shape
+    table = _regulariser_table(slope, truncation)
+    per_row = np.zeros(height)
+    for y in range(height):
+        total = 0.0
+        for x in range(width):
+            here = candidates[y, x, labels[y, x]]
+            total += unary[y, x, labels[y, x]]
+            if x + 1 < width:
+                there = candidates[y, x + 1, labels[y, x + 1]]
+                total += weight_h[y, x] * _tabled(table, here - there, slope, truncation)
+            if y + 1 < height:
+                there = candidates[y + 1, x, labels[y + 1, x]]
+                total += weight_v[y, x] * _tabled(table, here - there, slope, truncation)
+        per_row[y] = total
+    return per_row
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
+    """The label candidate ``k`` of pixel (y, x) stands for."""
+    return first[y, x] + k if windows else candidates[y, x, k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _chains_windows(
+    base, extra, sign, first, weight, slope, truncation, labels
+):  # pragma: no cover - jit
+    """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``base + sign *
+    extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
+    transform in O(K). The messages are kept and the labels read back from them (no
+    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum."""
+    chains, length, count = base.shape
+    energies = np.empty(chains)
+    table = _regulariser_table(slope, truncation)
+    messages = np.empty((length, count))
+    envelope = np.empty(count)
+    for chain in range(chains):
+        for k in range(count):
+            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+        for x in range(1, length):
+            w = weight[chain, x - 1]
+            step = w * slope
+            lowest = messages[x - 1, 0]
+            # lower envelope of the cones s w |j - t|; the running value in a register, not
+            # read back from the array (the passes are latency-bound)
+            running = lowest
+            envelope[0] = running
+            for j in range(1, count):
+                value = messages[x - 1, j]
+                lowest = min(lowest, value)
+                running = min(value, running + step)
+                envelope[j] = running
+            for j in range(count - 2, -1, -1):
+                running = min(envelope[j], running + step)
+                envelope[j] = running
+            ceiling = lowest + w * truncation
+            shift = first[chain, x] - first[chain, x - 1]
+            for k in range(count):
+                t = k + shift
+                if t < 0:
+                    value = envelope[0] - step * t
+                elif t >= count:
+                    value = envelope[count - 1] + step * (t - count + 1)
+                else:
+                    value = envelope[t]
+                messages[x, k] = min(value, ceiling) + base[chain, x, k] + sign * extra[chain, x, k]
+        arg = 0
+        for k in range(1, count):
+            if messages[length - 1, k] < messages[length - 1, arg]:
+                arg = k
+        energies[chain] = messages[length - 1, arg]
+        labels[chain, length - 1] = arg
+        for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
+            w = weight[chain, x - 1]
+            offset = first[chain, x - 1] - first[chain, x] - arg  # label difference at j = 0
+            best = np.inf
+            for j in range(count):
+                value = messages[x - 1, j] + w * _tabled(table, offset + j, slope, truncation)
+                if value < best:
+                    best = value
+                    arg = j
+            labels[chain, x - 1] = arg
+    return energies
+
+
+@numba.njit(cache=True, nogil=True)
+def _chains_general(
+    base, extra, sign, candidates, weight, slope, truncation, labels
+):  # pragma: no cover - jit
+    """:func:`_chains_windows` for any candidate labels: each message in O(K^2)."""
+    chains, length, count = base.shape
+    energies = np.empty(chains)
+    for chain in range(chains):
+        messages = np.empty((length, count))
+        for k in range(count):
+            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+        for x in range(1, length):
+            w = weight[chain, x - 1]
+            lowest = messages[x - 1, 0]
+            for j in range(count):
+                lowest = min(lowest, messages[x - 1, j])
+            ceiling = lowest + w * truncation
+            for k in range(count):
+                here = candidates[chain, x, k]
+                value = ceiling
+                for j in range(count):
+                    penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
+                    value = min(value, messages[x - 1, j] + w * penalty)
+                messages[x, k] = value + base[chain, x, k] + sign * extra[chain, x, k]
+        arg = 0
+        for k in range(1, count):
+            if messages[length - 1, k] < messages[length - 1, arg]:
+                arg = k
+        energies[chain] = messages[length - 1, arg]
+        labels[chain, length - 1] = arg
+        for x in range(length - 1, 0, -1):
+            w = weight[chain, x - 1]
+            here = candidates[chain, x, arg]
+            best = np.inf
+            for j in range(count):
+                penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
+                value = messages[x - 1, j] + w * penalty
+                if value < best:
+                    best = value
+                    arg = j
+            labels[chain, x - 1] = arg
+    return energies
+
+
+@numba.njit(cache=True, nogil=True)
+def _neighbour_costs(
+    candidates, first, windows, weight_h, weight_v, slope, truncation, labels, vertical, out
+):  # pragma: no cover - jit
+    """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
+    its vertical (or horizontal) neighbours."""
+    height, width, count = out.shape
+    table = _regulariser_table(slope, truncation)
+    for y in range(height):
+        for x in range(width):
+            # the two neighbours' labels and edge weights, once per pixel (not per candidate)
+            has_before, has_after = (y > 0, y + 1 < height) if vertical else (x > 0, x + 1 < width)
+            before, after, weight_before, weight_after = 0, 0, 0.0, 0.0
+            if vertical:
+                if has_before:
+                    before = _label(candidates, first, windows, y - 1, x, labels[y - 1, x])
+                    weight_before = weight_v[y - 1, x]
+                if has_after:
+                    after = _label(candidates, first, windows, y + 1, x, labels[y + 1, x])
+                    weight_after = weight_v[y, x]
+            else:
+                if has_before:
+                    before = _label(candidates, first, windows, y, x - 1, labels[y, x - 1])
+                    weight_before = weight_h[y, x - 1]
+                if has_after:
+                    after = _label(candidates, first, windows, y, x + 1, labels[y, x + 1])
+                    weight_after = weight_h[y, x]
+            for k in range(count):
+                here = _label(candidates, first, windows, y, x, k)
+                total = 0.0
+                if has_before:
+                    total += weight_before * _tabled(table, here - before, slope, truncation)
+                if has_after:
+                    total += weight_after * _tabled(table, here - after, slope, truncation)
+                out[y, x, k] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def _disagreements(row_labels, column_labels_turned):  # pragma: no cover - jit
+    """Pixels whose row label differs from their column label (the latter stored transposed)."""
+    height, width = row_labels.shape
+    count = 0
+    for y in range(height):
+        for x in range(width):
+            if row_labels[y, x] != column_labels_turned[x, y]:
+                count += 1
+    return count
+
+
+@numba.njit(cache=True, nogil=True)
+def _subgradient_step(
+    multipliers, multipliers_turned, row_labels, column_labels_turned, step
+):  # pragma: no cover - jit
+    """Where row and column labels disagree: + step on the row label's multiplier, - step on the
+    column label's, in both copies of the multipliers (by rows, and transposed for the column
+    chains); float32 like numpy's in-place update."""
+    height, width = row_labels.shape
+    for y in range(height):
+        for x in range(width):
+            here, there = row_labels[y, x], column_labels_turned[x, y]
+            if here != there:
+                multipliers[y, x, here] += step
+                multipliers[y, x, there] -= step
+                multipliers_turned[x, y, here] += step
+                multipliers_turned[x, y, there] -= step
