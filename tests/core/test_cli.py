@@ -90,7 +90,10 @@ def test_user_errors_are_one_line_messages(pair, tmp_path, capsys):
     cases = [
         ([left, str(tmp_path / "none.png"), "-o", out], "none.png: no such file"),
         ([left, right, "-o", out, "--solver", "nope"], "unknown solver 'nope'"),
-        ([left, right, "-o", out, "--bundle-height", "2"], "single-row bundles"),
+        (
+            [left, right, "-o", out, "--inference", "rows", "--bundle-height", "2"],
+            "single-row bundles",
+        ),
         ([left, right, "-o", str(tmp_path / "d.jpg")], ".pfm, .png or .npy"),
         ([left, right, "-o", out, "--bundle-width", "64"], "exact solves whole rows"),
         ([left, right, "-o", out, "--solver", "sa", "--bundle-width", "auto"], "in pixels"),
@@ -124,7 +127,9 @@ def test_bundle_width_from_the_command_line(pair, tmp_path, capsys):
     assert main([*base, "--bundle-width", "48", "--bundle-margin", "8"]) == 0
     summary = json.loads(capsys.readouterr().out)
     per_row = 3  # 128 px: segments at 0, 40 and 80 (the last one shifted left)
-    assert [level["bundles"] for level in summary["levels"]] == [2 * 96 * per_row] * 3
+    assert [level["bundles"] for level in summary["levels"]] == [
+        2 * (96 // 3) * per_row
+    ] * 3  # tiles of 3 rows
 
 
 def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_c):

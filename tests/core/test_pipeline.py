@@ -150,7 +150,7 @@ def test_invalid_configurations_are_refused():
         MatchConfig(max_disparity=0)
     with pytest.raises(ValidationError):
         MatchConfig(max_disparity="wide")
-    with pytest.raises(ValidationError, match="ad-census"):
+    with pytest.raises(ValidationError, match="pyramid bins"):
         MatchConfig(preset=Preset.PAPER, subpixel=True)
 
 

@@ -100,7 +100,7 @@ def test_every_segment_of_a_level_shares_its_shape(small):
     config = MatchConfig(max_disparity=12, solver="sa", bundle_width=32, bundle_margin=10)
     inputs = _finest_level(small, config)
     bundles = level_bundles(inputs, config)
-    assert {b.shape for b in bundles} == {(1, 32)}
+    assert {b.shape for b in bundles} == {(3, 32)}  # grid inference: tiles of 3 rows
     rows = inputs.shape[0]
     assert len(bundles) == rows * len(segment_columns(90, 32, 10))
     last = [b for b in bundles if b.row_start == 0][-1]
