@@ -137,7 +137,9 @@ def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_
     assert exe, "the qhsm console script is not installed (pip install -e .)"
     left, right = str(pair / "left.png"), str(pair / "right.png")
     command = [exe, "match", left, right, "-o", str(tmp_path / "d.pfm"), "--solver", "sa"]
-    got = ctrl_c([*command, "--processes", "2", "--max-disparity", "16"], when="bundles")
+    # rows inference: many small bundles, so the run is surely under way when Ctrl-C comes
+    options = ["--processes", "2", "--max-disparity", "16", "--inference", "rows"]
+    got = ctrl_c([*command, *options], when="bundles")
     assert got.returncode == 130
     assert "Traceback" not in got.stderr and "KeyboardInterrupt" not in got.stderr
     assert got.last_line == "qhsm: interrupted"
