@@ -153,7 +153,7 @@ def ad_census_volume(
     numpy.ndarray
         Costs (D + 1, stop - start, w), float32.
     """
-    height, width = left.shape[:2]
+    height = left.shape[0]
     rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
     left_rows = left[rows].astype(np.float32) * np.float32(255.0)
     right_rows = right[rows].astype(np.float32) * np.float32(255.0)
@@ -163,24 +163,14 @@ def ad_census_volume(
     left_rows = left_rows[census_reach:-census_reach]
     right_rows = _shifted(right_rows[census_reach:-census_reach], max_disparity)
     channel_mean = np.full((1, 3), 1.0 / 3.0, dtype=np.float32)
-    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - exp(-AD / 10) / 2
-    table = np.zeros(256, dtype=np.float32)
-    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
-    table += 0.5
-    box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
-    reach = AGGREGATION_WINDOW // 2
-    volume = np.empty((max_disparity + 1, stop - start, width), dtype=np.float32)
-    for d in range(max_disparity + 1):
-        columns = slice(max_disparity - d, max_disparity - d + width)
+
+    def ad_term(columns: slice) -> np.ndarray:
         ad = cv2.absdiff(left_rows, right_rows[:, columns])
         if ad.ndim == 3:
             ad = cv2.transform(ad, channel_mean)
-        hamming = np.bitwise_count(census_left ^ census_right[:, columns]).astype(np.uint8)
-        ad_term = cv2.exp(ad * np.float32(-1.0 / AD_SCALE))
-        cost = cv2.scaleAdd(ad_term, -0.5, cv2.LUT(hamming, table))
-        aggregated = cv2.boxFilter(cost, -1, box, borderType=cv2.BORDER_REPLICATE)
-        volume[d] = aggregated[reach:-reach]
-    return volume
+        return cv2.exp(ad * np.float32(-1.0 / AD_SCALE))
+
+    return _census_and(census_left, census_right, ad_term, max_disparity, stop - start)
 
 
 def census_gradient_volume(
@@ -205,7 +195,7 @@ def census_gradient_volume(
     numpy.ndarray
         Costs (D + 1, stop - start, w), float32.
     """
-    height, width = left.shape[:2]
+    height = left.shape[0]
     rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
     gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
     gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
@@ -214,24 +204,42 @@ def census_gradient_volume(
     reach = CENSUS_WINDOW // 2
     gradients_left = [g[reach:-reach] for g in _sobel(gray_left)]
     gradients_right = [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)]
-    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - exp(-G / 10) / 2
-    table = np.zeros(256, dtype=np.float32)
-    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
-    table += 0.5
-    box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
-    aggregation_reach = AGGREGATION_WINDOW // 2
-    volume = np.empty((max_disparity + 1, stop - start, width), dtype=np.float32)
-    for d in range(max_disparity + 1):
-        columns = slice(max_disparity - d, max_disparity - d + width)
-        hamming = np.bitwise_count(census_left ^ census_right[:, columns]).astype(np.uint8)
+
+    def gradient_term(columns: slice) -> np.ndarray:
         gradient = cv2.add(
             cv2.absdiff(gradients_left[0], gradients_right[0][:, columns]),
             cv2.absdiff(gradients_left[1], gradients_right[1][:, columns]),
         )
-        gradient_term = cv2.exp(gradient * np.float32(-1.0 / GRADIENT_SCALE))
-        cost = cv2.scaleAdd(gradient_term, -0.5, cv2.LUT(hamming, table))
+        return cv2.exp(gradient * np.float32(-1.0 / GRADIENT_SCALE))
+
+    return _census_and(census_left, census_right, gradient_term, max_disparity, stop - start)
+
+
+def _census_and(
+    census_left: np.ndarray,
+    census_right: np.ndarray,
+    term: Callable[[slice], np.ndarray],
+    max_disparity: int,
+    rows: int,
+) -> np.ndarray:
+    """The volume 1/2 [(1 - exp(-H / 30)) + (1 - term)] of every disparity, 5x5 box-aggregated:
+    H from the census codes (the right view's :func:`_shifted`), ``term(columns)`` the other
+    term's exp(-x / scale) with the right view read at ``columns``; each has the block's rows
+    plus the aggregation's reach on both sides."""
+    width = census_left.shape[1]
+    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - term / 2
+    table = np.zeros(256, dtype=np.float32)
+    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
+    table += 0.5
+    box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
+    reach = AGGREGATION_WINDOW // 2
+    volume = np.empty((max_disparity + 1, rows, width), dtype=np.float32)
+    for d in range(max_disparity + 1):
+        columns = slice(max_disparity - d, max_disparity - d + width)
+        hamming = np.bitwise_count(census_left ^ census_right[:, columns]).astype(np.uint8)
+        cost = cv2.scaleAdd(term(columns), -0.5, cv2.LUT(hamming, table))
         aggregated = cv2.boxFilter(cost, -1, box, borderType=cv2.BORDER_REPLICATE)
-        volume[d] = aggregated[aggregation_reach:-aggregation_reach]
+        volume[d] = aggregated[reach:-reach]
     return volume
 
 
