@@ -272,6 +272,7 @@ MATCH_OPTIONS = (
     "pyramid",
     "inference",
     "dual_iterations",
+    "dual_gap",
     "median",
     "bilateral",
     "lr_check",

@@ -197,7 +197,14 @@ class MatchConfig(BaseModel):
         ge=1,
         le=1000,
         description="grid inference with exact: most dual-decomposition iterations per level "
-        "(fewer when the row and column chains agree)",
+        "(fewer when the row and column chains agree or the gap is within dual_gap)",
+    )
+    dual_gap: float = Field(
+        0.0,
+        ge=0.0,
+        lt=1.0,
+        description="grid inference with exact: stop a level's dual decomposition once its "
+        "certified gap (E - lower bound) / E is at most this (0: run dual_iterations)",
     )
     data_term: DataTerm = Field(
         description="squared, ad-census or census-gradient (from preset)"

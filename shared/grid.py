@@ -366,7 +366,7 @@ class DualResult:
         return (self.energy - self.lower_bound) / max(abs(self.energy), 1e-12)
 
 
-def dual_decomposition(mrf: GridMRF, iterations: int) -> DualResult:
+def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualResult:
     """Minimise the grid MRF by dual decomposition into row and column chains (module doc).
 
     Parameters
@@ -375,6 +375,9 @@ def dual_decomposition(mrf: GridMRF, iterations: int) -> DualResult:
         One view's grid.
     iterations : int
         Most subgradient iterations (fewer when row and column labels agree).
+    gap : float, optional
+        Stop once (E - LB) / |E| is at most this: the labelling is then certified that close
+        to the optimum, and more iterations change the map less than the data term's noise.
 
     Returns
     -------
@@ -415,7 +418,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int) -> DualResult:
             stalled += 1
             if stalled >= STALL_ITERATIONS:
                 gamma, stalled = gamma / 2.0, 0
-        if disagreeing == 0:
+        if disagreeing == 0 or best_energy - bound <= gap * abs(best_energy):
             break
         step = np.float32(gamma * max(best_energy - current, 0.0) / (2 * disagreeing))
         _subgradient_step(multipliers, multipliers_turned, row_labels, turned_labels, step)

@@ -322,7 +322,9 @@ def _solve_grids(
 
     def solve(rows: tuple[int, int]) -> BundleResult:
         started = time.perf_counter()
-        outcome = dual_decomposition(inputs.grid(config, *rows), config.dual_iterations)
+        outcome = dual_decomposition(
+            inputs.grid(config, *rows), config.dual_iterations, config.dual_gap
+        )
         return BundleResult(
             row_start=rows[0],
             row_stop=rows[1],

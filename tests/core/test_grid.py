@@ -65,6 +65,22 @@ def test_the_bound_never_exceeds_any_labelling_and_is_the_optimum_when_chains_ag
         assert result.energy == pytest.approx(optimum, abs=1e-6)
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31), tolerance=st.sampled_from([0.005, 0.02, 0.1]))
+def test_a_gap_tolerance_stops_early_only_with_its_certificate(seed, tolerance):
+    """Stopping at a gap is sound: the labelling returned is certified within it of the
+    optimum (the bound holds), and otherwise every iteration ran or the chains agreed."""
+    mrf = random_grid(seed, 12, 16, labels=5)
+    full = dual_decomposition(mrf, iterations=30)
+    early = dual_decomposition(mrf, iterations=30, gap=tolerance)
+    assert early.iterations <= full.iterations
+    assert early.lower_bound <= full.energy + 1e-6 and full.lower_bound <= early.energy + 1e-6
+    if early.iterations < 30 and early.disagreeing:
+        assert early.gap <= tolerance
+    else:
+        assert early.iterations == full.iterations and early.energy == full.energy
+
+
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31), windows=st.booleans(), length=st.integers(1, 6))
 def test_a_column_chain_is_the_row_kernel_on_transposed_costs_and_the_optimum(
