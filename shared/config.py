@@ -200,7 +200,7 @@ class MatchConfig(BaseModel):
         "(fewer when the row and column chains agree or the gap is within dual_gap)",
     )
     dual_gap: float = Field(
-        0.0,
+        0.01,
         ge=0.0,
         lt=1.0,
         description="grid inference with exact: stop a level's dual decomposition once its "
