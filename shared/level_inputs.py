@@ -17,6 +17,10 @@ from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
 
+#: Rows of a cost volume built at once for a bundle of many rows (a grid's whole view): the
+#: block's (D + 1) x rows x w float32 within this.
+VOLUME_BLOCK_BYTES = 64 * 2**20
+
 #: A bundle as given to :func:`shared.solve.solve_bundles`: a :class:`Bundle`, a row range
 #: ``(row_start, row_stop)`` (whole rows) or ``(row_start, row_stop, col_start, col_stop)``.
 BundleSpec = Bundle | Sequence[int]
@@ -212,6 +216,27 @@ class LevelInputs:
             return bin_minimum(volume, self.plan.bin_width)
         return self.binned_volumes()[view][:, first:last]
 
+    def _candidate_costs(
+        self, data_term: DataTerm, view: int, first: int, last: int, candidates: np.ndarray
+    ) -> np.ndarray:
+        """(last - first, w, K) costs of the candidates, built from the cost volume a block of
+        :data:`VOLUME_BLOCK_BYTES` at a time when no volume is cached: a whole view's volume
+        (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
+        257). The same values either way: costs are row-local."""
+        if self.volumes is not None:
+            return gather(self._bin_costs(data_term, view, first, last), candidates)
+        row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
+        step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
+        return np.concatenate(
+            [
+                gather(
+                    self._bin_costs(data_term, view, start, min(start + step, last)),
+                    candidates[start - first : min(start + step, last) - first],
+                )
+                for start in range(first, last, step)
+            ]
+        )
+
     def binned_volumes(self) -> list[np.ndarray]:
         """The cached volumes' bin minima per view, built once (call before sharing the inputs
         between threads).
@@ -256,7 +281,7 @@ class LevelInputs:
             # the paper's path: evaluated at the candidates only
             unary = squared_difference(guide, to_gray(right[first:last]), candidates)
         else:
-            unary = gather(self._bin_costs(config.data_term, view, first, last), candidates)
+            unary = self._candidate_costs(config.data_term, view, first, last, candidates)
         return unary, candidates, guide
 
     def grid(self, config: MatchConfig, start: int, stop: int) -> GridMRF:

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import shared.level_inputs as level_inputs
 from shared.config import Inference, LevelConfig, MatchConfig, Regularizer
 from shared.encodings import get_codec
 from shared.energy import mrf_costs, mrf_energy
@@ -20,7 +21,7 @@ from shared.grid import (
     grid_mrf,
     solve_chains,
 )
-from shared.pipeline import run_pipeline
+from shared.pipeline import plan_run, prepare_level, run_pipeline
 from shared.synthetic import make_scene
 
 LEVEL = LevelConfig(slope=0.2, truncation=0.4, edge_threshold=0.3, edge_factor=0.3)
@@ -183,3 +184,22 @@ def test_exact_grid_levels_report_energy_bound_and_gap():
         assert level.lower_bound <= level.energy + 1e-6
         assert 0 <= level.gap < 0.05
         assert level.bundles == 2  # one grid per view
+
+
+@pytest.mark.parametrize("block_bytes", [1, 4000])
+def test_a_views_grid_costs_built_in_blocks_of_rows_equal_the_whole_volumes(
+    monkeypatch, block_bytes
+):
+    """Without a cached volume a grid's unary is built a few rows at a time (memory bounded by
+    the block, not the view): the very values of the whole view's volume."""
+    scene = make_scene(20, 32, max_disparity=6, seed=3)
+    config = MatchConfig(max_disparity=6)
+    _, plans = plan_run(scene.left, scene.right, config)
+    inputs = prepare_level(scene.left, scene.right, config, plans[-1])
+    assert inputs.volumes is None
+    for view in range(inputs.views):
+        rows = (view * inputs.view_height, (view + 1) * inputs.view_height)
+        monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", 2**40)  # one block: the view
+        whole = inputs.grid(config, *rows).unary
+        monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", block_bytes)
+        np.testing.assert_array_equal(inputs.grid(config, *rows).unary, whole)
