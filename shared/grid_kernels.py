@@ -68,10 +68,10 @@ def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
 
 @numba.njit(cache=True, nogil=True)
 def _chains_windows(
-    base, extra, sign, first, weight, slope, truncation, labels
+    base, scale, extra, sign, first, weight, slope, truncation, labels
 ):  # pragma: no cover - jit
-    """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``base + sign *
-    extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
+    """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``scale * base +
+    sign * extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
     transform in O(K). The messages are kept and the labels read back from them (no
     back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum."""
     chains, length, count = base.shape
@@ -81,7 +81,7 @@ def _chains_windows(
     envelope = np.empty(count)
     for chain in range(chains):
         for k in range(count):
-            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+            messages[0, k] = scale * base[chain, 0, k] + sign * extra[chain, 0, k]
         for x in range(1, length):
             w = weight[chain, x - 1]
             step = w * slope
@@ -108,7 +108,9 @@ def _chains_windows(
                     value = envelope[count - 1] + step * (t - count + 1)
                 else:
                     value = envelope[t]
-                messages[x, k] = min(value, ceiling) + base[chain, x, k] + sign * extra[chain, x, k]
+                messages[x, k] = (
+                    min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
+                )
         arg = 0
         for k in range(1, count):
             if messages[length - 1, k] < messages[length - 1, arg]:
@@ -130,7 +132,7 @@ def _chains_windows(
 
 @numba.njit(cache=True, nogil=True)
 def _chains_general(
-    base, extra, sign, candidates, weight, slope, truncation, labels
+    base, scale, extra, sign, candidates, weight, slope, truncation, labels
 ):  # pragma: no cover - jit
     """:func:`_chains_windows` for any candidate labels: each message in O(K^2)."""
     chains, length, count = base.shape
@@ -138,7 +140,7 @@ def _chains_general(
     for chain in range(chains):
         messages = np.empty((length, count))
         for k in range(count):
-            messages[0, k] = base[chain, 0, k] + sign * extra[chain, 0, k]
+            messages[0, k] = scale * base[chain, 0, k] + sign * extra[chain, 0, k]
         for x in range(1, length):
             w = weight[chain, x - 1]
             lowest = messages[x - 1, 0]
@@ -151,7 +153,7 @@ def _chains_general(
                 for j in range(count):
                     penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
                     value = min(value, messages[x - 1, j] + w * penalty)
-                messages[x, k] = value + base[chain, x, k] + sign * extra[chain, x, k]
+                messages[x, k] = value + scale * base[chain, x, k] + sign * extra[chain, x, k]
         arg = 0
         for k in range(1, count):
             if messages[length - 1, k] < messages[length - 1, arg]:

@@ -217,25 +217,31 @@ class LevelInputs:
         return self.binned_volumes()[view][:, first:last]
 
     def _candidate_costs(
-        self, data_term: DataTerm, view: int, first: int, last: int, candidates: np.ndarray
+        self,
+        data_term: DataTerm,
+        view: int,
+        first: int,
+        last: int,
+        candidates: np.ndarray,
+        dtype: type = np.float64,
     ) -> np.ndarray:
         """(last - first, w, K) costs of the candidates, built from the cost volume a block of
         :data:`VOLUME_BLOCK_BYTES` at a time when no volume is cached: a whole view's volume
         (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
-        257). The same values either way: costs are row-local."""
+        257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
+        volume's own precision: exact) halves the view's costs."""
         if self.volumes is not None:
-            return gather(self._bin_costs(data_term, view, first, last), candidates)
+            return gather(self._bin_costs(data_term, view, first, last), candidates).astype(dtype)
         row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
         step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
-        return np.concatenate(
-            [
-                gather(
-                    self._bin_costs(data_term, view, start, min(start + step, last)),
-                    candidates[start - first : min(start + step, last) - first],
-                )
-                for start in range(first, last, step)
-            ]
-        )
+        costs = np.empty(candidates.shape, dtype=dtype)
+        for start in range(first, last, step):
+            stop = min(start + step, last)
+            costs[start - first : stop - first] = gather(
+                self._bin_costs(data_term, view, start, stop),
+                candidates[start - first : stop - first],
+            )
+        return costs
 
     def binned_volumes(self) -> list[np.ndarray]:
         """The cached volumes' bin minima per view, built once (call before sharing the inputs
@@ -251,7 +257,7 @@ class LevelInputs:
         return self._binned or []
 
     def view_unary(
-        self, config: MatchConfig, view: int, first: int, last: int
+        self, config: MatchConfig, view: int, first: int, last: int, dtype: type = np.float64
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The data term of rows [first, last) of one view at its candidates.
 
@@ -263,6 +269,8 @@ class LevelInputs:
             0 (the left view's problem) or 1 (the mirrored pair's).
         first, last : int
             Rows within the view.
+        dtype : type, optional
+            Of the costs: float64 (the row matcher's arithmetic) or float32 (a grid's).
 
         Returns
         -------
@@ -281,7 +289,7 @@ class LevelInputs:
             # the paper's path: evaluated at the candidates only
             unary = squared_difference(guide, to_gray(right[first:last]), candidates)
         else:
-            unary = self._candidate_costs(config.data_term, view, first, last, candidates)
+            unary = self._candidate_costs(config.data_term, view, first, last, candidates, dtype)
         return unary, candidates, guide
 
     def grid(self, config: MatchConfig, start: int, stop: int) -> GridMRF:
@@ -306,7 +314,7 @@ class LevelInputs:
         parts = self.view_parts(start, stop)
         if len(parts) != 1:
             raise ValueError(f"rows [{start}, {stop}) span both views; a grid is one view's")
-        unary, candidates, guide = self.view_unary(config, *parts[0])
+        unary, candidates, guide = self.view_unary(config, *parts[0], dtype=np.float32)
         return grid_mrf(unary, candidates, guide, self.level, config.regularizer)
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
