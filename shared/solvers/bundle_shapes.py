@@ -17,7 +17,8 @@ import numpy as np
 from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
-from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize, structure_digest
+from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize
+from shared.solvers.structure_keys import structure_digest
 from shared.solvers.timing_model import MAX_QUBITS, QUBITS_PER_VARIABLE, meter_of
 
 log = logging.getLogger(__name__)

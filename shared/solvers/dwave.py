@@ -41,14 +41,11 @@ from shared.solvers.composites import (
     Reduction,
     reduce,
 )
-from shared.solvers.embedding_cache import (
-    EmbeddingCache,
-    default_cache,
-    graph_fingerprint,
-)
+from shared.solvers.embedding_cache import EmbeddingCache, default_cache
 from shared.solvers.packing import PackedCalls, copies
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 from shared.solvers.qpu_settings import chain_strength, reverse_anneal
+from shared.solvers.structure_keys import graph_fingerprint
 from shared.solvers.timing_model import qpu_access_seconds
 
 log = logging.getLogger(__name__)

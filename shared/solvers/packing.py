@@ -25,13 +25,10 @@ import numpy as np
 from shared.config import get_settings
 from shared.solvers.base import SolverError, SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
-from shared.solvers.embedding_cache import (
-    Embedding,
-    EmbeddingCache,
-    find_embedding,
-    structure_digest,
-)
+from shared.solvers.embedding_cache import EmbeddingCache
+from shared.solvers.embedding_search import Embedding, find_embedding
 from shared.solvers.params import MAX_BUNDLES_PER_CALL
+from shared.solvers.structure_keys import structure_digest
 
 log = logging.getLogger(__name__)
 

@@ -17,7 +17,6 @@ KNOWN_LAZY_CYCLES = [
         "shared.solvers.anneal",
         "shared.solvers.base",
         "shared.solvers.composites",
-        "shared.solvers.embedding_cache",
         "shared.solvers.params",
         "shared.solvers.plugins",
         "shared.solvers.registry",
