@@ -68,7 +68,7 @@ def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> st
     Returns
     -------
     str
-        The :func:`~shared.solvers.embedding_cache.structure_digest` (cached per shape).
+        The :func:`~shared.solvers.structure_keys.structure_digest` (cached per shape).
     """
     return structure_digest(shape_bqm(encoding, height, width, candidates))
 

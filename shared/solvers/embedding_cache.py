@@ -305,7 +305,7 @@ class EmbeddingCache:
         Parameters
         ----------
         key : str
-            The level shape's key (``qpu_time.auto_width_key``).
+            The level shape's key (``bundle_shapes.auto_width_key``).
         width : int or None
             The chosen segment width in pixels; None for whole rows.
         """
