@@ -19,7 +19,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from api.serve_cli import cmd_api, cmd_demo, cmd_serve
 from shared.cli import EXIT_INTERRUPTED
@@ -35,6 +38,12 @@ from shared.cli_options import (
 )
 from shared.config import MatchConfig
 from workers import cli as worker_cli
+
+if TYPE_CHECKING:
+    from api.client import Client
+
+#: Where the commands' API key comes from, as their messages name it.
+KEY_OPTION = "the --key option"
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -162,20 +171,36 @@ def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None
 # --- submit ----------------------------------------------------------------------------------
 
 
-def cmd_submit(args: argparse.Namespace) -> int:
+@contextmanager
+def _api_client(args: argparse.Namespace, hint: str = "", **options: Any) -> Iterator[Client]:
+    """A client of the API the settings options name, closed at the end; what it raises
+    (``ClientError``) ends the command with its message and ``hint``."""
     from api.client import Client, ClientError
 
-    config_from_args(args)  # refuse bad options before uploading anything
-    params = match_params(args)
-    url = settings_from_args(args).api_url
-    files = [Path(args.left), Path(args.right)]
-    if args.ground_truth:
-        files.append(Path(args.ground_truth))
+    client = Client(settings_from_args(args).api_url, key=args.key, **options)
+    try:
+        yield client
+    except ClientError as error:
+        raise CommandError(f"{error}{hint}") from None
+    finally:
+        client.close()
+
+
+def _existing(paths: list[str]) -> list[Path]:
+    """The command's input files, refused with a message when one is missing."""
+    files = [Path(path) for path in paths]
     for path in files:
         if not path.is_file():
             raise CommandError(f"{path}: no such file")
-    client = Client(url, key=args.key, key_source="the --key option")
-    try:
+    return files
+
+
+def cmd_submit(args: argparse.Namespace) -> int:
+    config_from_args(args)  # refuse bad options before uploading anything
+    params = match_params(args)
+    url = settings_from_args(args).api_url
+    files = _existing([args.left, args.right] + ([args.ground_truth] if args.ground_truth else []))
+    with _api_client(args, key_source=KEY_OPTION) as client:
         job = client.submit(
             files[0].read_bytes(),
             files[1].read_bytes(),
@@ -199,38 +224,20 @@ def cmd_submit(args: argparse.Namespace) -> int:
             return 0
         print(f"job {job['id']} {job['state']}", file=sys.stderr)
         return _follow(client, job["id"], args, shown)
-    except ClientError as error:
-        raise CommandError(str(error)) from None
-    finally:
-        client.close()
 
 
 def cmd_wait(args: argparse.Namespace) -> int:
     """``qhsm wait JOB``: the progress of a job submitted earlier, then its result."""
-    from api.client import Client, ClientError
-
-    client = Client(settings_from_args(args).api_url, key=args.key, key_source="the --key option")
-    try:
+    with _api_client(args, key_source=KEY_OPTION) as client:
         shown: set[str] = set()
         _print_warnings(client.status(args.job), shown)
         return _follow(client, args.job, args, shown)
-    except ClientError as error:
-        raise CommandError(str(error)) from None
-    finally:
-        client.close()
 
 
 def cmd_cancel(args: argparse.Namespace) -> int:
     """``qhsm cancel JOB``: stop a queued or running job (its running tasks are killed)."""
-    from api.client import Client, ClientError
-
-    client = Client(settings_from_args(args).api_url, key=args.key, key_source="the --key option")
-    try:
+    with _api_client(args, key_source=KEY_OPTION) as client:
         status = client.cancel(args.job)
-    except ClientError as error:
-        raise CommandError(str(error)) from None
-    finally:
-        client.close()
     if args.json:
         print(json.dumps(status, indent=2))
     else:
@@ -309,29 +316,18 @@ def _follow(client, job_id: str, args: argparse.Namespace, shown: set[str]) -> i
 def cmd_estimate(args: argparse.Namespace) -> int:
     """The service's estimate (the one its 403 uses), or with ``--local`` this process's."""
     config = config_from_args(args)
-    files = [Path(args.left), Path(args.right)]
-    for path in files:
-        if not path.is_file():
-            raise CommandError(f"{path}: no such file")
+    files = _existing([args.left, args.right])
     if args.local:
         result = _local_estimate(config, files)
     else:
-        from api.client import Client, ClientError
-
-        url = settings_from_args(args).api_url
-        client = Client(url, key=args.key)
         params = match_params(args)
-        try:
+        with _api_client(args, hint=" (or use --local)") as client:
             result = client.estimate(
                 files[0].read_bytes(),
                 files[1].read_bytes(),
                 params,
                 names=(files[0].name, files[1].name),
             )
-        except ClientError as error:
-            raise CommandError(f"{error} (or use --local)") from None
-        finally:
-            client.close()
     if args.json:
         print(json.dumps(result, indent=2))
     else:

@@ -27,11 +27,11 @@ from shared.bench.generalisation import (
     DEFAULT_VARIANTS,
     VARIANTS,
     Options,
-    markdown,
     named_variants,
     parse_variant,
     run_benchmark,
 )
+from shared.bench.generalisation_report import markdown
 from shared.cli_options import model_option
 from shared.config import MatchConfig
 from shared.datasets import default_middlebury_dir

@@ -37,24 +37,10 @@ AUTO_ENCODING = "auto"
 
 
 def cmd_match(args: argparse.Namespace) -> int:
-    """``qhsm match``: run the pipeline on a stereo pair in this process and save the disparity map.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The ``match`` options: ``left``, ``right``, ``output`` (.pfm, .png or .npy), the
-        ``MatchConfig`` options, ``preview``, ``json`` and ``processes``.
-
-    Returns
-    -------
-    int
-        0 on success.
-
-    Raises
-    ------
-    CommandError
-        When the solver is not available here or the output suffix is not supported.
-    """
+    """``qhsm match``: run the pipeline on the pair ``left``, ``right`` in this process and save
+    the disparity map to ``output`` (.pfm, .png or .npy), with the ``MatchConfig`` options,
+    ``preview``, ``json`` and ``processes``; 0 on success. A solver not available here or an
+    unsupported output suffix is a ``CommandError``."""
     from shared.cli_options import CommandError, config_from_args
     from shared.images import load_pair, preview_png, save_disparity
     from shared.pipeline import run_pipeline
@@ -93,19 +79,9 @@ def cmd_match(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    """``qhsm eval``: print a disparity map's RMSE and bad-pixel percentage against ground truth.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``disparity``, ``ground_truth``, ``scale`` (stored value per pixel of disparity),
-        ``border`` (ignored frame, pixels) and ``mask``.
-
-    Returns
-    -------
-    int
-        0; the scores go to stdout as JSON.
-    """
+    """``qhsm eval``: print the RMSE and bad-pixel percentage of the map ``disparity`` against
+    ``ground_truth`` (``scale``: stored value per pixel of disparity; ``border``: ignored frame,
+    pixels; ``mask``) as JSON; 0."""
     from shared.images import load_disparity, load_disparity_values, load_mask
     from shared.metrics import evaluate
 
@@ -118,18 +94,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_solvers(args: argparse.Namespace) -> int:
-    """``qhsm solvers``: list every registered solver and whether it can run here.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        Its ``json`` switch selects JSON rows over a table.
-
-    Returns
-    -------
-    int
-        0 (unavailable solvers are listed, not an error).
-    """
+    """``qhsm solvers``: list every registered solver and whether it can run here, as a table
+    or (``json``) JSON rows; 0, unavailable solvers being listed, not an error."""
     from shared.solvers import get_solver, solver_names
 
     rows = []
@@ -155,19 +121,9 @@ def cmd_solvers(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    """``qhsm bench``: run the selected experiments on a dataset folder and write the results.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        The ``bench`` options (dataset, scenes, solvers, experiments, encoding, ``--param``, ...),
-        turned into ``BenchOptions``.
-
-    Returns
-    -------
-    int
-        0 once ``results.md`` and ``results.json`` are written under ``--out``.
-    """
+    """``qhsm bench``: run the selected experiments on a dataset folder (the ``bench`` options,
+    turned into ``BenchOptions``); 0 once ``results.md`` and ``results.json`` are written under
+    ``--out``."""
     from shared.bench import BenchOptions, parse_solver_params, run_bench, split_names
 
     options = BenchOptions(
@@ -193,23 +149,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def cmd_datasets_fetch(args: argparse.Namespace) -> int:
-    """``qhsm datasets fetch``: download a Middlebury set, checking the files' checksums.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``name`` of the set, target ``directory``, optional ``scenes`` and ``mirror``.
-
-    Returns
-    -------
-    int
-        0; files without a known checksum are reported on stderr.
-
-    Raises
-    ------
-    CommandError
-        When the download fails to connect.
-    """
+    """``qhsm datasets fetch``: download the Middlebury set ``name`` (optionally some ``scenes``,
+    from a ``mirror``) into ``directory``, checking the files' checksums; 0, files without a
+    known checksum reported on stderr. A download that cannot connect is a ``CommandError``."""
     from shared.bench import split_names
     from shared.cli_options import CommandError
     from shared.config import get_settings
@@ -237,19 +179,8 @@ def cmd_datasets_fetch(args: argparse.Namespace) -> int:
 
 
 def cmd_datasets_list(args: argparse.Namespace) -> int:
-    """``qhsm datasets list``: show the scenes below a folder and their evaluation protocol.
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        ``directory`` (a folder of datasets, a dataset folder or a scene folder) and the
-        ``json`` switch.
-
-    Returns
-    -------
-    int
-        0.
-    """
+    """``qhsm datasets list``: show the scenes below ``directory`` (a folder of datasets, a dataset
+    folder or a scene folder) and their evaluation protocol, as a table or (``json``) JSON; 0."""
     from shared.datasets import find_datasets
 
     rows = [

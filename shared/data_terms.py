@@ -131,6 +131,11 @@ def _shifted(image: np.ndarray, max_disparity: int) -> np.ndarray:
     return np.pad(image, pad, mode="edge")
 
 
+def _block_rows(view: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """Row numbers of the block [start, stop) and its HALO context, borders replicated."""
+    return np.clip(np.arange(start - HALO, stop + HALO), 0, view.shape[0] - 1)
+
+
 def ad_census_volume(
     left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
 ) -> np.ndarray:
@@ -153,8 +158,7 @@ def ad_census_volume(
     numpy.ndarray
         Costs (D + 1, stop - start, w), float32.
     """
-    height = left.shape[0]
-    rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
+    rows = _block_rows(left, start, stop)
     left_rows = left[rows].astype(np.float32) * np.float32(255.0)
     right_rows = right[rows].astype(np.float32) * np.float32(255.0)
     census_left = census(to_gray(left_rows))
@@ -178,25 +182,10 @@ def census_gradient_volume(
 ) -> np.ndarray:
     """Aggregated census + gradient costs (D + 1, stop - start, w) float32 of rows [start, stop).
 
-    Colour is not read (gray views in, or colour views turned gray); rows outside the block are
-    read as context, as in :func:`ad_census_volume`.
-
-    Parameters
-    ----------
-    left, right : numpy.ndarray
-        Whole views, gray or BGR in [0, 1]; the rows around the block are context.
-    max_disparity : int
-        D: the volume holds the disparities 0..D.
-    start, stop : int
-        The block of rows costed.
-
-    Returns
-    -------
-    numpy.ndarray
-        Costs (D + 1, stop - start, w), float32.
+    Colour is not read (gray views in, or colour views turned gray); arguments and context rows
+    as in :func:`ad_census_volume`.
     """
-    height = left.shape[0]
-    rows = np.clip(np.arange(start - HALO, stop + HALO), 0, height - 1)
+    rows = _block_rows(left, start, stop)
     gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
     gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
     census_left = census(gray_left)
@@ -266,24 +255,9 @@ VOLUMES: dict[str, VolumeFunction] = {
 def cost_volume(
     data_term: str, left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
 ) -> np.ndarray:
-    """The cost volume of rows [start, stop) under the named data term (:data:`VOLUMES`).
-
-    Parameters
-    ----------
-    data_term : str
-        A :class:`shared.config.DataTerm` value.
-    left, right : numpy.ndarray
-        Whole views, gray or BGR in [0, 1].
-    max_disparity : int
-        D: the volume holds the disparities 0..D.
-    start, stop : int
-        The block of rows costed.
-
-    Returns
-    -------
-    numpy.ndarray
-        Costs (D + 1, stop - start, w).
-    """
+    """The cost volume (D + 1, stop - start, w) of rows [start, stop) under the
+    :class:`shared.config.DataTerm` named ``data_term`` (:data:`VOLUMES`); the other arguments
+    as in :func:`ad_census_volume`."""
     return VOLUMES[data_term](left, right, max_disparity, start, stop)
 
 

@@ -167,29 +167,11 @@ def mrf_costs(
     regularizer: Regularizer,
     vertical: bool = True,
 ) -> Costs:
-    """The cost arrays of a block of rows from its unary term and its gray ``guide`` image
-    (whose steps decide where the smoothness weight drops to m). Without ``vertical`` the
-    vertical edges are left at zero: single-row bundles never read them.
-
-    Parameters
-    ----------
-    unary : numpy.ndarray
-        Data costs (h, w, K).
-    candidates : numpy.ndarray
-        Disparities (h, w, K) the labels stand for.
-    guide : numpy.ndarray
-        Gray rows (h, w) in [0, 1].
-    level : LevelConfig
-        The level's regulariser parameters.
-    regularizer : Regularizer
-        ``none``, ``linear`` or ``truncated``.
-    vertical : bool, optional
-        Compute the vertical edges' costs (default) or leave them zero.
-
-    Returns
-    -------
-    Costs
-        Unary and pairwise costs of the block.
+    """The unary and pairwise :class:`Costs` of a block of rows: data costs ``unary`` (h, w, K)
+    of the disparities ``candidates`` (h, w, K), and the smoothness of ``regularizer`` with the
+    ``level``'s parameters, its weight dropping to m where the gray ``guide`` (h, w) in [0, 1]
+    steps. Without ``vertical`` the vertical edges are left at zero: single-row bundles never read
+    them.
     """
     candidates = np.asarray(candidates, dtype=np.int32)
     step_h = np.abs(guide[:, 1:] - guide[:, :-1])[:, :, None, None]

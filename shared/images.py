@@ -58,23 +58,8 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
 
 
 def load_view(path: str | Path) -> np.ndarray:
-    """Read an image file as a float32 view in [0, 1], colour kept (see :func:`decode_image`).
-
-    Parameters
-    ----------
-    path : str or Path
-        The image file.
-
-    Returns
-    -------
-    numpy.ndarray
-        The view, as from :func:`decode_image`.
-
-    Raises
-    ------
-    ImageError
-        If the file is missing or not a usable image.
-    """
+    """Read the image file ``path`` as a float32 view in [0, 1], colour kept, as
+    :func:`decode_image` does; a missing or unusable file is an :class:`ImageError`."""
     path = Path(path)
     if not path.is_file():
         raise ImageError(f"{path}: no such file")
@@ -82,18 +67,8 @@ def load_view(path: str | Path) -> np.ndarray:
 
 
 def load_image(path: str | Path) -> np.ndarray:
-    """Read an image file as float32 grayscale in [0, 1].
-
-    Parameters
-    ----------
-    path : str or Path
-        Any image file :func:`load_view` reads.
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w) float32 in [0, 1].
-    """
+    """Read the image file ``path`` (any :func:`load_view` reads) as (h, w) float32 grayscale in
+    [0, 1]."""
     return to_gray(load_view(path))
 
 
@@ -201,46 +176,17 @@ def check_pair(
 
 
 def load_pair(left: str | Path, right: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a rectified stereo pair as two float32 views of the same size (colour kept).
-
-    Parameters
-    ----------
-    left, right : str or Path
-        The two image files.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        ``(left, right)`` views, both colour or both gray.
-
-    Raises
-    ------
-    ImageError
-        If a file is missing or unusable, or the sizes differ.
-    """
+    """Read the rectified stereo pair ``left``, ``right`` as two float32 views of the same size,
+    both colour or both gray; a missing or unusable file, or different sizes, are an
+    :class:`ImageError`."""
     left_image, right_image = load_view(left), load_view(right)
     check_pair(left_image, right_image, (str(left), str(right)))
     return as_pair_of_same_kind(left_image, right_image)
 
 
 def load_mask(path: str | Path) -> np.ndarray:
-    """Read a mask (palette PNGs decoded through their palette); True where the value is > 0.
-
-    Parameters
-    ----------
-    path : str or Path
-        The mask image.
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w) bool.
-
-    Raises
-    ------
-    ImageError
-        If the file cannot be read as an image.
-    """
+    """Read the mask image ``path`` as (h, w) bool, True where the value is > 0 (palette PNGs
+    decoded through their palette); an unreadable file is an :class:`ImageError`."""
     raw = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if raw is None:
         raise ImageError(f"{path}: not a readable mask image")

@@ -125,26 +125,11 @@ def survey(
 def level_widths(
     config: MatchConfig, shape: tuple[int, int], max_disparity: int, cache=None
 ) -> list[int | None]:
-    """Each level's segment width as the estimate assumes it (None: whole rows).
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The job's configuration.
-    shape : (int, int)
-        Image height and width, pixels.
-    max_disparity : int
-        The resolved maximum disparity.
-    cache : EmbeddingCache, optional
-        Where ``auto`` widths chosen before are looked up.
-
-    Returns
-    -------
-    list of int or None
-        One per level, coarsest first.
-    """
+    """Each level's segment width as the estimate assumes it (None: whole rows), coarsest
+    first, for images of ``shape`` (height, width); ``cache`` is where ``auto`` widths chosen
+    before are looked up."""
     from shared.pyramid import level_shape, plan
-    from shared.solvers.qpu_time import segment_width
+    from shared.solvers.bundle_shapes import segment_width
 
     return [
         segment_width(
@@ -179,7 +164,7 @@ def job_residual(
     -------
     list of LevelResidual or None
     """
-    from shared.solvers.qpu_time import meter_of
+    from shared.solvers.timing_model import meter_of
 
     if meter_of(config.solver) is None or config.solver_params.get("preprocess") == "none":
         return None

@@ -3,9 +3,11 @@
 Modules, one job each:
 
 * :mod:`~shared.datasets.scenes`: scene discovery: finding scenes and dataset folders on disk in
-  the layouts we know (ours, Middlebury 2001/2003/2005/2006/2014, KITTI), and each scene's
-  evaluation protocol (ground-truth scale, ignored border, masks, non-occluded pixels, disparity
-  range; the PROVENANCE files' figures for the known scenes and datasets);
+  the layouts we know (ours, Middlebury 2001/2003/2005/2006/2014, KITTI), each with its files,
+  masks and non-occluded pixels;
+* :mod:`~shared.datasets.protocols`: the evaluation protocols (ground-truth scale, ignored
+  border, masks, disparity range; the PROVENANCE files' figures for the known scenes and
+  datasets), the layouts, and how a scene's protocol is resolved;
 * :mod:`~shared.datasets.download`: ``qhsm datasets fetch``: the registry of known Middlebury
   files with their sha256 and URLs, downloaded, verified and retried through pooch.
 """
@@ -18,7 +20,7 @@ from shared.datasets.download import (
     RemoteFile,
     fetch,
 )
-from shared.datasets.scenes import (
+from shared.datasets.protocols import (
     DEFAULT_MAX_DISPARITY,
     GT_CONSISTENCY_TOLERANCE,
     KNOWN_DATASETS,
@@ -30,6 +32,8 @@ from shared.datasets.scenes import (
     MASKS,
     DatasetConvention,
     Layout,
+)
+from shared.datasets.scenes import (
     Scene,
     confirmed_by_right_view,
     default_middlebury_dir,

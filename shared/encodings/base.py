@@ -1,12 +1,19 @@
-"""What every QUBO codec shares: the decoded result and the repair of invalid pixels."""
+"""What every QUBO codec shares: penalty bounds, the BQM assembly, the decoded result and the
+repair of invalid pixels."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from shared.config import Rectifier
 from shared.energy import Costs
+
+if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+    import dimod
 
 #: Margin added to a provably sufficient penalty weight: relative part and absolute floor.
 PENALTY_MARGIN = 1e-3
@@ -111,3 +118,78 @@ def pixel_index(shape: tuple[int, int]) -> np.ndarray:
         0 .. h*w - 1 as an (h, w) array.
     """
     return np.arange(shape[0] * shape[1]).reshape(shape)
+
+
+def rectified_penalty(
+    own: np.ndarray,
+    edges: tuple[np.ndarray, np.ndarray],
+    reduce: Callable[..., np.ndarray],
+    per_pixel: Callable[[np.ndarray], np.ndarray],
+    rectifier: Rectifier,
+) -> np.ndarray:
+    """The penalty weight of every pixel (h, w), strictly above a codec's sufficient bound.
+
+    The bound is ``per_pixel`` of the pixel's ``own`` (h, w, n) terms plus, from each of its
+    four neighbours, the edge term ``reduce(matrix, axis=...)`` folds to p's n variables (the
+    (n, n) ``edges`` matrices, horizontal then vertical, hold the first pixel's variables along
+    axis -2). With the ``global`` rectifier every pixel gets the largest weight.
+    """
+    edge_h, edge_v = edges
+    total = own
+    if edge_h.size:
+        total[:, :-1] += reduce(edge_h, axis=3)  # p's right neighbour
+        total[:, 1:] += reduce(edge_h, axis=2)  # p's left neighbour
+    if edge_v.size:
+        total[:-1] += reduce(edge_v, axis=3)
+        total[1:] += reduce(edge_v, axis=2)
+    weights = with_margin(per_pixel(total))
+    if rectifier is Rectifier.GLOBAL:
+        weights = np.full_like(weights, weights.max())
+    return weights
+
+
+def _edge_terms(first: np.ndarray, second: np.ndarray, weights: np.ndarray):
+    """Quadratic terms x_{p,i} x_{q,j} weighted weights[..., i, j] (p from first, q from second)."""
+    rows = np.broadcast_to(first[..., :, None], weights.shape)
+    cols = np.broadcast_to(second[..., None, :], weights.shape)
+    return rows.ravel(), cols.ravel(), weights.ravel()
+
+
+def quadratic_model(
+    linear: np.ndarray,
+    penalty: tuple[np.ndarray, np.ndarray, np.ndarray],
+    index: np.ndarray,
+    edges: tuple[np.ndarray, np.ndarray],
+    offset: float,
+) -> dimod.BinaryQuadraticModel:
+    """A codec's binary BQM from arrays (no per-term Python loop).
+
+    Parameters
+    ----------
+    linear : numpy.ndarray
+        Linear coefficients in variable order.
+    penalty : tuple of numpy.ndarray
+        The within-pixel penalty terms (rows, cols, weights).
+    index : numpy.ndarray
+        Variable numbers (h, w, n).
+    edges : tuple of numpy.ndarray
+        The (n, n) coupling matrices of the horizontal and of the vertical edges.
+    offset : float
+        The BQM's constant.
+
+    Returns
+    -------
+    dimod.BinaryQuadraticModel
+    """
+    height, width = index.shape[:2]
+    parts = [penalty]
+    if width > 1:
+        parts.append(_edge_terms(index[:, :-1], index[:, 1:], edges[0]))
+    if height > 1:
+        parts.append(_edge_terms(index[:-1], index[1:], edges[1]))
+    rows, cols, data = (np.concatenate(column) for column in zip(*parts, strict=True))
+    import dimod
+
+    return dimod.BinaryQuadraticModel.from_numpy_vectors(
+        linear, (rows, cols, data), offset, dimod.BINARY
+    )

@@ -37,45 +37,22 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from shared.config import Rectifier
-from shared.encodings.base import Decoded, pixel_index, repair, with_margin
+from shared.encodings.base import Decoded, pixel_index, quadratic_model, rectified_penalty, repair
 from shared.energy import Costs
 
-if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+if TYPE_CHECKING:
     import dimod
 
 NAME = "domain-wall"
 
 
 def variables_per_pixel(num_labels: int) -> int:
-    """Binary variables per pixel: one per wall position, K - 1.
-
-    Parameters
-    ----------
-    num_labels : int
-        Candidates K per pixel (K - 1 wall bits each).
-
-    Returns
-    -------
-    int
-    """
+    """Binary variables per pixel for K candidates: one per wall position, K - 1."""
     return num_labels - 1
 
 
 def variable_index(shape: tuple[int, int], num_labels: int) -> np.ndarray:
-    """Variable numbers (h, w, K-1) of b_1..b_{K-1}.
-
-    Parameters
-    ----------
-    shape : tuple of int
-        (height, width) of the bundle's pixels.
-    num_labels : int
-        Candidates K per pixel (K - 1 wall bits each).
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w, K - 1), pixel-major.
-    """
+    """Variable numbers (h, w, K - 1) of b_1..b_{K-1} of a (height, width) bundle, pixel-major."""
     bits = num_labels - 1
     return pixel_index(shape)[:, :, None] * bits + np.arange(bits)
 
@@ -108,46 +85,21 @@ def _terms(costs: Costs):
 def _penalty_weights(
     linear: np.ndarray, m_h: np.ndarray, m_v: np.ndarray, rectifier: Rectifier
 ) -> np.ndarray:
-    """lambda_p (h, w) from the docstring's bound."""
-    negative = -linear
-    if m_h.size:
-        neg_h = np.maximum(0.0, -m_h[..., 1:, 1:])
-        negative[:, :-1] += neg_h.sum(axis=3)  # p's bits are rows of M with its right neighbour
-        negative[:, 1:] += neg_h.sum(axis=2)  # and columns of M with its left neighbour
-    if m_v.size:
-        neg_v = np.maximum(0.0, -m_v[..., 1:, 1:])
-        negative[:-1] += neg_v.sum(axis=3)
-        negative[1:] += neg_v.sum(axis=2)
-    lam = with_margin(np.maximum(0.0, negative).sum(axis=2))
-    if rectifier is Rectifier.GLOBAL:
-        lam = np.full_like(lam, lam.max())
-    return lam
+    """lambda_p (h, w) from the docstring's bound (p's bits are rows of M with its right or
+    lower neighbour and columns of M with its left or upper one)."""
+    edges = (np.maximum(0.0, -m_h[..., 1:, 1:]), np.maximum(0.0, -m_v[..., 1:, 1:]))
+    return rectified_penalty(-linear, edges, np.sum, _positive_sum, rectifier)
+
+
+def _positive_sum(negative: np.ndarray) -> np.ndarray:
+    return np.maximum(0.0, negative).sum(axis=2)
 
 
 def rectifier_weights(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> np.ndarray:
-    """The wall-breaking penalty lambda_p (h, w) of every pixel.
-
-    Parameters
-    ----------
-    costs : Costs
-        The bundle's MRF.
-    rectifier : Rectifier, optional
-        ``local`` (per pixel) or ``global`` (the largest for all).
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w) float64, above the module docstring's bound.
-    """
+    """The wall-breaking penalty lambda_p (h, w) float64 of every pixel, above the module
+    docstring's bound: per pixel (``local``) or the largest for all (``global``)."""
     linear, _, m_h, m_v = _terms(costs)
     return _penalty_weights(linear, m_h, m_v, rectifier)
-
-
-def _edge_terms(first: np.ndarray, second: np.ndarray, m: np.ndarray):
-    quad = m[..., 1:, 1:]
-    rows = np.broadcast_to(first[..., :, None], quad.shape)
-    cols = np.broadcast_to(second[..., None, :], quad.shape)
-    return rows.ravel(), cols.ravel(), quad.ravel()
 
 
 def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.BinaryQuadraticModel:
@@ -181,54 +133,24 @@ def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.Binary
     # Penalty lambda (b_{i+1} - b_i b_{i+1}), i = 1..K-2 (array positions 0..K-3).
     linear = linear.copy()
     linear[:, :, 1:] += lam[:, :, None]
-    parts = [
-        (index[:, :, :-1].ravel(), index[:, :, 1:].ravel(), np.repeat(-lam.ravel(), labels - 2))
-    ]
-    if width > 1:
-        parts.append(_edge_terms(index[:, :-1], index[:, 1:], m_h))
-    if height > 1:
-        parts.append(_edge_terms(index[:-1], index[1:], m_v))
-    rows, cols, data = (np.concatenate(column) for column in zip(*parts, strict=True))
-    import dimod
-
-    return dimod.BinaryQuadraticModel.from_numpy_vectors(
-        linear.ravel(), (rows, cols, data), offset, dimod.BINARY
+    penalty = (
+        index[:, :, :-1].ravel(),
+        index[:, :, 1:].ravel(),
+        np.repeat(-lam.ravel(), labels - 2),
     )
+    edges = (m_h[..., 1:, 1:], m_v[..., 1:, 1:])
+    return quadratic_model(linear.ravel(), penalty, index, edges, offset)
 
 
 def encode_labels(labels: np.ndarray, num_labels: int) -> np.ndarray:
-    """The wall bits (in variable order) of a labelling: b_i = 1 for i <= label.
-
-    Parameters
-    ----------
-    labels : numpy.ndarray
-        Candidate index (h, w) of every pixel.
-    num_labels : int
-        Candidates K per pixel (K - 1 wall bits each).
-
-    Returns
-    -------
-    numpy.ndarray
-        h * w * (K - 1) bits, int8.
-    """
+    """The wall bits (h * w * (K - 1), int8, in variable order) of a labelling (h, w):
+    b_i = 1 for i <= label."""
     return (labels[:, :, None] >= np.arange(1, num_labels)).astype(np.int8).ravel()
 
 
 def decode(costs: Costs, sample: np.ndarray) -> Decoded:
-    """Labels from a sample in variable order; broken walls are repaired given valid
-    neighbours.
-
-    Parameters
-    ----------
-    costs : Costs
-        The bundle's MRF: its shape, and its costs to repair broken walls.
-    sample : numpy.ndarray
-        h * w * (K - 1) bits in variable order.
-
-    Returns
-    -------
-    Decoded
-    """
+    """Labels from h * w * (K - 1) bits in variable order; broken walls are repaired given
+    valid neighbours."""
     height, width, labels = costs.unary.shape
     bits = np.asarray(sample).reshape(height, width, labels - 1)
     valid = np.all(bits[:, :, :-1] >= bits[:, :, 1:], axis=2)

@@ -35,85 +35,38 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from shared.config import Rectifier
-from shared.encodings.base import Decoded, pixel_index, repair, with_margin
+from shared.encodings.base import Decoded, pixel_index, quadratic_model, rectified_penalty, repair
 from shared.energy import Costs
 
-if TYPE_CHECKING:  # dimod is imported where a BQM is built, not by the exact row path
+if TYPE_CHECKING:
     import dimod
 
 NAME = "one-hot"
 
 
 def variables_per_pixel(num_labels: int) -> int:
-    """Binary variables per pixel: one indicator per candidate, K.
-
-    Parameters
-    ----------
-    num_labels : int
-        Candidates K per pixel.
-
-    Returns
-    -------
-    int
-    """
+    """Binary variables per pixel for K candidates: one indicator each, K."""
     return num_labels
 
 
 def variable_index(shape: tuple[int, int], num_labels: int) -> np.ndarray:
-    """Variable numbers (h, w, K): pixel-major, then label.
-
-    Parameters
-    ----------
-    shape : tuple of int
-        (height, width) of the bundle.
-    num_labels : int
-        Candidates K per pixel.
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w, K) variable numbers.
-    """
+    """Variable numbers (h, w, K) of a (height, width) bundle: pixel-major, then label."""
     return pixel_index(shape)[:, :, None] * num_labels + np.arange(num_labels)
 
 
 def rectifier_weights(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> np.ndarray:
-    """chi_p (h, w) from the docstring's bound.
-
-    Parameters
-    ----------
-    costs : Costs
-        The bundle's MRF.
-    rectifier : Rectifier, optional
-        ``local`` (chi per pixel) or ``global`` (the largest chi for every pixel).
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w) float64.
-    """
-    worst = costs.unary.copy()
-    if costs.pair_h.size:
-        worst[:, :-1] += costs.pair_h.max(axis=3)  # p's right neighbour
-        worst[:, 1:] += costs.pair_h.max(axis=2)  # p's left neighbour
-    if costs.pair_v.size:
-        worst[:-1] += costs.pair_v.max(axis=3)
-        worst[1:] += costs.pair_v.max(axis=2)
-    chi = with_margin(worst.min(axis=2))
-    if rectifier is Rectifier.GLOBAL:
-        chi = np.full_like(chi, chi.max())
-    return chi
+    """chi_p (h, w) float64 from the docstring's bound: per pixel (``local``) or the largest
+    for every pixel (``global``)."""
+    edges = (costs.pair_h, costs.pair_v)
+    return rectified_penalty(costs.unary.copy(), edges, np.max, _cheapest, rectifier)
 
 
-def _pair_terms(first: np.ndarray, second: np.ndarray, pair: np.ndarray):
-    """Quadratic terms x_{p,l} x_{q,s} with weight pair[..., l, s] (p from first, q from second)."""
-    rows = np.broadcast_to(first[..., :, None], pair.shape)
-    cols = np.broadcast_to(second[..., None, :], pair.shape)
-    return rows.ravel(), cols.ravel(), pair.ravel()
+def _cheapest(worst: np.ndarray) -> np.ndarray:
+    return worst.min(axis=2)
 
 
 def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.BinaryQuadraticModel:
-    """The QUBO of one bundle, built from arrays (no per-term Python loop).
+    """The QUBO of one bundle, built from arrays.
 
     Parameters
     ----------
@@ -134,56 +87,23 @@ def encode(costs: Costs, rectifier: Rectifier = Rectifier.LOCAL) -> dimod.Binary
 
     linear = (costs.unary - chi[:, :, None]).ravel()
     upper_l, upper_s = np.triu_indices(labels, k=1)
-    penalty_rows = index[:, :, upper_l].ravel()
-    penalty_cols = index[:, :, upper_s].ravel()
-    penalty_data = np.repeat(2.0 * chi.ravel(), upper_l.size)
-
-    parts = [(penalty_rows, penalty_cols, penalty_data)]
-    if width > 1:
-        parts.append(_pair_terms(index[:, :-1], index[:, 1:], costs.pair_h))
-    if height > 1:
-        parts.append(_pair_terms(index[:-1], index[1:], costs.pair_v))
-    rows, cols, data = (np.concatenate(column) for column in zip(*parts, strict=True))
-    import dimod
-
-    return dimod.BinaryQuadraticModel.from_numpy_vectors(
-        linear, (rows, cols, data), float(chi.sum()), dimod.BINARY
+    penalty = (
+        index[:, :, upper_l].ravel(),
+        index[:, :, upper_s].ravel(),
+        np.repeat(2.0 * chi.ravel(), upper_l.size),
     )
+    return quadratic_model(linear, penalty, index, (costs.pair_h, costs.pair_v), float(chi.sum()))
 
 
 def encode_labels(labels: np.ndarray, num_labels: int) -> np.ndarray:
-    """The one-hot bits (in variable order) of a labelling (h, w).
-
-    Parameters
-    ----------
-    labels : numpy.ndarray
-        Candidate index (h, w) of every pixel.
-    num_labels : int
-        Candidates K per pixel.
-
-    Returns
-    -------
-    numpy.ndarray
-        h * w * K indicator bits, int8.
-    """
+    """The one-hot bits (h * w * K, int8, in variable order) of a labelling (h, w) of K
+    candidates."""
     return (labels[:, :, None] == np.arange(num_labels)).astype(np.int8).ravel()
 
 
 def decode(costs: Costs, sample: np.ndarray) -> Decoded:
-    """Labels from a sample in variable order; pixels with zero or several active bits are
-    repaired to their cheapest label given their valid neighbours.
-
-    Parameters
-    ----------
-    costs : Costs
-        The bundle's MRF (for shapes and repairs).
-    sample : numpy.ndarray
-        h * w * K bits in variable order.
-
-    Returns
-    -------
-    Decoded
-    """
+    """Labels from h * w * K bits in variable order; pixels with zero or several active bits are
+    repaired to their cheapest label given their valid neighbours."""
     height, width, labels = costs.unary.shape
     bits = np.asarray(sample).reshape(height, width, labels)
     valid = bits.sum(axis=2) == 1

@@ -21,23 +21,7 @@ import numpy as np
 
 from shared.solvers.base import SolverError
 from shared.solvers.composites import PREPROCESSORS, RoofDualityComposite, SolverComposite
-
-#: Named SA settings. ``default`` was chosen by measurement (benchmarks/solvers.py); ``paper`` is
-#: the setting of the 3DV 2024 paper (500 reads, the sampler's default 1000 sweeps and schedule).
-SA_PRESETS: dict[str, dict[str, Any]] = {
-    "default": {"num_reads": 20, "num_sweeps": 1000},
-    "fast": {"num_reads": 10, "num_sweeps": 500},
-    "quality": {"num_reads": 50, "num_sweeps": 5000},
-    # a warm start (the coarser level's estimate) only needs refining: a short, cold anneal
-    # then a steepest-descent polish (Tsukuba, accurate preset: RMSE within 1 % of exact)
-    "warm": {"num_reads": 2, "num_sweeps": 200, "polish": True},
-    "paper": {
-        "num_reads": 500,
-        "num_sweeps": 1000,
-        "beta_range": "sampler-default",
-        "preprocess": "none",
-    },
-}
+from shared.solvers.params import SA_PRESETS
 
 #: Biases smaller than this fraction of the largest one count as zero for the schedule.
 BIAS_TOLERANCE = 1e-6

@@ -21,6 +21,12 @@ import numpy as np
 
 from shared.config import MatchConfig
 from shared.energy import Costs
+from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always were)
+    SolverError,
+    SolverUnavailable,
+    TransientSolverError,
+    bad_parameters,
+)
 
 
 @dataclass(frozen=True)
@@ -45,38 +51,6 @@ class SolveResult:
     timing: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
     sampleset: dimod.SampleSet | None = None
-
-
-class SolverError(RuntimeError):
-    """A solver failed; the message says what is wrong and what to do. Not worth retrying."""
-
-
-class SolverUnavailable(SolverError):
-    """The solver cannot run here (missing token, licence or package)."""
-
-
-class TransientSolverError(SolverError):
-    """A failure worth retrying later (rate limit, timeout, solver offline)."""
-
-
-def bad_parameters(name: str, error: Exception) -> SolverError | None:
-    """``TypeError`` / ``ValueError`` from a sampler (bad parameters) as a ``SolverError`` naming
-    solver ``name``; None for any other error (it goes through unchanged).
-
-    Parameters
-    ----------
-    name : str
-        The solver's name, for the message.
-    error : Exception
-        What the sampler raised.
-
-    Returns
-    -------
-    SolverError or None
-    """
-    if isinstance(error, TypeError | ValueError):
-        return SolverError(f"{name}: invalid parameters: {error}")
-    return None
 
 
 def _declared(capability: str) -> property:

@@ -8,7 +8,7 @@ uniform torque compensation with the paper's prefactor 1.414, chains are resolve
 vote, and the sample set is resolved inside the call. D-Wave reports microseconds; we report
 seconds. The mock's own timing is a fixed demonstration value, so ``qpu-sim`` reports instead
 what D-Wave's published timing model says an Advantage QPU would take for the same embedding and
-parameters (:func:`shared.solvers.qpu_time.qpu_access_seconds`), marked ``simulated``; that is
+parameters (:func:`shared.solvers.timing_model.qpu_access_seconds`), marked ``simulated``; that is
 what the service charges for it.
 
 The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
@@ -34,46 +34,24 @@ from shared.solvers.base import (
     SolverUnavailable,
     TransientSolverError,
 )
+from shared.solvers.bundle_shapes import auto_width_key, shape_bqm
 from shared.solvers.composites import (
     EMBEDDING_INFO,
     EmbeddingCacheComposite,
     Reduction,
     reduce,
 )
-from shared.solvers.embedding_cache import (
-    EmbeddingCache,
-    default_cache,
-    graph_fingerprint,
-)
-from shared.solvers.packing import PackedCalls
+from shared.solvers.embedding_cache import EmbeddingCache, default_cache
+from shared.solvers.packing import PackedCalls, copies
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
+from shared.solvers.qpu_settings import chain_strength, reverse_anneal
+from shared.solvers.structure_keys import graph_fingerprint
+from shared.solvers.timing_model import qpu_access_seconds
 
 log = logging.getLogger(__name__)
 
-#: The paper's chain-strength prefactor for uniform torque compensation.
-CHAIN_STRENGTH_PREFACTOR = 1.414
-#: Reverse anneal used for warm starts on the QPU: back to s = 0.45, pause, forward again (us).
-WARM_START_SCHEDULE = [[0.0, 1.0], [5.0, 0.45], [15.0, 0.45], [20.0, 1.0]]
 MOCK_TOPOLOGY = ("pegasus", [16])
 TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION)"
-
-
-def chain_strength(bqm: dimod.BinaryQuadraticModel) -> float:
-    """Uniform torque compensation with prefactor 1.414 (Ocean's default rule, paper's value).
-
-    Parameters
-    ----------
-    bqm : dimod.BinaryQuadraticModel
-        The logical problem before embedding.
-
-    Returns
-    -------
-    float
-        Chain coupling strength, in the units of the BQM's biases.
-    """
-    from dwave.embedding.chain_strength import uniform_torque_compensation
-
-    return float(uniform_torque_compensation(bqm, prefactor=CHAIN_STRENGTH_PREFACTOR))
 
 
 def _seconds(timing: dict[str, Any]) -> dict[str, float]:
@@ -212,13 +190,7 @@ class _EmbeddedQPU(Sampler):
         settings = params
         if initial_states is not None:
             states, labels = dimod.as_samples(initial_states)
-            settings.update(
-                initial_state=dict(zip(labels, states[0].tolist(), strict=True)),
-                anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
-                reinitialize_state=True,
-            )
-            # the schedule sets the anneal's length; SAPI refuses both (the estimate's view)
-            settings.pop("annealing_time", None)
+            reverse_anneal(settings, dict(zip(labels, states[0].tolist(), strict=True)))
         # The mock's seed is sampler state, so simulated calls are serialised.
         with self._lock if self.simulated else contextlib.nullcontext():
             self._seed_sampler(composite.children[0], seed)
@@ -365,8 +337,6 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
         """``--bundle-width auto``: the widest row segment whose QUBO embeds on this solver's
         graph (None: whole rows), found once per shape and target and kept in the embedding
         cache together with that shape's embedding, which every such bundle then reuses."""
-        from shared.solvers.qpu_time import auto_width_key, shape_bqm
-
         base = self.sampler()
         width = self.cache.widest(
             lambda width: shape_bqm(str(encoding), height, width, candidates),
@@ -387,9 +357,6 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
         """Embed each bundle shape (rows, columns) of a level once, with its disjoint copies
         (:func:`~shared.solvers.packing.copies`), before its bundles fan out, so that no two
         workers compute the same embedding at the same time."""
-        from shared.solvers.packing import copies
-        from shared.solvers.qpu_time import shape_bqm
-
         try:
             composite = self.composite()
             for height, width in shapes:
@@ -440,8 +407,6 @@ class SimulatedQPUSolver(_SegmentsOnGraph):
     def _timing(self, info: dict, qubits: int, settings: dict[str, Any]) -> dict[str, float]:
         """What a real QPU would take for this embedding and these parameters (the model the
         estimates use), instead of the mock's fixed demonstration timing."""
-        from shared.solvers.qpu_time import qpu_access_seconds
-
         try:
             return {"qpu_access_time": qpu_access_seconds(qubits, settings)}
         except ValueError as error:  # what SAPI would refuse, e.g. a schedule and a time

@@ -15,32 +15,36 @@ A store is anything with ``get(key) -> str | None`` and ``set(key, value: str) -
 Next to each embedding the cache keeps its *size* (qubits, chains, longest chain) under a key made
 of the solver's name and the structure digest, so that QPU time can be estimated from the real
 embedding before any sampler (or network connection) exists, e.g. in the API at submit time.
-(About 310 lines of code; the rest is the numpydoc of the cache's keys, stores and search.)
+The keys are :mod:`shared.solvers.structure_keys`' and the search
+:mod:`shared.solvers.embedding_search`'; this module keeps what the search found.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
 import tempfile
 import threading
-import time
-from collections.abc import Callable, Hashable, Iterable
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
 
 import dimod
-import numpy as np
 
 from shared.config import get_settings
-from shared.solvers.base import SolverError
+from shared.solvers.embedding_search import Embedding, find_embedding, is_valid_on
+from shared.solvers.errors import SolverError
+from shared.solvers.structure_keys import (  # noqa: F401 (re-exported: the cache's keys)
+    graph_fingerprint,
+    size_key,
+    structure_digest,
+    structure_edges,
+    structure_key,
+)
 
 log = logging.getLogger(__name__)
-
-Embedding = dict[int, list[int]]
 
 
 @dataclass(frozen=True)
@@ -146,100 +150,6 @@ class DirectoryStore:
         os.replace(temporary, self.directory / f"{key}.json")
 
 
-def structure_edges(bqm: dimod.BinaryQuadraticModel) -> np.ndarray:
-    """Sorted (u < v) edge array (m, 2) of a BQM whose variables are integers.
-
-    Parameters
-    ----------
-    bqm : dimod.BinaryQuadraticModel
-        A BQM on the variables 0..n-1.
-
-    Returns
-    -------
-    numpy.ndarray
-        int64 array of shape (m, 2), one row per coupling, sorted by (u, v); (0, 2) when there is
-        none.
-    """
-    _, (rows, cols, _), *_ = bqm.to_numpy_vectors(variable_order=range(bqm.num_variables))
-    edges = np.stack([np.minimum(rows, cols), np.maximum(rows, cols)], axis=1).astype(np.int64)
-    if edges.size == 0:
-        return edges.reshape(0, 2)
-    return edges[np.lexsort((edges[:, 1], edges[:, 0]))]
-
-
-def graph_fingerprint(edges: Iterable[tuple[Hashable, Hashable]]) -> str:
-    """A short hash of a target graph's edge list (its working qubits and couplers).
-
-    Parameters
-    ----------
-    edges : iterable of (node, node)
-        The target graph's couplers as pairs of qubit numbers, in any order or orientation.
-
-    Returns
-    -------
-    str
-        The first 16 hex digits of the SHA-256 of the sorted, oriented edge array.
-    """
-    pairs = (tuple(sorted(edge)) for edge in edges)  # type: ignore[type-var]
-    array = np.array(sorted(pairs), dtype=np.int64)
-    return hashlib.sha256(array.tobytes()).hexdigest()[:16]
-
-
-def structure_digest(bqm: dimod.BinaryQuadraticModel) -> str:
-    """A hash of the BQM's graph (variable count and edges), independent of its biases.
-
-    Parameters
-    ----------
-    bqm : dimod.BinaryQuadraticModel
-        A bundle's QUBO on the variables 0..n-1.
-
-    Returns
-    -------
-    str
-        32 hex digits of the SHA-256 of the variable count and :func:`structure_edges`.
-    """
-    digest = hashlib.sha256()
-    digest.update(np.int64(bqm.num_variables).tobytes())
-    digest.update(structure_edges(bqm).tobytes())
-    return digest.hexdigest()[:32]
-
-
-def structure_key(bqm: dimod.BinaryQuadraticModel, target: str) -> str:
-    """Cache key of the BQM's graph on ``target`` (a target name plus its fingerprint).
-
-    Parameters
-    ----------
-    bqm : dimod.BinaryQuadraticModel
-        The BQM whose graph is to be embedded.
-    target : str
-        The target graph's name in cache keys (topology and :func:`graph_fingerprint`).
-
-    Returns
-    -------
-    str
-        ``"<target>-<structure digest>"``.
-    """
-    return f"{target}-{structure_digest(bqm)}"
-
-
-def size_key(solver: str, digest: str) -> str:
-    """Store key of the size of ``solver``'s embedding of the structure ``digest``.
-
-    Parameters
-    ----------
-    solver : str
-        Registry name of the solver that embedded the structure.
-    digest : str
-        The structure's :func:`structure_digest`.
-
-    Returns
-    -------
-    str
-        ``"size-<solver>-<digest>"``.
-    """
-    return f"size-{solver}-{digest}"
-
-
 def _encode(embedding: Embedding) -> str:
     return json.dumps({str(v): [int(q) for q in chain] for v, chain in embedding.items()})
 
@@ -324,7 +234,7 @@ class EmbeddingCache:
         stored = self.store.get(key)
         if stored is not None:
             embedding = _decode(stored)
-            if _is_valid(embedding, bqm, target_edges):
+            if is_valid_on(embedding, bqm, target_edges):
                 with self._lock:
                     self._memory[key] = embedding
                 self._record_size(solver, digest, embedding)
@@ -395,7 +305,7 @@ class EmbeddingCache:
         Parameters
         ----------
         key : str
-            The level shape's key (``qpu_time.auto_width_key``).
+            The level shape's key (``bundle_shapes.auto_width_key``).
         width : int or None
             The chosen segment width in pixels; None for whole rows.
         """
@@ -503,77 +413,6 @@ class EmbeddingCache:
             else:
                 failed = middle
         return fitted
-
-
-def _is_valid(embedding: Embedding, bqm, target_edges) -> bool:
-    from dwave.embedding import is_valid_embedding
-
-    if set(embedding) != set(bqm.variables):
-        return False
-    return is_valid_embedding(embedding, structure_edges(bqm).tolist(), target_edges)
-
-
-def find_embedding(
-    bqm: dimod.BinaryQuadraticModel,
-    target_edges: list[tuple[int, int]],
-    timeout: float,
-    seed: int = 0,
-) -> Embedding:
-    """minorminer's heuristic embedding, or a :class:`SolverError` that says what to change.
-
-    Parameters
-    ----------
-    bqm : dimod.BinaryQuadraticModel
-        The BQM on the variables 0..n-1 whose graph is embedded.
-    target_edges : list of (int, int)
-        Couplers of the QPU graph.
-    timeout : float
-        minorminer's time limit, seconds.
-    seed : int, default 0
-        minorminer's ``random_seed``.
-
-    Returns
-    -------
-    dict of int to list of int
-        Variable -> chain of qubits, one chain per variable.
-
-    Raises
-    ------
-    SolverError
-        If the BQM has more variables than the target has qubits, or no embedding is found in time.
-    """
-    import minorminer
-    import networkx as nx
-
-    qubits = len({qubit for edge in target_edges for qubit in edge})
-    if bqm.num_variables > qubits:
-        raise SolverError(
-            f"this bundle is too large for the QPU: {bqm.num_variables} variables, the QPU has "
-            f"{qubits} qubits; use a smaller bundle height, --encoding domain-wall, or a "
-            "coarser level"
-        )
-    source: nx.Graph = nx.Graph()
-    source.add_nodes_from(range(bqm.num_variables))
-    source.add_edges_from(structure_edges(bqm).tolist())
-    started = time.perf_counter()
-    embedding = minorminer.find_embedding(source, target_edges, timeout=timeout, random_seed=seed)
-    seconds = time.perf_counter() - started
-    if len(embedding) != bqm.num_variables:
-        raise SolverError(
-            f"no minor embedding of this bundle ({bqm.num_variables} variables, "
-            f"{source.number_of_edges()} couplings) onto the QPU graph found within "
-            f"{timeout:.0f} s (QHSM_EMBEDDING_TIMEOUT): use --encoding domain-wall (fewer "
-            "variables and couplings than one-hot), a smaller bundle height, or a coarser level"
-        )
-    longest = max((len(chain) for chain in embedding.values()), default=0)
-    log.info(
-        "embedded %d variables in %.1f s (%d qubits, longest chain %d)",
-        bqm.num_variables,
-        seconds,
-        sum(len(chain) for chain in embedding.values()),
-        longest,
-    )
-    return {int(v): list(chain) for v, chain in embedding.items()}
 
 
 _default_cache: EmbeddingCache | None = None

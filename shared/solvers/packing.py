@@ -25,13 +25,10 @@ import numpy as np
 from shared.config import get_settings
 from shared.solvers.base import SolverError, SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
-from shared.solvers.embedding_cache import (
-    Embedding,
-    EmbeddingCache,
-    find_embedding,
-    structure_digest,
-)
+from shared.solvers.embedding_cache import EmbeddingCache
+from shared.solvers.embedding_search import Embedding, find_embedding
 from shared.solvers.params import MAX_BUNDLES_PER_CALL
+from shared.solvers.structure_keys import structure_digest
 
 log = logging.getLogger(__name__)
 
@@ -163,7 +160,8 @@ def packed_copies(
         At least 1.
     """
     from shared.encodings import get_codec
-    from shared.solvers.qpu_time import MAX_QUBITS, bundle_digest
+    from shared.solvers.bundle_shapes import bundle_digest
+    from shared.solvers.timing_model import MAX_QUBITS
 
     per_pixel = get_codec(config.encoding).variables_per_pixel(candidates)
     if shape[0] * shape[1] * per_pixel > MAX_QUBITS:
@@ -326,7 +324,7 @@ class PackedCalls:
         from dwave.embedding.chain_breaks import majority_vote
         from dwave.system import FixedEmbeddingComposite
 
-        from shared.solvers.dwave import WARM_START_SCHEDULE, chain_strength
+        from shared.solvers.qpu_settings import chain_strength, reverse_anneal
 
         rests = [r.rest for r in reductions if r.rest is not None]
         given = params.pop("chain_strength", None)
@@ -348,12 +346,7 @@ class PackedCalls:
             start += rest.num_variables
         settings = params
         if warm:
-            settings.update(
-                initial_state=warm,
-                anneal_schedule=params.get("anneal_schedule", WARM_START_SCHEDULE),
-                reinitialize_state=True,
-            )
-            settings.pop("annealing_time", None)
+            reverse_anneal(settings, warm)
         base = self.sampler()
         with self._lock if self.simulated else contextlib.nullcontext():
             self._seed_sampler(base, seed)

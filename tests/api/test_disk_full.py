@@ -13,9 +13,7 @@ from pathlib import Path
 import harness
 import pytest
 import redis
-from fastapi.testclient import TestClient
 
-from api.app import create_app
 from api.users import UserStore
 from shared.config import Settings
 from shared.synthetic import make_scene
@@ -83,11 +81,7 @@ def test_every_writing_endpoint_answers_507_on_a_full_disk(full_disk):
         files = {"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
         fill(full_disk)
         redis_full(server)
-        with TestClient(
-            create_app(settings),
-            raise_server_exceptions=False,
-            headers={"Authorization": f"Bearer {key}"},
-        ) as client:
+        with harness.api_client(settings, key) as client:
             answers = {
                 "submit": client.post(
                     "/v1/jobs", files=files, data={"params": json.dumps({"solver": "exact"})}
@@ -127,11 +121,7 @@ def test_a_submit_cut_short_by_a_full_redis_leaves_nothing_behind(api_settings, 
     monkeypatch.setattr(store_module.JobStore, "__init__", init)
     users = UserStore.from_settings(api_settings)
     _, key = users.create_user(f"spill-{harness.unique_prefix()[-6:]}")
-    with TestClient(
-        create_app(api_settings),
-        raise_server_exceptions=False,
-        headers={"Authorization": f"Bearer {key}"},
-    ) as client:
+    with harness.api_client(api_settings, key) as client:
         before = set(users.redis.scan_iter(match=f"{api_settings.key_prefix}:job:*:upload"))
         response = client.post(
             "/v1/jobs", files={"left": ("l.png", VIEW), "right": ("r.png", VIEW)}

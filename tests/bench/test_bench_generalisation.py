@@ -19,13 +19,12 @@ from shared.bench.experiments import BenchError
 from shared.bench.generalisation import (
     VARIANTS,
     Options,
-    compare,
-    markdown,
     named_variants,
     parse_variant,
     run_benchmark,
     select_scenes,
 )
+from shared.bench.generalisation_report import compare, markdown
 from shared.bench.scoring import Run, score
 from shared.cli import main
 from shared.config import Preset

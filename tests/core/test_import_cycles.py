@@ -1,5 +1,5 @@
 """No import cycles among the project's modules (issue 21): none at module level, and none through
-the imports made inside functions but the two the solver layer still has (listed below, to go)."""
+the imports made inside functions but the one the solver layer still has (listed below, to go)."""
 
 from __future__ import annotations
 
@@ -10,24 +10,14 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("api", "workers", "shared")
 
 #: Cycles through imports inside functions that are known and not fixed yet: the sampler base
-#: class looks itself up in the registry (base -> registry -> plugins -> base), and the QPU
-#: adapter and the time model import each other. A change may shrink these, never add to them.
+#: class looks itself up in the registry (base -> registry -> plugins -> base). A change may
+#: shrink it, never add to it.
 KNOWN_LAZY_CYCLES = [
     {
-        "shared.solvers.anneal",
         "shared.solvers.base",
         "shared.solvers.composites",
-        "shared.solvers.embedding_cache",
-        "shared.solvers.params",
         "shared.solvers.plugins",
         "shared.solvers.registry",
-    },
-    # QPU time: estimates survey what roof duality leaves (shared.residual runs the pipeline)
-    {
-        "shared.residual",
-        "shared.solvers.dwave",
-        "shared.solvers.packing",
-        "shared.solvers.qpu_time",
     },
 ]
 

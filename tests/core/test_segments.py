@@ -96,6 +96,22 @@ def _finest_level(scene, config):
     raise AssertionError("no level")
 
 
+def _rows_level(scene, solver: str, bundle_width: int, **more):
+    """Row inference on segments of ``bundle_width`` (margin 12) with ``solver``: the config, the
+    finest level's inputs, its costs and their row optimum."""
+    config = MatchConfig(
+        max_disparity=12,
+        inference="rows",
+        solver=solver,
+        bundle_width=bundle_width,
+        bundle_margin=12,
+        **more,
+    )
+    inputs = _finest_level(scene, config)
+    costs = inputs.costs(config)
+    return config, inputs, costs, solve_chains(costs)
+
+
 def test_every_segment_of_a_level_shares_its_shape(small):
     config = MatchConfig(max_disparity=12, solver="sa", bundle_width=32, bundle_margin=10)
     inputs = _finest_level(small, config)
@@ -136,17 +152,7 @@ def test_segmented_solves_through_the_pipeline_keep_the_row_optimum(small):
     """steepest-descent from the exact labels, on segments: every segment's slice of the
     optimum is a local minimum, so stitching gives the optimum back; the level's energy is
     that of the stitched rows."""
-    config = MatchConfig(
-        max_disparity=12,
-        inference="rows",
-        solver="steepest-descent",
-        bundle_width=30,
-        bundle_margin=12,
-        warm_start=True,
-    )
-    inputs = _finest_level(small, config)
-    costs = inputs.costs(config)
-    optimum = solve_chains(costs)
+    config, inputs, costs, optimum = _rows_level(small, "steepest-descent", 30, warm_start=True)
     inputs.initial_labels = optimum
     solution = solve_level_in_process(inputs, config)
     assert solution.bundles == inputs.shape[0] * len(segment_columns(90, 30, 12))
@@ -155,17 +161,8 @@ def test_segmented_solves_through_the_pipeline_keep_the_row_optimum(small):
 
 
 def test_segmented_sa_matches_whole_rows_on_a_small_scene(small):
-    config = MatchConfig(
-        max_disparity=12,
-        inference="rows",
-        solver="sa",
-        bundle_width=36,
-        bundle_margin=12,
-        solver_params={"num_reads": 10, "num_sweeps": 1000},
-    )
-    inputs = _finest_level(small, config)
-    costs = inputs.costs(config)
-    optimum = solve_chains(costs)
+    sa_params = {"num_reads": 10, "num_sweeps": 1000}
+    config, inputs, costs, optimum = _rows_level(small, "sa", 36, solver_params=sa_params)
     solution = solve_level_in_process(inputs, config)
     assert solution.energy == pytest.approx(mrf_energy(costs, solution.labels))
     assert np.mean(solution.labels == optimum) > 0.99

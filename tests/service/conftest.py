@@ -19,9 +19,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))  # the harness and the test plugin (entry points)
 
 import harness
-from fastapi.testclient import TestClient
 
-from api.app import create_app
 from shared.config import Settings
 from workers.app import make_celery
 from workers.supervisor import WorkerProcess, wait_for_workers
@@ -116,11 +114,7 @@ def admin_key(settings) -> str:
 @pytest.fixture(scope="session")
 def client(settings, workers, admin_key):
     """The API in process, authenticated as an admin (tests/service/test_users.py covers auth)."""
-    with TestClient(
-        create_app(settings),
-        raise_server_exceptions=False,
-        headers={"Authorization": f"Bearer {admin_key}"},
-    ) as test_client:
+    with harness.api_client(settings, admin_key) as test_client:
         yield test_client
 
 

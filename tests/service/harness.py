@@ -4,8 +4,12 @@ Redis (the session's ``redis_url`` fixture, ``tests/conftest.py``) and to talk t
 from __future__ import annotations
 
 import io
+import signal
+import subprocess
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import cv2
 import numpy as np
@@ -26,6 +30,35 @@ def admin_key(settings) -> str:
         f"test-admin-{uuid.uuid4().hex[:8]}", admin=True, qpu_seconds=None
     )
     return key
+
+
+def api_client(settings, key: str | None = None):
+    """The API in process (a ``TestClient``, to be entered) as ``key``'s user, default a new
+    admin; a server error is answered as HTTP 500, not raised in the test."""
+    from fastapi.testclient import TestClient
+
+    from api.app import create_app
+
+    return TestClient(
+        create_app(settings),
+        raise_server_exceptions=False,
+        headers={"Authorization": f"Bearer {key or admin_key(settings)}"},
+    )
+
+
+@contextmanager
+def interrupted_at_exit(process: subprocess.Popen, timeout: float = 30.0) -> Iterator[None]:
+    """Stop ``process`` as a terminal's Ctrl-C does when the block ends (SIGINT), killing it if it
+    has not stopped within ``timeout`` seconds."""
+    try:
+        yield
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
 
 
 def unique_prefix() -> str:

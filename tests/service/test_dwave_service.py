@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -26,7 +25,6 @@ import numpy as np
 import pytest
 import redis
 import yaml
-from fastapi.testclient import TestClient
 from sapi_stub import HYBRID_CHARGE_US, SapiStub, qpu_access_us
 
 from shared.config import LevelConfig, MatchConfig, Settings
@@ -148,7 +146,7 @@ def qhsm_serve(folder: Path, stub: SapiStub):
     with log.open("wb") as out:
         process = subprocess.Popen(command, env=env, stdout=out, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
-    try:
+    with harness.interrupted_at_exit(process):
         deadline = time.monotonic() + 120
         while not re.search(r"web page: ", log.read_text()):
             assert process.poll() is None, log.read_text()[-3000:]
@@ -159,13 +157,6 @@ def qhsm_serve(folder: Path, stub: SapiStub):
             while client.get("/healthz").status_code != 200:
                 time.sleep(0.2)
             yield client, log, folder / "data"
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(30)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def test_qpu_and_hybrid_jobs_run_through_qhsm_serve_with_the_token(
@@ -211,7 +202,6 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
     """The workers of docker-compose.yml these jobs need, with their queues and only the
     environment the file gives them (the token to worker-qpu and worker-hybrid alone), against
     the same stub."""
-    from api.app import create_app
     from workers.app import make_celery
     from workers.embedding_store import for_settings
     from workers.supervisor import WorkerProcess, wait_for_workers, worker_env
@@ -243,12 +233,7 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
             started.append(worker.start())
         wait_for_workers(make_celery(settings, with_tasks=False), [w.hostname for w in started])
         store = for_settings(settings, redis.Redis.from_url(url, decode_responses=True))
-        key = harness.admin_key(settings)
-        with TestClient(
-            create_app(settings),
-            raise_server_exceptions=False,
-            headers={"Authorization": f"Bearer {key}"},
-        ) as client:
+        with harness.api_client(settings) as client:
             for solver in ("qpu", "hybrid"):
                 check_job(client, sapi, solver, in_process(solver, sapi, store, monkeypatch))
         no_token_in_redis(url, settings.key_prefix)

@@ -11,7 +11,6 @@ import harness
 import pytest
 from fastapi.testclient import TestClient
 
-from api.app import create_app
 from api.users import UserStore
 from shared.synthetic import make_scene
 
@@ -22,10 +21,7 @@ def user_client(settings, name: str) -> TestClient:
     _, key = UserStore.from_settings(settings).create_user(
         f"{name}-{uuid.uuid4().hex[:6]}", qpu_seconds=None
     )
-    return TestClient(
-        create_app(settings), raise_server_exceptions=False,
-        headers={"Authorization": f"Bearer {key}"},
-    )  # fmt: skip
+    return harness.api_client(settings, key)
 
 
 def test_a_small_job_is_served_between_another_users_large_jobs_tasks(settings, workers):

@@ -10,16 +10,13 @@ from __future__ import annotations
 import os
 import signal
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import harness
 import numpy as np
 import pytest
 import redis
-from fastapi.testclient import TestClient
 
-from api.app import create_app
 from shared.config import MatchConfig, Settings
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
@@ -76,17 +73,6 @@ def stack(tmp_path, redis_url):
         harness.drop_prefix(redis_url, settings.key_prefix)
 
 
-@contextmanager
-def api(settings: Settings):
-    key = harness.admin_key(settings)
-    with TestClient(
-        create_app(settings),
-        raise_server_exceptions=False,
-        headers={"Authorization": f"Bearer {key}"},
-    ) as client:
-        yield client
-
-
 def reference(params: dict) -> np.ndarray:
     import qhsm_test_plugin  # noqa: F401 - fake-slow in this process
 
@@ -119,6 +105,34 @@ def kill(worker: WorkerProcess) -> None:
     worker.process.wait()
 
 
+def succeeds_past_a_kill(
+    stack,
+    victim: WorkerProcess,
+    params: dict,
+    replacements: list[tuple[str, list[str]]],
+    timeout: float,
+    within: float,
+    held_state: str | None = None,
+) -> None:
+    """Submit a job, SIGKILL ``victim`` once it holds one of the job's messages (the job then in
+    ``held_state``, if given) and start the ``replacements`` (name, queues): the job succeeds
+    within ``within`` seconds, with the disparity of an in-process run."""
+    settings, start = stack
+    with harness.api_client(settings) as client:
+        job_id = harness.submit(client, *UPLOADS, params)
+        holding(settings, victim)
+        if held_state is not None:
+            assert client.get(f"/v1/jobs/{job_id}").json()["state"] == held_state
+        kill(victim)
+        for name, queues in replacements:
+            start(name, queues)
+        began = time.monotonic()
+        status = harness.wait_for(client, job_id, timeout=timeout)
+    assert status["state"] == "succeeded", status
+    assert time.monotonic() - began < within
+    assert np.array_equal(harness_download(settings, job_id), reference(params))
+
+
 def test_a_job_whose_control_worker_died_holding_its_start_is_started_within_seconds(stack):
     """The control worker takes the start task, then dies before its pool process runs it:
     the job used to stay queued for the 6-hour visibility timeout."""
@@ -126,19 +140,10 @@ def test_a_job_whose_control_worker_died_holding_its_start_is_started_within_sec
     first = start("control-a", [settings.control_queue])
     [pool] = first.children()
     os.kill(pool, signal.SIGSTOP)  # holds the start message, never runs it
+    # control-b: the new control worker serve's supervisor starts
+    replacements = [("control-b", [settings.control_queue]), ("cpu", ["exact"])]
     params = harness.one_level(solver="exact", seed=2)
-    with api(settings) as client:
-        job_id = harness.submit(client, *UPLOADS, params)
-        holding(settings, first)
-        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "queued"
-        kill(first)
-        start("control-b", [settings.control_queue])  # as serve's supervisor does
-        start("cpu", ["exact"])
-        began = time.monotonic()
-        status = harness.wait_for(client, job_id, timeout=60)
-    assert status["state"] == "succeeded", status
-    assert time.monotonic() - began < 30
-    assert np.array_equal(harness_download(settings, job_id), reference(params))
+    succeeds_past_a_kill(stack, first, params, replacements, 60, within=30, held_state="queued")
     live = liveness.live_holdings(redis.Redis.from_url(settings.redis_url), settings.key_prefix)
     assert live and not any(name.startswith(first.hostname + "#") for name in live)  # forgotten
 
@@ -150,16 +155,7 @@ def test_a_job_whose_solver_worker_died_mid_task_finishes_identically(stack):
     start("control", [settings.control_queue])
     victim = start("cpu-a", ["fake-slow"])
     params = harness.one_level(solver="fake-slow", seed=4)
-    with api(settings) as client:
-        job_id = harness.submit(client, *UPLOADS, params)
-        holding(settings, victim)
-        kill(victim)
-        start("cpu-b", ["fake-slow"])
-        began = time.monotonic()
-        status = harness.wait_for(client, job_id, timeout=90)
-    assert status["state"] == "succeeded", status
-    assert time.monotonic() - began < 60
-    assert np.array_equal(harness_download(settings, job_id), reference(params))
+    succeeds_past_a_kill(stack, victim, params, [("cpu-b", ["fake-slow"])], 90, within=60)
     assert resend_count(JobStore.from_settings(settings)) >= 1
 
 
@@ -176,7 +172,7 @@ def test_a_live_workers_long_task_is_never_sent_again(stack):
     )
     start("cpu", ["fake-slow"])
     params = harness.one_level(solver="fake-slow", seed=6)
-    with api(settings) as client:
+    with harness.api_client(settings) as client:
         job_id = harness.submit(client, *UPLOADS, params)
         status = harness.wait_for(client, job_id, timeout=120)
     assert status["state"] == "succeeded", status
@@ -201,7 +197,7 @@ def test_a_queued_job_whose_start_was_never_sent_is_started(stack):
     store.create(record, {"left": views[0], "right": views[1]})
     start("control", [settings.control_queue], QHSM_WATCHDOG_LOST_SECONDS="2")
     start("cpu", ["exact"])
-    with api(settings) as client:
+    with harness.api_client(settings) as client:
         status = harness.wait_for(client, record.id, timeout=60)
     assert status["state"] == "succeeded", status
 

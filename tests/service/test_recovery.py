@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 
+import harness
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -129,11 +130,7 @@ def test_watchdog_fails_a_job_no_worker_can_run_with_a_reason(settings, workers,
 
 def test_api_answers_503_with_a_message_while_redis_is_down(settings, admin_key):
     down = settings.model_copy(update={"redis_url": f"redis://127.0.0.1:{free_port()}/0"})
-    with TestClient(
-        create_app(down),
-        raise_server_exceptions=False,
-        headers={"Authorization": f"Bearer {admin_key}"},
-    ) as client:
+    with harness.api_client(down, admin_key) as client:
         for method, path in [("GET", "/v1/jobs"), ("GET", f"/v1/jobs/{'a' * 32}")]:
             response = client.request(method, path)
             assert response.status_code == 503, response.text

@@ -27,7 +27,6 @@ import harness
 import numpy as np
 import pytest
 import redis
-from fastapi.testclient import TestClient
 
 from shared.config import MatchConfig, Settings
 from shared.images import decode_image
@@ -141,7 +140,6 @@ def wait_for_redis(url: str, timeout: float = 20.0) -> None:
 
 
 def test_a_job_runs_on_workers_in_another_network_namespace_with_no_shared_files(link, tmp_path):
-    from api.app import create_app
     from workers.app import make_celery
     from workers.supervisor import wait_for_workers
 
@@ -192,11 +190,7 @@ def test_a_job_runs_on_workers_in_another_network_namespace_with_no_shared_files
         wait_for_workers(celery, [f"{name}@{socket.gethostname()}" for name in names.values()])
 
         truth = SCENE.disparity.astype(np.float32)
-        with TestClient(
-            create_app(settings),
-            raise_server_exceptions=False,
-            headers={"Authorization": f"Bearer {harness.admin_key(settings)}"},
-        ) as client:
+        with harness.api_client(settings) as client:
             job = harness.submit(
                 client, *UPLOADS, PARAMS, ground_truth=harness.npy(truth), gt_scale=1
             )

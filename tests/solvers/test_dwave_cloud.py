@@ -25,9 +25,10 @@ from solver_helpers import optimum, stereo_costs
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
 from shared.solvers import SolverError, SolverUnavailable, TransientSolverError, qpu_time
-from shared.solvers.dwave import QPUSolver, chain_strength
+from shared.solvers.dwave import QPUSolver
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
 from shared.solvers.hybrid import LeapHybridSolver
+from shared.solvers.qpu_settings import chain_strength
 
 SENTINEL = "DEV-sentinel-7f3c9a1e-never-print-me"
 

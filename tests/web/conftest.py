@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -27,6 +26,9 @@ from workers.embedded_redis import free_port
 
 CHROMIUM = Path("/usr/bin/chromium")
 SERVICE_TESTS = Path(__file__).parents[1] / "service"
+sys.path.insert(0, str(SERVICE_TESTS))  # the harness
+import harness  # noqa: E402
+
 #: Seconds the fake-slow solver sleeps per bundle: a job that takes long enough to cancel.
 SLOW_SECONDS = 0.5
 START_TIMEOUT = 90.0
@@ -95,17 +97,10 @@ def server(tmp_path_factory) -> Server:
     ]  # fmt: skip
     with log.open("wb") as out:
         process = subprocess.Popen(command, env=env, stdout=out, stderr=subprocess.STDOUT)
-    try:
+    with harness.interrupted_at_exit(process):
         sign_in_url = _wait_for_sign_in_url(process, log, port)
         key = (folder / "data" / "api-key").read_text().strip()
         yield Server(f"http://127.0.0.1:{port}", sign_in_url, key, log, folder / "data")
-    finally:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(30)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 def _wait_for_sign_in_url(process: subprocess.Popen, log: Path, port: int) -> str:
