@@ -234,7 +234,7 @@ class LevelInputs:
             return gather(self._bin_costs(data_term, view, first, last), candidates).astype(dtype)
         row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
         step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
-        costs = np.empty(candidates.shape, dtype=dtype)
+        costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
         for start in range(first, last, step):
             stop = min(start + step, last)
             costs[start - first : stop - first] = gather(

@@ -19,7 +19,10 @@ from shared.solvers import SolverError, get_solver
 from shared.solvers.anneal import SA_PRESETS, beta_range
 from shared.solvers.composites import fix_variables
 
-GLOBAL_SOLVERS = ["sa", "tabu", "gurobi"]
+#: Solvers that reach the ground state of a 10-variable BQM (gurobi: exact; sa: 20 reads). Tabu
+#: search does not always (seed 305, 6 variables: every read ends in a local minimum 4 flips away).
+GLOBAL_SOLVERS = ["sa", "gurobi"]
+LOCAL_SOLVERS = ["tabu", "steepest-descent"]
 ENCODINGS = ["one-hot", "domain-wall"]
 
 
@@ -37,9 +40,11 @@ def test_small_random_bqm_reaches_ground_energy(name, num_variables, seed):
 
 @settings(max_examples=20, deadline=None)
 @given(num_variables=st.integers(2, 10), seed=st.integers(0, 2**16))
-def test_steepest_descent_returns_a_local_minimum(num_variables, seed):
+@pytest.mark.parametrize("name", LOCAL_SOLVERS)
+def test_local_search_returns_a_local_minimum(name, num_variables, seed):
     bqm = random_bqm(num_variables, seed)
-    result = get_solver("steepest-descent").solve(bqm, seed=seed)
+    result = get_solver(name).solve(bqm, seed=seed)
+    assert result.energy == pytest.approx(bqm.energy(result.sample))
     flipped = np.tile(result.sample, (num_variables, 1))
     flipped[np.arange(num_variables), np.arange(num_variables)] ^= 1
     neighbours = bqm.energies((flipped, range(num_variables)))
