@@ -123,13 +123,26 @@ def test_a_sent_tile_keeps_the_better_of_the_solvers_and_the_hosts_labels():
         assert result.energy <= mrf_energy(problem.costs, problem.dual.labels) + 1e-9
 
 
-def test_turning_it_off_gives_the_tiles_of_before():
+@pytest.mark.parametrize(
+    ("solver", "options", "before"),
+    [
+        ("sa", {"encoding": "domain-wall"}, "57245b50c00eafd5"),
+        (
+            "steepest-descent",
+            {"encoding": "one-hot", "bundle_width": 16, "bundle_margin": 4},
+            "42507954d13782c8",
+        ),
+    ],
+)
+def test_turning_it_off_gives_the_tiles_of_before(solver, options, before):
     pair = make_scene(SMALL["height"], SMALL["width"], max_disparity=SMALL["max_disparity"], seed=5)
-    off = config(encoding="domain-wall", certify_tiles=False)
+    off = MatchConfig(
+        solver=solver, max_disparity=SMALL["max_disparity"], seed=7, certify_tiles=False, **options
+    )
     result = run_pipeline(pair.left, pair.right, off)
     digest = hashlib.sha256(np.ascontiguousarray(result.disparity, np.float32).tobytes())
-    # the sa GRID_CASES digest of tests/solvers/test_same_disparities.py before certify_tiles
-    assert digest.hexdigest()[:16] == "57245b50c00eafd5"
+    # the GRID_CASES digests of tests/solvers/test_same_disparities.py before certify_tiles
+    assert digest.hexdigest()[:16] == before
     assert all("bundles_certified" not in level.info for level in result.levels)
 
 
