@@ -197,7 +197,8 @@ class MatchConfig(BaseModel):
         ge=1,
         le=1000,
         description="grid inference with exact: most dual-decomposition iterations per level "
-        "(fewer when the row and column chains agree or the gap is within dual_gap)",
+        "(fewer when the row and column chains agree or the gap is within dual_gap); with a "
+        "QUBO solver and certify_tiles, per tile",
     )
     dual_gap: float = Field(
         0.0,
