@@ -8,7 +8,10 @@ skips the QUBO and works on the costs of blocks of rows.
 With ``grid`` inference a row solver's bundle is a whole view, minimised by dual decomposition
 into its row and column chains (:mod:`shared.grid`); a QUBO solver's bundle is a tile of
 ``bundle_height`` rows (a segment of them with ``bundle_width``) whose edges to the pixels around
-it become unaries, given those pixels' starting labels (the coarser level's estimate).
+it become unaries, given those pixels' starting labels (the coarser level's estimate). With
+``certify_tiles`` (the default) each tile is first minimised by dual decomposition on the host;
+a tile whose row and column chains agree is exact and never reaches the solver (no QPU time),
+the others keep the better of the solver's and the host's labels (:func:`encoded_bundles`).
 """
 
 from __future__ import annotations
