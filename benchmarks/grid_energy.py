@@ -1,7 +1,7 @@
 """Grid inference (issue 17): how close a QUBO solver's tiles come to the exact DD bound.
 
     python benchmarks/grid_energy.py [--scenes tsukuba,middlebury2006/monopoly] [--solver sa]
-        [--processes 2]
+        [--processes 2] [--no-certify-tiles]
 
 For each scene (range given: the ceil of the ground truth's maximum) it runs the default
 pipeline twice: with ``exact`` (dual decomposition: energy and lower bound per level) and with
@@ -57,10 +57,12 @@ def find_scene(name: str) -> Scene:
     return load_scene(folder / name)
 
 
-def run(scene: Scene, solver: str, processes: int) -> list[str]:
+def run(scene: Scene, solver: str, processes: int, certify: bool = True) -> list[str]:
     left, right = scene.load()
     truth = scene.ground_truth()
-    config = MatchConfig(solver=solver, max_disparity=scene.ground_truth_range())
+    config = MatchConfig(
+        solver=solver, max_disparity=scene.ground_truth_range(), certify_tiles=certify
+    )
     bounds: list[float] = []
     cpu = _cpu_seconds()
     with ProcessPoolLevelSolver(processes) as pool:
@@ -96,11 +98,17 @@ def main() -> None:
     parser.add_argument("--scenes", default="tsukuba,middlebury2006/monopoly")
     parser.add_argument("--solver", default="sa")
     parser.add_argument("--processes", type=int, default=2)
+    parser.add_argument(
+        "--no-certify-tiles",
+        dest="certify",
+        action="store_false",
+        help="send every tile to the solver (the tiles of before certify_tiles)",
+    )
     args = parser.parse_args()
     for name in args.scenes.split(","):
         scene = find_scene(name)
         for solver in ("exact", args.solver):
-            print("\n".join(run(scene, solver, args.processes)), flush=True)
+            print("\n".join(run(scene, solver, args.processes, args.certify)), flush=True)
 
 
 if __name__ == "__main__":
