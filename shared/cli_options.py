@@ -273,6 +273,7 @@ MATCH_OPTIONS = (
     "inference",
     "dual_iterations",
     "dual_gap",
+    "certify_tiles",
     "median",
     "bilateral",
     "lr_check",

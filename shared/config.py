@@ -194,7 +194,8 @@ class MatchConfig(BaseModel):
         ge=1,
         le=1000,
         description="grid inference with exact: most dual-decomposition iterations per level "
-        "(fewer when the row and column chains agree or the gap is within dual_gap)",
+        "(fewer when the row and column chains agree or the gap is within dual_gap); with a "
+        "QUBO solver and certify_tiles, per tile",
     )
     dual_gap: float = Field(
         0.01,
@@ -202,6 +203,13 @@ class MatchConfig(BaseModel):
         lt=1.0,
         description="grid inference with exact: stop a level's dual decomposition once its "
         "certified gap (E - lower bound) / E is at most this (0: run dual_iterations)",
+    )
+    certify_tiles: bool = Field(
+        True,
+        description="grid inference with a QUBO solver: minimise each tile by dual "
+        "decomposition on the host first; a tile whose row and column chains agree is solved "
+        "exactly there and never reaches the solver (no QPU time), the others are sent and "
+        "keep the better of the solver's and the host's labels",
     )
     data_term: DataTerm = Field(
         description="squared, ad-census or census-gradient (from preset)"

@@ -156,6 +156,35 @@ class GridMRF:
             :, :, 0
         ]
 
+    def tile(self, rows: slice, columns: slice, extra: np.ndarray | None = None) -> GridMRF:
+        """The sub-grid of a tile (its own edges only), with ``extra`` added to its unary: e.g.
+        :func:`boundary_unary`, the cost of its edges to the fixed pixels around it.
+
+        Parameters
+        ----------
+        rows, columns : slice
+            The tile within the grid (steps of 1, bounds given).
+        extra : numpy.ndarray, optional
+            (tile rows, tile columns, K) added to the unary.
+
+        Returns
+        -------
+        GridMRF
+            Contiguous copies (the chain kernels read them row by row).
+        """
+        unary = self.unary[rows, columns]
+        if extra is not None:
+            unary = unary + extra
+        return GridMRF(
+            unary=np.ascontiguousarray(unary, dtype=np.float32),
+            candidates=np.ascontiguousarray(self.candidates[rows, columns]),
+            weight_h=np.ascontiguousarray(self.weight_h[rows, columns.start : columns.stop - 1]),
+            weight_v=np.ascontiguousarray(self.weight_v[rows.start : rows.stop - 1, columns]),
+            slope=self.slope,
+            truncation=self.truncation,
+            first=None if self.first is None else np.ascontiguousarray(self.first[rows, columns]),
+        )
+
     def windows(self) -> np.ndarray:
         """``first``, or a placeholder when the candidates are not consecutive windows."""
         return self.first if self.first is not None else np.zeros((1, 1), dtype=np.int32)

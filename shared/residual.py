@@ -1,12 +1,14 @@
-"""What the exact classical step (roof duality) leaves of a job's bundles, measured before the job
-runs, so that its estimate is what the metered solvers will charge.
+"""What the exact classical steps leave of a job's bundles, measured before the job runs, so that
+its estimate is what the metered solvers will charge.
 
-A metered solver fixes on the host what roof duality proves and sends only the rest
-(:func:`shared.solvers.composites.reduce`); how much is left depends on the bundles' costs, so no
-formula in the image size gives it. :func:`survey` runs the pyramid with the ``exact`` solver (a
-stand-in for the coarser levels' maps, which decide a level's candidates; milliseconds per
-level) and applies roof duality to an evenly spread sample of each level's bundles, cut as the
-metered solver will cut them. Classical work only: nothing is sent anywhere.
+A metered solver solves on the host the grid tiles whose dual decomposition certifies their
+optimum (``certify_tiles``) and fixes what roof duality proves of the others
+(:func:`shared.solvers.composites.reduce`), sending only the rest; how much is left depends on
+the bundles' costs, so no formula in the image size gives it. :func:`survey` runs the pyramid
+with the ``exact`` solver (a stand-in for the coarser levels' maps, which decide a level's
+candidates and the tiles' boundaries; milliseconds per level) and applies both steps to an evenly
+spread sample of each level's bundles, cut as the metered solver will cut them. Classical work
+only: nothing is sent anywhere.
 """
 
 from __future__ import annotations
@@ -47,21 +49,22 @@ class LevelResidual:
 
 
 def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelResidual:
-    """Roof duality on an evenly spread sample of at most ``limit`` of the level's bundles."""
+    """The exact classical steps on an evenly spread sample of at most ``limit`` of the level's
+    bundles: a tile dual decomposition certifies is not sent (``certify_tiles``), roof duality
+    fixes what it proves of the others."""
     from shared.encodings import get_codec
+    from shared.solve import encoded_bundles
     from shared.solvers.composites import reduce
 
-    codec = get_codec(config.encoding)
     bundles = inputs.bundles(config.bundle_height, width, config.bundle_margin)
     picked = np.unique(np.linspace(0, len(bundles) - 1, min(limit, len(bundles))).astype(int))
+    preprocess = config.solver_params.get("preprocess", "roof-duality")
+    codec = get_codec(config.encoding)
     variables, left, sent, sent_variables, sent_left = 0, 0, 0, 0, 0
-    rows: tuple[int, int] | None = None
-    for index in picked:
-        start, stop, first, last = bundles[index].as_list()
-        if rows != (start, stop):
-            row_costs, rows = inputs.costs(config, start, stop), (start, stop)
-        reduction = reduce(codec.encode(row_costs.columns(first, last), config.rectifier))
-        n, m = reduction.bqm.num_variables, int(reduction.free.size)
+    for problem in encoded_bundles(inputs, config, [bundles[i] for i in picked]):
+        height, columns, labels = problem.costs.unary.shape
+        n = height * columns * codec.variables_per_pixel(labels)
+        m = 0 if problem.bqm is None else int(reduce(problem.bqm, preprocess).free.size)
         variables, left = variables + n, left + m
         if m:
             sent, sent_variables, sent_left = sent + 1, sent_variables + n, sent_left + m
@@ -146,8 +149,9 @@ def level_widths(
 def job_residual(
     config: MatchConfig, left, right, max_disparity: int, cache=None
 ) -> list[LevelResidual] | None:
-    """What roof duality leaves of a metered job's bundles, per level (None for an unmetered
-    solver or ``preprocess="none"``): :func:`shared.residual.survey` on the pair.
+    """What the exact classical steps (tile certificates, roof duality) leave of a metered job's
+    bundles, per level (None for an unmetered solver, or with neither step):
+    :func:`shared.residual.survey` on the pair.
 
     Parameters
     ----------
@@ -164,9 +168,11 @@ def job_residual(
     -------
     list of LevelResidual or None
     """
+    from shared.solve import certifies_tiles
     from shared.solvers.timing_model import meter_of
 
-    if meter_of(config.solver) is None or config.solver_params.get("preprocess") == "none":
+    classical = config.solver_params.get("preprocess") != "none" or certifies_tiles(config)
+    if meter_of(config.solver) is None or not classical:
         return None
     widths = level_widths(config, left.shape[:2], max_disparity, cache)
     return survey(left, right, config, max_disparity, widths)

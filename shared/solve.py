@@ -8,7 +8,10 @@ skips the QUBO and works on the costs of blocks of rows.
 With ``grid`` inference a row solver's bundle is a whole view, minimised by dual decomposition
 into its row and column chains (:mod:`shared.grid`); a QUBO solver's bundle is a tile of
 ``bundle_height`` rows (a segment of them with ``bundle_width``) whose edges to the pixels around
-it become unaries, given those pixels' starting labels (the coarser level's estimate).
+it become unaries, given those pixels' starting labels (the coarser level's estimate). With
+``certify_tiles`` (the default) each tile is first minimised by dual decomposition on the host;
+a tile whose row and column chains agree is exact and never reaches the solver (no QPU time),
+the others keep the better of the solver's and the host's labels (:func:`encoded_bundles`).
 """
 
 from __future__ import annotations
@@ -20,11 +23,12 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import partial
 from multiprocessing import get_context
 from multiprocessing.pool import Pool
 
+import dimod
 import numpy as np
 
 from shared.assembly import BundleResult, LevelSolution, assemble
@@ -32,10 +36,10 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import AUTO, Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import boundary_unary, dual_decomposition
+from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver, uses_warm_start
+from shared.solvers.base import RowSolver, SolveResult, uses_warm_start
 from shared.threads import limit_threads, thread_budget, threads
 
 BundleProgress = Callable[[int, int], None]
@@ -263,51 +267,118 @@ def solve_bundles(
         return _solve_on_costs(solver, inputs, config, row_ranges, progress)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
-    problems: Iterable[tuple] = _encoded(inputs, config, items)
+    problems: Iterable[TileProblem] = encoded_bundles(inputs, config, items)
     batch = getattr(solver, "solve_batch", None)
     if batch is not None:  # one problem for many bundles (hybrid: a level's BQM)
         problems = list(problems)
-        outcomes = iter(batch([p[2:] for p in problems], **params))
+        sent = [p for p in problems if p.bqm is not None]
+        outcomes = iter(batch([(p.bqm, p.seed, p.initial) for p in sent], **params) if sent else [])
     results = []
-    for bundle, costs, bqm, seed, initial in problems:
-        start, stop, first, last = bundle.as_list()
-        if batch is not None:
+    for problem in problems:
+        if problem.bqm is None:  # certified on the host: nothing to send
+            outcome = None
+        elif batch is not None:
             outcome = next(outcomes)
         else:
-            outcome = solver.solve(bqm, seed=seed, initial_state=initial, **params)
-        decoded = codec.decode(costs, outcome.sample)
-        results.append(
-            BundleResult(
-                row_start=start,
-                row_stop=stop,
-                labels=decoded.labels,
-                energy=mrf_energy(costs, decoded.labels),
-                repaired=decoded.repaired,
-                wall_time=outcome.wall_time,
-                timing=outcome.timing,
-                info=outcome.info,
-                col_start=first,
-                col_stop=last,
+            outcome = solver.solve(
+                problem.bqm, seed=problem.seed, initial_state=problem.initial, **params
             )
-        )
+        results.append(_bundle_result(problem, outcome, codec))
         if progress is not None:
             progress(len(results), len(items))
     return results
 
 
-def _with_boundary(inputs: LevelInputs, config: MatchConfig, bundle: Bundle, costs: Costs) -> Costs:
-    """A tile's costs with its edges to the pixels around it as unaries, given their starting
-    labels (:meth:`LevelInputs.starting_labels`: the coarser estimate, or the data term's
-    minimum on the coarsest level)."""
-    start, stop, first, last = bundle.as_list()
+@dataclass
+class TileProblem:
+    """One QUBO bundle as the solver gets it: its costs (with a grid tile's boundary unaries),
+    QUBO, seed and warm start; with :func:`certifies_tiles`, the host's dual decomposition of
+    the tile too, and then ``bqm`` is None when that certified the optimum (nothing to send)."""
+
+    bundle: Bundle
+    costs: Costs
+    bqm: dimod.BinaryQuadraticModel | None
+    seed: int
+    initial: np.ndarray | None
+    dual: DualResult | None = None
+    #: Host seconds the dual decomposition took.
+    dual_seconds: float = 0.0
+
+
+def certifies_tiles(config: MatchConfig) -> bool:
+    """Whether a QUBO solver's grid tiles are first minimised by dual decomposition on the host
+    (``certify_tiles``): a tile whose row and column chains agree is exact and is not sent.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    bool
+        False for ``rows`` inference and for row solvers (they solve whole views).
+    """
+    return (
+        config.certify_tiles
+        and config.inference is Inference.GRID
+        and not isinstance(get_solver(config.solver), RowSolver)
+    )
+
+
+def _bundle_result(problem: TileProblem, outcome: SolveResult | None, codec) -> BundleResult:
+    """A bundle's result from the solver's ``outcome`` (None: certified on the host). With a
+    host labelling the better of the two by MRF energy is kept, and ``info`` counts the bundle
+    as roof duality's reports do (``variables``, ``residual_variables``: what reached the
+    solver) plus ``certified``."""
+    start, stop, first, last = problem.bundle.as_list()
+    dual, costs = problem.dual, problem.costs
+    if outcome is None:
+        assert dual is not None
+        labels, repaired, wall, timing, info = dual.labels, 0, 0.0, {}, {}
+    else:
+        decoded = codec.decode(costs, outcome.sample)
+        labels, repaired, wall = decoded.labels, decoded.repaired, outcome.wall_time
+        timing, info = outcome.timing, outcome.info
+    energy = mrf_energy(costs, labels)
+    if dual is not None:
+        variables = costs.shape[0] * costs.shape[1] * codec.variables_per_pixel(costs.num_labels)
+        info = {"variables": variables, "residual_variables": variables, **info}
+        info["certified"] = outcome is None
+        if outcome is None:
+            info.update(fixed_fraction=1.0, residual_variables=0)
+        else:
+            host = mrf_energy(costs, dual.labels)
+            info["kept"] = "host" if host < energy else "solver"
+            if host < energy:
+                labels, energy, repaired = dual.labels, host, 0
+    return BundleResult(
+        row_start=start,
+        row_stop=stop,
+        labels=labels,
+        energy=energy,
+        repaired=repaired,
+        wall_time=wall + problem.dual_seconds,
+        timing=timing,
+        info=info,
+        col_start=first,
+        col_stop=last,
+    )
+
+
+def _surroundings(
+    inputs: LevelInputs, config: MatchConfig, start: int, stop: int
+) -> tuple[GridMRF, np.ndarray, int]:
+    """The grid of rows [start, stop) and the rows just above and below (within the view), the
+    starting labels of its pixels (:meth:`LevelInputs.starting_labels`: the coarser estimate,
+    or the data term's minimum on the coarsest level), and its first row."""
     view_start = (start // inputs.view_height) * inputs.view_height
     above, below = max(start - 1, view_start), min(stop + 1, view_start + inputs.view_height)
     grid = inputs.grid(config, above, below)
     labels = inputs.initial_labels[above:below] if inputs.initial_labels is not None else None
     if labels is None:
         labels = grid.unary.argmin(axis=2).astype(np.int32)
-    tile = (slice(start - above, stop - above), slice(first, last))
-    return replace(costs, unary=costs.unary + boundary_unary(grid, labels, *tile))
+    return grid, labels, above
 
 
 def _solve_grids(
@@ -345,27 +416,65 @@ def _solve_grids(
     return results
 
 
-def _encoded(inputs: LevelInputs, config: MatchConfig, items: list[Bundle]) -> Iterator[tuple]:
-    """Each bundle as ``(bundle, costs, bqm, seed, warm start or None)``, one at a time."""
+def encoded_bundles(
+    inputs: LevelInputs, config: MatchConfig, items: Sequence[Bundle]
+) -> Iterator[TileProblem]:
+    """Each bundle as a :class:`TileProblem`, one at a time.
+
+    A grid tile's edges to the pixels around it become unaries given their starting labels.
+    With :func:`certifies_tiles` the tile is first minimised by dual decomposition on the host
+    (its own small grid: milliseconds); when the row and column chains agree that labelling is
+    the tile's optimum and no QUBO is built, otherwise the host's best labels are the warm start
+    (when the run warm-starts) in place of the starting labels.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level.
+    config : MatchConfig
+        The run's configuration.
+    items : sequence of Bundle
+        The bundles (segments of the same rows one after another share their costs).
+
+    Yields
+    ------
+    TileProblem
+    """
     codec = get_codec(config.encoding)
     warm = uses_warm_start(config)
+    grid_tiles = config.inference is Inference.GRID
+    certify = certifies_tiles(config)
     rows: tuple[int, int] | None = None
     for bundle in items:
         start, stop, first, last = bundle.as_list()
         if rows != (start, stop):  # segments of the same rows share one cost computation
             row_costs, rows = inputs.costs(config, start, stop), (start, stop)
+            if grid_tiles:
+                grid, grid_labels, above = _surroundings(inputs, config, start, stop)
         costs = row_costs.columns(first, last)
-        if config.inference is Inference.GRID:
-            costs = _with_boundary(inputs, config, bundle, costs)
-        initial = (
-            codec.encode_labels(
-                inputs.starting_labels(row_costs, start, stop)[:, first:last], costs.num_labels
-            )
-            if warm
-            else None
-        )
+        dual, dual_seconds = None, 0.0
+        if grid_tiles:
+            tile = (slice(start - above, stop - above), slice(first, last))
+            extra = boundary_unary(grid, grid_labels, *tile)
+            costs = replace(costs, unary=costs.unary + extra)
+            if certify:
+                started = time.perf_counter()
+                dual = dual_decomposition(grid.tile(*tile, extra), config.dual_iterations)
+                dual_seconds = time.perf_counter() - started
         seed = bundle_seed(config.seed, inputs.index, start, first)
-        yield bundle, costs, codec.encode(costs, config.rectifier), seed, initial
+        if dual is not None and dual.disagreeing == 0:
+            yield TileProblem(bundle, costs, None, seed, None, dual, dual_seconds)
+            continue
+        initial = None
+        if warm:
+            labels = (
+                dual.labels
+                if dual is not None
+                else inputs.starting_labels(row_costs, start, stop)[:, first:last]
+            )
+            initial = codec.encode_labels(labels, costs.num_labels)
+        bqm = codec.encode(costs, config.rectifier)
+        yield TileProblem(bundle, costs, bqm, seed, initial, dual, dual_seconds)
 
 
 def _solve_on_costs(

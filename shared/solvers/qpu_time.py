@@ -196,8 +196,9 @@ def level_estimate(
     cache : EmbeddingCache, optional
         Where known embedding sizes and ``auto`` widths are looked up.
     residual : LevelResidual, optional
-        What roof duality leaves of the level's bundles (:func:`shared.residual.survey`);
-        None: every bundle is assumed sent whole (an upper bound).
+        What tile certificates and roof duality leave of the level's bundles
+        (:func:`shared.residual.survey`); None: every bundle is assumed sent whole (an upper
+        bound).
 
     Returns
     -------
@@ -215,7 +216,7 @@ def level_estimate(
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
-    if residual is None or params.get("preprocess") == "none":
+    if residual is None:  # (job_residual gives None when nothing is solved on the host)
         residual = LevelResidual(0, 1.0, 1.0, 1.0)
     sent = round(residual.sent_share * bundles)
     kept = residual.sent_variables_share  # of a sent bundle's variables (and qubits)

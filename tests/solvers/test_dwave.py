@@ -181,6 +181,7 @@ def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys)
 
     from shared.cli import main
     from shared.config import MatchConfig
+    from shared.images import load_pair
     from shared.pipeline import run_pipeline
     from shared.solve import solve_level_in_process
     from shared.synthetic import make_scene
@@ -205,7 +206,8 @@ def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys)
         charged.append(qpu_time.charged_seconds(solution.timing))
         return solution
 
-    run_pipeline(scene.left, scene.right, config, solve_level)
+    # the pair as the estimate read it (8-bit files): which tiles certify is discrete
+    run_pipeline(*load_pair(left, right), config, solve_level)
     charge = sum(charged)
     # before any run: 2 qubits a variable and one bundle per QPU call (no copies known yet,
     # while the run packed several into each call): an upper bound for rows, within 10 % for

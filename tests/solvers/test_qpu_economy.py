@@ -119,6 +119,7 @@ def test_hybrid_sim_estimate_is_its_charge_within_10_percent(tmp_path, capsys):
 
     from shared.cli import main
     from shared.config import MatchConfig
+    from shared.images import load_pair
     from shared.pipeline import run_pipeline
     from shared.synthetic import make_scene
 
@@ -132,14 +133,16 @@ def test_hybrid_sim_estimate_is_its_charge_within_10_percent(tmp_path, capsys):
     assert main(argv) == 0
     estimate = json.loads(capsys.readouterr().out)
     config = MatchConfig(solver="hybrid-sim", max_disparity=6, solver_params=QUICK_HYBRID)
-    result = run_pipeline(scene.left, scene.right, config)
+    # the pair as the estimate read it (8-bit files): which tiles certify is discrete
+    result = run_pipeline(*load_pair(left, right), config)
     charge = sum(qpu_time.charged_seconds(level.timing) for level in result.levels)
-    # one problem per level, billed for the variables roof duality left (not 3 s per row)
+    # one problem per level, billed for the variables the host left (not 3 s per row)
     sent = [level.info["variables_sent"] for level in result.levels]
-    assert charge == pytest.approx(sum(qpu_time.hybrid_charge_seconds(n) for n in sent))
+    assert charge == pytest.approx(sum(qpu_time.hybrid_level_seconds(n) for n in sent))
     assert estimate["seconds"] == pytest.approx(charge, rel=0.1)
     for level in result.levels:
         assert 0 < level.info["variables_sent"] < level.info["variables"]
+        assert level.info["bundles_certified"] > 0  # certified tiles: solved on the host
 
 
 def test_qpu_sim_packs_rests_into_one_call_on_disjoint_copies(tmp_path):
