@@ -24,7 +24,7 @@ from shared.grid import dual_decomposition
 from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import run_pipeline
-from shared.solve import ProcessPoolLevelSolver
+from shared.process_pool import ProcessPoolLevelSolver
 
 
 def bound_of(inputs: LevelInputs, config: MatchConfig) -> float:

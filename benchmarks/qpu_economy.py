@@ -23,8 +23,8 @@ from shared.disparity_range import resolve_max_disparity
 from shared.images import load_disparity_values, load_pair
 from shared.metrics import evaluate
 from shared.pipeline import match_views, run_pipeline
+from shared.process_pool import ProcessPoolLevelSolver
 from shared.residual import job_residual
-from shared.solve import ProcessPoolLevelSolver
 from shared.solvers.qpu_time import job_seconds
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"

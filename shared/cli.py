@@ -41,11 +41,12 @@ def cmd_match(args: argparse.Namespace) -> int:
     the disparity map to ``output`` (.pfm, .png or .npy), with the ``MatchConfig`` options,
     ``preview``, ``json`` and ``processes``; 0 on success. A solver not available here or an
     unsupported output suffix is a ``CommandError``."""
+    from shared.bundle_plan import bundle_width_setting
     from shared.cli_options import CommandError, config_from_args
     from shared.images import load_pair, preview_png, save_disparity
     from shared.pipeline import run_pipeline
+    from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar
-    from shared.solve import ProcessPoolLevelSolver, bundle_width_setting
     from shared.solvers import get_solver
 
     config = config_from_args(args)

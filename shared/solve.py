@@ -16,31 +16,26 @@ the others keep the better of the solver's and the host's labels (:func:`encoded
 
 from __future__ import annotations
 
-import os
-import signal
-import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import partial
-from multiprocessing import get_context
-from multiprocessing.pool import Pool
 
 import dimod
 import numpy as np
 
 from shared.assembly import BundleResult, LevelSolution, assemble
+from shared.bundle_plan import level_bundles
 from shared.bundles import Bundle, bundle_seed
-from shared.config import AUTO, Inference, MatchConfig
+from shared.config import Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
 from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, SolveResult, uses_warm_start
-from shared.threads import limit_threads, thread_budget, threads
+from shared.threads import threads
 
 BundleProgress = Callable[[int, int], None]
 """``(units done, units total)`` within a level: bundles (rows for a row solver)."""
@@ -52,174 +47,6 @@ PIPELINE_PARAMS = {"warm_start"}
 #: horizontal and vertical, K x K per pixel) within this: large enough to vectorise, small
 #: enough that memory is bounded by the block, not by the image (one block per core at a time).
 COST_BLOCK_BYTES = 32 * 2**20
-
-
-def bundle_width_setting(config: MatchConfig) -> int | str | None:
-    """The run's ``bundle_width`` with the solver's default filled in, or a ``ValueError`` that
-    says what to change (also for a bundle height the solver cannot use).
-
-    Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
-    whole rows (None) otherwise; the row DP always solves whole rows.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    int, str or None
-        Pixels, ``"auto"``, or ``None`` for whole rows.
-
-    Raises
-    ------
-    ValueError
-        If the width cannot apply to the solver (a row solver, or ``auto`` without an embedding).
-    """
-    solver = get_solver(config.solver)
-    width = config.bundle_width
-    finder = getattr(solver, "widest_bundle", None)
-    if isinstance(solver, RowSolver):
-        if width is not None:
-            raise ValueError(
-                f"{config.solver} solves whole rows exactly; leave bundle_width unset "
-                "(or pick a QUBO solver such as sa to solve row segments)"
-            )
-        if config.inference is Inference.ROWS and config.bundle_height != 1:
-            raise ValueError(
-                f"{config.solver} solves single-row bundles (rows inference) or each view's "
-                f"whole grid (grid inference); bundle_height {config.bundle_height} sets the "
-                "tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
-            )
-        return None
-    if width is None:
-        return AUTO if finder is not None else None
-    if width == AUTO and finder is None:
-        raise ValueError(
-            f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
-            f"{config.solver} has none: give a width in pixels or leave it unset"
-        )
-    return width
-
-
-def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
-    """The segment width of this level's bundles (None: whole rows); ``auto`` asks the solver
-    for the widest segment that embeds (searched once per shape and target, then cached).
-
-    Parameters
-    ----------
-    inputs : LevelInputs
-        The level (its width and candidate count).
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    int or None
-        Segment width in pixels; ``None`` for whole rows.
-    """
-    width = bundle_width_setting(config)
-    if width == AUTO:
-        return get_solver(config.solver).widest_bundle(
-            encoding=config.encoding,
-            candidates=inputs.candidates.shape[2],
-            height=config.bundle_height,
-            row_width=inputs.shape[1],
-            margin=config.bundle_margin,
-        )
-    if width is None:
-        return None
-    pixels = int(width)
-    return None if pixels >= inputs.shape[1] else pixels
-
-
-def plans_with_solver(config: MatchConfig) -> bool:
-    """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
-    (the widest segment that embeds, each shape's embedding) need their sampler, and so their
-    credentials, to plan a level; a service runs it where the solver runs.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    bool
-    """
-    return getattr(get_solver(config.solver), "embed_shapes", None) is not None
-
-
-def solves_grids(config: MatchConfig) -> bool:
-    """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
-    inference with a row solver (``exact``).
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    bool
-    """
-    return config.inference is Inference.GRID and isinstance(get_solver(config.solver), RowSolver)
-
-
-def bundle_height(inputs: LevelInputs, config: MatchConfig) -> int:
-    """Rows per bundle of the level: a whole view for :func:`solves_grids`, else
-    ``config.bundle_height``.
-
-    Parameters
-    ----------
-    inputs : LevelInputs
-        The level.
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    int
-    """
-    return inputs.view_height if solves_grids(config) else config.bundle_height
-
-
-def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
-    """Every bundle of the level (segments of the level's :func:`level_bundle_width`).
-
-    Solvers that embed on a QPU graph embed each bundle shape here, once, before the bundles
-    fan out; ``inputs.prepared`` then records the width and the embeddings computed for it.
-
-    Parameters
-    ----------
-    inputs : LevelInputs
-        The level; its ``prepared`` is set here.
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    list of Bundle
-    """
-    solver = get_solver(config.solver)
-    started = time.perf_counter()
-    cache = getattr(solver, "cache", None)
-    before = getattr(cache, "computed", 0)
-    width = level_bundle_width(inputs, config)
-    height = bundle_height(inputs, config)
-    bundles = inputs.bundles(height, width, config.bundle_margin)
-    inputs.prepared = {"bundle_width": width, "bundle_height": height}
-    embed = getattr(solver, "embed_shapes", None)
-    if embed is not None:
-        shapes = sorted({bundle.shape for bundle in bundles})
-        embed(encoding=config.encoding, candidates=inputs.candidates.shape[2], shapes=shapes)
-        inputs.prepared = {
-            "bundle_width": bundles[0].shape[1],
-            "bundle_height": height,
-            "embeddings_computed": getattr(cache, "computed", 0) - before,
-            "preparation_seconds": time.perf_counter() - started,
-        }
-    return bundles
 
 
 def solve_bundles(
@@ -573,80 +400,3 @@ def solve_level_in_process(
     if progress is not None:
         progress(0, len(bundles))
     return assemble(inputs, solve_bundles(inputs, config, bundles, progress), config)
-
-
-class ProcessPoolLevelSolver:
-    """A ``solve_level`` that spreads a level's bundles over local worker processes.
-
-    Bundles are independent and seeded by position, so the result equals the sequential one.
-    Row solvers (the exact DP) are vectorised over rows already and run in this process; the
-    pool is started by the first level that needs it (never for them: idle children cost a
-    second of CPU to start). Use as a context manager so the pool lives across levels. The
-    children ignore Ctrl-C (SIGINT reaches the whole process group): the parent terminates them
-    when it leaves the block on an exception.
-    """
-
-    def __init__(self, processes: int | None = None) -> None:
-        self.processes = processes or os.cpu_count() or 1
-        self._pool: Pool | None = None
-
-    def __enter__(self) -> ProcessPoolLevelSolver:
-        return self
-
-    def _started(self) -> Pool:
-        """The pool, started on first use."""
-        if self._pool is None:
-            # spawn, not fork: forking a process that already runs threads (OpenBLAS, OpenCV,
-            # an HTTP client) can deadlock the children. Solvers come from the registry's
-            # importable factories, so every child sees the same adapters.
-            with _sigint_ignored():  # inherited from birth: no child prints a traceback
-                budget = (thread_budget(self.processes),)  # each child its share of the cores
-                self._pool = get_context("spawn").Pool(self.processes, limit_threads, budget)
-        return self._pool
-
-    def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
-        if self._pool is not None:
-            if exc_type is None:
-                self._pool.close()
-            else:  # interrupted or failed: what the children solve now is not wanted
-                self._pool.terminate()
-            self._pool.join()
-            self._pool = None
-
-    def __call__(
-        self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
-    ) -> LevelSolution:
-        solver = get_solver(config.solver)
-        if self.processes <= 1 or isinstance(solver, RowSolver) or hasattr(solver, "solve_batch"):
-            # a batch solver sends the level as one problem (split, it would be billed per part)
-            return solve_level_in_process(inputs, config, progress)
-        pool = self._started()
-        bundles = level_bundles(inputs, config)
-        count = self.processes * 4
-        # consecutive bundles stay together: segments of one row then share its costs
-        size = -(-len(bundles) // count)
-        chunks = [bundles[i : i + size] for i in range(0, len(bundles), size)]
-        # the children build costs per bundle; the in-process volume cache is not worth sending
-        solve = partial(solve_bundles, replace(inputs, volumes=None), config)
-        results: list[BundleResult] = []
-        if progress is not None:
-            progress(0, len(bundles))
-        for chunk_results in pool.imap(solve, chunks):  # in order, as they finish
-            results.extend(chunk_results)
-            if progress is not None:
-                progress(len(results), len(bundles))
-        return assemble(inputs, results, config)
-
-
-@contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """SIGINT ignored while the pool's children start: they inherit that and keep it (Python
-    leaves an ignored SIGINT alone), so Ctrl-C is the parent's alone, which terminates them."""
-    if threading.current_thread() is not threading.main_thread():
-        yield  # signal dispositions can only be changed from the main thread
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)

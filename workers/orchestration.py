@@ -31,6 +31,7 @@ from celery import Celery, chain, chord
 
 from shared import pyramid
 from shared.assembly import BundleResult, assemble
+from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import ViewsWarning, resolve_max_disparity
@@ -38,7 +39,7 @@ from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
-from shared.solve import level_bundles, plans_with_solver, solve_bundles
+from shared.solve import solve_bundles
 from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
 from workers import fair

@@ -25,6 +25,7 @@ from api.uploads import (
     read_upload,
 )
 from api.users import UserStore
+from shared.bundle_plan import bundle_width_setting
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import ScaleNotInferredError, infer_gt_scale
@@ -32,7 +33,6 @@ from shared.images import disparity_bytes, preview_png
 from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.residual import job_residual
-from shared.solve import bundle_width_setting
 from shared.solvers import InvalidSolverParamsError, UnknownSolver, check_params
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds

@@ -60,7 +60,7 @@ def local_runner(processes: int = 0) -> SceneRunner:
 
     def run(scene: Scene, left: np.ndarray, right: np.ndarray, config: MatchConfig) -> RunOutput:
         if processes != 1:
-            from shared.solve import ProcessPoolLevelSolver
+            from shared.process_pool import ProcessPoolLevelSolver
 
             with ProcessPoolLevelSolver(processes) as solve_level:
                 result = run_pipeline(left, right, config, solve_level)

@@ -167,7 +167,7 @@ def test_every_option_overrides_its_preset():
 
 @pytest.mark.parametrize("preset", list(Preset))
 def test_process_pool_gives_the_sequential_result(scene, preset):
-    from shared.solve import ProcessPoolLevelSolver
+    from shared.process_pool import ProcessPoolLevelSolver
 
     config = MatchConfig(
         max_disparity=16, preset=preset, solver="steepest-descent", encoding="domain-wall"
@@ -182,7 +182,7 @@ def test_process_pool_gives_the_sequential_result(scene, preset):
 
 def test_a_row_solver_never_starts_the_process_pool(scene):
     """The exact DP runs in this process: spawning idle children would only cost CPU."""
-    from shared.solve import ProcessPoolLevelSolver
+    from shared.process_pool import ProcessPoolLevelSolver
 
     config = MatchConfig(max_disparity=8, solver="exact")
     with ProcessPoolLevelSolver(2) as pool:
@@ -217,7 +217,7 @@ def _check_progress(events, result):
 
 @pytest.mark.parametrize("solver", ["steepest-descent", "exact"])
 def test_progress_reports_bundles_from_inside_each_level(scene, solver):
-    from shared.solve import ProcessPoolLevelSolver
+    from shared.process_pool import ProcessPoolLevelSolver
 
     config = MatchConfig(max_disparity=16, solver=solver, encoding="domain-wall")
     small = scene.left[:32, :48], scene.right[:32, :48]

@@ -10,11 +10,12 @@ import itertools
 import numpy as np
 import pytest
 
+from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.energy import Costs, mrf_energy
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
-from shared.solve import encoded_bundles, level_bundles, solve_bundles, solve_level_in_process
+from shared.solve import encoded_bundles, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.qpu_time import charged_seconds
 from shared.synthetic import make_scene

@@ -1,0 +1,181 @@
+"""Planning a level's bundles before they fan out: their height (a tile, a row, or a whole view
+for the grid's dual decomposition), their width (whole rows or segments: ``auto`` is the widest
+that embeds) and, for solvers that embed on a QPU graph, each bundle shape's embedding."""
+
+from __future__ import annotations
+
+import time
+
+from shared.bundles import Bundle
+from shared.config import AUTO, Inference, MatchConfig
+from shared.level_inputs import LevelInputs
+from shared.solvers import get_solver
+from shared.solvers.base import RowSolver
+
+
+def bundle_width_setting(config: MatchConfig) -> int | str | None:
+    """The run's ``bundle_width`` with the solver's default filled in, or a ``ValueError`` that
+    says what to change (also for a bundle height the solver cannot use).
+
+    Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
+    whole rows (None) otherwise; the row DP always solves whole rows.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    int, str or None
+        Pixels, ``"auto"``, or ``None`` for whole rows.
+
+    Raises
+    ------
+    ValueError
+        If the width cannot apply to the solver (a row solver, or ``auto`` without an embedding).
+    """
+    solver = get_solver(config.solver)
+    width = config.bundle_width
+    finder = getattr(solver, "widest_bundle", None)
+    if isinstance(solver, RowSolver):
+        if width is not None:
+            raise ValueError(
+                f"{config.solver} solves whole rows exactly; leave bundle_width unset "
+                "(or pick a QUBO solver such as sa to solve row segments)"
+            )
+        if config.inference is Inference.ROWS and config.bundle_height != 1:
+            raise ValueError(
+                f"{config.solver} solves single-row bundles (rows inference) or each view's "
+                f"whole grid (grid inference); bundle_height {config.bundle_height} sets the "
+                "tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
+            )
+        return None
+    if width is None:
+        return AUTO if finder is not None else None
+    if width == AUTO and finder is None:
+        raise ValueError(
+            f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
+            f"{config.solver} has none: give a width in pixels or leave it unset"
+        )
+    return width
+
+
+def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
+    """The segment width of this level's bundles (None: whole rows); ``auto`` asks the solver
+    for the widest segment that embeds (searched once per shape and target, then cached).
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level (its width and candidate count).
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    int or None
+        Segment width in pixels; ``None`` for whole rows.
+    """
+    width = bundle_width_setting(config)
+    if width == AUTO:
+        return get_solver(config.solver).widest_bundle(
+            encoding=config.encoding,
+            candidates=inputs.candidates.shape[2],
+            height=config.bundle_height,
+            row_width=inputs.shape[1],
+            margin=config.bundle_margin,
+        )
+    if width is None:
+        return None
+    pixels = int(width)
+    return None if pixels >= inputs.shape[1] else pixels
+
+
+def plans_with_solver(config: MatchConfig) -> bool:
+    """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
+    (the widest segment that embeds, each shape's embedding) need their sampler, and so their
+    credentials, to plan a level; a service runs it where the solver runs.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    bool
+    """
+    return getattr(get_solver(config.solver), "embed_shapes", None) is not None
+
+
+def solves_grids(config: MatchConfig) -> bool:
+    """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
+    inference with a row solver (``exact``).
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    bool
+    """
+    return config.inference is Inference.GRID and isinstance(get_solver(config.solver), RowSolver)
+
+
+def bundle_height(inputs: LevelInputs, config: MatchConfig) -> int:
+    """Rows per bundle of the level: a whole view for :func:`solves_grids`, else
+    ``config.bundle_height``.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level.
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    int
+    """
+    return inputs.view_height if solves_grids(config) else config.bundle_height
+
+
+def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+    """Every bundle of the level (segments of the level's :func:`level_bundle_width`).
+
+    Solvers that embed on a QPU graph embed each bundle shape here, once, before the bundles
+    fan out; ``inputs.prepared`` then records the width and the embeddings computed for it.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level; its ``prepared`` is set here.
+    config : MatchConfig
+        The run's configuration.
+
+    Returns
+    -------
+    list of Bundle
+    """
+    solver = get_solver(config.solver)
+    started = time.perf_counter()
+    cache = getattr(solver, "cache", None)
+    before = getattr(cache, "computed", 0)
+    width = level_bundle_width(inputs, config)
+    height = bundle_height(inputs, config)
+    bundles = inputs.bundles(height, width, config.bundle_margin)
+    inputs.prepared = {"bundle_width": width, "bundle_height": height}
+    embed = getattr(solver, "embed_shapes", None)
+    if embed is not None:
+        shapes = sorted({bundle.shape for bundle in bundles})
+        embed(encoding=config.encoding, candidates=inputs.candidates.shape[2], shapes=shapes)
+        inputs.prepared = {
+            "bundle_width": bundles[0].shape[1],
+            "bundle_height": height,
+            "embeddings_computed": getattr(cache, "computed", 0) - before,
+            "preparation_seconds": time.perf_counter() - started,
+        }
+    return bundles
