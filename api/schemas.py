@@ -194,8 +194,8 @@ class LevelEstimate(BaseModel):
     width: int
     bundles: int
     bundles_sent: int = Field(
-        description="Bundles expected to reach the metered solver; roof duality solves the "
-        "others on the host, charged nothing"
+        description="Bundles expected to reach the metered solver; the host solves the others "
+        "exactly (tile certificates, roof duality), charged nothing"
     )
     classical_share: float = Field(description="Share of the bundles solved classically")
     variables_share: float = Field(description="Share of the variables sent to the solver")
@@ -220,7 +220,8 @@ class Estimate(BaseModel):
     bundles: int
     bundles_sent: int = Field(description="Bundles expected to reach the metered solver")
     classical_share: float = Field(
-        description="Share of the bundles solved classically (roof duality), charged nothing"
+        description="Share of the bundles solved classically (tile certificates, roof duality), "
+        "charged nothing"
     )
     levels: list[LevelEstimate]
     remaining_seconds: float | None = Field(

@@ -355,7 +355,7 @@ async function jobRequest(form) {
 }
 
 /** Before submitting: the QPU (hybrid) seconds the job would be charged and the share of its
- * bundles that roof duality solves classically (POST /v1/estimate). */
+ * bundles solved classically: tile certificates, roof duality (POST /v1/estimate). */
 async function estimateJob() {
   const form = $("#submit-form");
   const out = $("#estimate-result");
@@ -367,7 +367,7 @@ async function estimateJob() {
     const e = await json("/v1/estimate", { method: "POST", body: data });
     out.textContent = !e.metered ? `${e.solver} is not metered: no QPU time is charged.`
       : `${seconds(e.seconds)} of ${e.levels[0]?.qubits_per_bundle === null ? "hybrid" : "QPU"} time; ` +
-        `${fmt(100 * e.classical_share, 2)} % of ${e.bundles} bundles solved classically (roof duality); ` +
+        `${fmt(100 * e.classical_share, 2)} % of ${e.bundles} bundles solved classically (tile certificates, roof duality); ` +
         (e.fits ? "fits your budget." : "does NOT fit your budget.");
   } catch (error) {
     out.textContent = "";
@@ -590,7 +590,7 @@ function levelsTable(job) {
     el("td", {}, `${level.width}×${level.height}${level.views > 1 ? ` ×${level.views} views` : ""}`),
     el("td", {}, level.candidates),
     el("td", {}, level.bundles),
-    sent ? el("td", { title: "the other bundles were solved classically (roof duality), charged nothing" },
+    sent ? el("td", { title: "the other bundles were solved classically (tile certificates, roof duality), charged nothing" },
       level.info?.bundles_sent === undefined ? "—"
         : `${level.info.bundles_sent} (${fmt((100 * level.info.variables_sent) / Math.max(level.info.variables, 1), 1)} % of the variables)`) : null,
     el("td", {}, fmt(level.energy, 5)),
