@@ -34,7 +34,8 @@ from shared.energy import Costs, mrf_energy, row_energies
 from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver, SolveResult, uses_warm_start
+from shared.solvers.base import RowSolver, SolveResult
+from shared.solvers.registry import uses_warm_start
 from shared.threads import threads
 
 BundleProgress = Callable[[int, int], None]

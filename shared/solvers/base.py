@@ -12,14 +12,13 @@ sample as an int8 array, its energy, wall time, timing, info) and maps errors to
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import dimod
 import numpy as np
 
-from shared.config import MatchConfig
 from shared.energy import Costs
 from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always were)
     SolverError,
@@ -27,6 +26,7 @@ from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always w
     TransientSolverError,
     bad_parameters,
 )
+from shared.solvers.records import SolverSpec
 
 
 @dataclass(frozen=True)
@@ -51,6 +51,18 @@ class SolveResult:
     timing: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
     sampleset: dimod.SampleSet | None = None
+
+
+#: The registry's lookup of a solver's record by name, installed by
+#: :mod:`shared.solvers.registry` when it loads (which ``import shared.solvers`` always does): the
+#: base class reads a sampler's declared capabilities without importing the registry.
+_record_of: Callable[[str], SolverSpec] | None = None
+
+
+def use_registry(record_of: Callable[[str], SolverSpec]) -> None:
+    """Install the registry's lookup (:func:`shared.solvers.registry.spec`)."""
+    global _record_of
+    _record_of = record_of
 
 
 def _declared(capability: str) -> property:
@@ -86,10 +98,11 @@ class Sampler(dimod.Sampler):
         return bad_parameters(self.name, error)
 
     @property
-    def spec(self):
-        from shared.solvers.registry import spec
-
-        return spec(self.name)
+    def spec(self) -> SolverSpec:
+        """The registry's record of this sampler (``KeyError`` when it is not registered)."""
+        if _record_of is None:
+            raise KeyError(f"{self.name}: the solver registry is not loaded")
+        return _record_of(self.name)
 
     description = _declared("description")
     offline = _declared("offline")
@@ -100,11 +113,10 @@ class Sampler(dimod.Sampler):
     def defaults(self) -> dict[str, Any]:
         """Default parameters: those the registry's schema states (none when unregistered)."""
         from shared.solvers.params import schema_defaults
-        from shared.solvers.registry import UnknownSolver
 
         try:
             return schema_defaults(self.spec.params)
-        except UnknownSolver:
+        except KeyError:  # unregistered (the registry's UnknownSolver is a KeyError)
             return {}
 
     def sample(
@@ -381,26 +393,3 @@ class RowSolver(Protocol):
             Label index per pixel, shape (h, w).
         """
         ...
-
-
-def uses_warm_start(config: MatchConfig) -> bool:
-    """Whether ``config``'s bundles are warm-started: ``solver_params["warm_start"]`` (kept for
-    old clients) or ``MatchConfig.warm_start`` when given, else the solver's default.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration (its solver, ``solver_params`` and ``warm_start``).
-
-    Returns
-    -------
-    bool
-        True when every level after the coarsest starts from the coarser estimate.
-    """
-    if "warm_start" in config.solver_params:
-        return bool(config.solver_params["warm_start"])
-    if config.warm_start is not None:
-        return config.warm_start
-    from shared.solvers.registry import spec
-
-    return spec(config.solver).warm_start_default

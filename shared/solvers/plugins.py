@@ -24,7 +24,7 @@ import dimod
 from shared.solvers import params as schemas
 from shared.solvers.base import SolverError
 from shared.solvers.composites import RoofDualityComposite, SolverComposite
-from shared.solvers.registry import DIMOD_PREFIX, DIMOD_QUEUE, SolverSpec
+from shared.solvers.records import DIMOD_PREFIX, DIMOD_QUEUE, SolverSpec
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,6 @@ from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.pyramid import level_shape, plan
 from shared.residual import LevelResidual
-from shared.solvers.base import uses_warm_start
 from shared.solvers.bundle_shapes import (
     AUTO_VARIABLES_GUESS,
     auto_width_key,
@@ -31,6 +30,7 @@ from shared.solvers.bundle_shapes import (
 )
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.qpu_settings import reverse_anneal
+from shared.solvers.registry import uses_warm_start
 from shared.solvers.timing_model import (
     ADVANTAGE_TIMING_DATA,
     HYBRID_MAX_VARIABLES,

@@ -18,61 +18,21 @@ import contextlib
 import logging
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from importlib import import_module, metadata
-from typing import Any, Literal
+from typing import Any
 
+from shared.config import MatchConfig
 from shared.solvers import params as schemas
+from shared.solvers.base import use_registry
+from shared.solvers.records import (
+    DIMOD_PREFIX,
+    DIMOD_QUEUE,
+    ENTRY_POINT_GROUP,
+    SolverSpec,
+)
 
 log = logging.getLogger(__name__)
-
-#: Entry-point group through which packages register named solvers.
-ENTRY_POINT_GROUP = "qhsm.solvers"
-#: Prefix of solver names that name an installed dimod sampler class.
-DIMOD_PREFIX = "dimod:"
-#: The Celery queue of every ``dimod:`` solver.
-DIMOD_QUEUE = "dimod"
-
-
-@dataclass(frozen=True)
-class SolverSpec:
-    """Everything declared about one solver, once.
-
-    ``factory`` is ``"module:attribute"`` of a zero-argument callable (or the callable itself)
-    returning the sampler. ``meter`` says how a job on it is charged to its owner's budget
-    (``"qpu"``: the QPU timing model, ``"hybrid"``: Leap's hybrid charge; None: not metered);
-    ``offline`` marks a stand-in for a cloud service (charged what the real one would take).
-    """
-
-    name: str
-    factory: str | Callable[[], Any]
-    description: str = ""
-    params: type[schemas.SolverParams] = schemas.NoParams
-    meter: Literal["qpu", "hybrid"] | None = None
-    offline: bool = False
-    #: The Celery queue its bundles go to (None: the solver's name).
-    queue: str | None = None
-    #: Works on the MRF costs of whole rows instead of a QUBO (shared.solve hands it rows).
-    row_solver: bool = False
-    #: Whether bundles start from the best guess at hand unless the config says otherwise:
-    #: local searches refine one far more cheaply than they find a minimum from scratch.
-    warm_start_default: bool = False
-    #: Label encoding to use when none is asked for (None: no preference, the preset decides).
-    encoding: str | None = None
-
-    @property
-    def metered(self) -> bool:
-        """Jobs on it spend (real or simulated) D-Wave time from a budget."""
-        return self.meter is not None
-
-    @property
-    def uses_qpu_time(self) -> bool:
-        """It spends real D-Wave time (needs the token; the stand-ins do not)."""
-        return self.metered and not self.offline
-
-    @property
-    def queue_name(self) -> str:
-        return self.queue or self.name
 
 
 def _spec(name: str, factory: str, description: str, params, **capabilities) -> SolverSpec:
@@ -368,3 +328,27 @@ def queue_names() -> list[str]:
     """Every solver queue a worker may consume (the registered solvers' and ``dimod``)."""
     queues = dict.fromkeys(spec(name).queue_name for name in solver_names())
     return [*queues, DIMOD_QUEUE]
+
+
+def uses_warm_start(config: MatchConfig) -> bool:
+    """Whether ``config``'s bundles are warm-started: ``solver_params["warm_start"]`` (kept for
+    old clients) or ``MatchConfig.warm_start`` when given, else the solver's default.
+
+    Parameters
+    ----------
+    config : MatchConfig
+        The run's configuration (its solver, ``solver_params`` and ``warm_start``).
+
+    Returns
+    -------
+    bool
+        True when every level after the coarsest starts from the coarser estimate.
+    """
+    if "warm_start" in config.solver_params:
+        return bool(config.solver_params["warm_start"])
+    if config.warm_start is not None:
+        return config.warm_start
+    return spec(config.solver).warm_start_default
+
+
+use_registry(spec)

@@ -7,7 +7,7 @@ D-Wave token, the live solver's own timing data.
 
 from __future__ import annotations
 
-from shared.solvers.base import uses_warm_start
+from shared.solvers.registry import uses_warm_start
 
 _live_solvers: dict[str, object | None] = {}
 
