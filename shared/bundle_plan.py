@@ -95,51 +95,19 @@ def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
 def plans_with_solver(config: MatchConfig) -> bool:
     """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
     (the widest segment that embeds, each shape's embedding) need their sampler, and so their
-    credentials, to plan a level; a service runs it where the solver runs.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    bool
-    """
+    credentials, to plan a level; a service runs it where the solver runs."""
     return getattr(get_solver(config.solver), "embed_shapes", None) is not None
 
 
 def solves_grids(config: MatchConfig) -> bool:
     """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
-    inference with a row solver (``exact``).
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    bool
-    """
+    inference with a row solver (``exact``)."""
     return config.inference is Inference.GRID and isinstance(get_solver(config.solver), RowSolver)
 
 
 def bundle_height(inputs: LevelInputs, config: MatchConfig) -> int:
     """Rows per bundle of the level: a whole view for :func:`solves_grids`, else
-    ``config.bundle_height``.
-
-    Parameters
-    ----------
-    inputs : LevelInputs
-        The level.
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    int
-    """
+    ``config.bundle_height``."""
     return inputs.view_height if solves_grids(config) else config.bundle_height
 
 

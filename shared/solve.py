@@ -136,17 +136,7 @@ class TileProblem:
 def certifies_tiles(config: MatchConfig) -> bool:
     """Whether a QUBO solver's grid tiles are first minimised by dual decomposition on the host
     (``certify_tiles``): a tile whose row and column chains agree is exact and is not sent.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    bool
-        False for ``rows`` inference and for row solvers (they solve whole views).
-    """
+    False for ``rows`` inference and for row solvers (they solve whole views)."""
     return (
         config.certify_tiles
         and config.inference is Inference.GRID
