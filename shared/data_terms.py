@@ -286,7 +286,7 @@ def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:
     return binned
 
 
-def gather(per_label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+def gather(per_label: np.ndarray, candidates: np.ndarray, dtype: type = np.float64) -> np.ndarray:
     """(n, w, K) costs of the candidate labels from a (labels, n, w) stack.
 
     Parameters
@@ -295,12 +295,14 @@ def gather(per_label: np.ndarray, candidates: np.ndarray) -> np.ndarray:
         Costs (labels, n, w) of every label.
     candidates : numpy.ndarray
         Labels (n, w, K) to pick at every pixel.
+    dtype : type, optional
+        Of the result (float32 for a grid: the volume's own precision).
 
     Returns
     -------
     numpy.ndarray
-        Costs (n, w, K), float64.
+        Costs (n, w, K), ``dtype``.
     """
     return np.take_along_axis(
         np.moveaxis(per_label, 0, -1), candidates.astype(np.intp), axis=2
-    ).astype(np.float64)
+    ).astype(dtype, copy=False)

@@ -231,7 +231,7 @@ class LevelInputs:
         257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
         volume's own precision: exact) halves the view's costs."""
         if self.volumes is not None:
-            return gather(self._bin_costs(data_term, view, first, last), candidates).astype(dtype)
+            return gather(self._bin_costs(data_term, view, first, last), candidates, dtype)
         row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
         step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
