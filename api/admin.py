@@ -24,7 +24,6 @@ import sys
 from collections.abc import Iterator
 
 from shared.cli_options import CommandError, setting_option
-from workers.redis_client import connect
 
 
 @contextlib.contextmanager
@@ -47,6 +46,7 @@ def _store(args: argparse.Namespace, creates: bool = False) -> Iterator:
         EmbeddedRedis,
         safe_url,
     )
+    from workers.redis_client import connect
 
     settings = get_settings()
     if args.data_dir is not None:

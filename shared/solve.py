@@ -49,6 +49,14 @@ PIPELINE_PARAMS = {"warm_start"}
 #: enough that memory is bounded by the block, not by the image (one block per core at a time).
 COST_BLOCK_BYTES = 32 * 2**20
 
+#: Grids (whole views) minimised at the same time hold at most about this much dual
+#: decomposition state between them; a larger view's grid waits for the other's to finish (the
+#: same maps: each grid is minimised on its own). Keeps a 2000 x 2000 pair within 2 GiB.
+GRID_STATE_BYTES = 2**30
+#: (h, w, K) 4-byte arrays a grid's dual decomposition holds at its peak: unary, candidates,
+#: the transposed unary, two multiplier arrays, the primal's neighbour costs and chain buffers.
+GRID_STATE_ARRAYS = 7
+
 
 def solve_bundles(
     inputs: LevelInputs,
@@ -226,12 +234,20 @@ def _solve_grids(
         )
 
     results: list[BundleResult] = []
-    with ThreadPoolExecutor(min(len(row_ranges), threads())) as pool:
+    with ThreadPoolExecutor(grids_at_once(inputs, row_ranges)) as pool:
         for result in pool.map(solve, row_ranges):
             results.append(result)
             if progress is not None:
                 progress(len(results), len(row_ranges))
     return results
+
+
+def grids_at_once(inputs: LevelInputs, row_ranges: Sequence[tuple[int, int]]) -> int:
+    """Grids to minimise side by side: one per core, as many as :data:`GRID_STATE_BYTES`
+    holds (at least one)."""
+    rows = max(stop - start for start, stop in row_ranges)
+    grid_bytes = 4 * GRID_STATE_ARRAYS * rows * inputs.candidates[0].size
+    return max(1, min(len(row_ranges), threads(), GRID_STATE_BYTES // max(grid_bytes, 1)))
 
 
 def encoded_bundles(
