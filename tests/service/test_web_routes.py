@@ -12,6 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.routes.views import ERROR_MAP_MAX, NOT_EVALUATED
+from api.web import WEB_DIR
 
 pytestmark = pytest.mark.service
 
@@ -120,10 +121,16 @@ def test_job_images_left_error_map_and_colour_bars(client, member):
 
 def test_the_page_is_served_with_a_self_only_policy(client):
     page = client.get("/", headers={"Authorization": ""})
-    assert page.status_code == 200 and 'src="/web/app.js"' in page.text
+    assert page.status_code == 200 and '<script type="module" src="/web/app.js">' in page.text
     assert "default-src 'self'" in page.headers["content-security-policy"]
-    for asset in ("/web/app.js", "/web/style.css"):
-        assert client.get(asset).status_code == 200
+    assert client.get("/web/style.css").status_code == 200
+    modules = sorted(WEB_DIR.glob("*.js"))
+    assert len(modules) > 1
+    for path in modules:  # a module script served as anything but JavaScript does not run
+        response = client.get(f"/web/{path.name}")
+        assert response.status_code == 200, path.name
+        assert response.headers["content-type"].startswith("text/javascript"), path.name
+        assert response.headers["cache-control"] == "no-cache", path.name
     assert not re.search(r'(src|href)="(https?:)?//', page.text)  # nothing from elsewhere
 
 

@@ -1,0 +1,40 @@
+// QPU budgets: used, reserved and left, and the QPU time of each job (admins see every user).
+
+import { json, session } from "./api.js";
+import { $, el, keyValues } from "./dom.js";
+import { seconds } from "./format.js";
+import { showView } from "./views.js";
+
+function budgetBar(entry) {
+  const limit = entry.limit_seconds;
+  if (limit === null) return null; // unlimited: nothing to fill
+  const used = el("span", { class: "bar-fill" });
+  const reserved = el("span", { class: "bar-fill reserved" });
+  if (limit) {
+    used.style.width = `${Math.min(100, (100 * entry.used_seconds) / limit)}%`;
+    reserved.style.width = `${Math.min(100, (100 * entry.reserved_seconds) / limit)}%`;
+  }
+  return el("div", { class: "bar budget", "aria-label": `budget of ${entry.user}` }, used, reserved);
+}
+
+export async function showUsage() {
+  showView("usage");
+  const usage = await json("/v1/usage");
+  const cards = usage.users.map((entry) => el("div", { class: "card usage-card", "data-user": entry.user },
+    el("h2", {}, entry.user),
+    budgetBar(entry),
+    keyValues([["used", seconds(entry.used_seconds)], ["reserved", seconds(entry.reserved_seconds)],
+      ["left", entry.remaining_seconds === null ? "unlimited" : seconds(entry.remaining_seconds)],
+      ["budget", entry.limit_seconds === null ? "unlimited" : seconds(entry.limit_seconds)]]),
+    entry.jobs.length
+      ? el("table", { class: "small-table" }, el("thead", {}, el("tr", {}, el("th", {}, "Job"), el("th", {}, "QPU time"), el("th", {}, "Problems"))),
+        el("tbody", {}, entry.jobs.map((job) => el("tr", {},
+          el("td", {}, el("a", { href: `#/job/${job.id}` }, job.id.slice(0, 8))),
+          el("td", {}, seconds(job.qpu_seconds)), el("td", {}, job.problems)))))
+      : el("p", { class: "muted" }, "No QPU time charged yet.")));
+  $("#view-usage").replaceChildren(
+    el("h1", {}, "QPU usage"),
+    el("p", { class: "muted" }, `QPU access time (hybrid: charge time) charged to ${session.me.admin ? "every user" : "you"}; ` +
+      `total ${seconds(usage.total_used_seconds)}` + (usage.qpu_in_flight === null || usage.qpu_in_flight === undefined ? "" : `, ${usage.qpu_in_flight} problem(s) in flight lab-wide`)),
+    el("div", { class: "cards" }, cards));
+}
