@@ -20,9 +20,9 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from api import web
 from api.access_log import quiet_polls
 from api.deps import QueueInspector, Services
+from api.errors import DOMAIN_ERRORS, refusal_of
 from api.middleware import ErrorBoundary, RequestGuard
 from api.routes import estimate, health, jobs, metrics, solvers, usage, users, views
-from api.uploads import UploadError
 from api.users import UserStore, current_user
 from shared.config import Settings, get_settings
 from shared.disparity_range import ViewsWarning
@@ -98,9 +98,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     web.mount(app)
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 
-    @app.exception_handler(UploadError)
-    async def upload_error(request: Request, error: UploadError) -> JSONResponse:
-        return JSONResponse({"detail": error.message}, status_code=error.status_code)
+    async def refused(request: Request, error: Exception) -> JSONResponse:
+        status_code, detail = refusal_of(error)
+        return JSONResponse({"detail": detail}, status_code=status_code)
+
+    for domain_error in DOMAIN_ERRORS:  # the service's refusals: a 4xx that says what to do
+        app.add_exception_handler(domain_error, refused)
 
     @app.exception_handler(RequestValidationError)
     async def invalid_request(request: Request, error: RequestValidationError) -> JSONResponse:

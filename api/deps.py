@@ -13,7 +13,7 @@ from celery import Celery
 from fastapi import Depends, Request
 
 from api.auth import Principal, current_principal
-from api.users import UserStore, user_store
+from api.users import User, UserStore, admin_user, user_store
 from shared.config import Settings
 from shared.solvers import Availability, Solver, UnknownSolver, get_solver
 from workers.store import JobStore
@@ -78,6 +78,8 @@ def services(request: Request) -> Services:
 ServicesDep = Annotated[Services, Depends(services)]
 PrincipalDep = Annotated[Principal, Depends(current_principal)]
 UsersDep = Annotated[UserStore, Depends(user_store)]
+#: The caller when they are an admin (403 otherwise).
+AdminDep = Annotated[User, Depends(admin_user)]
 
 
 def load_solver(name: str) -> tuple[Solver | None, Availability]:

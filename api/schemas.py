@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
@@ -12,6 +13,10 @@ from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
 from workers.records import GroundTruth, JobState, Progress
+
+if TYPE_CHECKING:
+    from shared.solvers.qpu_time import JobEstimate
+    from workers.quota.ledger import UserUsage as LedgerUsage
 
 
 class Links(BaseModel):
@@ -32,7 +37,14 @@ class JobCreated(BaseModel):
 
 
 class LevelTiming(BaseModel):
-    """One pyramid level (``shared.pipeline.LevelReport``); times in seconds."""
+    """One pyramid level of a job's status; times in seconds.
+
+    The wire form of ``shared.pipeline.LevelReport`` (its fields, pinned by
+    tests/api/test_wire_models.py), not the dataclass itself: the report's ``info`` (the
+    solver's embedding notes) is not sent, a non-finite energy or time is null (JSON has no
+    Infinity), and the fields carry the OpenAPI descriptions. Built in one place: ``JobStatus``
+    validates the job record's level dicts (``asdict(LevelReport)``, made finite-or-null by
+    ``workers.records.JobRecord``)."""
 
     index: int
     downsample: int
@@ -187,7 +199,11 @@ class Health(BaseModel):
 
 
 class LevelEstimate(BaseModel):
-    """One pyramid level of an estimate: bundle count x per-bundle metered time."""
+    """One pyramid level of an estimate: bundle count x per-bundle metered time.
+
+    The wire form of ``shared.solvers.qpu_time.LevelEstimate`` (its ``as_dict``): height and
+    width instead of its ``shape`` tuple, and the derived ``bundles_sent`` and
+    ``classical_share`` as fields. Built only by ``Estimate.of``."""
 
     index: int
     height: int
@@ -211,7 +227,11 @@ class LevelEstimate(BaseModel):
 
 
 class Estimate(BaseModel):
-    """What a job would be charged, before it is run (``POST /v1/estimate``)."""
+    """What a job would be charged, before it is run (``POST /v1/estimate``).
+
+    The wire form of ``shared.solvers.qpu_time.JobEstimate`` (its ``as_dict``: the derived
+    ``metered``, ``bundles_sent`` and ``classical_share`` as fields) plus what the request
+    resolved and the caller's budget; built by ``of``."""
 
     solver: str
     metered: bool = Field(description="false: the solver spends no QPU/hybrid budget")
@@ -228,3 +248,49 @@ class Estimate(BaseModel):
         description="Your budget left; null: unlimited, or the solver is not metered"
     )
     fits: bool = Field(description="false: POST /v1/jobs would answer 403 for this job")
+
+    @classmethod
+    def of(cls, job: JobEstimate, max_disparity: int, remaining_seconds: float) -> Estimate:
+        """The estimate of ``job`` at the resolved range, against the budget left (infinite:
+        unlimited, or nothing to charge)."""
+        return cls(
+            **job.as_dict(),
+            max_disparity=max_disparity,
+            remaining_seconds=None if math.isinf(remaining_seconds) else remaining_seconds,
+            fits=job.seconds <= remaining_seconds,
+        )
+
+
+class JobUsage(BaseModel):
+    """What one job was charged (``GET /v1/usage``): the wire form of
+    ``workers.quota.ledger.JobUsage``, whose ``job_id`` and ``seconds`` are sent as ``id`` and
+    ``qpu_seconds``. Built only by ``UserUsage.of``."""
+
+    id: str
+    qpu_seconds: float = Field(description="QPU access time (hybrid: charge time) charged")
+    problems: int = Field(description="QPU / hybrid problems sent")
+
+
+class UserUsage(BaseModel):
+    """One user's budget and charges (``GET /v1/usage``): the wire form of
+    ``workers.quota.ledger.UserUsage``, whose budget (a ``QuotaStatus``) is sent flat, as
+    ``{what}_seconds`` fields beside the jobs; built by ``of``."""
+
+    user: str
+    limit_seconds: float | None = Field(description="Total budget; null: unlimited")
+    used_seconds: float
+    reserved_seconds: float = Field(description="Held by bundles being solved right now")
+    remaining_seconds: float | None
+    jobs: list[JobUsage]
+
+    @classmethod
+    def of(cls, usage: LedgerUsage) -> UserUsage:
+        """The wire form of a user's usage (the ledger's ``as_dict``, which ``qhsm admin
+        usage`` prints too)."""
+        return cls.model_validate(usage.as_dict())
+
+
+class Usage(BaseModel):
+    users: list[UserUsage] = Field(description="Your own entry; admins: everyone's")
+    total_used_seconds: float
+    qpu_in_flight: int | None = Field(None, description="Lab-wide problems in flight (admins)")

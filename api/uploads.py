@@ -1,5 +1,6 @@
-"""Validation of job uploads. Every problem becomes an ``UploadError`` with a 4xx status and a
-message that says what is wrong and what to do; nothing a client sends can cause a 5xx."""
+"""Validation of job uploads. Every problem becomes an ``UploadError`` (its kind a 4xx
+``api.errors.Refusal``) with a message that says what is wrong and what to do; nothing a client
+sends can cause a 5xx."""
 
 from __future__ import annotations
 
@@ -8,15 +9,15 @@ import json
 import math
 import re
 import tokenize
-from typing import Any
+from typing import IO, Any, Protocol
 
 import cv2
 import imagesize
 import numpy as np
-from fastapi import UploadFile, status
 from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
+from api.errors import AdmissionError, Refusal
 from shared.config import MatchConfig, Settings
 from shared.images import ImageError, check_pair, decode_image
 
@@ -43,11 +44,18 @@ MAX_LABEL = 200
 MAX_NAME = 120
 
 
-class UploadError(Exception):
-    def __init__(self, status_code: int, message: str):
-        super().__init__(message)
-        self.status_code = status_code
-        self.message = message
+class Upload(Protocol):
+    """An uploaded file as the service reads it (FastAPI's ``UploadFile`` is one)."""
+
+    @property
+    def filename(self) -> str | None: ...
+
+    @property
+    def file(self) -> IO[bytes]: ...
+
+
+class UploadError(AdmissionError):
+    """An upload or its ``params`` refused: what is wrong with which form field."""
 
 
 def one_line(text: str | None, limit: int = MAX_LABEL) -> str:
@@ -65,13 +73,13 @@ def display_name(filename: str | None) -> str:
     return one_line(re.split(r"[/\\]", filename or "")[-1], MAX_NAME)
 
 
-def read_upload(upload: UploadFile, name: str, settings: Settings) -> bytes:
+def read_upload(upload: Upload, name: str, settings: Settings) -> bytes:
     """The file's bytes, refusing anything above ``Settings.max_upload_bytes``."""
     limit = settings.max_upload_bytes
     data = upload.file.read(limit + 1)
     if len(data) > limit:
         raise UploadError(
-            status.HTTP_413_CONTENT_TOO_LARGE,
+            Refusal.TOO_LARGE,
             f"{name}: the file is larger than the limit of {limit} bytes "
             "(QHSM_MAX_UPLOAD_BYTES); send a smaller image",
         )
@@ -94,7 +102,7 @@ def check_pixels(width: int, height: int, name: str, settings: Settings) -> None
     pixels = width * height
     if pixels > settings.max_image_pixels:
         raise UploadError(
-            status.HTTP_413_CONTENT_TOO_LARGE,
+            Refusal.TOO_LARGE,
             f"{name}: {width}x{height} = {pixels} pixels is above the limit of "
             f"{settings.max_image_pixels} (QHSM_MAX_IMAGE_PIXELS); downsample the pair first",
         )
@@ -110,7 +118,7 @@ def decode_view(data: bytes, name: str, settings: Settings) -> np.ndarray:
     size = declared_size(data) if data else None
     if data and size is None:
         raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            Refusal.UNSUPPORTED,
             f"{name}: not a readable image (supported: PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)",
         )
     if size is not None:
@@ -118,11 +126,9 @@ def decode_view(data: bytes, name: str, settings: Settings) -> np.ndarray:
     try:
         image = decode_image(data, name)
     except ImageError as error:
-        raise UploadError(status.HTTP_415_UNSUPPORTED_MEDIA_TYPE, str(error)) from None
+        raise UploadError(Refusal.UNSUPPORTED, str(error)) from None
     except cv2.error:  # OpenCV's own checks (e.g. a header it reads differently)
-        raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE, f"{name}: the image cannot be decoded"
-        ) from None
+        raise UploadError(Refusal.UNSUPPORTED, f"{name}: the image cannot be decoded") from None
     check_pixels(image.shape[1], image.shape[0], name, settings)
     return image
 
@@ -133,7 +139,7 @@ def decode_pair(left: bytes, right: bytes, settings: Settings) -> tuple[np.ndarr
     try:
         check_pair(left_image, right_image)
     except ImageError as error:
-        raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, str(error)) from None
+        raise UploadError(Refusal.INVALID, str(error)) from None
     return left_image, right_image
 
 
@@ -141,7 +147,7 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
     """Stored ground-truth values (disparity x gt_scale; 0 = unknown) from PNG/PGM/PFM/npy."""
     name = "ground_truth"
     if not data:
-        raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: the file is empty")
+        raise UploadError(Refusal.INVALID, f"{name}: the file is empty")
     values: np.ndarray | None
     if data.startswith(NPY_MAGIC):
         values = read_npy(data, shape)
@@ -149,12 +155,12 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
         size = declared_size(data)  # checked before decoding, as for the views
         if size is None:
             raise UploadError(
-                status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+                Refusal.UNSUPPORTED,
                 f"{name}: not a readable disparity map (send PNG/PGM, PFM or .npy)",
             )
         if (size[1], size[0]) != shape:
             raise UploadError(
-                status.HTTP_422_UNPROCESSABLE_CONTENT,
+                Refusal.INVALID,
                 f"{name} is {size[0]}x{size[1]} but the views are "
                 f"{shape[1]}x{shape[0]}: send the left view's ground truth at full size",
             )
@@ -164,18 +170,16 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
             values = None
     if values is None or not isinstance(values, np.ndarray) or values.ndim not in (2, 3):
         raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            Refusal.UNSUPPORTED,
             f"{name}: not a readable disparity map (send PNG/PGM, PFM or .npy)",
         )
     if values.ndim == 3:
         values = values[:, :, 0]
     if values.dtype.kind not in "uif":
-        raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE, f"{name}: unsupported values {values.dtype}"
-        )
+        raise UploadError(Refusal.UNSUPPORTED, f"{name}: unsupported values {values.dtype}")
     if values.shape != shape:
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             f"{name} is {values.shape[1]}x{values.shape[0]} but the views are "
             f"{shape[1]}x{shape[0]}: send the left view's ground truth at full size",
         )
@@ -192,7 +196,7 @@ def read_npy(data: bytes, shape: tuple[int, int]) -> np.ndarray:
         version = npy_format.read_magic(stream)
     except ValueError as error:
         raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            Refusal.UNSUPPORTED,
             f"{name}: not a readable .npy file ({error}); save it with numpy.save",
         ) from None
     readers = {
@@ -201,7 +205,7 @@ def read_npy(data: bytes, shape: tuple[int, int]) -> np.ndarray:
     }
     if version not in readers:
         raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            Refusal.UNSUPPORTED,
             f"{name}: not a readable .npy file (version {version[0]}.{version[1]} is not "
             "supported); save it with numpy.save",
         )
@@ -211,27 +215,27 @@ def read_npy(data: bytes, shape: tuple[int, int]) -> np.ndarray:
         # numpy tokenizes and literal-evaluates the header: what it raises on one that does
         # not parse
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             f"{name}: not a readable .npy file, its header does not parse ({error}); save it "
             "with numpy.save",
         ) from None
     dims, fortran_order, dtype = header
     if dtype.hasobject or dtype.kind not in "uif" or dtype.subdtype is not None:
         raise UploadError(
-            status.HTTP_415_UNSUPPORTED_MEDIA_TYPE,
+            Refusal.UNSUPPORTED,
             f"{name}: unsupported values {dtype} (send integers or floats)",
         )
     if len(dims) not in (2, 3) or tuple(dims[:2]) != shape or (len(dims) == 3 and dims[2] > 4):
         described = "x".join(map(str, dims[1::-1] if len(dims) >= 2 else dims)) or "a scalar"
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             f"{name} is {described} but the views are {shape[1]}x{shape[0]}: "
             "send the left view's ground truth at full size",
         )
     count = math.prod(dims)
     if len(data) - stream.tell() < count * dtype.itemsize:
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             f"{name}: the .npy file is truncated (its header announces {count} values)",
         )
     values = np.frombuffer(data, dtype=dtype, count=count, offset=stream.tell())
@@ -259,7 +263,7 @@ def parse_config(params: str | None) -> MatchConfig:
         return MatchConfig.model_validate({})  # every field from the default preset
     if len(params) > MAX_PARAMS_CHARS:
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             f"params: {len(params)} characters, above the limit of {MAX_PARAMS_CHARS}; send "
             "only the MatchConfig fields you change",
         )
@@ -267,31 +271,27 @@ def parse_config(params: str | None) -> MatchConfig:
         raw: Any = json.loads(params, parse_float=_finite_number, parse_constant=_no_constant)
     except json.JSONDecodeError as error:
         raise UploadError(
-            status.HTTP_400_BAD_REQUEST, f"params: not valid JSON ({error.msg} at {error.pos})"
+            Refusal.MALFORMED, f"params: not valid JSON ({error.msg} at {error.pos})"
         ) from None
     except ValueError as error:  # NaN, Infinity or a float that overflows (1e400)
-        raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {error}; numbers must be finite"
-        ) from None
+        raise UploadError(Refusal.INVALID, f"params: {error}; numbers must be finite") from None
     except RecursionError:
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             "params: nested too deeply; send the MatchConfig fields as a flat JSON object",
         ) from None
     if not isinstance(raw, dict):
         raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT,
+            Refusal.INVALID,
             'params: expected a JSON object such as {"solver": "exact", "max_disparity": 16}',
         )
     try:
         return MatchConfig.model_validate(raw)
     except RecursionError:
-        raise UploadError(
-            status.HTTP_422_UNPROCESSABLE_CONTENT, "params: nested too deeply"
-        ) from None
+        raise UploadError(Refusal.INVALID, "params: nested too deeply") from None
     except ValidationError as error:
         problems = "; ".join(
             f"{'.'.join(map(str, e['loc']))}: {e['msg']}" if e["loc"] else e["msg"]
             for e in error.errors()
         )
-        raise UploadError(status.HTTP_422_UNPROCESSABLE_CONTENT, f"params: {problems}") from None
+        raise UploadError(Refusal.INVALID, f"params: {problems}") from None

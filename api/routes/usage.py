@@ -4,40 +4,19 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi import APIRouter, HTTPException, Query
 from fastapi import status as http
-from pydantic import BaseModel, Field
 
-from api.users import User, UserStore, current_user, user_store
+from api.deps import PrincipalDep, UsersDep
+from api.schemas import Usage, UserUsage
 
 router = APIRouter(prefix="/v1", tags=["usage"])
 
 
-class JobUsage(BaseModel):
-    id: str
-    qpu_seconds: float = Field(description="QPU access time (hybrid: charge time) charged")
-    problems: int = Field(description="QPU / hybrid problems sent")
-
-
-class UserUsage(BaseModel):
-    user: str
-    limit_seconds: float | None = Field(description="Total budget; null: unlimited")
-    used_seconds: float
-    reserved_seconds: float = Field(description="Held by bundles being solved right now")
-    remaining_seconds: float | None
-    jobs: list[JobUsage]
-
-
-class Usage(BaseModel):
-    users: list[UserUsage] = Field(description="Your own entry; admins: everyone's")
-    total_used_seconds: float
-    qpu_in_flight: int | None = Field(None, description="Lab-wide problems in flight (admins)")
-
-
 @router.get("/usage", response_model=Usage)
 def usage(
-    caller: Annotated[User, Depends(current_user)],
-    store: Annotated[UserStore, Depends(user_store)],
+    caller: PrincipalDep,
+    store: UsersDep,
     user: Annotated[str | None, Query(description="Admins: only this user")] = None,
 ) -> Usage:
     """Your QPU usage per job and in total, and what is left of your budget. Admins see every
@@ -52,7 +31,7 @@ def usage(
         names = [user]
     else:
         names = sorted({u.name for u in store.list_users()} | set(store.ledger.users()))
-    entries = [UserUsage.model_validate(store.ledger.usage(name).as_dict()) for name in names]
+    entries = [UserUsage.of(store.ledger.usage(name)) for name in names]
     in_flight = None
     if caller.admin:
         from workers.quota import QpuSemaphore

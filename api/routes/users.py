@@ -5,26 +5,15 @@ Keys are returned once, in the answer of the request that made them; only their 
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi import status as http
 from pydantic import BaseModel, Field
 
-from api.users import (
-    DEFAULT_BUDGET,
-    User,
-    UserError,
-    UserStore,
-    admin_user,
-    current_user,
-    user_store,
-)
+from api.deps import AdminDep, PrincipalDep, UsersDep
+from api.users import DEFAULT_BUDGET, User, UserError, UserStore, admin_user
 
 router = APIRouter(prefix="/v1/users", tags=["users"], dependencies=[Depends(admin_user)])
 me_router = APIRouter(prefix="/v1", tags=["users"])
-
-StoreDep = Annotated[UserStore, Depends(user_store)]
 
 
 class UserInfo(User):
@@ -73,19 +62,19 @@ def existing(store: UserStore, name: str) -> User:
 
 
 @me_router.get("/me", response_model=User)
-def me(caller: Annotated[User, Depends(current_user)]):
+def me(caller: PrincipalDep):
     """Who the key belongs to and whether they are an admin (the web page's sign-in check)."""
     return caller
 
 
 @router.get("", response_model=list[UserInfo])
-def list_users(store: StoreDep):
+def list_users(store: UsersDep):
     """Every user with their key id, state and QPU budget (admins only)."""
     return [info(store, user) for user in store.list_users()]
 
 
 @router.post("", response_model=IssuedKey, status_code=http.HTTP_201_CREATED)
-def create_user(body: NewUser, store: StoreDep):
+def create_user(body: NewUser, store: UsersDep):
     """Add a user; the answer holds their API key, shown once."""
     budget = body.qpu_seconds if "qpu_seconds" in body.model_fields_set else DEFAULT_BUDGET
     if store.get(body.name) is not None:
@@ -100,7 +89,7 @@ def create_user(body: NewUser, store: StoreDep):
 
 
 @router.post("/{name}/key", response_model=IssuedKey)
-def rotate_key(name: str, store: StoreDep):
+def rotate_key(name: str, store: UsersDep):
     """A new key for the user (the old one stops working at once); shown once."""
     existing(store, name)
     key = store.rotate_key(name)
@@ -108,7 +97,7 @@ def rotate_key(name: str, store: StoreDep):
 
 
 @router.delete("/{name}/key", response_model=UserInfo)
-def revoke_key(name: str, store: StoreDep, caller: Annotated[User, Depends(admin_user)]):
+def revoke_key(name: str, store: UsersDep, caller: AdminDep):
     """Disable the user's key; their jobs and usage stay. Rotating gives them a new one."""
     existing(store, name)
     if name == caller.name:
@@ -120,7 +109,7 @@ def revoke_key(name: str, store: StoreDep, caller: Annotated[User, Depends(admin
 
 
 @router.put("/{name}/quota", response_model=UserInfo)
-def set_quota(name: str, body: Quota, store: StoreDep):
+def set_quota(name: str, body: Quota, store: UsersDep):
     """Set the user's total QPU budget in seconds (null: unlimited)."""
     user = existing(store, name)
     store.ledger.set_limit(name, body.qpu_seconds)

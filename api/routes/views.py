@@ -9,20 +9,14 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, File, HTTPException, Query, UploadFile
-from fastapi import status as http
+from fastapi import APIRouter, File, Query, UploadFile
 from fastapi.responses import Response
 
 from api.auth import Principal
 from api.deps import PrincipalDep, Responses, Services, ServicesDep
-from api.routes.jobs import (
-    NOT_FOUND,
-    SCALE_HEADER,
-    UPLOAD_ERRORS,
-    display_max,
-    find_job,
-    finished_result,
-)
+from api.errors import ExpiredError, Refusal, ServiceError
+from api.job_service import find_job, finished_result
+from api.routes.jobs import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.uploads import decode_view, read_upload
 from shared.images import colorize
 from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
@@ -49,17 +43,13 @@ def png(image: np.ndarray, top: float | None = None) -> Response:
     )
 
 
-def gone(job_id: str, what: str) -> HTTPException:
-    return HTTPException(http.HTTP_410_GONE, f"the {what} of job {job_id} has expired")
-
-
 @router.get("/{job_id}/left.png", response_class=Response, responses={**NOT_FOUND, **PNG})
 def get_left(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     """The left view as the job received it (8-bit)."""
     find_job(job_id, svc, principal)
     data = svc.store.load_view(job_id, "left.png")
     if data is None:
-        raise gone(job_id, "left view")
+        raise ExpiredError(job_id, "left view")
     return Response(data, media_type="image/png")
 
 
@@ -67,13 +57,13 @@ def errors_of(job_id: str, svc: Services, principal: Principal) -> np.ndarray:
     """|disparity - ground truth| in pixels, NaN where not evaluated."""
     record, disparity = finished_result(job_id, svc, principal)
     if record.ground_truth is None:
-        raise HTTPException(
-            http.HTTP_404_NOT_FOUND,
+        raise ServiceError(
+            Refusal.NOT_FOUND,
             f"job {job_id} was submitted without a ground truth, so it has no error map",
         )
     truth = svc.store.load_ground_truth(job_id)
     if truth is None:
-        raise gone(job_id, "ground truth")
+        raise ExpiredError(job_id, "ground truth")
     return error_map(disparity, truth, record.ground_truth.scale, record.ground_truth.border)
 
 
@@ -131,8 +121,8 @@ def get_difference(
     _, first = finished_result(job_id, svc, principal)
     _, second = finished_result(other, svc, principal)
     if first.shape != second.shape:
-        raise HTTPException(
-            http.HTTP_422_UNPROCESSABLE_CONTENT,
+        raise ServiceError(
+            Refusal.INVALID,
             f"job {job_id} is {first.shape[1]}x{first.shape[0]} and job {other} is "
             f"{second.shape[1]}x{second.shape[0]}: only maps of one size can be compared",
         )

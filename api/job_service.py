@@ -1,0 +1,327 @@
+"""The job service: what admits a job (``POST /v1/jobs``) or prices one (``POST /v1/estimate``)
+and the job lookups the routes share, as plain functions of the app's :class:`Services`.
+
+Admission, in this order (a request with several problems is told the first): the owner's
+active-job cap (before the uploads are read), the ``params`` (a ``MatchConfig``), the solver and
+its parameters, the views, the disparity range when the budget needs it, the QPU budget of a
+metered solver, the ground truth; then the record is written and ``qhsm.start_job`` sent.
+
+Nothing here speaks HTTP: a refusal is a domain error (:mod:`api.errors`), which ``create_app``
+answers with its status and message.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from api.auth import Principal, can_see
+from api.deps import Services, load_solver
+from api.errors import AdmissionError, ExpiredError, JobNotFoundError, JobStateError, Refusal
+from api.uploads import (
+    Upload,
+    decode_ground_truth,
+    decode_pair,
+    display_name,
+    one_line,
+    parse_config,
+    read_upload,
+)
+from api.users import UserStore
+from shared.bundle_plan import bundle_width_setting
+from shared.config import MatchConfig
+from shared.disparity_range import RangeEstimate, resolve_max_disparity
+from shared.ground_truth import infer_gt_scale
+from shared.pipeline import match_views
+from shared.pyramid import plan
+from shared.residual import job_residual
+from shared.solvers import Availability, check_params
+from shared.solvers.embedding_cache import EmbeddingCache
+from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
+from shared.solvers.registry import queue_of
+from workers import embedding_store
+from workers.app import START_JOB, terminate_tasks
+from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
+from workers.store import ActiveJobsCapError
+
+
+@dataclass(frozen=True)
+class JobForm:
+    """A job as submitted: the form fields of ``POST /v1/jobs``, not read or checked yet."""
+
+    left: Upload
+    right: Upload
+    params: str | None = None
+    ground_truth: Upload | None = None
+    gt_scale: float | None = None
+    gt_border: int = GroundTruth.model_fields["border"].default
+    label: str | None = None
+
+
+@dataclass(frozen=True)
+class Quote:
+    """What a job would be charged (``POST /v1/estimate``): the estimate at the resolved range,
+    and the owner's budget left (infinite: unlimited, or nothing to charge)."""
+
+    estimate: JobEstimate
+    max_disparity: int
+    remaining_seconds: float
+
+
+# --- admission checks -----------------------------------------------------------------------
+
+
+def check_active_jobs(owner: str, svc: Services) -> None:
+    """Refuse at once, before the uploads are read, when the user already has
+    ``Settings.max_active_jobs_per_user`` jobs in flight (the cap is taken atomically when the
+    job is written: :meth:`workers.store.JobStore.create`)."""
+    cap = svc.settings.max_active_jobs_per_user
+    if not cap:  # 0 or None: no limit
+        return
+    active = svc.store.active_jobs(owner)
+    if active >= cap:
+        raise ActiveJobsCapError(owner, active, cap)
+
+
+def check_solver_name(config: MatchConfig) -> Availability:
+    """The solver must be registered (``UnknownSolver`` otherwise) and its bundle width
+    usable; returns whether it runs here."""
+    _, availability = load_solver(config.solver)
+    try:
+        bundle_width_setting(config)
+    except ValueError as error:
+        raise AdmissionError(Refusal.INVALID, f"params: {error}") from None
+    return availability
+
+
+def check_solver(config: MatchConfig, svc: Services) -> None:
+    """The solver must exist, and run here or have a worker consuming its queue."""
+    availability = check_solver_name(config)
+    if availability.ok:
+        return
+    consumers = svc.queues.consumers() or {}
+    queue = queue_of(config.solver)
+    if consumers.get(queue):
+        return
+    raise AdmissionError(
+        Refusal.INVALID,
+        f"solver {config.solver!r} is not available: {availability.reason}; and no worker "
+        f"consumes its queue (start one where it can run: "
+        f"celery -A workers worker -Q {queue})",
+    )
+
+
+def bounded_params(config: MatchConfig) -> MatchConfig:
+    """The config with its solver parameters checked against the solver's schema (the
+    registry's; ``InvalidSolverParamsError`` when one is outside it)."""
+    params = check_params(config.solver, config.solver_params)
+    return config.model_copy(update={"solver_params": params})
+
+
+def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEstimate:
+    """The job's disparity range: it decides the levels, hence the job's size."""
+    return resolve_max_disparity(
+        *match_views(left_image, right_image, config), config.max_disparity
+    )
+
+
+def range_at_submit(left_image, right_image, config: MatchConfig) -> RangeEstimate | None:
+    """The range, resolved in the request only when the QPU budget check needs it: a metered
+    solver with ``max_disparity: auto`` (the estimate of its QPU time depends on it, and the
+    job is refused before it is queued when it does not fit). Every other job's range estimate
+    and views check run in its first control task (``workers.orchestration.start_job``), off
+    the HTTP request; their result appears in the job's status once it has started."""
+    if is_metered(config.solver) and not isinstance(config.max_disparity, int):
+        return disparity_range_of(left_image, right_image, config)
+    return None
+
+
+def ground_truth_protocol(
+    left_image: np.ndarray,
+    right_image: np.ndarray,
+    values: np.ndarray,
+    scale: float | None,
+    border: int,
+) -> tuple[GroundTruth, str]:
+    """How an uploaded ground truth is scored: the given scale, else one inferred from the
+    views, with the note that says so (``ScaleNotInferredError`` when they do not tell)."""
+    if scale is not None:
+        return GroundTruth(scale=scale, border=border), ""
+    estimate = infer_gt_scale(left_image, right_image, values)
+    return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
+
+
+def estimate_job(
+    config: MatchConfig, left_image, right_image, max_disparity: int, svc: Services
+) -> JobEstimate:
+    """The job's metered time, with the actual embeddings the workers have already found
+    (shared through Redis) for bundle shapes they have met and what roof duality leaves of the
+    bundles (surveyed on the pair); refused for unusable solver_params."""
+    cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
+    try:
+        residual = job_residual(config, left_image, right_image, max_disparity, cache)
+        return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
+    except (TypeError, ValueError, KeyError) as error:
+        raise AdmissionError(
+            Refusal.INVALID,
+            f"params: cannot estimate the job's QPU time from solver_params ({error})",
+        ) from None
+
+
+def check_budget(
+    config: MatchConfig,
+    left_image,
+    right_image,
+    max_disparity: int,
+    owner: str,
+    users: UserStore,
+    svc: Services,
+) -> None:
+    """``QuotaExceeded`` when a metered job's estimate exceeds what is left of its owner's QPU
+    budget."""
+    if not is_metered(config.solver):
+        return
+    estimate = estimate_job(config, left_image, right_image, max_disparity, svc)
+    users.ledger.check(owner, estimate.seconds, f"this job ({estimate.bundles} bundles)")
+
+
+# --- submission -----------------------------------------------------------------------------
+
+
+def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRecord:
+    """Admit a job and queue it: the record as written (``state`` queued)."""
+    settings = svc.settings
+    check_active_jobs(owner, svc)
+    config = parse_config(form.params)
+    check_solver(config, svc)
+    config = bounded_params(config)
+    left_image, right_image = decode_pair(
+        read_upload(form.left, "left", settings),
+        read_upload(form.right, "right", settings),
+        settings,
+    )
+    # the range decides the levels, hence the job's size: given, resolved here for a metered
+    # solver's budget, or else resolved once by the job's first control task
+    disparity_range = range_at_submit(left_image, right_image, config)
+    top = disparity_range.max_disparity if disparity_range else config.max_disparity
+    if isinstance(top, int):
+        check_budget(config, left_image, right_image, top, owner, users, svc)
+    arrays = {"left": left_image, "right": right_image}
+    warnings = [disparity_range.warning] if disparity_range and disparity_range.warning else []
+    truth = None
+    if form.ground_truth is not None:
+        arrays["ground_truth"] = decode_ground_truth(
+            read_upload(form.ground_truth, "ground_truth", settings), left_image.shape[:2]
+        )
+        truth, note = ground_truth_protocol(
+            left_image, right_image, arrays["ground_truth"], form.gt_scale, form.gt_border
+        )
+        warnings += [note] if note else []
+    record = JobRecord(
+        id=new_job_id(),
+        owner=owner,
+        config=config,
+        width=left_image.shape[1],
+        height=left_image.shape[0],
+        label=one_line(form.label) or None,
+        files=[display_name(upload.filename) for upload in (form.left, form.right)],
+        warnings=warnings,
+        ground_truth=truth,
+        created_at=now(),
+        disparity_range=disparity_range.as_dict() if disparity_range else None,
+        levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
+    )
+    dispatch(record, arrays, svc)
+    return record
+
+
+def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> None:
+    """Keep the left view the web page shows beside the result (8-bit PNG); the ground truth
+    is kept by :meth:`~workers.store.JobStore.create`, for the scoring and the error map."""
+    view = np.rint(np.clip(arrays["left"], 0.0, 1.0) * 255).astype(np.uint8)
+    svc.store.save_view(job_id, "left.png", cv2.imencode(".png", view)[1].tobytes())
+
+
+def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) -> None:
+    """Write the job (under its owner's active-job cap: ``ActiveJobsCapError``) and send its
+    first control task; a job that could not be queued is removed again."""
+    settings = svc.settings
+    svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
+    try:
+        keep_views(svc, record.id, arrays)
+        svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    except BaseException:  # a full disk or Redis gone: the job was never queued
+        with contextlib.suppress(Exception):
+            svc.store.discard(record.id)
+        raise
+
+
+def quote(
+    params: str | None, left: Upload, right: Upload, owner: str, svc: Services, users: UserStore
+) -> Quote:
+    """What a job with these uploads and params would be charged; nothing is stored. The same
+    checks as :func:`submit` up to the budget, with the range always resolved."""
+    settings = svc.settings
+    config = parse_config(params)
+    check_solver_name(config)
+    left_image, right_image = decode_pair(
+        read_upload(left, "left", settings), read_upload(right, "right", settings), settings
+    )
+    top = disparity_range_of(left_image, right_image, config).max_disparity
+    job = estimate_job(config, left_image, right_image, top, svc)
+    remaining = users.ledger.status(owner).remaining if job.seconds > 0 else float("inf")
+    return Quote(estimate=job, max_disparity=top, remaining_seconds=remaining)
+
+
+# --- lookups --------------------------------------------------------------------------------
+
+
+def find_job(job_id: str, svc: Services, principal: Principal) -> JobRecord:
+    """The job, if the caller may see it (``JobNotFoundError`` otherwise: whether someone
+    else's job exists is not told)."""
+    record = svc.store.get(job_id)
+    if record is None or not can_see(principal, record):
+        raise JobNotFoundError(job_id, svc.settings.result_ttl_seconds)
+    return record
+
+
+def finished_result(
+    job_id: str, svc: Services, principal: Principal
+) -> tuple[JobRecord, np.ndarray]:
+    """A succeeded job and its disparity (``JobStateError`` before, ``ExpiredError`` after
+    its result expired)."""
+    record = find_job(job_id, svc, principal)
+    if record.state is not JobState.SUCCEEDED:
+        hint = (
+            f"poll GET /v1/jobs/{job_id} until its state is succeeded"
+            if record.state in ACTIVE
+            else "it has no result"
+        )
+        raise JobStateError(f"job {job_id} is {record.state.value}: {hint}")
+    disparity = svc.store.load_result(job_id)
+    if disparity is None:
+        raise ExpiredError(job_id, "result")
+    return record, disparity
+
+
+def cancel(job_id: str, svc: Services, principal: Principal) -> JobRecord:
+    """Cancel a queued or running job and stop its running solver tasks; a job cancelled
+    already is returned as it is, a finished one refused (``JobStateError``)."""
+    find_job(job_id, svc, principal)
+    record = svc.store.transition(job_id, JobState.CANCELLED, ACTIVE)
+    if record is None:
+        record = find_job(job_id, svc, principal)
+        if record.state is not JobState.CANCELLED:
+            raise JobStateError(
+                f"job {job_id} already {record.state.value}; there is nothing to cancel"
+            )
+    stop_tasks(record, svc)
+    return record
+
+
+def stop_tasks(record: JobRecord, svc: Services) -> None:
+    """Revoke the cancelled job's running solver tasks and kill the processes running them."""
+    terminate_tasks(svc.celery, svc.store.running_tasks(record.id), record.config.solver)
