@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any
 
 from celery import Celery
-from fastapi import Depends, Request
+from fastapi import Depends, File, Form, Request, UploadFile
 
 from api.auth import Principal, current_principal
 from api.users import User, UserStore, admin_user, user_store
@@ -80,6 +80,13 @@ PrincipalDep = Annotated[Principal, Depends(current_principal)]
 UsersDep = Annotated[UserStore, Depends(user_store)]
 #: The caller when they are an admin (403 otherwise).
 AdminDep = Annotated[User, Depends(admin_user)]
+
+#: The upload form's fields shared by POST /v1/jobs and POST /v1/estimate (the same form).
+LeftView = Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")]
+RightView = Annotated[UploadFile, File(description="Right view, same size")]
+ParamsForm = Annotated[
+    str | None, Form(description='MatchConfig fields as JSON, e.g. {"solver": "qpu"}')
+]
 
 
 def load_solver(name: str) -> tuple[Solver | None, Availability]:

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Annotated
-
-from fastapi import APIRouter, File, Form, UploadFile
+from fastapi import APIRouter
 
 from api import job_service
-from api.deps import PrincipalDep, ServicesDep, UsersDep
+from api.deps import LeftView, ParamsForm, PrincipalDep, RightView, ServicesDep, UsersDep
 from api.routes.jobs import UPLOAD_ERRORS
 from api.schemas import Estimate
 
@@ -26,11 +24,9 @@ def estimate(
     svc: ServicesDep,
     principal: PrincipalDep,
     users: UsersDep,
-    left: Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")],
-    right: Annotated[UploadFile, File(description="Right view, same size")],
-    params: Annotated[
-        str | None, Form(description='MatchConfig fields as JSON, e.g. {"solver": "qpu"}')
-    ] = None,
+    left: LeftView,
+    right: RightView,
+    params: ParamsForm = None,
 ) -> Estimate:
     """The QPU (or hybrid) seconds a job with these images and params would be charged, per
     level, and whether it fits your remaining budget. Nothing is stored or queued. Bundle shapes

@@ -11,7 +11,16 @@ from fastapi.responses import JSONResponse, Response
 
 from api import job_service
 from api.auth import can_see
-from api.deps import PrincipalDep, Responses, Services, ServicesDep, UsersDep
+from api.deps import (
+    LeftView,
+    ParamsForm,
+    PrincipalDep,
+    Responses,
+    RightView,
+    Services,
+    ServicesDep,
+    UsersDep,
+)
 from api.job_service import JobForm, find_job, finished_result
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import MAX_LABEL
@@ -109,11 +118,9 @@ def create_job(
     svc: ServicesDep,
     principal: PrincipalDep,
     users: UsersDep,
-    left: Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")],
-    right: Annotated[UploadFile, File(description="Right view, same size")],
-    params: Annotated[
-        str | None, Form(description='MatchConfig fields as JSON, e.g. {"solver": "sa"}')
-    ] = None,
+    left: LeftView,
+    right: RightView,
+    params: ParamsForm = None,
     ground_truth: Annotated[
         UploadFile | None, File(description="Left disparity ground truth (PNG/PGM/PFM/npy)")
     ] = None,
