@@ -72,7 +72,7 @@ def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
     """Revoke tasks and kill the pool processes running them, so a cancelled or failed job
     frees its workers at once. SIGKILL: a solver in native code ignores anything softer;
     metered solvers get SIGTERM so their QPU slot and budget reservation are released."""
-    from shared.solvers.qpu_time import is_metered
+    from shared.solvers.meters import is_metered
 
     if task_ids:
         signal = "SIGTERM" if is_metered(solver) else "SIGKILL"

@@ -40,7 +40,7 @@ from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
 from shared.solve import solve_bundles
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.meters import is_metered
 from shared.solvers.registry import queue_of
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, task_time_limits

@@ -393,3 +393,24 @@ class RowSolver(Protocol):
             Label index per pixel, shape (h, w).
         """
         ...
+
+
+@runtime_checkable
+class BatchSolver(Protocol):
+    """A solver that takes a task's bundles at once and sends them as few problems as it can
+    (the QPU solvers: packed calls; the hybrid solvers: a level's rests joined)."""
+
+    def solve_batch(self, problems: list[tuple], **params: Any) -> list[SolveResult]:
+        """One :class:`SolveResult` per ``(bqm, seed, warm start or None)``, in order; a
+        problem's charge is shared among the bundles it carried."""
+        ...
+
+
+@runtime_checkable
+class LiveTiming(Protocol):
+    """A solver backed by a cloud QPU whose own timing data the estimates can use."""
+
+    def timing_solver(self) -> Any:
+        """The ``dwave.cloud`` solver with ``estimate_qpu_access_time`` and
+        ``problem_timing_data``; None offline or when it cannot be reached."""
+        ...

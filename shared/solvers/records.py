@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 from shared.solvers import params as schemas
 
@@ -23,8 +23,9 @@ class SolverSpec:
     """Everything declared about one solver, once.
 
     ``factory`` is ``"module:attribute"`` of a zero-argument callable (or the callable itself)
-    returning the sampler. ``meter`` says how a job on it is charged to its owner's budget
-    (``"qpu"``: the QPU timing model, ``"hybrid"``: Leap's hybrid charge; None: not metered);
+    returning the sampler. ``meter`` names the meter a job on it is charged to its owner's
+    budget with (:mod:`shared.solvers.meters`: ``"qpu"``, the QPU timing model, ``"hybrid"``,
+    Leap's hybrid charge, or one a plugin registered; None: not metered);
     ``offline`` marks a stand-in for a cloud service (charged what the real one would take).
     """
 
@@ -32,7 +33,7 @@ class SolverSpec:
     factory: str | Callable[[], Any]
     description: str = ""
     params: type[schemas.SolverParams] = schemas.NoParams
-    meter: Literal["qpu", "hybrid"] | None = None
+    meter: str | None = None
     offline: bool = False
     #: The Celery queue its bundles go to (None: the solver's name).
     queue: str | None = None
