@@ -414,3 +414,25 @@ class LiveTiming(Protocol):
         """The ``dwave.cloud`` solver with ``estimate_qpu_access_time`` and
         ``problem_timing_data``; None offline or when it cannot be reached."""
         ...
+
+
+@runtime_checkable
+class ShapePlanner(Protocol):
+    """A solver that embeds on a QPU graph, so a level's bundles are planned on it
+    (``shared.bundle_plan``): the widest row segment that embeds (``--bundle-width auto``) and
+    each bundle shape's embedding, found once before the bundles fan out."""
+
+    #: Where the embeddings are kept (an ``EmbeddingCache``: ``computed`` counts new ones).
+    cache: Any
+
+    def widest_bundle(
+        self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int
+    ) -> int | None:
+        """The widest row segment whose QUBO embeds (None: whole rows)."""
+        ...
+
+    def embed_shapes(
+        self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
+    ) -> None:
+        """Find (or look up) each shape's embedding."""
+        ...
