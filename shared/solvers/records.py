@@ -16,6 +16,8 @@ ENTRY_POINT_GROUP = "qhsm.solvers"
 DIMOD_PREFIX = "dimod:"
 #: The Celery queue of every ``dimod:`` solver.
 DIMOD_QUEUE = "dimod"
+#: The group of workers that runs what needs nothing but CPUs (and the ``dimod`` queue).
+CPU_WORKERS = "cpu"
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,10 @@ class SolverSpec:
     offline: bool = False
     #: The Celery queue its bundles go to (None: the solver's name).
     queue: str | None = None
+    #: The group of workers that consumes its queue, where what it needs is (a licence, the
+    #: D-Wave token): docker-compose.yml's ``worker-<group>`` service, ``python -m
+    #: workers.queues <group>``.
+    workers: str = CPU_WORKERS
     #: Works on the MRF costs of whole rows instead of a QUBO (shared.solve hands it rows).
     row_solver: bool = False
     #: Whether bundles start from the best guess at hand unless the config says otherwise:
