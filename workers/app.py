@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 START_JOB = "qhsm.start_job"
 PLAN_LEVEL = "qhsm.plan_level"
 FAN_OUT_LEVEL = "qhsm.fan_out_level"
-SOLVE_ROWS = "qhsm.solve_rows"
+#: ``workers.tasks.solve_bundles``; the name is the old one, so that messages queued (or held
+#: unacknowledged) by an older version still find their task after an upgrade.
+SOLVE_BUNDLES = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
 
 

@@ -26,7 +26,7 @@ from workers.app import (
     FAN_OUT_LEVEL,
     LEVEL_DONE,
     PLAN_LEVEL,
-    SOLVE_ROWS,
+    SOLVE_BUNDLES,
     START_JOB,
     app,
     task_time_limits,
@@ -198,8 +198,9 @@ def fan_out_level(self, job_id: str, index: int) -> None:
         store().fail(job_id, orchestration.internal_error(job_id, f"starting level {index + 1}"))
 
 
-@app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
-def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
+@app.task(name=SOLVE_BUNDLES, bind=True, base=SolverTask)
+def solve_bundles(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
+    """Solve the bundles ``row_ranges`` of level ``index`` (``orchestration.solve_chunk``)."""
     ranges = [[int(value) for value in bundle] for bundle in row_ranges]
     lower_priority(settings.solver_nice)  # orchestration and the API get the CPU first
     worker = self.request.hostname or ""
