@@ -10,7 +10,7 @@ from shared.bundles import Bundle
 from shared.config import AUTO, Inference, MatchConfig
 from shared.level_inputs import LevelInputs
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver
+from shared.solvers.base import RowSolver, ShapePlanner
 
 
 def bundle_width_setting(config: MatchConfig) -> int | str | None:
@@ -37,7 +37,6 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
     """
     solver = get_solver(config.solver)
     width = config.bundle_width
-    finder = getattr(solver, "widest_bundle", None)
     if isinstance(solver, RowSolver):
         if width is not None:
             raise ValueError(
@@ -52,8 +51,8 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
             )
         return None
     if width is None:
-        return AUTO if finder is not None else None
-    if width == AUTO and finder is None:
+        return AUTO if isinstance(solver, ShapePlanner) else None
+    if width == AUTO and not isinstance(solver, ShapePlanner):
         raise ValueError(
             f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
             f"{config.solver} has none: give a width in pixels or leave it unset"
@@ -96,7 +95,7 @@ def plans_with_solver(config: MatchConfig) -> bool:
     """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
     (the widest segment that embeds, each shape's embedding) need their sampler, and so their
     credentials, to plan a level; a service runs it where the solver runs."""
-    return getattr(get_solver(config.solver), "embed_shapes", None) is not None
+    return isinstance(get_solver(config.solver), ShapePlanner)
 
 
 def solves_grids(config: MatchConfig) -> bool:
@@ -130,20 +129,20 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     """
     solver = get_solver(config.solver)
     started = time.perf_counter()
-    cache = getattr(solver, "cache", None)
-    before = getattr(cache, "computed", 0)
+    cache = solver.cache if isinstance(solver, ShapePlanner) else None
+    before = cache.computed if cache is not None else 0
     width = level_bundle_width(inputs, config)
     height = bundle_height(inputs, config)
     bundles = inputs.bundles(height, width, config.bundle_margin)
     inputs.prepared = {"bundle_width": width, "bundle_height": height}
-    embed = getattr(solver, "embed_shapes", None)
-    if embed is not None:
+    if isinstance(solver, ShapePlanner):
         shapes = sorted({bundle.shape for bundle in bundles})
-        embed(encoding=config.encoding, candidates=inputs.candidates.shape[2], shapes=shapes)
+        labels = inputs.candidates.shape[2]
+        solver.embed_shapes(encoding=config.encoding, candidates=labels, shapes=shapes)
         inputs.prepared = {
             "bundle_width": bundles[0].shape[1],
             "bundle_height": height,
-            "embeddings_computed": getattr(cache, "computed", 0) - before,
+            "embeddings_computed": (cache.computed if cache is not None else 0) - before,
             "preparation_seconds": time.perf_counter() - started,
         }
     return bundles

@@ -19,7 +19,7 @@ from shared.config import MatchConfig
 from shared.level_inputs import LevelInputs
 from shared.solve import BundleProgress, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver
+from shared.solvers.base import BatchSolver, RowSolver
 from shared.threads import limit_threads, thread_budget
 
 
@@ -65,7 +65,7 @@ class ProcessPoolLevelSolver:
         self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
     ) -> LevelSolution:
         solver = get_solver(config.solver)
-        if self.processes <= 1 or isinstance(solver, RowSolver) or hasattr(solver, "solve_batch"):
+        if self.processes <= 1 or isinstance(solver, RowSolver | BatchSolver):
             # a batch solver sends the level as one problem (split, it would be billed per part)
             return solve_level_in_process(inputs, config, progress)
         pool = self._started()

@@ -169,10 +169,10 @@ def job_residual(
     list of LevelResidual or None
     """
     from shared.solve import certifies_tiles
-    from shared.solvers.timing_model import meter_of
+    from shared.solvers.meters import is_metered
 
     classical = config.solver_params.get("preprocess") != "none" or certifies_tiles(config)
-    if meter_of(config.solver) is None or not classical:
+    if not is_metered(config.solver) or not classical:
         return None
     widths = level_widths(config, left.shape[:2], max_disparity, cache)
     return survey(left, right, config, max_disparity, widths)

@@ -34,7 +34,7 @@ from shared.energy import Costs, mrf_energy, row_energies
 from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver, SolveResult
+from shared.solvers.base import BatchSolver, RowSolver, SolveResult
 from shared.solvers.registry import uses_warm_start
 from shared.threads import threads
 
@@ -104,7 +104,7 @@ def solve_bundles(
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     problems: Iterable[TileProblem] = encoded_bundles(inputs, config, items)
-    batch = getattr(solver, "solve_batch", None)
+    batch = solver.solve_batch if isinstance(solver, BatchSolver) else None
     if batch is not None:  # one problem for many bundles (hybrid: a level's BQM)
         problems = list(problems)
         sent = [p for p in problems if p.bqm is not None]

@@ -27,7 +27,9 @@ log = logging.getLogger(__name__)
 START_JOB = "qhsm.start_job"
 PLAN_LEVEL = "qhsm.plan_level"
 FAN_OUT_LEVEL = "qhsm.fan_out_level"
-SOLVE_ROWS = "qhsm.solve_rows"
+#: ``workers.tasks.solve_bundles``; the name is the old one, so that messages queued (or held
+#: unacknowledged) by an older version still find their task after an upgrade.
+SOLVE_BUNDLES = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
 
 
@@ -72,7 +74,7 @@ def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
     """Revoke tasks and kill the pool processes running them, so a cancelled or failed job
     frees its workers at once. SIGKILL: a solver in native code ignores anything softer;
     metered solvers get SIGTERM so their QPU slot and budget reservation are released."""
-    from shared.solvers.qpu_time import is_metered
+    from shared.solvers.meters import is_metered
 
     if task_ids:
         signal = "SIGTERM" if is_metered(solver) else "SIGKILL"

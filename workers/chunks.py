@@ -10,8 +10,8 @@ import numpy as np
 from shared.assembly import BundleResult
 from shared.config import MatchConfig, Settings
 from shared.level_inputs import LevelInputs
+from shared.solvers.meters import meter_for
 from shared.solvers.packing import MAX_COPIES
-from shared.solvers.qpu_time import is_metered, meter_of
 
 #: Bundles as JSON-friendly lists: [row_start, row_stop] (whole rows, from older tasks) or
 #: [row_start, row_stop, col_start, col_stop].
@@ -45,9 +45,10 @@ def group_bundles(bundles: RowRanges, config: MatchConfig, rows_per_task: int) -
     segments = max(1, sum(1 for bundle in bundles if bundle[0] == bundles[0][0])) if bundles else 1
     height = bundles[0][1] - bundles[0][0] if bundles else 1  # a whole view for grids
     per_task = max(1, rows_per_task // height) * segments
-    if meter_of(config.solver) == "hybrid":
+    meter = meter_for(config.solver)
+    if meter is not None and meter.one_task_per_level:
         per_task = max(1, len(bundles))
-    elif is_metered(config.solver):
+    elif meter is not None:
         per_task = QPU_BUNDLES_PER_TASK
     return [bundles[i : i + per_task] for i in range(0, len(bundles), per_task)]
 

@@ -6,7 +6,7 @@
                               widest segment that embeds and the shapes' embeddings, found where
                               the solver (and its token) is, kept with the level and the
                               embeddings; then fan_out_level (control) launches the chord
-    solve_rows     (solver)   load the level's inputs once per process, solve_bundles, labels back
+    solve_bundles  (solver)   load the level's inputs once per process, solve_bundles, labels back
     level_done     (control)  assemble, finish_level, report; prepare the next level and launch
                               its chord, or finish() (+ metrics) and store the result
 
@@ -40,10 +40,10 @@ from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
 from shared.solve import solve_bundles
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.meters import is_metered
 from shared.solvers.registry import queue_of
 from workers import fair
-from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, task_time_limits
+from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
 from workers.chunks import (
     RowRanges,
     decode_bundle,
@@ -260,7 +260,7 @@ def fan_out(
     queue = fair.route(store.redis, store.prefix, queue_of(solver), record.owner)
     limits = task_time_limits(settings, solver)
     header = [
-        celery.signature(SOLVE_ROWS, args=(record.id, index, chunk), queue=queue, **limits)
+        celery.signature(SOLVE_BUNDLES, args=(record.id, index, chunk), queue=queue, **limits)
         for chunk in chunks
     ]
     callback = celery.signature(LEVEL_DONE, args=(record.id, index), queue=settings.control_queue)

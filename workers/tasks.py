@@ -26,7 +26,7 @@ from workers.app import (
     FAN_OUT_LEVEL,
     LEVEL_DONE,
     PLAN_LEVEL,
-    SOLVE_ROWS,
+    SOLVE_BUNDLES,
     START_JOB,
     app,
     task_time_limits,
@@ -169,12 +169,7 @@ def plan_level(self, job_id: str, index: int) -> None:
     except SoftTimeLimitExceeded:
         _fail(job_id, time_limit_message(job_id, index, hard=False))
     except TransientSolverError as error:  # the QPU's graph could not be fetched
-        retries = self.request.retries
-        if retries < settings.task_retries:
-            delay = orchestration.retry_delay(settings, retries)
-            log.warning("job %s: planning: %s; retry in %.1f s", job_id, error, delay)
-            raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
-        _fail(job_id, f"{error} (still failing after {retries} retries; try again later)")
+        _retry_or_fail(self, job_id, error, "planning")
     except SolverError as error:  # e.g. no segment embeds, or no token here: what to change
         _fail(job_id, str(error))
     except (LevelInputsMissingError, orchestration.JobGoneError):
@@ -203,8 +198,9 @@ def fan_out_level(self, job_id: str, index: int) -> None:
         store().fail(job_id, orchestration.internal_error(job_id, f"starting level {index + 1}"))
 
 
-@app.task(name=SOLVE_ROWS, bind=True, base=SolverTask)
-def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
+@app.task(name=SOLVE_BUNDLES, bind=True, base=SolverTask)
+def solve_bundles(self, job_id: str, index: int, row_ranges: list[list[int]]) -> dict:
+    """Solve the bundles ``row_ranges`` of level ``index`` (``orchestration.solve_chunk``)."""
     ranges = [[int(value) for value in bundle] for bundle in row_ranges]
     lower_priority(settings.solver_nice)  # orchestration and the API get the CPU first
     worker = self.request.hostname or ""
@@ -226,14 +222,7 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
         log.warning("job %s: a task of level %d ran out of memory", job_id, index)
         return _fail(job_id, memory_message(index), task_id)
     except TransientSolverError as error:
-        retries = self.request.retries
-        if retries < settings.task_retries:
-            delay = orchestration.retry_delay(settings, retries)
-            log.warning("job %s: transient solver error, retry in %.1f s: %s", job_id, delay, error)
-            raise self.retry(countdown=delay, max_retries=settings.task_retries) from error
-        return _fail(
-            job_id, f"{error} (still failing after {retries} retries; try again later)", task_id
-        )
+        return _retry_or_fail(self, job_id, error, "transient solver error", task_id)
     except QuotaExceeded as error:
         message = f"stopped: {error}; bundles not solved yet were not sent"
         store().fail(job_id, message)
@@ -254,6 +243,25 @@ def solve_rows(self, job_id: str, index: int, row_ranges: list[list[int]]) -> di
             store().task_ended(job_id, task_id)
             fair.task_ended(store().redis, settings.key_prefix, queue, task_id)
     return result if result is not None else {"skipped": True}
+
+
+def _retry_or_fail(
+    task: Task, job_id: str, error: TransientSolverError, doing: str, task_id: str | None = None
+) -> dict:
+    """Retry ``task`` after ``min(retry_backoff * 2**retries, retry_backoff_max)`` seconds
+    (``orchestration.retry_delay``), or fail the job once ``Settings.task_retries`` are spent.
+
+    By hand, not Celery's ``autoretry_for``/``retry_backoff``: that backoff is whole seconds (the
+    service tests retry after 0.1 s) and, retries spent, raises into the chord instead of failing
+    the job with a message.
+    """
+    retries = task.request.retries
+    if retries < settings.task_retries:
+        delay = orchestration.retry_delay(settings, retries)
+        log.warning("job %s: %s: %s; retry in %.1f s", job_id, doing, error, delay)
+        raise task.retry(countdown=delay, max_retries=settings.task_retries) from error
+    message = f"{error} (still failing after {retries} retries; try again later)"
+    return _fail(job_id, message, task_id)
 
 
 def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:

@@ -37,7 +37,7 @@ from celery import Celery
 from shared.bundles import bundle_key
 from shared.solvers.registry import queue_names, queue_of
 from workers import fair, liveness, orchestration
-from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_ROWS, START_JOB
+from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB
 from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
 from workers.redis_client import text
@@ -311,7 +311,7 @@ class Watchdog:
             for tasks in reply.values():
                 for task in tasks:
                     args = task.get("args") or []
-                    if task.get("name") == SOLVE_ROWS and args[:2] == [job_id, index]:
+                    if task.get("name") == SOLVE_BUNDLES and args[:2] == [job_id, index]:
                         rows.update(bundle_key(spec) for spec in args[2])
         return rows
 

@@ -393,3 +393,46 @@ class RowSolver(Protocol):
             Label index per pixel, shape (h, w).
         """
         ...
+
+
+@runtime_checkable
+class BatchSolver(Protocol):
+    """A solver that takes a task's bundles at once and sends them as few problems as it can
+    (the QPU solvers: packed calls; the hybrid solvers: a level's rests joined)."""
+
+    def solve_batch(self, problems: list[tuple], **params: Any) -> list[SolveResult]:
+        """One :class:`SolveResult` per ``(bqm, seed, warm start or None)``, in order; a
+        problem's charge is shared among the bundles it carried."""
+        ...
+
+
+@runtime_checkable
+class LiveTiming(Protocol):
+    """A solver backed by a cloud QPU whose own timing data the estimates can use."""
+
+    def timing_solver(self) -> Any:
+        """The ``dwave.cloud`` solver with ``estimate_qpu_access_time`` and
+        ``problem_timing_data``; None offline or when it cannot be reached."""
+        ...
+
+
+@runtime_checkable
+class ShapePlanner(Protocol):
+    """A solver that embeds on a QPU graph, so a level's bundles are planned on it
+    (``shared.bundle_plan``): the widest row segment that embeds (``--bundle-width auto``) and
+    each bundle shape's embedding, found once before the bundles fan out."""
+
+    #: Where the embeddings are kept (an ``EmbeddingCache``: ``computed`` counts new ones).
+    cache: Any
+
+    def widest_bundle(
+        self, *, encoding: str, candidates: int, height: int, row_width: int, margin: int
+    ) -> int | None:
+        """The widest row segment whose QUBO embeds (None: whole rows)."""
+        ...
+
+    def embed_shapes(
+        self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
+    ) -> None:
+        """Find (or look up) each shape's embedding."""
+        ...

@@ -18,8 +18,9 @@ from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
 from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize
+from shared.solvers.meters import embeds
+from shared.solvers.meters.qpu import MAX_QUBITS, QUBITS_PER_VARIABLE
 from shared.solvers.structure_keys import structure_digest
-from shared.solvers.timing_model import MAX_QUBITS, QUBITS_PER_VARIABLE, meter_of
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +104,7 @@ def known_embedding(
         The recorded size; None when unknown, too large to embed, not a QPU solver, or the store
         is unreachable.
     """
-    if cache is None or meter_of(solver_name) != "qpu":
+    if cache is None or not embeds(solver_name):
         return None
     height, width = shape
     if height * width * get_codec(encoding).variables_per_pixel(candidates) > MAX_QUBITS:
@@ -181,7 +182,7 @@ def segment_width(
         ``row_width``).
     """
     setting = config.bundle_width
-    if setting is None and meter_of(config.solver) == "qpu":
+    if setting is None and embeds(config.solver):
         setting = AUTO
     if setting != AUTO:
         return setting if setting is None or setting < row_width else None

@@ -8,7 +8,7 @@ uniform torque compensation with the paper's prefactor 1.414, chains are resolve
 vote, and the sample set is resolved inside the call. D-Wave reports microseconds; we report
 seconds. The mock's own timing is a fixed demonstration value, so ``qpu-sim`` reports instead
 what D-Wave's published timing model says an Advantage QPU would take for the same embedding and
-parameters (:func:`shared.solvers.timing_model.qpu_access_seconds`), marked ``simulated``; that is
+parameters (:func:`shared.solvers.meters.qpu.qpu_access_seconds`), marked ``simulated``; that is
 what the service charges for it.
 
 The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
@@ -42,15 +42,17 @@ from shared.solvers.composites import (
     reduce,
 )
 from shared.solvers.embedding_cache import EmbeddingCache, default_cache
+from shared.solvers.meters.qpu import qpu_access_seconds
 from shared.solvers.packing import PackedCalls, copies
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 from shared.solvers.qpu_settings import chain_strength, reverse_anneal
 from shared.solvers.structure_keys import graph_fingerprint
-from shared.solvers.timing_model import qpu_access_seconds
 
 log = logging.getLogger(__name__)
 
 MOCK_TOPOLOGY = ("pegasus", [16])
+#: ``timing_solver`` not looked up yet.
+_UNKNOWN = object()
 TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION)"
 
 
@@ -118,6 +120,7 @@ class _EmbeddedQPU(Sampler):
         self._target = ""
         self._composite: EmbeddingCacheComposite | None = None
         self._lock = threading.Lock()
+        self._timing_solver: Any = _UNKNOWN
 
     @property
     def properties(self) -> dict[str, Any]:
@@ -148,6 +151,22 @@ class _EmbeddedQPU(Sampler):
                 )
                 self._sampler = sampler
             return self._sampler
+
+    def timing_solver(self) -> Any:
+        """The cloud solver whose ``problem_timing_data`` the estimates use (``LiveTiming``);
+        None for the simulator, or when it cannot be reached (no token, no network: the offline
+        model will do). Looked up once."""
+        if self._timing_solver is _UNKNOWN:
+            cloud = None
+            if not self.simulated:
+                try:
+                    cloud = getattr(self.sampler(), "solver", None)
+                except Exception:
+                    cloud = None
+            if not callable(getattr(cloud, "estimate_qpu_access_time", None)):
+                cloud = None
+            self._timing_solver = cloud
+        return self._timing_solver
 
     def composite(self) -> EmbeddingCacheComposite:
         """The base sampler inside the cached-embedding composite, kept while the base sampler,

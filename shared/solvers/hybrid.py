@@ -5,12 +5,12 @@ decomposition) and keeps the best; ``hybrid-sim`` gives it the offline ``MockDWa
 its QPU, so it runs anywhere and its QPU timing is not real. It is a stand-in for the workflow
 shape, not for Leap's proprietary solver, and is always named as such. It reports (and is charged)
 the ``charge_time`` Leap's hybrid solver would bill for a problem of its size
-(:func:`shared.solvers.timing_model.hybrid_charge_seconds`).
+(:func:`shared.solvers.meters.hybrid.hybrid_charge_seconds`).
 
 Both solve a task's bundles as few problems as the solver takes (:meth:`_HybridBatch.solve_batch`):
 roof duality first on each bundle, then what is left of all of them joined into blocks of at most
-:data:`~shared.solvers.timing_model.HYBRID_MAX_VARIABLES` variables. Leap bills its minimum time per
-problem, so one block per level costs what one row did. ``hybrid`` sends each block as one BQM;
+:data:`~shared.solvers.meters.hybrid.HYBRID_MAX_VARIABLES` variables. Leap bills its minimum time
+per problem, so one block per level costs what one row did. ``hybrid`` sends each block as one BQM;
 ``hybrid-sim`` runs Kerberos on each bundle's rest (what it can run here) and is charged what Leap
 would bill for the block. A block's charge is shared by its bundles in proportion to their
 variables.
@@ -64,7 +64,7 @@ class _HybridBatch(Sampler):
 
     def max_variables(self) -> int:
         """Variables of one problem at most (the solver's limit)."""
-        from shared.solvers.timing_model import HYBRID_MAX_VARIABLES
+        from shared.solvers.meters.hybrid import HYBRID_MAX_VARIABLES
 
         return HYBRID_MAX_VARIABLES
 
@@ -281,7 +281,7 @@ class KerberosSolver(_HybridBatch):
         self, rests: list[dimod.BinaryQuadraticModel], params: dict[str, Any], seeds, states
     ) -> tuple[list[dimod.SampleSet], dict[str, float]]:
         """Kerberos on each rest (what runs here), charged what Leap bills for the block."""
-        from shared.solvers.timing_model import hybrid_charge_seconds
+        from shared.solvers.meters.hybrid import hybrid_charge_seconds
 
         out = [
             self._sample_rest(rest, dict(params), seed, state)
@@ -293,7 +293,7 @@ class KerberosSolver(_HybridBatch):
     def _sample_rest(self, bqm, params: dict[str, Any], seed, initial_states) -> dimod.SampleSet:
         from hybrid.reference.kerberos import KerberosSampler
 
-        from shared.solvers.timing_model import hybrid_charge_seconds
+        from shared.solvers.meters.hybrid import hybrid_charge_seconds
 
         if self._qpu is None:
             self._qpu = mock_qpu()

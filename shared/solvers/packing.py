@@ -161,7 +161,7 @@ def packed_copies(
     """
     from shared.encodings import get_codec
     from shared.solvers.bundle_shapes import bundle_digest
-    from shared.solvers.timing_model import MAX_QUBITS
+    from shared.solvers.meters.qpu import MAX_QUBITS
 
     per_pixel = get_codec(config.encoding).variables_per_pixel(candidates)
     if shape[0] * shape[1] * per_pixel > MAX_QUBITS:

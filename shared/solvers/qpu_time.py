@@ -1,13 +1,15 @@
-"""Estimates of metered D-Wave time, before anything is sent: per level and per job.
+"""Estimates of metered D-Wave time, before anything is sent: per level and per job, and what a
+worker reserves for a task's bundles.
 
 The service reserves a bundle's estimate from its owner's budget before the bundle goes to the
 QPU (or the hybrid solver) and settles the reservation with the time the sample set reports, so
 the estimate only has to be a sensible upper-ish bound; the charge is always the reported time.
 
-The cost of one call is :mod:`shared.solvers.timing_model`'s, the shapes the levels' bundles take
-and their known embeddings :mod:`shared.solvers.bundle_shapes`'; this module walks the planned
-levels. The names of both are re-exported here, where the service and the tests have always
-imported the model from.
+The cost of one call and how a level's bundles become calls are the solver's meter's
+(:mod:`shared.solvers.meters`), the shapes the levels' bundles take and their known embeddings
+:mod:`shared.solvers.bundle_shapes`'; this module walks the planned levels and asks them. The
+meters' names are re-exported here, where the service and the tests have always imported the
+model from.
 """
 
 from __future__ import annotations
@@ -29,23 +31,30 @@ from shared.solvers.bundle_shapes import (
     shape_bqm,
 )
 from shared.solvers.embedding_cache import EmbeddingCache
-from shared.solvers.qpu_settings import reverse_anneal
-from shared.solvers.registry import uses_warm_start
-from shared.solvers.timing_model import (
-    ADVANTAGE_TIMING_DATA,
+from shared.solvers.meters import (
+    LevelLoad,
+    bundle_seconds,
+    charged_seconds,
+    is_metered,
+    meter_for,
+    meter_of,
+)
+from shared.solvers.meters.hybrid import (
     HYBRID_MAX_VARIABLES,
     HYBRID_MINIMUM_TIME_LIMIT,
+    hybrid_charge_seconds,
+    hybrid_level_seconds,
+)
+from shared.solvers.meters.qpu import (
+    ADVANTAGE_TIMING_DATA,
     MAX_QUBITS,
     QUBITS_PER_VARIABLE,
     assumed_qubits,
-    bundle_seconds,
-    charged_seconds,
-    hybrid_charge_seconds,
-    hybrid_level_seconds,
-    is_metered,
-    meter_of,
     qpu_access_seconds,
 )
+from shared.solvers.packing import packed_copies
+from shared.solvers.qpu_settings import reverse_anneal
+from shared.solvers.registry import uses_warm_start
 
 __all__ = [
     "ADVANTAGE_TIMING_DATA",
@@ -58,7 +67,9 @@ __all__ = [
     "LevelEstimate",
     "assumed_qubits",
     "auto_width_key",
+    "batch_estimate",
     "bundle_digest",
+    "bundle_estimate",
     "bundle_seconds",
     "charged_seconds",
     "hybrid_charge_seconds",
@@ -219,23 +230,21 @@ def level_estimate(
     if residual is None:  # (job_residual gives None when nothing is solved on the host)
         residual = LevelResidual(0, 1.0, 1.0, 1.0)
     sent = round(residual.sent_share * bundles)
-    kept = residual.sent_variables_share  # of a sent bundle's variables (and qubits)
-    qubits = None
-    if meter_of(config.solver) == "qpu":  # rests packed: `together` per QPU call
-        whole = embedding.qubits if embedding else assumed_qubits(variables)
-        qubits = max(1, round(whole * kept))
-        from shared.solvers.packing import packed_copies
-
-        shape = (tallest, columns)
-        together = min(max(sent, 1), packed_copies(cache, config, shape, candidates))
-        calls = -(-sent // together)
-        seconds = calls * bundle_seconds(
-            config.solver, variables, params, num_qubits=min(MAX_QUBITS, together * qubits)
+    seconds, qubits = 0.0, None
+    meter = meter_for(config.solver)
+    if meter is not None:
+        load = LevelLoad(
+            bundles=bundles,
+            sent=sent,
+            variables=variables,
+            kept=residual.sent_variables_share,  # of a sent bundle's variables (and qubits)
+            variables_share=residual.variables_share,
+            qubits=embedding.qubits if embedding else None,
+            together=(  # a shape's disjoint copies on the QPU graph, one call
+                packed_copies(cache, config, (tallest, columns), candidates) if meter.embeds else 1
+            ),
         )
-    elif meter_of(config.solver) == "hybrid":  # the level's rests joined into blocks
-        seconds = hybrid_level_seconds(bundles * variables * residual.variables_share, params)
-    else:
-        seconds = sent * bundle_seconds(config.solver, max(1, round(variables * kept)), params)
+        seconds, qubits = meter.level_seconds(config.solver, params, load)
     return LevelEstimate(
         index=index,
         shape=(height, width),
@@ -283,3 +292,95 @@ def job_seconds(
         bundles=sum(level.bundles for level in levels),
         levels=levels,
     )
+
+
+# --- what a worker reserves for the bundles it is about to send -------------------------------
+
+
+def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None = None) -> float:
+    """Estimated charge of the bundle of rows [start, stop) of a level (no BQM is built), with
+    the shape's actual embedding once any worker has embedded one and, with a D-Wave token, the
+    live solver's own timing data: the amount reserved before it is sent.
+
+    Parameters
+    ----------
+    inputs
+        The level's inputs (``shared.bundles``), for its candidate labels.
+    config
+        The job's ``MatchConfig`` (solver, encoding, solver parameters).
+    start, stop : int
+        The bundle's rows.
+    columns : int or None
+        Width of a row segment; None: whole rows.
+
+    Returns
+    -------
+    float
+        Seconds to reserve.
+    """
+    from shared.solvers.embedding_cache import default_cache
+
+    meter = meter_for(config.solver)
+    if meter is None:
+        return 0.0
+    width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
+    width = width if columns is None else columns
+    variables = (stop - start) * width * get_codec(config.encoding).variables_per_pixel(labels)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    if not meter.embeds:
+        return meter.bundle_seconds(config.solver, variables, params)
+    embedding = known_embedding(
+        default_cache(), config.solver, config.encoding, (stop - start, width), labels
+    )
+    live = meter.timing_source(config.solver)
+    return meter.bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
+
+
+def batch_estimate(inputs, config, bundles: list) -> float:
+    """Estimated charge of bundles sent as one batch, before roof duality (an upper bound): the
+    meter's charge of them as a level's load (QPU: each shape's bundles in packed calls, as the
+    job's estimate counts them; hybrid: joined into blocks of the solver's size).
+
+    Parameters
+    ----------
+    inputs
+        The level's inputs.
+    config
+        The job's ``MatchConfig``.
+    bundles : list of Bundle
+        The batch.
+
+    Returns
+    -------
+    float
+        Seconds to reserve.
+    """
+    meter = meter_for(config.solver)
+    if meter is None:
+        return 0.0
+    labels = inputs.candidates.shape[2]
+    per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
+    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    if not meter.embeds:  # one load: every bundle's variables
+        pixels = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
+        load = LevelLoad(bundles=1, sent=1, variables=pixels * per_pixel)
+        return meter.level_seconds(config.solver, params, load)[0]
+    from shared.solvers.embedding_cache import default_cache
+
+    cache = default_cache()
+    live = meter.timing_source(config.solver)
+    groups: dict[tuple[int, int], list] = {}
+    for bundle in bundles:
+        groups.setdefault(bundle.shape, []).append(bundle)
+    seconds = 0.0
+    for shape, group in groups.items():  # one load per shape: its embedding, its copies
+        size = known_embedding(cache, config.solver, config.encoding, shape, labels)
+        load = LevelLoad(
+            bundles=len(group),
+            sent=len(group),
+            variables=shape[0] * shape[1] * per_pixel,
+            qubits=size.qubits if size else None,
+            together=packed_copies(cache, config, shape, labels),
+        )
+        seconds += meter.level_seconds(config.solver, params, load, solver=live)[0]
+    return seconds

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 from shared.solvers import params as schemas
 
@@ -16,6 +16,8 @@ ENTRY_POINT_GROUP = "qhsm.solvers"
 DIMOD_PREFIX = "dimod:"
 #: The Celery queue of every ``dimod:`` solver.
 DIMOD_QUEUE = "dimod"
+#: The group of workers that runs what needs nothing but CPUs (and the ``dimod`` queue).
+CPU_WORKERS = "cpu"
 
 
 @dataclass(frozen=True)
@@ -23,8 +25,9 @@ class SolverSpec:
     """Everything declared about one solver, once.
 
     ``factory`` is ``"module:attribute"`` of a zero-argument callable (or the callable itself)
-    returning the sampler. ``meter`` says how a job on it is charged to its owner's budget
-    (``"qpu"``: the QPU timing model, ``"hybrid"``: Leap's hybrid charge; None: not metered);
+    returning the sampler. ``meter`` names the meter a job on it is charged to its owner's
+    budget with (:mod:`shared.solvers.meters`: ``"qpu"``, the QPU timing model, ``"hybrid"``,
+    Leap's hybrid charge, or one a plugin registered; None: not metered);
     ``offline`` marks a stand-in for a cloud service (charged what the real one would take).
     """
 
@@ -32,10 +35,14 @@ class SolverSpec:
     factory: str | Callable[[], Any]
     description: str = ""
     params: type[schemas.SolverParams] = schemas.NoParams
-    meter: Literal["qpu", "hybrid"] | None = None
+    meter: str | None = None
     offline: bool = False
     #: The Celery queue its bundles go to (None: the solver's name).
     queue: str | None = None
+    #: The group of workers that consumes its queue, where what it needs is (a licence, the
+    #: D-Wave token): docker-compose.yml's ``worker-<group>`` service, ``python -m
+    #: workers.queues <group>``.
+    workers: str = CPU_WORKERS
     #: Works on the MRF costs of whole rows instead of a QUBO (shared.solve hands it rows).
     row_solver: bool = False
     #: Whether bundles start from the best guess at hand unless the config says otherwise:

@@ -26,6 +26,7 @@ from shared.config import MatchConfig
 from shared.solvers import params as schemas
 from shared.solvers.base import use_registry
 from shared.solvers.records import (
+    CPU_WORKERS,
     DIMOD_PREFIX,
     DIMOD_QUEUE,
     ENTRY_POINT_GROUP,
@@ -74,6 +75,7 @@ _BUILTIN = [
         "gurobi:GurobiSampler",
         "Gurobi MIQP on the QUBO (exact up to MIPGap / TimeLimit)",
         schemas.GurobiParams,
+        workers="gurobi",
     ),
     _spec(
         "qpu",
@@ -82,6 +84,7 @@ _BUILTIN = [
         schemas.QPUParams,
         meter="qpu",
         encoding="domain-wall",
+        workers="qpu",
     ),
     _spec(
         "qpu-sim",
@@ -99,6 +102,7 @@ _BUILTIN = [
         schemas.LeapHybridParams,
         meter="hybrid",
         encoding="domain-wall",
+        workers="hybrid",
     ),
     _spec(
         "hybrid-sim",
@@ -328,6 +332,19 @@ def queue_names() -> list[str]:
     """Every solver queue a worker may consume (the registered solvers' and ``dimod``)."""
     queues = dict.fromkeys(spec(name).queue_name for name in solver_names())
     return [*queues, DIMOD_QUEUE]
+
+
+def worker_groups() -> dict[str, list[str]]:
+    """The solver queues each group of workers consumes (``SolverSpec.workers`` -> the queues
+    of its solvers, in registry order); the ``dimod`` queue is the CPU workers'."""
+    groups: dict[str, list[str]] = {CPU_WORKERS: []}
+    for name in solver_names():
+        record = spec(name)
+        queues = groups.setdefault(record.workers, [])
+        if record.queue_name not in queues:
+            queues.append(record.queue_name)
+    groups[CPU_WORKERS].append(DIMOD_QUEUE)
+    return groups
 
 
 def uses_warm_start(config: MatchConfig) -> bool:

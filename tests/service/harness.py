@@ -4,6 +4,8 @@ Redis (the session's ``redis_url`` fixture, ``tests/conftest.py``) and to talk t
 from __future__ import annotations
 
 import io
+import re
+import shlex
 import signal
 import subprocess
 import time
@@ -20,6 +22,26 @@ from shared.config import LevelConfig
 TERMINAL = {"succeeded", "failed", "cancelled"}
 #: Address space of a test worker's pool process, MiB: room for the solvers, not for fake-hog.
 MEMORY_LIMIT_MB = 1536
+
+
+#: A compose worker's ``sh -c`` command: its queues from the registry, then Celery.
+_DERIVED = re.compile(r"queues=\$\(python -m workers\.queues (\S+)\) && exec (.*)")
+
+
+def compose_command(command: list[str]) -> list[str]:
+    """A docker-compose.yml service's command as the program it runs: the ``sh -c`` form of the
+    worker services resolved, ``$(python -m workers.queues GROUP)`` replaced by the queues the
+    registry gives that group (``KeyError`` for a group it has none of)."""
+    from shared.solvers.registry import worker_groups
+
+    if command[:2] != ["sh", "-c"]:
+        return command
+    script = command[2].replace("$$", "$")  # compose's escape of a literal $
+    found = _DERIVED.fullmatch(script)
+    assert found, f"not a derived worker command: {script}"
+    group, rest = found.groups()
+    queues = ",".join(worker_groups()[group])
+    return shlex.split(rest.replace('"$queues"', queues))
 
 
 def admin_key(settings) -> str:

@@ -10,9 +10,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from harness import compose_command
 
 from shared.cli import build_parser
 from shared.config import Settings
+from shared.solvers import registry
+from shared.solvers.records import SolverSpec
 from shared.solvers.registry import queue_names
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,6 +38,8 @@ def compose() -> dict:
 
 
 def option(command: list[str], flag: str) -> str:
+    """The value of ``flag`` in a service's command (a worker's queues derived as it runs)."""
+    command = compose_command(command)
     return command[command.index(flag) + 1]
 
 
@@ -62,7 +67,7 @@ def test_every_command_is_a_real_entry_point_on_real_queues(compose):
     for name, service in compose["services"].items():
         if name == "redis":
             continue
-        command = service["command"]
+        command = compose_command(service["command"])
         if command[0] == "qhsm":
             assert command[1] in subcommands, f"{name}: no `qhsm {command[1]}` command"
             continue
@@ -77,6 +82,30 @@ def test_every_command_is_a_real_entry_point_on_real_queues(compose):
     assert Settings().control_queue in consumed
     assert {"exact", "sa", "gurobi", "qpu", "hybrid", "dimod"} <= consumed
     assert option(compose["services"]["worker-qpu"]["command"], "-c") == "1"
+
+
+def unconsumed_queues(compose: dict) -> set[str]:
+    """Queues of registered solvers (and ``dimod``) that no worker service of the compose file
+    consumes."""
+    consumed: set[str] = set()
+    for service in compose["services"].values():
+        command = compose_command(service.get("command") or [])
+        if command[:4] == ["celery", "-A", "workers", "worker"]:
+            consumed |= set(option(command, "-Q").split(","))
+    return set(queue_names()) - consumed
+
+
+def test_every_registered_solvers_queue_has_a_worker_service(compose, monkeypatch):
+    """Issue 21: the worker services take their queues from the registry, so a solver added to
+    it is consumed; one whose group of workers has no service is caught here."""
+    assert unconsumed_queues(compose) == set()
+    monkeypatch.setattr(registry, "_SPECS", dict(registry._SPECS))
+    registry.register(SolverSpec("new-cpu", "shared.solvers.exact:ExactSolver", queue="new-cpu"))
+    assert unconsumed_queues(compose) == set()  # a CPU solver: worker-cpu takes its queue
+    registry.register(
+        SolverSpec("on-gpus", "shared.solvers.exact:ExactSolver", queue="gpu", workers="gpu")
+    )
+    assert unconsumed_queues(compose) == {"gpu"}  # no worker-gpu service: not consumed
 
 
 def test_the_dwave_token_reaches_only_qpu_and_hybrid_workers(compose):

@@ -187,7 +187,7 @@ def compose_workers() -> dict[str, tuple[list[str], bool]]:
     compose = yaml.safe_load((ROOT / "docker-compose.yml").read_text())
     workers = {}
     for name, service in compose["services"].items():
-        command = service.get("command") or []
+        command = harness.compose_command(service.get("command") or [])
         if command[:4] != ["celery", "-A", "workers", "worker"]:
             continue
         queues = command[command.index("-Q") + 1].split(",")

@@ -244,11 +244,10 @@ def test_qpu_solves_a_row_optimally_when_the_cloud_answers_the_optimum(leap, tmp
 def test_worker_estimates_use_the_live_solvers_timing_data(leap, tmp_path, monkeypatch):
     """With a token, the reservation comes from the solver's own problem_timing_data."""
     from shared.solvers import registry
-    from workers.quota import estimate
+    from shared.solvers.meters import meter_for
 
-    monkeypatch.setattr(estimate, "_live_solvers", {})
     monkeypatch.setattr(registry, "_INSTANCES", {})  # a fresh qpu adapter, not kept after
-    live = estimate.live_timing_solver("qpu")
+    live = meter_for("qpu").timing_source("qpu")
     assert live is not None
     expected = live.estimate_qpu_access_time(200, num_reads=100) * 1e-6
     assert qpu_time.bundle_seconds(

@@ -8,18 +8,19 @@ slot. Each step is one Lua script (the ``.lua`` files beside the modules), so co
 see consistent budgets and the budget can only be overspent by what in-flight bundles use beyond
 their estimates. A worker killed mid-bundle cannot leak anything: its slot and its reservation
 expire after ``Settings.qpu_slot_ttl`` (+ the bundle's estimate). Times are seconds; the clock
-is Redis's (``TIME``), not the workers'.
+is Redis's (``TIME``), not the workers'. What is reserved is :mod:`shared.solvers.qpu_time`'s
+estimate, what is charged the solver's meter's reading (:mod:`shared.solvers.meters`); this package
+only settles them.
 
 Modules:
 
 - :mod:`~workers.quota.ledger`     per-user accounting: budgets, reservations, charges, usage
 - :mod:`~workers.quota.semaphore`  the lab-wide (and per-user) limit on problems in flight
-- :mod:`~workers.quota.estimate`   what a bundle is expected to cost (the amount reserved)
 - :mod:`~workers.quota.meter`      slot + reservation + settlement around each metered bundle
 - :mod:`~workers.quota.scripts`    reads the Lua sources shipped with the package
 """
 
-from workers.quota.estimate import bundle_estimate, live_timing_solver
+from shared.solvers.qpu_time import bundle_estimate  # the amount reserved, re-exported
 from workers.quota.ledger import (
     LOCAL_USER,
     JobUsage,
@@ -45,6 +46,5 @@ __all__ = [
     "Reservation",
     "UserUsage",
     "bundle_estimate",
-    "live_timing_solver",
     "solve_metered",
 ]

@@ -1,5 +1,6 @@
 """Metering of a job's bundles: each metered problem runs inside a lab-wide slot and a
-reservation of its estimate, and is charged the time its sample set reports."""
+reservation of its estimate (:mod:`shared.solvers.qpu_time`), and is charged the time its sample
+set reports (read by the solver's meter, :mod:`shared.solvers.meters`)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from dataclasses import dataclass
 import redis
 
 from shared.config import Settings
-from workers.quota.estimate import batch_estimate, bundle_estimate
+from shared.solvers.qpu_time import batch_estimate, bundle_estimate
 from workers.quota.ledger import QuotaLedger
 from workers.quota.semaphore import QpuSemaphore
 
@@ -120,10 +121,12 @@ def solve_metered(
     """
     from shared.solve import solve_bundles
     from shared.solvers import get_solver
-    from shared.solvers.qpu_time import charged_seconds
+    from shared.solvers.base import BatchSolver
+    from shared.solvers.meters import meter_for
 
-    solver = get_solver(config.solver)
-    if hasattr(solver, "solve_batch"):  # one problem for all of them: one slot, one reservation
+    kind = meter_for(config.solver)
+    charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
+    if isinstance(get_solver(config.solver), BatchSolver):  # one slot, one reservation
         if not still_running():
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]

@@ -1,0 +1,85 @@
+"""What every meter (a way D-Wave time is charged) says: the estimate of one call, of a level's
+bundles as they reach the solver, and the charge read from a solve's timing. One subclass per
+kind, one module each (:mod:`~shared.solvers.meters.qpu`, :mod:`~shared.solvers.meters.hybrid`);
+:mod:`shared.solvers.meters` looks them up by ``SolverSpec.meter``."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from shared.solvers.embedding_cache import EmbeddingSize
+
+
+@dataclass(frozen=True)
+class LevelLoad:
+    """What of a level (or of one task's batch) reaches the metered solver, as the estimates
+    plan it (:mod:`shared.solvers.qpu_time`)."""
+
+    #: Bundles of the level (the batch).
+    bundles: int
+    #: Bundles expected to be sent (the rest the host solves).
+    sent: int
+    #: Binary variables of the largest bundle.
+    variables: int
+    #: Share of a sent bundle's variables (and qubits) left after the host's reductions.
+    kept: float = 1.0
+    #: Share of all the level's variables sent.
+    variables_share: float = 1.0
+    #: Qubits of the bundle shape's embedding when known (None: assumed from the variables).
+    qubits: int | None = None
+    #: Bundles one call can carry (a shape's disjoint embeddings on the QPU graph).
+    together: int = 1
+
+
+class Meter(ABC):
+    """One way a metered solver's time is estimated before and charged after a solve."""
+
+    #: The name ``SolverSpec.meter`` gives.
+    name: str
+    #: Its estimates read the bundle shape's QPU embedding, so bundles are planned on the QPU
+    #: graph (``--bundle-width auto`` by default) and embedding sizes are looked up.
+    embeds: bool = False
+    #: A level's bundles go to the solver as one task (the service bills a minimum per problem,
+    #: so splitting the level would multiply the bill).
+    one_task_per_level: bool = False
+    #: The ``SolveResult.timing`` fields (seconds) that hold the charge, first present wins.
+    charge_keys: tuple[str, ...] = ()
+
+    @abstractmethod
+    def bundle_seconds(
+        self,
+        solver_name: str,
+        num_variables: int,
+        params: dict[str, Any] | None = None,
+        *,
+        num_qubits: int | None = None,
+        embedding: EmbeddingSize | None = None,
+        solver: Any = None,
+    ) -> float:
+        """Estimated charge of one call on ``num_variables`` binary variables (``num_qubits`` /
+        ``embedding``: its embedding when known; ``solver``: a live service object whose own
+        timing data replaces the offline model)."""
+
+    @abstractmethod
+    def level_seconds(
+        self, solver_name: str, params: dict[str, Any], load: LevelLoad, solver: Any = None
+    ) -> tuple[float, int | None]:
+        """Estimated charge of what ``load`` sends, and the qubits a bundle is assumed to use
+        (None when the meter has no qubits)."""
+
+    def charged_seconds(self, timing: dict[str, float]) -> float:
+        """What one solve costs its owner: the first of :attr:`charge_keys` reported (seconds,
+        never negative); 0 when none is."""
+        for key in self.charge_keys:
+            value = timing.get(key)
+            if value is not None:
+                return max(0.0, float(value))
+        return 0.0
+
+    def timing_source(self, solver_name: str) -> Any:
+        """The live service object whose timing data the estimates of ``solver_name`` use, or
+        None (the offline model)."""
+        return None
