@@ -19,7 +19,7 @@ import logging
 from celery import Celery
 
 from shared.config import Settings, get_settings
-from workers.redis_client import redis_url  # quota modules import it from here
+from workers.redis_client import redis_url
 
 log = logging.getLogger(__name__)
 

@@ -155,7 +155,13 @@ def access_records(caplog) -> list[logging.LogRecord]:
     return [r for r in caplog.records if r.name == "uvicorn.access"]
 
 
-def test_polls_are_logged_at_debug_and_other_requests_at_info(live_api, admin_headers, caplog):
+def test_polls_are_logged_at_debug_and_other_requests_at_info(
+    live_api, admin_headers, caplog, monkeypatch
+):
+    # an earlier test's in-process `qhsm demo` may have applied uvicorn's logging config, which
+    # stops the access log at uvicorn's own handlers; caplog listens at the root
+    for name in ("uvicorn", "uvicorn.access"):
+        monkeypatch.setattr(logging.getLogger(name), "propagate", True)
     with httpx.Client(base_url=live_api.url, headers=admin_headers) as client:
         job_id = client.post(
             "/v1/jobs", files={"left": ("l.png", LEFT), "right": ("r.png", LEFT)}

@@ -117,9 +117,9 @@ class QuotaLedger:
 
     @classmethod
     def from_settings(cls, settings: Settings) -> QuotaLedger:
-        from workers.app import redis_url
+        from workers.redis_client import client_for
 
-        return cls(redis.Redis.from_url(redis_url(settings)), settings.key_prefix)
+        return cls(client_for(settings), settings.key_prefix)
 
     def key(self, *parts: object) -> str:
         return ":".join([self.prefix, *map(str, parts)])

@@ -42,9 +42,9 @@ class QpuMeter:
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> QpuMeter:
-        from workers.app import redis_url
+        from workers.redis_client import client_for
 
-        client = client or redis.Redis.from_url(redis_url(settings))
+        client = client or client_for(settings)
         return cls(
             QuotaLedger(client, settings.key_prefix),
             QpuSemaphore.from_settings(settings, client),

@@ -50,9 +50,9 @@ class QpuSemaphore:
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> QpuSemaphore:
-        from workers.app import redis_url
+        from workers.redis_client import client_for
 
-        client = client or redis.Redis.from_url(redis_url(settings))
+        client = client or client_for(settings)
         return cls(
             client, settings.key_prefix, settings.qpu_max_in_flight,
             settings.qpu_max_in_flight_per_user,
