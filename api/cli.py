@@ -344,7 +344,7 @@ def _local_estimate(config, files: list[Path]) -> dict:
     from shared.solvers.embedding_cache import default_cache
     from shared.solvers.qpu_time import job_seconds
 
-    get_solver(config.solver)  # UnknownSolver lists the valid names
+    get_solver(config.solver)  # UnknownSolverError lists the valid names
     left, right = load_pair(files[0], files[1])
     top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
     cache = default_cache()

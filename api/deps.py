@@ -15,7 +15,7 @@ from fastapi import Depends, File, Form, Request, UploadFile
 from api.auth import Principal, current_principal
 from api.users import User, UserStore, admin_user, user_store
 from shared.config import Settings
-from shared.solvers import Availability, Solver, UnknownSolver, get_solver
+from shared.solvers import Availability, Solver, UnknownSolverError, get_solver
 from workers.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -92,11 +92,11 @@ ParamsForm = Annotated[
 def load_solver(name: str) -> tuple[Solver | None, Availability]:
     """The adapter and whether it runs here; an adapter that fails to load is unavailable.
 
-    Raises ``UnknownSolver`` for names that are not registered.
+    Raises ``UnknownSolverError`` for names that are not registered.
     """
     try:
         solver = get_solver(name)
-    except UnknownSolver:
+    except UnknownSolverError:
         raise
     except Exception as error:  # a broken optional dependency must not take the API down
         log.exception("solver %s failed to load", name)

@@ -13,8 +13,8 @@ from __future__ import annotations
 from enum import Enum
 
 from shared.ground_truth import ScaleNotInferredError
-from shared.solvers import InvalidSolverParamsError, UnknownSolver
-from workers.quota import QuotaExceeded
+from shared.solvers import InvalidSolverParamsError, UnknownSolverError
+from workers.quota import QuotaExceededError
 from workers.store import ActiveJobsCapError
 
 
@@ -87,9 +87,9 @@ def too_many_jobs(error: ActiveJobsCapError) -> str:
 #: Every error :func:`refusal_of` answers (``create_app`` registers one handler for each).
 DOMAIN_ERRORS: tuple[type[Exception], ...] = (
     ServiceError,
-    QuotaExceeded,
+    QuotaExceededError,
     ActiveJobsCapError,
-    UnknownSolver,
+    UnknownSolverError,
     InvalidSolverParamsError,
     ScaleNotInferredError,
 )
@@ -99,11 +99,11 @@ def refusal_of(error: Exception) -> tuple[int, str]:
     """The HTTP status and ``detail`` of a domain error (one of :data:`DOMAIN_ERRORS`)."""
     if isinstance(error, ServiceError):
         return error.status_code, error.message
-    if isinstance(error, QuotaExceeded):
+    if isinstance(error, QuotaExceededError):
         return Refusal.FORBIDDEN.value, str(error)
     if isinstance(error, ActiveJobsCapError):
         return Refusal.TOO_MANY.value, too_many_jobs(error)
-    if isinstance(error, UnknownSolver | InvalidSolverParamsError):
+    if isinstance(error, UnknownSolverError | InvalidSolverParamsError):
         return Refusal.INVALID.value, f"params: {error}"  # the form field that names them
     if isinstance(error, ScaleNotInferredError):
         return Refusal.INVALID.value, f"gt_scale: {error}"

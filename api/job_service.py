@@ -87,7 +87,7 @@ def check_active_jobs(owner: str, svc: Services) -> None:
 
 
 def check_solver_name(config: MatchConfig) -> Availability:
-    """The solver must be registered (``UnknownSolver`` otherwise) and its bundle width
+    """The solver must be registered (``UnknownSolverError`` otherwise) and its bundle width
     usable; returns whether it runs here."""
     _, availability = load_solver(config.solver)
     try:
@@ -180,7 +180,7 @@ def check_budget(
     users: UserStore,
     svc: Services,
 ) -> None:
-    """``QuotaExceeded`` when a metered job's estimate exceeds what is left of its owner's QPU
+    """``QuotaExceededError`` when a metered job's estimate exceeds what is left of its owner's QPU
     budget."""
     if not is_metered(config.solver):
         return

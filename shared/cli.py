@@ -66,7 +66,7 @@ def cmd_match(args: argparse.Namespace) -> int:
         bar.close()
     save_disparity(result.disparity, args.output)
     if args.preview:
-        top = result.max_disparity.max_disparity
+        top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
     if args.json:
         print(
@@ -363,7 +363,7 @@ def _run(argv: Sequence[str] | None) -> int:
     limit_threads(thread_budget())  # one process: every core, once (before numba loads)
     from shared.cli_options import CommandError
     from shared.images import ImageError
-    from shared.solvers import SolverError, UnknownSolver
+    from shared.solvers import SolverError, UnknownSolverError
 
     warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
@@ -373,7 +373,7 @@ def _run(argv: Sequence[str] | None) -> int:
         CommandError,
         ImageError,
         SolverError,
-        UnknownSolver,
+        UnknownSolverError,
         ValueError,
         FileNotFoundError,
     ) as error:

@@ -77,7 +77,7 @@ class MatchResult:
     disparity: np.ndarray
     levels: list[LevelReport]
     seconds: float
-    max_disparity: RangeEstimate
+    disparity_range: RangeEstimate
 
     def summary(self) -> dict:
         """The run without its map, JSON-friendly (the CLI's ``--json``, job results).
@@ -90,7 +90,7 @@ class MatchResult:
         """
         return {
             "seconds": self.seconds,
-            "disparity_range": self.max_disparity.as_dict(),
+            "disparity_range": self.disparity_range.as_dict(),
             "levels": [asdict(level) for level in self.levels],
         }
 
@@ -417,7 +417,7 @@ def run_pipeline(
         disparity=disparity,
         levels=reports,
         seconds=time.perf_counter() - started,
-        max_disparity=estimate,
+        disparity_range=estimate,
     )
 
 

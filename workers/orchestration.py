@@ -442,7 +442,7 @@ def solve_chunk(
     """Solve some bundles of a level; None when the job is no longer running (not solved).
 
     Metered solvers go through ``meter()`` (lab-wide slot, budget reservation, settlement per
-    bundle); a job whose owner's budget runs out raises ``QuotaExceeded`` (a SolverError)."""
+    bundle); a job whose owner's budget runs out raises ``QuotaExceededError`` (a SolverError)."""
     if store.state(job_id) is not JobState.RUNNING:
         return None
     solved = store.solved_rows(job_id, index)

@@ -34,7 +34,7 @@ from workers.app import (
 )
 from workers.level_store import LevelInputsMissingError
 from workers.process import die_with_parent, limit_memory, lower_priority
-from workers.quota import QpuMeter, QuotaExceeded
+from workers.quota import QpuMeter, QuotaExceededError
 from workers.store import JobStore, UploadsMissingError
 from workers.telemetry import Telemetry
 
@@ -223,7 +223,7 @@ def solve_bundles(self, job_id: str, index: int, row_ranges: list[list[int]]) ->
         return _fail(job_id, memory_message(index), task_id)
     except TransientSolverError as error:
         return _retry_or_fail(self, job_id, error, "transient solver error", task_id)
-    except QuotaExceeded as error:
+    except QuotaExceededError as error:
         message = f"stopped: {error}; bundles not solved yet were not sent"
         store().fail(job_id, message)
         return {"error": message}

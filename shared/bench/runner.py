@@ -32,18 +32,18 @@ from shared.bench.scoring import Run, averages, score
 from shared.config import AUTO
 from shared.datasets import Scene, find_scenes
 from shared.images import to_gray
-from shared.solvers import SolverUnavailable
+from shared.solvers import SolverUnavailableError
 
 
 def _skip_reason(variant: Variant, remote: bool) -> str | None:
     """Why a pipeline variant cannot run here (local runs only; a service checks its own)."""
-    from shared.solvers import UnknownSolver, get_solver
+    from shared.solvers import UnknownSolverError, get_solver
 
     if variant.method != "pipeline" or remote:
         return None
     try:
         availability = get_solver(variant.solver or "").available()
-    except UnknownSolver as error:
+    except UnknownSolverError as error:
         return str(error)
     except Exception as error:  # a broken adapter must not stop the other runs
         return f"the adapter could not be loaded ({type(error).__name__}: {error})"
@@ -114,7 +114,7 @@ def run_one(
         else:
             result = sgbm(left, right, scene.max_disparity)
             output = RunOutput(result.disparity, result.seconds, info=result.info)
-    except SolverUnavailable as error:  # found out only when solving (e.g. licence size)
+    except SolverUnavailableError as error:  # found out only when solving (e.g. licence size)
         run.status, run.reason = "skipped", str(error)
         return run
     except Exception as error:  # a benchmark records a failing run and carries on

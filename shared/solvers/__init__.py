@@ -5,14 +5,14 @@ from shared.solvers.base import (
     Sampler,
     SolverError,
     SolveResult,
-    SolverUnavailable,
+    SolverUnavailableError,
     TransientSolverError,
     solve,
 )
 from shared.solvers.params import InvalidSolverParamsError
 from shared.solvers.registry import (
     SolverSpec,
-    UnknownSolver,
+    UnknownSolverError,
     check_params,
     get_solver,
     params_schema,
@@ -32,9 +32,9 @@ __all__ = [
     "Solver",
     "SolverError",
     "SolverSpec",
-    "SolverUnavailable",
+    "SolverUnavailableError",
     "TransientSolverError",
-    "UnknownSolver",
+    "UnknownSolverError",
     "check_params",
     "get_solver",
     "params_schema",

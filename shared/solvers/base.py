@@ -22,7 +22,7 @@ import numpy as np
 from shared.energy import Costs
 from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always were)
     SolverError,
-    SolverUnavailable,
+    SolverUnavailableError,
     TransientSolverError,
     bad_parameters,
 )
@@ -116,7 +116,7 @@ class Sampler(dimod.Sampler):
 
         try:
             return schema_defaults(self.spec.params)
-        except KeyError:  # unregistered (the registry's UnknownSolver is a KeyError)
+        except KeyError:  # unregistered (the registry's UnknownSolverError is a KeyError)
             return {}
 
     def sample(
@@ -311,7 +311,7 @@ def solve(
     Raises
     ------
     SolverError
-        With what to do; ``SolverUnavailable`` and ``TransientSolverError`` where they apply.
+        With what to do; ``SolverUnavailableError`` and ``TransientSolverError`` where they apply.
     """
     accepted = getattr(sampler, "parameters", {})
     started = time.perf_counter()

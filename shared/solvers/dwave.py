@@ -31,7 +31,7 @@ from shared.solvers.base import (
     Availability,
     Sampler,
     SolverError,
-    SolverUnavailable,
+    SolverUnavailableError,
     TransientSolverError,
 )
 from shared.solvers.bundle_shapes import auto_width_key, shape_bqm
@@ -256,17 +256,17 @@ class _EmbeddedQPU(Sampler):
 
         detail = self._scrub(f"{type(error).__name__}: {error}")
         if isinstance(error, cloud.SolverAuthenticationError | api.ResourceAuthenticationError):
-            return SolverUnavailable(
+            return SolverUnavailableError(
                 f"{self.name}: D-Wave rejected the API token (authentication failed); check "
                 "DWAVE_API_TOKEN"
             )
         if isinstance(error, api.ResourceAccessForbiddenError):
-            return SolverUnavailable(
+            return SolverUnavailableError(
                 f"{self.name}: access to the D-Wave solver is forbidden for this token "
                 "(check the project and solver access of the account)"
             )
         if isinstance(error, cloud.SolverNotFoundError):
-            return SolverUnavailable(
+            return SolverUnavailableError(
                 f"{self.name}: no D-Wave solver matches the configuration "
                 f"(DWAVE_SOLVER / DWAVE_API_REGION): {detail}"
             )
@@ -300,7 +300,7 @@ class _EmbeddedQPU(Sampler):
                 f"({detail}); use smaller bundles (--bundle-height 1) or --encoding domain-wall"
             )
         if isinstance(error, cloud.ConfigFileError):
-            return SolverUnavailable(f"{self.name}: invalid D-Wave configuration: {detail}")
+            return SolverUnavailableError(f"{self.name}: invalid D-Wave configuration: {detail}")
         return SolverError(f"{self.name}: D-Wave sampling failed: {detail}")
 
     def _scrub(self, text: str) -> str:
@@ -334,7 +334,7 @@ class LeapCloudSolver(_EmbeddedQPU):
         the token is scrubbed from the cloud client's loggers before and after."""
         settings = get_settings()
         if settings.dwave_api_token is None:
-            raise SolverUnavailable(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
+            raise SolverUnavailableError(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
         token = settings.dwave_api_token.get_secret_value()
         if settings.dwave_region:
             options["region"] = settings.dwave_region
@@ -469,4 +469,3 @@ def mock_qpu():
 
     topology_type, shape = MOCK_TOPOLOGY
     return WarmMock(topology_type=topology_type, topology_shape=shape, parameter_warnings=False)
-

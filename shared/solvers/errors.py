@@ -9,7 +9,7 @@ class SolverError(RuntimeError):
     """A solver failed; the message says what is wrong and what to do. Not worth retrying."""
 
 
-class SolverUnavailable(SolverError):
+class SolverUnavailableError(SolverError):
     """The solver cannot run here (missing token, licence or package)."""
 
 

@@ -20,7 +20,7 @@ from shared.solvers.base import (
     Availability,
     Sampler,
     SolverError,
-    SolverUnavailable,
+    SolverUnavailableError,
     TransientSolverError,
 )
 
@@ -136,7 +136,7 @@ class GurobiSampler(Sampler, dimod.Initialized):
         TransientSolverError
             When Gurobi stops without any solution.
         SolverError
-            For Gurobi errors (``SolverUnavailable`` without a valid licence).
+            For Gurobi errors (``SolverUnavailableError`` without a valid licence).
         """
         import gurobipy as gp
         import scipy.sparse as sp
@@ -196,5 +196,5 @@ def _translate(error, num_variables: int, quadratic: bool) -> SolverError:
             f"quadratic terms); use smaller bundles or images, or {LICENCE_HELP}"
         )
     if error.errno == gp.GRB.Error.NO_LICENSE:
-        return SolverUnavailable(f"gurobi: no valid licence ({error.message}); {LICENCE_HELP}")
+        return SolverUnavailableError(f"gurobi: no valid licence ({error.message}); {LICENCE_HELP}")
     return SolverError(f"gurobi failed (error {error.errno}): {error.message}")

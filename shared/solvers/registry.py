@@ -119,7 +119,7 @@ _INSTANCES: dict[str, Any] = {}
 _scanned_path: tuple[str, ...] | None = None
 
 
-class UnknownSolver(KeyError):
+class UnknownSolverError(KeyError):
     def __str__(self) -> str:
         name = self.args[0]
         if isinstance(name, str) and name.startswith(DIMOD_PREFIX):
@@ -197,7 +197,7 @@ def solver_names() -> list[str]:
 
 
 def spec(name: str) -> SolverSpec:
-    """The record of solver ``name``; ``UnknownSolver`` lists the valid names.
+    """The record of solver ``name``; ``UnknownSolverError`` lists the valid names.
 
     Parameters
     ----------
@@ -219,8 +219,8 @@ def spec(name: str) -> SolverSpec:
         try:
             return dimod_spec(name)
         except ValueError as error:
-            raise UnknownSolver(name, str(error)) from None
-    raise UnknownSolver(name)
+            raise UnknownSolverError(name, str(error)) from None
+    raise UnknownSolverError(name)
 
 
 def get_solver(name: str) -> Any:
@@ -265,7 +265,7 @@ def params_schema(name: str) -> type[schemas.SolverParams]:
 
     Raises
     ------
-    UnknownSolver
+    UnknownSolverError
         From :func:`spec`, for a name that is neither registered nor a loadable ``dimod:`` class.
     """
     return spec(name).params

@@ -22,10 +22,10 @@ from api.errors import (
 from api.schemas import Estimate, JobUsage, LevelEstimate, UserUsage
 from api.uploads import UploadError
 from shared.ground_truth import ScaleNotInferredError
-from shared.solvers import InvalidSolverParamsError, UnknownSolver
+from shared.solvers import InvalidSolverParamsError, UnknownSolverError
 from shared.solvers.qpu_time import JobEstimate
 from shared.solvers.qpu_time import LevelEstimate as CoreLevelEstimate
-from workers.quota import QuotaExceeded
+from workers.quota import QuotaExceededError
 from workers.quota.ledger import JobUsage as LedgerJobUsage
 from workers.quota.ledger import QuotaStatus
 from workers.quota.ledger import UserUsage as LedgerUserUsage
@@ -80,12 +80,12 @@ def test_refusals_keep_their_status_and_text(error, status, detail):
 
 
 def test_core_refusals_keep_their_status_and_text():
-    quota = QuotaExceeded("ada", 0.5, 2.0, "this job (3 bundles)")
+    quota = QuotaExceededError("ada", 0.5, 2.0, "this job (3 bundles)")
     assert refusal_of(quota) == (403, str(quota))
     status, detail = refusal_of(ActiveJobsCapError("ada", 2, 2))
     assert status == 429 and detail.startswith("user 'ada' already has 2 jobs queued or running")
     assert "QHSM_MAX_ACTIVE_JOBS_PER_USER=2" in detail and "DELETE /v1/jobs/{id}" in detail
-    unknown = UnknownSolver("nope")
+    unknown = UnknownSolverError("nope")
     assert refusal_of(unknown) == (422, f"params: {unknown}")
     with pytest.raises(TypeError):
         refusal_of(ValueError("a bug, not a refusal"))

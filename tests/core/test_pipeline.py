@@ -55,7 +55,7 @@ def test_matching_the_wrong_view_fails_the_same_threshold(scene, preset):
     with pytest.warns(ViewsWarning, match="swapped"):  # and it says so
         swapped = run_pipeline(scene.right, scene.left, config)
     assert evaluate(swapped.disparity, scene.disparity).bpp > 40.0
-    assert "swapped" in swapped.max_disparity.warning
+    assert "swapped" in swapped.disparity_range.warning
 
 
 @pytest.mark.parametrize("preset", list(Preset))

@@ -106,7 +106,7 @@ def test_an_auto_range_is_resolved_by_the_job_as_in_process(client, pair):
     status = harness.wait_for(client, harness.submit(client, left, right, params))
     assert status["state"] == "succeeded", status["error"]
     expected = run_pipeline(left_view, right_view, MatchConfig.model_validate(params))
-    assert status["disparity_range"] == expected.max_disparity.as_dict()
+    assert status["disparity_range"] == expected.disparity_range.as_dict()
     assert status["progress"]["levels"] == len(status["levels"]) == len(expected.levels)
     assert np.array_equal(harness.download(client, status["id"]), expected.disparity)
 

@@ -17,7 +17,7 @@ from shared.encodings import get_codec
 from shared.energy import mrf_energy
 from shared.solvers import (
     SolverError,
-    SolverUnavailable,
+    SolverUnavailableError,
     get_solver,
     qpu_time,
 )
@@ -156,7 +156,7 @@ def test_cloud_solvers_without_token_say_what_to_configure(name):
     availability = solver.available()
     assert not availability.ok and "set DWAVE_API_TOKEN" in availability.reason
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
-    with pytest.raises(SolverUnavailable, match="set DWAVE_API_TOKEN"):
+    with pytest.raises(SolverUnavailableError, match="set DWAVE_API_TOKEN"):
         solver.solve(bqm, seed=0, **WHOLE)
 
 
@@ -287,6 +287,7 @@ def test_qpu_sim_starts_its_first_read_from_the_warm_start(mock_qpu, tmp_path):
     assert result.info["warm_start"] is True
     labels = codec.decode(costs, result.sample).labels
     assert mrf_energy(costs, labels) == pytest.approx(optimum(costs), rel=1e-9)
+
 
 def test_one_embedding_composite_per_shape_whatever_the_biases(mock_qpu, tmp_path):
     from unittest import mock

@@ -24,7 +24,7 @@ from solver_helpers import optimum, stereo_costs
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import SolverError, SolverUnavailable, TransientSolverError, qpu_time
+from shared.solvers import SolverError, SolverUnavailableError, TransientSolverError, qpu_time
 from shared.solvers.dwave import QPUSolver
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
 from shared.solvers.hybrid import LeapHybridSolver
@@ -289,8 +289,8 @@ LEAKY = f"token={SENTINEL}"
 ERRORS = [
     # (raised by the cloud, our class, words the message must contain)
     (cloud.SolverAuthenticationError(f"Invalid token or access denied ({LEAKY})"),
-     SolverUnavailable, "DWAVE_API_TOKEN"),
-    (api.ResourceAuthenticationError(f"401 {LEAKY}"), SolverUnavailable, "authentication"),
+     SolverUnavailableError, "DWAVE_API_TOKEN"),
+    (api.ResourceAuthenticationError(f"401 {LEAKY}"), SolverUnavailableError, "authentication"),
     (api.ResourceLimitsExceededError(f"429 Too Many Requests {LEAKY}", error_code=429),
      TransientSolverError, "429"),
     (cloud.SolverOfflineError(f"solver is offline {LEAKY}"), TransientSolverError, "offline"),
@@ -329,7 +329,7 @@ def test_authentication_failure_when_connecting(name, leap, tmp_path, caplog):
     caplog.set_level(logging.DEBUG)
     leap.fetch_error = cloud.SolverAuthenticationError(f"Invalid token {SENTINEL}")
     solver = qpu_solver(tmp_path) if name == "qpu" else hybrid_solver(leap)
-    with pytest.raises(SolverUnavailable, match="rejected the API token") as caught:
+    with pytest.raises(SolverUnavailableError, match="rejected the API token") as caught:
         solver.solve(get_codec("domain-wall").encode(stereo_costs(1, 3)), preprocess="none")
     assert_no_token(caught.value, caplog)
     assert not leap.submissions

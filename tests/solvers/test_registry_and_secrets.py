@@ -14,7 +14,7 @@ from solver_helpers import stereo_costs
 
 from shared.cli import main
 from shared.encodings import get_codec
-from shared.solvers import SolverError, SolverUnavailable, get_solver, solver_names
+from shared.solvers import SolverError, SolverUnavailableError, get_solver, solver_names
 from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
 
 SENTINEL = "SENTINEL-TOKEN-7f3a9c"
@@ -79,7 +79,7 @@ def test_sentinel_token_never_appears_in_errors_logs_or_results(monkeypatch, cap
     caplog.set_level(logging.DEBUG)
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 4))
 
-    with pytest.raises(SolverUnavailable) as caught:
+    with pytest.raises(SolverUnavailableError) as caught:
         get_solver("qpu").solve(bqm, seed=0, preprocess="none")
     assert LeakyDWaveSampler.tokens[-1] == SENTINEL  # the token did reach the sampler
     assert "DWAVE_API_TOKEN" in str(caught.value)

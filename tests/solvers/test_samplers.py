@@ -15,7 +15,7 @@ from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
 from shared.pipeline import run_pipeline
-from shared.solvers import SolverError, SolverSpec, UnknownSolver, get_solver, registry, solve
+from shared.solvers import SolverError, SolverSpec, UnknownSolverError, get_solver, registry, solve
 from shared.solvers.base import sample_array
 from shared.solvers.composites import (
     EmbeddingCacheComposite,
@@ -166,7 +166,7 @@ def test_a_bad_dimod_name_says_what_to_do_and_imports_nothing_not_allowed(
         monkeypatch.setenv("QHSM_DIMOD_SAMPLERS", f'{{"{path}": {{}}}}')
     module = name.removeprefix("dimod:").rpartition(".")[0]
     before = set(sys.modules)
-    with pytest.raises(UnknownSolver) as caught:
+    with pytest.raises(UnknownSolverError) as caught:
         get_solver(name)
     assert message in str(caught.value) and "QHSM_DIMOD_SAMPLERS" in str(caught.value)
     if "not among" in message:

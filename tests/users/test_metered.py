@@ -16,7 +16,7 @@ from shared.synthetic import make_scene
 from workers.quota import (
     QpuMeter,
     QpuSemaphore,
-    QuotaExceeded,
+    QuotaExceededError,
     QuotaLedger,
     bundle_estimate,
     solve_metered,
@@ -101,7 +101,7 @@ def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
     estimate = bundle_estimate(inputs, config, 0, 1)
     fake.seconds = lambda call: estimate  # every bundle uses exactly its estimate
     meter.ledger.set_limit("ada", 2.5 * estimate)
-    with pytest.raises(QuotaExceeded, match="not enough QPU budget left for user 'ada'"):
+    with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
         solve_metered(meter, "ada", "job", inputs, config, [(r, r + 1) for r in range(8)])
     assert fake.calls == 2  # the third bundle was refused before it was sent
     usage = meter.ledger.job_usage("ada", "job")
@@ -221,7 +221,7 @@ def test_a_metered_solver_registered_later_is_estimated_and_reserved(
     assert job.as_dict()["metered"] and job.levels[-1].qubits_per_bundle
 
     meter.ledger.set_limit("ada", 0.5 * estimate)
-    with pytest.raises(QuotaExceeded, match="not enough QPU budget left for user 'ada'"):
+    with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
         solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1)])
     assert watcher.calls == 0  # refused before it was sent: the bundle needs its estimate
 

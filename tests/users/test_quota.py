@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from shared.solvers import SolverError, TransientSolverError
-from workers.quota import NoQpuSlot, QpuMeter, QpuSemaphore, QuotaExceeded, QuotaLedger
+from workers.quota import NoQpuSlotError, QpuMeter, QpuSemaphore, QuotaExceededError, QuotaLedger
 
 
 @pytest.fixture
@@ -38,7 +38,7 @@ def test_reserve_settle_release_keep_the_books(ledger):
 def test_refuses_a_reservation_that_does_not_fit(ledger):
     ledger.set_limit("ada", 1.0)
     held = ledger.reserve("ada", "job", 0.75, ttl=60)
-    with pytest.raises(QuotaExceeded) as refused:
+    with pytest.raises(QuotaExceededError) as refused:
         ledger.reserve("ada", "job", 0.5, ttl=60)
     assert isinstance(refused.value, SolverError)  # fails the job, is not retried
     assert not isinstance(refused.value, TransientSolverError)
@@ -52,7 +52,7 @@ def test_a_user_without_a_limit_is_unlimited_and_check_uses_the_remaining_budget
     assert ledger.status("nolimit").limit is None
     ledger.set_limit("ada", 2.0)
     ledger.check("ada", 2.0)
-    with pytest.raises(QuotaExceeded, match="for this job"):
+    with pytest.raises(QuotaExceededError, match="for this job"):
         ledger.check("ada", 2.5)
     assert ledger.users() == ["ada", "nolimit"]
 
@@ -89,7 +89,7 @@ def test_sequential_jobs_never_overspend_by_more_than_one_bundle(
         remaining = ledger.status("ada").remaining
         try:
             reservation = ledger.reserve("ada", "job", estimate, ttl=60)
-        except QuotaExceeded:
+        except QuotaExceededError:
             assert remaining < estimate
             continue
         assert remaining >= estimate - 1e-9
@@ -123,7 +123,7 @@ def test_concurrent_workers_overspend_at_most_the_in_flight_excess(redis_client,
                         active[0] -= 1
                         sent[0] += 1
                     charge.report(actual)
-            except QuotaExceeded:
+            except QuotaExceededError:
                 return
 
     threads = [threading.Thread(target=worker) for _ in range(8)]
@@ -151,7 +151,7 @@ def test_semaphore_limits_lab_and_user_and_expires_dead_slots(redis_client, pref
     time.sleep(0.1)  # ada's worker died without releasing: the slot expires
     cy = semaphore.try_acquire("cy", ttl=60)
     assert cy is not None
-    with pytest.raises(NoQpuSlot, match="2 lab-wide QPU slots"):
+    with pytest.raises(NoQpuSlotError, match="2 lab-wide QPU slots"):
         semaphore.acquire("dee", ttl=60, wait=0.05)
     semaphore.release("bob", bob)
     with semaphore.slot("dee", ttl=60, wait=1):
@@ -168,6 +168,6 @@ def test_meter_releases_the_reservation_and_slot_when_the_solve_fails(redis_clie
         raise RuntimeError("solver blew up before any sample came back")
     assert ledger.status("ada").used == 0.0 and ledger.status("ada").reserved == 0.0
     assert semaphore.in_flight() == 0
-    with pytest.raises(QuotaExceeded), meter.problem("ada", "job", 2.0):
+    with pytest.raises(QuotaExceededError), meter.problem("ada", "job", 2.0):
         pass
     assert semaphore.in_flight() == 0  # a refused reservation gives its slot back

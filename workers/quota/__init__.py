@@ -24,23 +24,23 @@ from shared.solvers.qpu_time import bundle_estimate  # the amount reserved, re-e
 from workers.quota.ledger import (
     LOCAL_USER,
     JobUsage,
-    QuotaExceeded,
+    QuotaExceededError,
     QuotaLedger,
     QuotaStatus,
     Reservation,
     UserUsage,
 )
 from workers.quota.meter import Charge, QpuMeter, solve_metered
-from workers.quota.semaphore import NoQpuSlot, QpuSemaphore
+from workers.quota.semaphore import NoQpuSlotError, QpuSemaphore
 
 __all__ = [
     "LOCAL_USER",
     "Charge",
     "JobUsage",
-    "NoQpuSlot",
+    "NoQpuSlotError",
     "QpuMeter",
     "QpuSemaphore",
-    "QuotaExceeded",
+    "QuotaExceededError",
     "QuotaLedger",
     "QuotaStatus",
     "Reservation",

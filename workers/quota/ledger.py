@@ -37,7 +37,7 @@ _STATUS = load_script("now", "expire", "status")
 LOCAL_USER = "local"
 
 
-class QuotaExceeded(SolverError):
+class QuotaExceededError(SolverError):
     """The owner's remaining QPU budget is below what the next problem needs (not retried)."""
 
     def __init__(self, user: str, remaining: float, needed: float, what: str = "the next bundle"):
@@ -164,7 +164,7 @@ class QuotaLedger:
         )
 
     def check(self, user: str, needed: float, what: str = "this job") -> QuotaStatus:
-        """Raise :class:`QuotaExceeded` unless ``needed`` seconds fit the remaining budget.
+        """Raise :class:`QuotaExceededError` unless ``needed`` seconds fit the remaining budget.
 
         Parameters
         ----------
@@ -180,11 +180,11 @@ class QuotaLedger:
         """
         status = self.status(user)
         if needed > 0 and status.remaining < needed:
-            raise QuotaExceeded(user, status.remaining, needed, what)
+            raise QuotaExceededError(user, status.remaining, needed, what)
         return status
 
     def reserve(self, user: str, job_id: str, seconds: float, ttl: float) -> Reservation:
-        """Hold ``seconds`` of the budget for one problem, or raise :class:`QuotaExceeded`.
+        """Hold ``seconds`` of the budget for one problem, or raise :class:`QuotaExceededError`.
 
         Parameters
         ----------
@@ -206,7 +206,7 @@ class QuotaLedger:
             args=[rid, repr(float(seconds)), repr(float(ttl)), user],
         )
         if not int(ok):
-            raise QuotaExceeded(user, float(remaining), seconds)
+            raise QuotaExceededError(user, float(remaining), seconds)
         return Reservation(user=user, job_id=job_id, id=rid, seconds=float(seconds))
 
     def settle(self, reservation: Reservation, actual: float, problems: int = 1) -> float:

@@ -54,7 +54,7 @@ class QpuMeter:
 
     @contextmanager
     def problem(self, user: str, job_id: str, estimate: float) -> Iterator[Charge]:
-        """Take a slot, reserve ``estimate`` (QuotaExceeded when it does not fit), yield a
+        """Take a slot, reserve ``estimate`` (QuotaExceededError when it does not fit), yield a
         :class:`Charge` for the caller to fill in, then settle and free the slot.
 
         If the body raises before reporting, the reservation is released uncharged (failed
@@ -116,7 +116,7 @@ def solve_metered(
     -------
     list or None
         The results, or None when ``still_running()`` turned false: the remaining bundles are
-        then not sent. Raises :class:`~workers.quota.ledger.QuotaExceeded` when the owner's
+        then not sent. Raises :class:`~workers.quota.ledger.QuotaExceededError` when the owner's
         budget cannot cover the next bundle.
     """
     from shared.solve import solve_bundles

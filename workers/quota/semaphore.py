@@ -27,7 +27,7 @@ _ACQUIRE = load_script("now", "acquire")
 _COUNT = load_script("now", "count")
 
 
-class NoQpuSlot(TransientSolverError):
+class NoQpuSlotError(TransientSolverError):
     """Every lab-wide QPU slot stayed busy for the whole wait (retried later)."""
 
 
@@ -84,7 +84,7 @@ class QpuSemaphore:
         return token if int(taken) else None
 
     def acquire(self, user: str, ttl: float, wait: float) -> str:
-        """Wait up to ``wait`` seconds for a slot; :class:`NoQpuSlot` when none frees up.
+        """Wait up to ``wait`` seconds for a slot; :class:`NoQpuSlotError` when none frees up.
 
         Parameters
         ----------
@@ -105,7 +105,7 @@ class QpuSemaphore:
             if token is not None:
                 return token
             if time.monotonic() >= deadline:
-                raise NoQpuSlot(
+                raise NoQpuSlotError(
                     f"all {self.limit} lab-wide QPU slots stayed busy for {wait:g} s; "
                     "the bundle will be retried"
                 )

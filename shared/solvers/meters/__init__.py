@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from shared.solvers.meters import hybrid, qpu
 from shared.solvers.meters.base import LevelLoad, Meter
-from shared.solvers.registry import UnknownSolver, spec
+from shared.solvers.registry import UnknownSolverError, spec
 
 if TYPE_CHECKING:
     from shared.solvers.embedding_cache import EmbeddingSize
@@ -54,7 +54,7 @@ def meter_of(solver_name: str) -> str | None:
     or None for an unmetered or unknown solver: the registry's ``SolverSpec.meter``."""
     try:
         return spec(solver_name).meter
-    except UnknownSolver:
+    except UnknownSolverError:
         return None
 
 
