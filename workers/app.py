@@ -15,6 +15,7 @@ solvers of installed packages' ``qhsm.solvers`` entry points are found there wit
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 from celery import Celery
 
@@ -81,11 +82,21 @@ def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
         celery.control.revoke(task_ids, terminate=True, signal=signal)
 
 
-def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> Celery:
+class QhsmCelery(Celery):
+    """A Celery app that carries the :class:`Settings` it was made with: its tasks and worker
+    bootsteps read them from the app, not from the environment again."""
+
+    def __init__(self, *args: Any, settings: Settings | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # None where Celery rebuilds an app from its pickle (it passes its own keywords only)
+        self.qhsm_settings = settings or get_settings()
+
+
+def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> QhsmCelery:
     """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
     settings = settings or get_settings()
     include = ["workers.tasks"] if with_tasks else []
-    celery = Celery("qhsm", include=include)
+    celery = QhsmCelery("qhsm", include=include, settings=settings)
     celery.conf.update(celery_config(settings))
     if with_tasks:  # a worker: heartbeats with the messages it holds (workers/liveness.py)
         from workers import liveness

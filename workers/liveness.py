@@ -97,9 +97,7 @@ class Heartbeat(bootsteps.StartStopStep):
 
     def __init__(self, parent: Any, **kwargs: Any) -> None:
         super().__init__(parent, **kwargs)
-        from shared.config import get_settings
-
-        self.settings = get_settings()
+        self.settings = parent.app.qhsm_settings  # the worker's app (workers.app.QhsmCelery)
         self.instance = f"{parent.hostname}#{os.getpid()}#{uuid.uuid4().hex[:8]}"
         self.client: redis.Redis | None = None
         self.timer_ref: Any = None
@@ -206,7 +204,7 @@ def restore_orphans(celery: Celery, client: redis.Redis, settings: Settings) -> 
     found = orphans(client, settings.key_prefix, grace)
     if found:
         log.warning(
-            "re-queueing %d unacknowledged messages that no live worker holds (their worker "
-            "died)", len(found)
+            "re-queueing %d unacknowledged messages that no live worker holds (their worker died)",
+            len(found),
         )
     return restore(celery, found)

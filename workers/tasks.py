@@ -18,7 +18,6 @@ import redis
 from celery import Task, signals
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
-from shared.config import get_settings
 from shared.solvers import SolverError, TransientSolverError
 from shared.threads import inherited_threads, limit_threads, thread_budget
 from workers import fair, orchestration, watchdog
@@ -42,7 +41,7 @@ log = logging.getLogger(__name__)
 #: Errors of an unreachable Redis: the job is not at fault, so they never fail it.
 REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError)
 
-settings = get_settings()
+settings = app.qhsm_settings  # the worker's: what its app was made with
 _store: JobStore | None = None
 _meter: QpuMeter | None = None
 _telemetry: Telemetry | None = None
