@@ -61,7 +61,7 @@ log = logging.getLogger(__name__)
 
 #: Level inputs a worker process keeps (a few jobs' current levels).
 LEVEL_CACHE_SIZE = 4
-_level_cache: OrderedDict[tuple[str, int], tuple[LevelInputs, MatchConfig]] = OrderedDict()
+_level_cache: OrderedDict[tuple[str, int], tuple[LevelInputs, JobRecord]] = OrderedDict()
 
 
 class JobGoneError(LookupError):
@@ -415,8 +415,9 @@ def _evaluate_result(
 # --- solver queues ---------------------------------------------------------------------------
 
 
-def level_for(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, MatchConfig]:
-    """The level's inputs and the job's config, read from Redis once per worker process."""
+def level_for(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, JobRecord]:
+    """The level's inputs and the job's record (its config and owner), read from Redis once
+    per worker process and level."""
     key = (job_id, index)
     if key in _level_cache:
         _level_cache.move_to_end(key)
@@ -425,10 +426,10 @@ def level_for(store: JobStore, job_id: str, index: int) -> tuple[LevelInputs, Ma
     if record is None:
         raise JobGoneError(job_id)
     inputs, _ = store.load_level(job_id, index)
-    _level_cache[key] = (inputs, record.config)
+    _level_cache[key] = (inputs, record)
     while len(_level_cache) > LEVEL_CACHE_SIZE:
         _level_cache.popitem(last=False)
-    return inputs, record.config
+    return inputs, record
 
 
 def solve_chunk(
@@ -448,13 +449,12 @@ def solve_chunk(
     solved = store.solved_rows(job_id, index)
     if all(bundle_key(spec) in solved for spec in row_ranges):  # a re-sent duplicate: done
         return {"bundles": len(row_ranges), "duplicate": True}
-    inputs, config = level_for(store, job_id, index)
+    inputs, record = level_for(store, job_id, index)
+    config = record.config
     if is_metered(config.solver) and meter is not None:
-        record = store.get(job_id)
-        owner = (record.owner if record else None) or LOCAL_USER
         results = solve_metered(
             meter(),
-            owner,
+            record.owner or LOCAL_USER,
             job_id,
             inputs,
             config,

@@ -12,8 +12,7 @@ parameters (:func:`shared.solvers.meters.qpu.qpu_access_seconds`), marked ``simu
 what the service charges for it.
 
 The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
-message we raise or log. (About 340 lines of code: the shared path, the cloud errors' mapping and
-the auto-width search.)
+message we raise or log.
 """
 
 from __future__ import annotations
