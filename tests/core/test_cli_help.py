@@ -5,6 +5,8 @@ and the README (`qhsm bench`: domain-wall for annealers, one process per core)."
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -129,3 +131,16 @@ def test_bench_and_demo_defaults_are_the_models():
     assert (bench_args.bundle_height, bench_args.seed) == (None, default.seed)
     assert bench_args.ablation_solver == default.solver
     assert tree["qhsm demo"].parse_args([]).solver == default.solver
+
+
+def test_the_command_line_registers_the_service_commands_without_loading_celery():
+    """``qhsm match`` runs in a fresh process each time: building the parser (which registers
+    the service's sub-commands) must not import Celery or redis-py (~0.16 s)."""
+    code = (
+        "import sys\n"
+        "from shared.cli import build_parser\n"
+        "build_parser()\n"
+        "print(sorted(m for m in ('celery', 'redis', 'workers.app') if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"

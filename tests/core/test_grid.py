@@ -203,3 +203,28 @@ def test_a_views_grid_costs_built_in_blocks_of_rows_equal_the_whole_volumes(
         whole = inputs.grid(config, *rows).unary
         monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", block_bytes)
         np.testing.assert_array_equal(inputs.grid(config, *rows).unary, whole)
+
+
+def test_views_whose_dual_state_exceeds_the_budget_are_minimised_one_after_the_other(
+    monkeypatch,
+):
+    """Large levels run their views' grids one at a time (memory: 2000 x 2000 within 2 GiB);
+    each grid is minimised on its own, so the map is the same either way."""
+    import shared.solve as solve
+
+    scene = make_scene(24, 40, max_disparity=8, seed=2)
+    config = MatchConfig(max_disparity=8)
+    _, plans = plan_run(scene.left, scene.right, config)
+    inputs = prepare_level(scene.left, scene.right, config, plans[-1])
+    views = [(v * inputs.view_height, (v + 1) * inputs.view_height) for v in range(2)]
+    monkeypatch.setattr(solve, "threads", lambda: 2)
+    assert solve.grids_at_once(inputs, views) == 2
+    one_grid = 4 * solve.GRID_STATE_ARRAYS * inputs.view_height * inputs.candidates[0].size
+    monkeypatch.setattr(solve, "GRID_STATE_BYTES", 2 * one_grid - 1)
+    assert solve.grids_at_once(inputs, views) == 1
+    monkeypatch.setattr(solve, "GRID_STATE_BYTES", 0)
+    assert solve.grids_at_once(inputs, views) == 1  # at least one, however small the budget
+    sequential = run_pipeline(scene.left, scene.right, config).disparity
+    monkeypatch.setattr(solve, "GRID_STATE_BYTES", 2**40)
+    side_by_side = run_pipeline(scene.left, scene.right, config).disparity
+    np.testing.assert_array_equal(sequential, side_by_side)

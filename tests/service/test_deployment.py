@@ -166,3 +166,19 @@ def test_flower_is_an_opt_in_profile_on_task_events(compose):
     assert config["worker_send_task_events"] and config["task_send_sent_event"]
     assert "flower" in (ROOT / "pyproject.toml").read_text()
     assert re.search(r"\.\[[a-z,]*\bmonitoring\b", (ROOT / "Dockerfile").read_text())
+
+
+def test_a_worker_reads_the_settings_its_app_was_made_with():
+    """Settings are read from the environment once and passed down: the app carries them (also
+    through a pickle, where Celery rebuilds it with its own keywords only) and the tasks'
+    module reads the app's."""
+    import pickle
+
+    from workers import tasks
+    from workers.app import app, make_celery
+
+    settings = Settings(key_prefix="qhsm-settings-test", task_retries=7)
+    celery = make_celery(settings, with_tasks=False)
+    assert celery.qhsm_settings is settings
+    assert pickle.loads(pickle.dumps(celery)).qhsm_settings.key_prefix == Settings().key_prefix
+    assert tasks.settings is app.qhsm_settings
