@@ -33,6 +33,7 @@ from shared.solvers.bundle_shapes import (
 from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.meters import (
     LevelLoad,
+    Meter,
     bundle_seconds,
     charged_seconds,
     is_metered,
@@ -297,6 +298,17 @@ def job_seconds(
 # --- what a worker reserves for the bundles it is about to send -------------------------------
 
 
+def _call_basis(inputs, config: MatchConfig) -> tuple[Meter, int, int, dict[str, Any]] | None:
+    """What a worker's reservation is estimated with: the solver's meter, the level's labels
+    per pixel, binary variables per pixel and the sampler parameters; None when unmetered."""
+    meter = meter_for(config.solver)
+    if meter is None:
+        return None
+    labels = inputs.candidates.shape[2]
+    per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
+    return meter, labels, per_pixel, sampler_params(config.solver_params, uses_warm_start(config))
+
+
 def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None = None) -> float:
     """Estimated charge of the bundle of rows [start, stop) of a level (no BQM is built), with
     the shape's actual embedding once any worker has embedded one and, with a D-Wave token, the
@@ -316,24 +328,23 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     Returns
     -------
     float
-        Seconds to reserve.
+        Seconds to reserve for the bundle.
     """
     from shared.solvers.embedding_cache import default_cache
 
-    meter = meter_for(config.solver)
-    if meter is None:
+    basis = _call_basis(inputs, config)
+    if basis is None:
         return 0.0
-    width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
-    width = width if columns is None else columns
-    variables = (stop - start) * width * get_codec(config.encoding).variables_per_pixel(labels)
-    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    meter, labels, per_pixel, params = basis
+    width = inputs.candidates.shape[1] if columns is None else columns
+    variables = (stop - start) * width * per_pixel
     if not meter.embeds:
-        return meter.bundle_seconds(config.solver, variables, params)
+        return bundle_seconds(config.solver, variables, params)
     embedding = known_embedding(
         default_cache(), config.solver, config.encoding, (stop - start, width), labels
     )
     live = meter.timing_source(config.solver)
-    return meter.bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
+    return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
 
 
 def batch_estimate(inputs, config, bundles: list) -> float:
@@ -353,14 +364,12 @@ def batch_estimate(inputs, config, bundles: list) -> float:
     Returns
     -------
     float
-        Seconds to reserve.
+        Seconds to reserve for the whole batch (one reservation).
     """
-    meter = meter_for(config.solver)
-    if meter is None:
+    basis = _call_basis(inputs, config)
+    if basis is None:
         return 0.0
-    labels = inputs.candidates.shape[2]
-    per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
-    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    meter, labels, per_pixel, params = basis
     if not meter.embeds:  # one load: every bundle's variables
         pixels = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
         load = LevelLoad(bundles=1, sent=1, variables=pixels * per_pixel)

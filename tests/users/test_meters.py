@@ -16,7 +16,7 @@ class FlatMeter(Meter):
     name = "flat"
     charge_keys = ("fee_time",)
 
-    def bundle_seconds(self, solver_name, num_variables, params=None, **_) -> float:
+    def bundle_seconds(self, call) -> float:
         return 0.5
 
     def level_seconds(self, solver_name, params, load: LevelLoad, solver=None):

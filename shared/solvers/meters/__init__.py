@@ -16,13 +16,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from shared.solvers.meters import hybrid, qpu
-from shared.solvers.meters.base import LevelLoad, Meter
+from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
 from shared.solvers.registry import UnknownSolverError, spec
 
 if TYPE_CHECKING:
     from shared.solvers.embedding_cache import EmbeddingSize
 
 __all__ = [
+    "BundleCall",
     "LevelLoad",
     "Meter",
     "bundle_seconds",
@@ -123,9 +124,8 @@ def bundle_seconds(
     if meter is None:
         return 0.0
     return meter.bundle_seconds(
-        solver_name, num_variables, params, num_qubits=num_qubits, embedding=embedding,
-        solver=solver,
-    )  # fmt: skip
+        BundleCall(solver_name, num_variables, params, num_qubits, embedding, solver)
+    )
 
 
 def charged_seconds(timing: dict[str, float]) -> float:

@@ -34,6 +34,23 @@ class LevelLoad:
     together: int = 1
 
 
+@dataclass(frozen=True)
+class BundleCall:
+    """One call as a meter estimates it."""
+
+    solver_name: str
+    #: Binary variables of the bundle's QUBO.
+    num_variables: int
+    #: The bundle's sampler parameters (over the schema's defaults for QPU solvers).
+    params: dict[str, Any] | None = None
+    #: Qubits of the bundle's embedding (default: assumed from the variables).
+    num_qubits: int | None = None
+    #: The actual embedding's size when known; its qubits win over ``num_qubits``.
+    embedding: EmbeddingSize | None = None
+    #: A live service object whose own timing data replaces the offline model (None: offline).
+    solver: Any = None
+
+
 class Meter(ABC):
     """One way a metered solver's time is estimated before and charged after a solve."""
 
@@ -49,19 +66,8 @@ class Meter(ABC):
     charge_keys: tuple[str, ...] = ()
 
     @abstractmethod
-    def bundle_seconds(
-        self,
-        solver_name: str,
-        num_variables: int,
-        params: dict[str, Any] | None = None,
-        *,
-        num_qubits: int | None = None,
-        embedding: EmbeddingSize | None = None,
-        solver: Any = None,
-    ) -> float:
-        """Estimated charge of one call on ``num_variables`` binary variables (``num_qubits`` /
-        ``embedding``: its embedding when known; ``solver``: a live service object whose own
-        timing data replaces the offline model)."""
+    def bundle_seconds(self, call: BundleCall) -> float:
+        """Estimated charge of one call (:class:`BundleCall`)."""
 
     @abstractmethod
     def level_seconds(

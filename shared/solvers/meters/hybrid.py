@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from shared.solvers.meters.base import LevelLoad, Meter
+from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
 
 if TYPE_CHECKING:
-    from shared.solvers.embedding_cache import EmbeddingSize
+    pass
 
 #: ``minimum_time_limit`` of hybrid_binary_quadratic_model_version2: [variables, seconds] pairs.
 HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
@@ -95,17 +95,8 @@ class HybridChargeMeter(Meter):
     one_task_per_level = True
     charge_keys = ("charge_time", "qpu_access_time")
 
-    def bundle_seconds(
-        self,
-        solver_name: str,
-        num_variables: int,
-        params: dict[str, Any] | None = None,
-        *,
-        num_qubits: int | None = None,
-        embedding: EmbeddingSize | None = None,
-        solver: Any = None,
-    ) -> float:
-        return hybrid_charge_seconds(num_variables, params)
+    def bundle_seconds(self, call: BundleCall) -> float:
+        return hybrid_charge_seconds(call.num_variables, call.params)
 
     def level_seconds(
         self, solver_name: str, params: dict[str, Any], load: LevelLoad, solver: Any = None

@@ -34,12 +34,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from shared.solvers.base import LiveTiming
-from shared.solvers.meters.base import LevelLoad, Meter
+from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
 from shared.solvers.params import DEFAULT_NUM_READS, schema_defaults
 from shared.solvers.registry import get_solver, spec
 
 if TYPE_CHECKING:
-    from shared.solvers.embedding_cache import EmbeddingSize
+    pass
 
 #: Advantage_system4.1 ``problem_timing_data`` (August 2022), microseconds.
 ADVANTAGE_TIMING_DATA: dict[str, Any] = {
@@ -162,23 +162,13 @@ class QpuAccessMeter(Meter):
     embeds = True
     charge_keys = ("qpu_access_time",)
 
-    def bundle_seconds(
-        self,
-        solver_name: str,
-        num_variables: int,
-        params: dict[str, Any] | None = None,
-        *,
-        num_qubits: int | None = None,
-        embedding: EmbeddingSize | None = None,
-        solver: Any = None,
-    ) -> float:
-        if embedding is not None:
-            num_qubits = embedding.qubits
+    def bundle_seconds(self, call: BundleCall) -> float:
+        num_qubits = call.embedding.qubits if call.embedding is not None else call.num_qubits
         if num_qubits is None:
-            num_qubits = assumed_qubits(num_variables)
+            num_qubits = assumed_qubits(call.num_variables)
         # what the solver runs with when a parameter is not given (qpu-sim reads fewer than qpu)
-        params = {**schema_defaults(spec(solver_name).params), **(params or {})}
-        return qpu_access_seconds(num_qubits, params, solver)
+        params = {**schema_defaults(spec(call.solver_name).params), **(call.params or {})}
+        return qpu_access_seconds(num_qubits, params, call.solver)
 
     def level_seconds(
         self, solver_name: str, params: dict[str, Any], load: LevelLoad, solver: Any = None
@@ -187,13 +177,10 @@ class QpuAccessMeter(Meter):
         qubits = max(1, round(whole * load.kept))
         together = min(max(load.sent, 1), load.together)
         calls = -(-load.sent // together)
-        seconds = calls * self.bundle_seconds(
-            solver_name,
-            load.variables,
-            params,
-            num_qubits=min(MAX_QUBITS, together * qubits),
-            solver=solver,
+        call = BundleCall(
+            solver_name, load.variables, params, min(MAX_QUBITS, together * qubits), None, solver
         )
+        seconds = calls * self.bundle_seconds(call)
         return seconds, qubits
 
     def timing_source(self, solver_name: str) -> Any:
