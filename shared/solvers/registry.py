@@ -45,7 +45,11 @@ _BUILTIN = [
     _spec(
         "exact",
         "exact:ExactSolver",
-        "Exact MAP of single-row bundles (dynamic programming on the MRF costs)",
+        (
+            "Grid inference (the default): each view's grid MRF by dual decomposition into "
+            "row and column chains, certified within dual_gap; rows inference: the exact MAP of "
+            "single-row bundles (dynamic programming)"
+        ),
         schemas.NoParams,
         row_solver=True,
     ),
