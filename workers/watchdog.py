@@ -134,7 +134,7 @@ class Watchdog:
         """Look at every active job once; returns (job id, action) for those it acted on.
 
         A job without progress for ``watchdog_lost_seconds`` none of whose tasks is anywhere
-        (no queue holds one, no live worker: :meth:`present`) lost them, with the process that
+        (no queue holds one, no live worker: :meth:`messages`) lost them, with the process that
         died holding them or a Redis restart: its work is sent again at once. One that did not
         move for ``watchdog_stall_seconds`` although its tasks exist is handled as stalled."""
         now = self.clock()
