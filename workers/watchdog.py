@@ -273,16 +273,7 @@ class Watchdog:
 
     def restart(self, record: JobRecord) -> str:
         """Start the job again from its uploads (nothing of the stalled level can be resumed)."""
-
-        def reset(current: JobRecord) -> JobRecord | None:
-            if current.state is not JobState.RUNNING or current.level != record.level:
-                return None
-            return current.model_copy(
-                update={"state": JobState.QUEUED, "level": 0, "bundles_total": 0, "levels": []}
-            )
-
-        updated = self.store.update(record.id, reset)
-        if updated is None or updated.state is not JobState.QUEUED:
+        if not self.store.apply(record.id, JobRecord.restarted, record.level).changed:
             return "none"
         for key in self.store.redis.scan_iter(match=self.store.key("job", record.id, "level", "*")):
             self.store.redis.delete(key)

@@ -59,7 +59,7 @@ SCALE_HEADER = "X-Scale-Max"
 
 def display_max(record: JobRecord, disparity: np.ndarray) -> float:
     """The disparity the preview's top colour stands for: the job's range, else the map's max."""
-    top = record.disparity_range["max_disparity"] if record.disparity_range else None
+    top = record.disparity_range.max_disparity if record.disparity_range else None
     if isinstance(top, int | float) and top > 0:
         return float(top)
     return max(float(np.max(disparity)), 1.0)
