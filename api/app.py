@@ -9,7 +9,7 @@ import logging
 import warnings
 
 import redis
-from fastapi import Depends, FastAPI, Request
+from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
@@ -17,13 +17,13 @@ from fastapi.responses import JSONResponse, Response
 from fastapi_offline import FastAPIOffline
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from api import web
+from api import routes, web
 from api.access_log import quiet_polls
 from api.deps import QueueInspector, Services
 from api.errors import DOMAIN_ERRORS, refusal_of
 from api.middleware import ErrorBoundary, RequestGuard
-from api.routes import estimate, health, jobs, metrics, solvers, usage, users, views
-from api.users import UserStore, current_user
+from api.routes import health, metrics
+from api.users import UserStore
 from shared.config import Settings, get_settings
 from shared.disparity_range import ViewsWarning
 from workers.app import make_celery
@@ -83,16 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         celery=celery,
         queues=QueueInspector(celery, settings.inspect_timeout),
     )
-    # every /v1 route needs an API key; /healthz, /readyz, /docs and the web page stay open
-    authenticated = [Depends(current_user)]
-    app.include_router(jobs.router, dependencies=authenticated)
-    app.include_router(estimate.router, dependencies=authenticated)
-    app.include_router(views.router, dependencies=authenticated)
-    app.include_router(views.thumbnails, dependencies=authenticated)
-    app.include_router(solvers.router, dependencies=authenticated)
-    app.include_router(usage.router, dependencies=authenticated)
-    app.include_router(users.router)
-    app.include_router(users.me_router)
+    app.include_router(routes.v1())  # every /v1 route needs an API key
     app.include_router(health.router)
     app.include_router(metrics.router)  # admin key checked by the route
     web.mount(app)

@@ -7,7 +7,7 @@ import math
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, Field, create_model
+from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
@@ -43,8 +43,10 @@ class LevelTiming(BaseModel):
     tests/api/test_wire_models.py), not the dataclass itself: the report's ``info`` (the
     solver's embedding notes) is not sent, a non-finite energy or time is null (JSON has no
     Infinity), and the fields carry the OpenAPI descriptions. Built in one place: ``JobStatus``
-    validates the job record's level dicts (``asdict(LevelReport)``, made finite-or-null by
-    ``workers.records.JobRecord``)."""
+    reads the job record's levels (``workers.records.LevelRecord``: the report, numbers that
+    are not finite made null)."""
+
+    model_config = ConfigDict(from_attributes=True)
 
     index: int
     downsample: int

@@ -55,7 +55,7 @@ def png(image) -> bytes:
 
 
 class Api:
-    """``qhsm api`` as a process of its own, restarted when it dies (by :meth:`revive`)."""
+    """``qhsm api`` as a process of its own, restarted when it dies (:meth:`start` again)."""
 
     def __init__(self, settings, folder: Path) -> None:
         self.port = free_port()

@@ -12,8 +12,8 @@
 
 No task ever waits for another: each level's callback launches the next level. The level logic
 is ``shared.pipeline``'s and ``shared.solve``'s; this module only moves data between them.
-The three tasks stay together because they share the job's state machine (running, cancelled,
-failed) and each hands the next its data.
+The tasks stay together because each hands the next its data; the job's state changes are
+``JobRecord``'s pure methods (``workers/records.py``), applied by ``JobStore.apply``.
 """
 
 from __future__ import annotations
@@ -23,8 +23,6 @@ import time
 import warnings
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import asdict
-from typing import Any
 
 import numpy as np
 from celery import Celery, chain, chord
@@ -54,7 +52,7 @@ from workers.chunks import (
 )
 from workers.level_store import LevelInputsMissingError
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
-from workers.records import ChunkReport, JobRecord, JobState, now
+from workers.records import ChunkReport, JobRecord, JobState, LevelRecord, now
 from workers.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -82,13 +80,7 @@ def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
     """Begin a queued job: its first level's chord. A start whose worker died before it
     launched the first level (the job is running, at level 0) is carried out again when its
     message comes back."""
-
-    def begin(current: JobRecord) -> JobRecord | None:
-        if current.state is not JobState.QUEUED:
-            return None
-        return current.model_copy(update={"state": JobState.RUNNING, "started_at": now()})
-
-    record = store.update(job_id, begin)
+    record, _ = store.apply(job_id, JobRecord.started, now())
     if record is None or record.state is not JobState.RUNNING or record.level or record.levels:
         log.info("job %s: not queued any more (cancelled, gone or started); nothing to do", job_id)
         return
@@ -112,20 +104,7 @@ def resolve_range(
         warnings.simplefilter("ignore", ViewsWarning)
         estimate = resolve_max_disparity(left, right, record.config.max_disparity)
     levels = len(pyramid.plan(record.config, estimate.max_disparity))
-
-    def record_range(current: JobRecord) -> JobRecord | None:
-        if current.state is not JobState.RUNNING or current.disparity_range is not None:
-            return None
-        notes = [estimate.warning] if estimate.warning else []
-        return current.model_copy(
-            update={
-                "disparity_range": estimate.as_dict(),
-                "levels_total": levels,
-                "warnings": [*notes, *current.warnings],
-            }
-        )
-
-    updated = store.update(record.id, record_range)
+    updated, _ = store.apply(record.id, JobRecord.with_range, estimate, levels)
     if updated is None or updated.state is not JobState.RUNNING:
         return None
     return updated
@@ -141,7 +120,7 @@ def job_plans(record: JobRecord) -> list[LevelPlan]:
     solver with ``max_disparity: auto``, when it was accepted)."""
     if record.disparity_range is None:
         raise ValueError(f"job {record.id}: no disparity range recorded")
-    return pyramid.plan(record.config, int(record.disparity_range["max_disparity"]))
+    return pyramid.plan(record.config, record.disparity_range.max_disparity)
 
 
 def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: LevelInputs) -> None:
@@ -171,18 +150,7 @@ def _advance(
     they are planned elsewhere); False (and the level's inputs dropped) when the job is no
     longer running. With ``launched_here`` false the level must be current and not fanned
     out yet (a repeated fan-out changes nothing)."""
-    moved = False
-
-    def advance(current: JobRecord) -> JobRecord | None:
-        nonlocal moved
-        if current.state is not JobState.RUNNING:
-            return None
-        if not launched_here and (current.level != index + 1 or current.bundles_total):
-            return None
-        moved = True
-        return current.model_copy(update={"level": index + 1, "bundles_total": total})
-
-    updated = store.update(job_id, advance)
+    updated, moved = store.apply(job_id, JobRecord.at_level, index, total, launched_here)
     if updated is None or updated.state is not JobState.RUNNING:
         store.drop_level(job_id, index)
         return False
@@ -283,8 +251,9 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     if bundles is None:
         return
     level_map, level_report = _assemble_level(inputs, bundles, record.config, started)
-    record = _add_level_report(store, job_id, index, level_report)
-    if record is None:
+    # None when the job ended, or the same level was assembled twice at once and the other won
+    record, added = store.apply(job_id, JobRecord.with_level, index, level_report)
+    if record is None or not added:
         return
     store.drop_level(job_id, index)
     _next_level_or_finish(celery, store, record, index, inputs, level_map)
@@ -340,32 +309,12 @@ def _solved_bundles(
 
 def _assemble_level(
     inputs: LevelInputs, bundles: list[BundleResult], config: MatchConfig, started: float
-) -> tuple[np.ndarray, dict]:
+) -> tuple[np.ndarray, LevelRecord]:
     """The level's filtered disparity map (``finish_level``) and its report for the record."""
     solution = assemble(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
-    level_report = asdict(report(inputs, solution, time.time() - started))
+    level_report = LevelRecord.of(report(inputs, solution, time.time() - started))
     return level_map, level_report
-
-
-def _add_level_report(
-    store: JobStore, job_id: str, index: int, level_report: dict
-) -> JobRecord | None:
-    """Append the level's report to the running job; None when the job ended, or the same
-    level was assembled twice at once and the other fan-in won."""
-    added = False
-
-    def add_report(current: JobRecord) -> JobRecord | None:
-        nonlocal added
-        added = current.state is JobState.RUNNING and len(current.levels) == index
-        if not added:  # ended, or the same level assembled twice at once and the other won
-            return None
-        return current.model_copy(update={"levels": [*current.levels, level_report]})
-
-    record = store.update(job_id, add_report)
-    if record is None or not added:
-        return None
-    return record
 
 
 def _next_level_or_finish(
@@ -387,10 +336,7 @@ def _next_level_or_finish(
     result = finish(level_map, left, right, config, plans[-1], inputs.views)
     metrics, warning = _evaluate_result(store, record, result)
     store.save_result(record.id, result)
-    updates: dict[str, Any] = {"metrics": metrics}
-    if warning:
-        updates["error"] = warning
-    store.transition(record.id, JobState.SUCCEEDED, {JobState.RUNNING}, **updates)
+    store.apply(record.id, JobRecord.succeeded, now(), metrics, warning)
 
 
 def _evaluate_result(

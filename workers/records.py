@@ -7,13 +7,26 @@ import logging
 import math
 import re
 import uuid
+from collections.abc import Iterable
+from dataclasses import asdict
 from datetime import UTC, datetime
 from enum import StrEnum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from shared.config import MatchConfig
+from shared.disparity_range import RangeEstimate
+
+if TYPE_CHECKING:
+    from shared.pipeline import LevelReport
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +47,29 @@ class JobState(StrEnum):
 
 ACTIVE = frozenset({JobState.QUEUED, JobState.RUNNING})
 
+#: Every change of a job's state, from -> to: the one table a record's writes are checked against
+#: (:meth:`workers.store.JobStore.apply`). A record may also change without changing its state
+#: (a level's progress while running). Running -> queued is the watchdog's restart; a final
+#: state is never left.
+TRANSITIONS: dict[JobState, frozenset[JobState]] = {
+    JobState.QUEUED: frozenset({JobState.RUNNING, JobState.FAILED, JobState.CANCELLED}),
+    JobState.RUNNING: frozenset(
+        {JobState.QUEUED, JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED}
+    ),
+    JobState.SUCCEEDED: frozenset(),
+    JobState.FAILED: frozenset(),
+    JobState.CANCELLED: frozenset(),
+}
+
+
+def allowed(before: JobState, after: JobState) -> bool:
+    """Whether a record in state ``before`` may be written in state ``after``."""
+    return before is after or after in TRANSITIONS[before]
+
+
+class TransitionError(RuntimeError):
+    """A change wrote a state :data:`TRANSITIONS` does not allow (a bug, not a race)."""
+
 
 class GroundTruth(BaseModel):
     """Evaluation protocol of an uploaded ground truth (stored values = disparity x scale)."""
@@ -43,6 +79,40 @@ class GroundTruth(BaseModel):
     inferred: bool = Field(
         False, description="The scale was not given but inferred from the views (see warnings)"
     )
+
+
+class LevelRecord(BaseModel):
+    """One assembled level as the record keeps it: :class:`shared.pipeline.LevelReport`'s fields
+    (the job status's ``levels``), numbers that are not finite as null. Fields it does not name
+    are kept (a report field added later, or read from a newer worker)."""
+
+    model_config = ConfigDict(extra="allow", ser_json_inf_nan="constants")
+
+    index: int
+    downsample: int = 1
+    bin_width: int = 1
+    views: int = 1
+    height: int
+    width: int
+    candidates: int
+    bundles: int
+    energy: float | None
+    lower_bound: float | None = None
+    gap: float | None = None
+    repaired: int = 0
+    seconds: float | None
+    solver_seconds: float | None
+    timing: dict[str, float | None] = Field(default_factory=dict)
+    info: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _finite_or_null(cls, value: Any) -> Any:
+        return finite_or_null(value)
+
+    @classmethod
+    def of(cls, report: LevelReport) -> LevelRecord:
+        return cls.model_validate(asdict(report))
 
 
 class JobRecord(BaseModel):
@@ -72,13 +142,13 @@ class JobRecord(BaseModel):
     level: int = 0  # 1-based index of the level being solved; 0 before the first
     levels_total: int = 0  # levels of the run (the bin pyramid's depend on the range)
     bundles_total: int = 0  # bundles of that level
-    #: ``shared.disparity_range.RangeEstimate`` as a dict: the range the job runs with
-    disparity_range: dict[str, Any] | None = None
-    levels: list[dict[str, Any]] = Field(default_factory=list)  # shared.pipeline.LevelReport
+    #: The range the job runs with (given, or estimated when it started)
+    disparity_range: RangeEstimate | None = None
+    levels: list[LevelRecord] = Field(default_factory=list)  # the levels assembled so far
     metrics: dict[str, float | None] | None = None
     error: str | None = None
 
-    @field_validator("metrics", "levels")
+    @field_validator("metrics")
     @classmethod
     def _finite_or_null(cls, value: Any) -> Any:
         return finite_or_null(value)
@@ -87,6 +157,90 @@ class JobRecord(BaseModel):
     @classmethod
     def _bounded(cls, value: str | None) -> str | None:
         return bounded_message(value)
+
+    # State changes: pure, each the record as it is to be written, or None where it does not
+    # apply to the record as it is now (the job ended or moved on meanwhile: a race, not an
+    # error). The store applies them atomically (JobStore.apply).
+
+    def moved(
+        self,
+        to: JobState,
+        at: datetime,
+        allowed_from: Iterable[JobState] | None = None,
+        **fields: Any,
+    ) -> JobRecord | None:
+        """In state ``to`` with ``fields`` (stamped ``at``: ``started_at`` when it runs,
+        ``finished_at`` when it ends), if :data:`TRANSITIONS` allows it from the current state
+        (and ``allowed_from`` has it)."""
+        if self.state is to or not allowed(self.state, to):
+            return None
+        if allowed_from is not None and self.state not in set(allowed_from):
+            return None
+        updates = {"state": to, **fields}
+        if to is JobState.RUNNING:
+            updates.setdefault("started_at", at)
+        if to.terminal:
+            updates.setdefault("finished_at", at)
+        return self.model_copy(update=updates)
+
+    def started(self, at: datetime) -> JobRecord | None:
+        """A queued job begins."""
+        return self.moved(JobState.RUNNING, at)
+
+    def with_range(self, estimate: RangeEstimate, levels_total: int) -> JobRecord | None:
+        """The running job's disparity range, the levels it makes, and the views' warning
+        first among the warnings; None once a range is recorded."""
+        if self.state is not JobState.RUNNING or self.disparity_range is not None:
+            return None
+        notes = [estimate.warning] if estimate.warning else []
+        return self.model_copy(
+            update={
+                "disparity_range": estimate,
+                "levels_total": levels_total,
+                "warnings": [*notes, *self.warnings],
+            }
+        )
+
+    def at_level(self, index: int, total: int, launched_here: bool = True) -> JobRecord | None:
+        """Level ``index`` current with ``total`` bundles (0 while planned elsewhere); without
+        ``launched_here`` only a current level not fanned out yet takes its count."""
+        if self.state is not JobState.RUNNING:
+            return None
+        if not launched_here and (self.level != index + 1 or self.bundles_total):
+            return None
+        return self.model_copy(update={"level": index + 1, "bundles_total": total})
+
+    def with_level(self, index: int, report: LevelRecord) -> JobRecord | None:
+        """Level ``index``'s report appended; None unless it is the next one (a repeated
+        fan-in of the same level adds nothing)."""
+        if self.state is not JobState.RUNNING or len(self.levels) != index:
+            return None
+        return self.model_copy(update={"levels": [*self.levels, report]})
+
+    def succeeded(
+        self, at: datetime, metrics: dict[str, float | None] | None, warning: str | None = None
+    ) -> JobRecord | None:
+        """The running job's end, with its scores and a warning about them (kept as its
+        ``error``)."""
+        fields: dict[str, Any] = {"metrics": finite_or_null(metrics)}
+        if warning:
+            fields["error"] = warning
+        return self.moved(JobState.SUCCEEDED, at, **fields)
+
+    def failed(self, at: datetime, message: str) -> JobRecord | None:
+        """An active job fails, telling the user why."""
+        return self.moved(JobState.FAILED, at, error=bounded_message(message))
+
+    def cancelled(self, at: datetime) -> JobRecord | None:
+        return self.moved(JobState.CANCELLED, at)
+
+    def restarted(self, level: int) -> JobRecord | None:
+        """Queued again from its uploads (the watchdog), if still running at ``level``."""
+        if self.state is not JobState.RUNNING or self.level != level:
+            return None
+        return self.model_copy(
+            update={"state": JobState.QUEUED, "level": 0, "bundles_total": 0, "levels": []}
+        )
 
 
 #: Longest message a record keeps (a solver's error may quote a whole problem); the workers'

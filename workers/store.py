@@ -24,9 +24,10 @@ Keys (all under ``{key_prefix}:``):
                              uploads like the result
 
 Chunk reports and solved bundles are written with HSET, so a task that runs twice (a worker died
-after solving, or the watchdog re-sent it) is counted once. State changes go through
-:meth:`JobStore.transition`, an optimistic compare-and-set, so a cancel racing with the last
-fan-in resolves to exactly one final state.
+after solving, or the watchdog re-sent it) is counted once. A record changes by
+:meth:`JobStore.apply` of one of its pure methods (``JobRecord.started``, ``failed``, ...), an
+optimistic compare-and-set checked against ``workers.records.TRANSITIONS``, so a cancel racing
+with the last fan-in resolves to exactly one final state.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import logging
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from importlib.resources import files
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import redis
@@ -52,6 +53,8 @@ from workers.records import (
     JobRecord,
     JobState,
     Progress,
+    TransitionError,
+    allowed,
     load_record,
     now,
 )
@@ -73,6 +76,14 @@ class ActiveJobsCapError(Exception):
     def __init__(self, owner: str, active: int, cap: int):
         super().__init__(f"user {owner!r} already has {active} jobs queued or running")
         self.owner, self.active, self.cap = owner, active, cap
+
+
+class Applied(NamedTuple):
+    """What :meth:`JobStore.apply` left: the record as stored afterwards (None: no such job),
+    and whether the change was written."""
+
+    record: JobRecord | None
+    changed: bool
 
 
 class JobStore(LevelStorage):
@@ -214,13 +225,13 @@ class JobStore(LevelStorage):
         record = self.get(job_id)
         return None if record is None else record.state
 
-    def update(
-        self, job_id: str, change: Callable[[JobRecord], JobRecord | None]
-    ) -> JobRecord | None:
-        """Apply ``change`` atomically (optimistic locking); it returns None to leave it alone.
-
-        Returns the record as stored afterwards, or None when the job does not exist.
-        """
+    def apply(
+        self, job_id: str, change: Callable[..., JobRecord | None], /, *args: Any, **kwargs: Any
+    ) -> Applied:
+        """Write ``change(record, *args, **kwargs)`` atomically (optimistic locking): a pure
+        function of the current record, usually one of :class:`JobRecord`'s state changes,
+        that returns None to leave it alone. A state the transition table does not allow
+        from the current one raises :class:`TransitionError`."""
         key = self.key("job", job_id)
         with self.redis.pipeline() as pipe:
             while True:
@@ -230,11 +241,16 @@ class JobStore(LevelStorage):
                     current = None if raw is None else load_record(raw, job_id)
                     if current is None:
                         pipe.unwatch()
-                        return None
-                    changed = change(current.model_copy(deep=True))
+                        return Applied(None, False)
+                    changed = change(current.model_copy(deep=True), *args, **kwargs)
                     if changed is None:
                         pipe.unwatch()
-                        return current
+                        return Applied(current, False)
+                    if not allowed(current.state, changed.state):
+                        pipe.unwatch()
+                        raise TransitionError(
+                            f"job {job_id}: {current.state} -> {changed.state} is not allowed"
+                        )
                     pipe.multi()
                     pipe.set(key, changed.model_dump_json(), keepttl=True)
                     if changed.state.terminal:
@@ -242,9 +258,15 @@ class JobStore(LevelStorage):
                     pipe.execute()
                     if changed.state.terminal and not current.state.terminal:
                         self._finished(job_id)
-                    return changed
+                    return Applied(changed, True)
                 except redis.WatchError:
                     continue
+
+    def update(
+        self, job_id: str, change: Callable[[JobRecord], JobRecord | None]
+    ) -> JobRecord | None:
+        """:meth:`apply` ``change``; the record as stored afterwards (None: no such job)."""
+        return self.apply(job_id, change).record
 
     def transition(
         self,
@@ -254,25 +276,12 @@ class JobStore(LevelStorage):
         **fields: Any,
     ) -> JobRecord | None:
         """Move to ``to`` if the current state is in ``allowed_from``; None if it was not."""
-        allowed = set(allowed_from)
-        moved = False
-
-        def change(record: JobRecord) -> JobRecord | None:
-            nonlocal moved
-            if record.state not in allowed:
-                return None
-            moved = True
-            updates = {"state": to, **fields}
-            if to.terminal:
-                updates.setdefault("finished_at", now())
-            return record.model_copy(update=updates)
-
-        record = self.update(job_id, change)
-        return record if moved else None
+        applied = self.apply(job_id, JobRecord.moved, to, now(), allowed_from, **fields)
+        return applied.record if applied.changed else None
 
     def fail(self, job_id: str, message: str) -> bool:
         """Fail an active job with a message for the user; False if it had already ended."""
-        return self.transition(job_id, JobState.FAILED, ACTIVE, error=message) is not None
+        return self.apply(job_id, JobRecord.failed, now(), message).changed
 
     def _finished(self, job_id: str) -> None:
         """A job reached a final state: drop what only running jobs need."""

@@ -134,7 +134,7 @@ class Watchdog:
         """Look at every active job once; returns (job id, action) for those it acted on.
 
         A job without progress for ``watchdog_lost_seconds`` none of whose tasks is anywhere
-        (no queue holds one, no live worker: :meth:`present`) lost them, with the process that
+        (no queue holds one, no live worker: :meth:`messages`) lost them, with the process that
         died holding them or a Redis restart: its work is sent again at once. One that did not
         move for ``watchdog_stall_seconds`` although its tasks exist is handled as stalled."""
         now = self.clock()
@@ -273,16 +273,7 @@ class Watchdog:
 
     def restart(self, record: JobRecord) -> str:
         """Start the job again from its uploads (nothing of the stalled level can be resumed)."""
-
-        def reset(current: JobRecord) -> JobRecord | None:
-            if current.state is not JobState.RUNNING or current.level != record.level:
-                return None
-            return current.model_copy(
-                update={"state": JobState.QUEUED, "level": 0, "bundles_total": 0, "levels": []}
-            )
-
-        updated = self.store.update(record.id, reset)
-        if updated is None or updated.state is not JobState.QUEUED:
+        if not self.store.apply(record.id, JobRecord.restarted, record.level).changed:
             return "none"
         for key in self.store.redis.scan_iter(match=self.store.key("job", record.id, "level", "*")):
             self.store.redis.delete(key)

@@ -6,10 +6,10 @@ from fastapi import APIRouter
 
 from api import job_service
 from api.deps import LeftView, ParamsForm, PrincipalDep, RightView, ServicesDep, UsersDep
-from api.routes.jobs import UPLOAD_ERRORS
+from api.responses import UPLOAD_ERRORS
 from api.schemas import Estimate
 
-router = APIRouter(prefix="/v1", tags=["jobs"])
+router = APIRouter(tags=["jobs"])
 
 
 @router.post(

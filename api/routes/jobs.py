@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
@@ -15,13 +14,13 @@ from api.deps import (
     LeftView,
     ParamsForm,
     PrincipalDep,
-    Responses,
     RightView,
     Services,
     ServicesDep,
     UsersDep,
 )
 from api.job_service import JobForm, find_job, finished_result
+from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import MAX_LABEL
 from api.users import UserStore
@@ -30,7 +29,7 @@ from shared.solvers.qpu_time import is_metered
 from workers.quota import LOCAL_USER
 from workers.records import GroundTruth, JobRecord
 
-router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 DISPARITY_MEDIA = {
     "pfm": "image/x-portable-floatmap",
@@ -44,27 +43,6 @@ GT_SCALE_RANGE = (1e-3, 1e6)
 MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
-NOT_FOUND: Responses = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
-#: Errors of the upload form (POST /v1/jobs and /v1/estimate) for the OpenAPI docs.
-UPLOAD_ERRORS: Responses = {
-    400: {"description": "params is not JSON"},
-    413: {"description": "File or image too large"},
-    415: {"description": "Not a supported image format"},
-}
-
-
-#: Response header of colour-mapped images: the value (pixels) the top colour stands for.
-SCALE_HEADER = "X-Scale-Max"
-
-
-def display_max(record: JobRecord, disparity: np.ndarray) -> float:
-    """The disparity the preview's top colour stands for: the job's range, else the map's max."""
-    top = record.disparity_range["max_disparity"] if record.disparity_range else None
-    if isinstance(top, int | float) and top > 0:
-        return float(top)
-    return max(float(np.max(disparity)), 1.0)
-
-
 def links(job_id: str) -> Links:
     base = f"/v1/jobs/{job_id}"
     return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")

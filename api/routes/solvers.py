@@ -9,7 +9,7 @@ from api.deps import ServicesDep, load_solver
 from api.schemas import SolverInfo
 from shared.solvers import solver_names, spec
 
-router = APIRouter(prefix="/v1/solvers", tags=["solvers"])
+router = APIRouter(prefix="/solvers", tags=["solvers"])
 
 
 @router.get("", response_model=list[SolverInfo])

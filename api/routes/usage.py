@@ -10,7 +10,7 @@ from fastapi import status as http
 from api.deps import PrincipalDep, UsersDep
 from api.schemas import Usage, UserUsage
 
-router = APIRouter(prefix="/v1", tags=["usage"])
+router = APIRouter(tags=["usage"])
 
 
 @router.get("/usage", response_model=Usage)

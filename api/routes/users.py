@@ -12,8 +12,8 @@ from pydantic import BaseModel, Field
 from api.deps import AdminDep, PrincipalDep, UsersDep
 from api.users import DEFAULT_BUDGET, User, UserError, UserStore, admin_user
 
-router = APIRouter(prefix="/v1/users", tags=["users"], dependencies=[Depends(admin_user)])
-me_router = APIRouter(prefix="/v1", tags=["users"])
+router = APIRouter(prefix="/users", tags=["users"], dependencies=[Depends(admin_user)])
+me_router = APIRouter(tags=["users"])
 
 
 class UserInfo(User):

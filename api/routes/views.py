@@ -16,13 +16,13 @@ from api.auth import Principal
 from api.deps import PrincipalDep, Responses, Services, ServicesDep
 from api.errors import ExpiredError, Refusal, ServiceError
 from api.job_service import find_job, finished_result
-from api.routes.jobs import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
+from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.uploads import decode_view, read_upload
 from shared.images import colorize
 from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
 
-router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
-thumbnails = APIRouter(prefix="/v1", tags=["web"])
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+thumbnails = APIRouter(tags=["web"])
 
 #: Errors at or above this many pixels get the top colour of the error map.
 ERROR_MAP_MAX = 4 * BAD_PIXEL_THRESHOLD

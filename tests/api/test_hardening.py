@@ -96,6 +96,7 @@ def test_non_finite_metrics_are_stored_as_null_and_the_job_still_loads(api):
     level = {"index": 0, "downsample": 1, "height": 24, "width": 32, "candidates": 4}
     level |= {"bundles": 24, "energy": float("inf"), "repaired": 0, "seconds": 0.1}
     level |= {"solver_seconds": 0.05, "timing": {"qpu_access_time": float("nan")}}
+    svc(api).store.transition(job_id, JobState.RUNNING, {JobState.QUEUED})  # runs, then ends
     moved = svc(api).store.transition(
         job_id,
         JobState.SUCCEEDED,

@@ -11,9 +11,12 @@ import cv2
 import numpy as np
 import pytest
 
-from shared.cli import main
+from shared.bundle_plan import level_bundles
+from shared.cli import build_parser, main
+from shared.cli_options import config_from_args
 from shared.images import load_disparity
 from shared.metrics import evaluate
+from shared.pipeline import match_views, plan_run, prepare_level
 
 
 @pytest.fixture(scope="module")
@@ -120,16 +123,19 @@ def test_preset_and_auto_range_from_the_command_line(pair, tmp_path, capsys):
     assert "expected auto or an integer" in capsys.readouterr().err
 
 
-def test_bundle_width_from_the_command_line(pair, tmp_path, capsys):
-    out = str(tmp_path / "d.npy")
-    base = ["match", str(pair / "left.png"), str(pair / "right.png"), "-o", out, "--json"]
-    base += ["--max-disparity", "16", "--solver", "sa", "--param", "num_reads=2"]
-    assert main([*base, "--bundle-width", "48", "--bundle-margin", "8"]) == 0
-    summary = json.loads(capsys.readouterr().out)
+def test_bundle_width_from_the_command_line(pair, scene):
+    """--bundle-width and --bundle-margin reach the level's bundles (planned, not solved)."""
+    argv = ["match", str(pair / "left.png"), str(pair / "right.png"), "-o", "d.npy"]
+    argv += ["--max-disparity", "16", "--solver", "sa", "--param", "num_reads=2"]
+    config = config_from_args(build_parser().parse_args([*argv, "--bundle-width", "48",
+                                                         "--bundle-margin", "8"]))  # fmt: skip
+    left, right = match_views(scene.left, scene.right, config)
+    _, plans = plan_run(left, right, config)
+    assert [plan.downsample for plan in plans] == [1, 1, 1]  # every level at full resolution
+    bundles = level_bundles(prepare_level(left, right, config, plans[0]), config)
     per_row = 3  # 128 px: segments at 0, 40 and 80 (the last one shifted left)
-    assert [level["bundles"] for level in summary["levels"]] == [
-        2 * (96 // 3) * per_row
-    ] * 3  # tiles of 3 rows
+    assert len(bundles) == 2 * (96 // 3) * per_row  # both views, tiles of 3 rows
+    assert sorted({bundle.shape[1] for bundle in bundles}) == [48]
 
 
 def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_c):

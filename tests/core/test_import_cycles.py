@@ -125,3 +125,11 @@ def test_no_new_import_cycle_through_function_level_imports():
 
 def test_the_cycle_finder_finds_a_cycle():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
+
+
+def test_no_route_module_imports_another():
+    """Routes share through ``api.responses`` (issue 30): a route imports no other route."""
+    graph = import_graph(module_level_only=False)
+    routes = {name for name in graph if name.startswith("api.routes.")}
+    assert routes, "no route modules found"
+    assert {name: graph[name] & routes for name in routes if graph[name] & routes} == {}

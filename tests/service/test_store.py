@@ -12,7 +12,15 @@ from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
 from workers import orchestration
 from workers.level_store import LevelInputsMissingError
-from workers.records import ChunkReport, JobRecord, JobState, new_job_id, now
+from workers.records import (
+    ChunkReport,
+    JobRecord,
+    JobState,
+    LevelRecord,
+    TransitionError,
+    new_job_id,
+    now,
+)
 from workers.store import JobStore, UploadsMissingError
 
 
@@ -39,6 +47,13 @@ def test_a_finished_job_cannot_change_state_again(store):
     assert final.state is JobState.CANCELLED and final.finished_at is not None
     assert 0 < store.redis.ttl(store.key("job", record.id)) <= store.ttl
     assert not store.redis.exists(store.key("job", record.id, "upload"))  # gone at the end
+
+
+def test_a_write_outside_the_transition_table_is_refused(store):
+    record = new_job(store)
+    with pytest.raises(TransitionError, match="queued -> succeeded"):
+        store.apply(record.id, lambda r: r.model_copy(update={"state": JobState.SUCCEEDED}))
+    assert store.get(record.id).state is JobState.QUEUED
 
 
 def test_a_chunk_reported_twice_counts_once(store):
@@ -101,7 +116,9 @@ def test_the_levels_of_a_bin_pyramid_share_one_copy_of_their_images(store, setti
 
 def test_a_repeated_fan_in_is_ignored(store):
     record = new_job(store, JobState.RUNNING)
-    store.update(record.id, lambda r: r.model_copy(update={"levels": [{"index": 0}]}))
+    sizes = {"index": 0, "height": 4, "width": 8, "candidates": 3, "bundles": 1}
+    level = LevelRecord(**sizes, energy=1.0, seconds=1.0, solver_seconds=1.0)
+    assert store.apply(record.id, JobRecord.with_level, 0, level).changed
     # level 0's inputs are gone; a redelivered callback must neither fail nor redo the job
     orchestration.level_done(None, store, [{"bundles": []}], record.id, 0)
     assert store.get(record.id).state is JobState.RUNNING

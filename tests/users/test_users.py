@@ -149,7 +149,7 @@ def test_usage_route_shows_own_usage_and_admins_everyones(store):
 
     app = FastAPI()
     app.state.users = store
-    app.include_router(usage.router)
+    app.include_router(usage.router, prefix="/v1")
     client = TestClient(app)
     _, ada = store.create_user("ada", qpu_seconds=3)
     _, bob = store.create_user("bob", qpu_seconds=4)

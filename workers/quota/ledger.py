@@ -28,6 +28,7 @@ import redis
 from shared.config import Settings
 from shared.solvers import SolverError
 from workers.quota.scripts import load_script
+from workers.redis_client import text
 
 _RESERVE = load_script("now", "expire", "reserve")
 _SETTLE = load_script("settle")
@@ -153,8 +154,7 @@ class QuotaLedger:
     def status(self, user: str) -> QuotaStatus:
         """The user's budget now, after charging any lapsed reservations."""
         limit, used, reserved = (
-            value.decode() if isinstance(value, bytes) else str(value)
-            for value in self._status(keys=self._keys(user))
+            text(value) for value in self._status(keys=self._keys(user))
         )
         return QuotaStatus(
             user=user,
@@ -239,18 +239,18 @@ class QuotaLedger:
 
     def users(self) -> list[str]:
         """Every user with a budget or usage, sorted."""
-        return sorted(member.decode() for member in self.redis.smembers(self.key("quota", "users")))
+        return sorted(text(member) for member in self.redis.smembers(self.key("quota", "users")))
 
     def usage(self, user: str) -> UserUsage:
         """The user's budget and what each of their jobs was charged, by job id."""
         seconds = self.redis.hgetall(self.key("usage", user, "seconds"))
         problems = self.redis.hgetall(self.key("usage", user, "problems"))
         jobs = [
-            JobUsage(job_id=job.decode(), seconds=float(value), problems=int(problems.get(job, 0)))
+            JobUsage(job_id=text(job), seconds=float(value), problems=int(problems.get(job, 0)))
             for job, value in seconds.items()
         ]
         jobs += [
-            JobUsage(job_id=job.decode(), seconds=0.0, problems=int(count))
+            JobUsage(job_id=text(job), seconds=0.0, problems=int(count))
             for job, count in problems.items()
             if job not in seconds
         ]
