@@ -246,19 +246,9 @@ def get_solver(name: str) -> Any:
 
 
 def build(name: str) -> Any:
-    """A new sampler of solver ``name`` from its record's factory (:func:`get_solver` keeps
-    one per process; tests build their own to keep a mocked cloud out of the kept one).
-
-    Parameters
-    ----------
-    name
-        As for :func:`spec`.
-
-    Returns
-    -------
-    Any
-        The factory's sampler, named ``name``.
-    """
+    """A new sampler of solver ``name`` (as for :func:`spec`), named so, from its record's
+    factory: :func:`get_solver` keeps one per process; tests build their own to keep a mocked
+    cloud out of the kept one."""
     factory = spec(name).factory
     if isinstance(factory, str):
         module_name, attribute = factory.split(":")
