@@ -20,6 +20,7 @@ import dimod
 import numpy as np
 
 from shared.energy import Costs
+from shared.solvers.canonical import Canonical
 from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always were)
     SolverError,
     SolverUnavailableError,
@@ -127,12 +128,14 @@ class Sampler(dimod.Sampler):
         initial_states: Any = None,
         **params: Any,
     ) -> dimod.SampleSet:
-        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype.
+        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype. :meth:`run`
+        sees it BINARY on the variables 0..n-1 (:class:`~shared.solvers.canonical.Canonical`),
+        and the answer is in ``bqm``'s vartype and labels; an empty BQM is not run.
 
         Parameters
         ----------
         bqm : dimod.BinaryQuadraticModel
-            The problem.
+            The problem: any vartype, any hashable labels.
         seed : int, optional
             Random seed, passed to :meth:`run`.
         initial_states : samples-like, optional
@@ -143,10 +146,15 @@ class Sampler(dimod.Sampler):
         Returns
         -------
         dimod.SampleSet
-            What :meth:`run` returns.
+            What :meth:`run` returns, in ``bqm``'s vartype and labels.
         """
         params = {**self.defaults, **params}
-        return self.run(bqm, params, seed=seed, initial_states=initial_states)
+        form = Canonical.of(bqm)
+        sampleset = form.solved()
+        if sampleset is None:
+            states = form.states(initial_states)
+            sampleset = self.run(form.bqm, params, seed=seed, initial_states=states)
+        return form.restore(sampleset)
 
     def run(
         self, bqm: dimod.BinaryQuadraticModel, params: dict[str, Any], *, seed, initial_states
@@ -156,13 +164,13 @@ class Sampler(dimod.Sampler):
         Parameters
         ----------
         bqm : dimod.BinaryQuadraticModel
-            The problem to sample.
+            The problem to sample: BINARY, on the variables 0..n-1, not empty.
         params : dict
             Defaults merged with the call's parameters.
         seed : int or None
             The call's seed.
         initial_states : samples-like or None
-            The call's warm start.
+            The call's warm start, BINARY, on 0..n-1.
 
         Returns
         -------

@@ -117,7 +117,7 @@ class GurobiSampler(Sampler, dimod.Initialized):
         Parameters
         ----------
         bqm : dimod.BinaryQuadraticModel
-            The bundle's QUBO (a SPIN BQM is converted).
+            The bundle's QUBO, BINARY on 0..n-1 (``Sampler.sample`` converts any other BQM).
         params : dict
             ``time_limit`` (seconds), ``mip_gap``, ``threads`` or raw Gurobi parameter names.
         seed : int or None
@@ -146,9 +146,8 @@ class GurobiSampler(Sampler, dimod.Initialized):
         if initial_states is not None:
             parsed = self.parse_initial_states(bqm, initial_states, num_reads=1)
             start = parsed.initial_states.record.sample[0]
-        binary = bqm.change_vartype(dimod.BINARY, inplace=False)
-        n = binary.num_variables
-        linear, (rows, cols, quadratic), offset = binary.to_numpy_vectors(variable_order=range(n))
+        n = bqm.num_variables
+        linear, (rows, cols, quadratic), offset = bqm.to_numpy_vectors(variable_order=range(n))
         largest = max(np.abs(linear).max(initial=0.0), np.abs(quadratic).max(initial=0.0))
         scale = OBJECTIVE_SCALE / largest if largest > 0 else 1.0
         q_matrix = sp.csr_matrix((quadratic * scale, (rows, cols)), shape=(n, n))

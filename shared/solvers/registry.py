@@ -240,17 +240,22 @@ def get_solver(name: str) -> Any:
     Any
         A ``dimod.Sampler`` for every QUBO solver (``exact`` is also a row solver).
     """
-    if name in _INSTANCES:
-        return _INSTANCES[name]
-    record = spec(name)
-    factory = record.factory
+    if name not in _INSTANCES:
+        _INSTANCES[name] = build(name)
+    return _INSTANCES[name]
+
+
+def build(name: str) -> Any:
+    """A new sampler of solver ``name`` (as for :func:`spec`), named so, from its record's
+    factory: :func:`get_solver` keeps one per process; tests build their own to keep a mocked
+    cloud out of the kept one."""
+    factory = spec(name).factory
     if isinstance(factory, str):
         module_name, attribute = factory.split(":")
         factory = getattr(import_module(module_name), attribute)
     solver = factory()
     with contextlib.suppress(AttributeError):  # a read-only name is the sampler's own
         solver.name = name
-    _INSTANCES[name] = solver
     return solver
 
 
