@@ -223,6 +223,15 @@ class LevelEstimate(BaseModel):
         description="true: an actual embedding of this bundle shape; false: the assumption of "
         "2 qubits per variable (no job has embedded this shape yet)"
     )
+    pixels_certified: int | None = Field(
+        None,
+        description="Grid inference with a QUBO solver: pixels the host's dual decomposition "
+        "settles (row and column copies agree); null without a survey",
+    )
+    pixels_sent: int | None = Field(
+        None,
+        description="Pixels in the 4x4 tiles around the unsettled ones, the only ones sent",
+    )
     seconds: float
 
 
