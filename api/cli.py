@@ -372,11 +372,17 @@ def format_estimate(result: dict) -> str:
         if level["qubits_per_bundle"] is not None:
             source = "embedding" if level["embedding_known"] else "assumed"
             qubits = f", {level['qubits_per_bundle']} qubits ({source})"
+        settled = ""
+        if level.get("pixels_certified") is not None:
+            settled = (
+                f", {level['pixels_certified']} pixels certified on the host, "
+                f"{level['pixels_sent']} in the tiles sent"
+            )
         lines.append(
             f"  level {level['index']}: {level['height']}x{level['width']}, "
             f"{level['bundles']} bundles of {level['variables_per_bundle']} variables, "
             f"{level.get('bundles_sent', level['bundles'])} sent with "
-            f"{level.get('variables_share', 1.0):.0%} of the variables{qubits}: "
+            f"{level.get('variables_share', 1.0):.0%} of the variables{qubits}{settled}: "
             f"{level['seconds']:.2f} s"
         )
     if "fits" in result:

@@ -75,6 +75,14 @@ class LevelTiming(BaseModel):
     seconds: float
     solver_seconds: float
     timing: dict[str, float | None] = Field(default_factory=dict)
+    residual: dict[str, float] | None = Field(
+        None,
+        description="Grid inference with a QUBO solver (shared.settle): the level's pixels, "
+        "those the host's dual decomposition certified (row and column copies agree) and left "
+        "unsettled, the 4x4 tiles sent and their pixels, the tiles and pixels whose solver "
+        "answer lowered the energy and replaced the host's (tiles_improved, pixels_improved), "
+        "and the host's seconds; null for other solvers",
+    )
 
 
 def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:
@@ -224,6 +232,15 @@ class LevelEstimate(BaseModel):
     embedding_known: bool = Field(
         description="true: an actual embedding of this bundle shape; false: the assumption of "
         "2 qubits per variable (no job has embedded this shape yet)"
+    )
+    pixels_certified: int | None = Field(
+        None,
+        description="Grid inference with a QUBO solver: pixels the host's dual decomposition "
+        "settles (row and column copies agree); null without a survey",
+    )
+    pixels_sent: int | None = Field(
+        None,
+        description="Pixels in the 4x4 tiles around the unsettled ones, the only ones sent",
     )
     seconds: float
 

@@ -52,6 +52,8 @@ class LevelSolution:
     info: dict = field(default_factory=dict)
     #: The sum of the bundles' lower bounds, when every bundle has one.
     lower_bound: float | None = None
+    #: The residual design's counts (:class:`shared.settle.Residual`), None without it.
+    residual: dict | None = None
 
 
 def assemble(
@@ -82,6 +84,11 @@ def assemble(
     ValueError
         If a pixel is covered by no bundle or by several (other than segments of one row).
     """
+    if "settle" in inputs.prepared:  # the host's labels, the tiles where they lower the energy
+        from shared.settle import merge
+
+        assert config is not None
+        return merge(inputs, results, config)
     height, width = inputs.shape
     labels = np.full((height, width), -1, dtype=np.int32)
     covered = np.zeros((height, width), dtype=np.int32)

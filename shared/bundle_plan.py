@@ -4,13 +4,19 @@ that embeds) and, for solvers that embed on a QPU graph, each bundle shape's emb
 
 from __future__ import annotations
 
+import logging
 import time
+from typing import Any
 
+from shared import settle
 from shared.bundles import Bundle
 from shared.config import AUTO, Inference, MatchConfig
 from shared.level_inputs import LevelInputs
+from shared.settle import settles
 from shared.solvers import get_solver
 from shared.solvers.base import RowSolver, ShapePlanner
+
+log = logging.getLogger(__name__)
 
 
 def bundle_width_setting(config: MatchConfig) -> int | str | None:
@@ -131,6 +137,8 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     started = time.perf_counter()
     cache = solver.cache if isinstance(solver, ShapePlanner) else None
     before = cache.computed if cache is not None else 0
+    if settles(config):
+        return _residual_tiles(inputs, config, solver, started, before)
     width = level_bundle_width(inputs, config)
     height = bundle_height(inputs, config)
     bundles = inputs.bundles(height, width, config.bundle_margin)
@@ -145,4 +153,31 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
             "embeddings_computed": (cache.computed if cache is not None else 0) - before,
             "preparation_seconds": time.perf_counter() - started,
         }
+    return bundles
+
+
+def _residual_tiles(
+    inputs: LevelInputs, config: MatchConfig, solver: Any, started: float, before: int
+) -> list[Bundle]:
+    """The residual design's bundles (:mod:`shared.settle`): the host settles the level (once),
+    the tiles around what it leaves unsettled are the bundles; a QPU solver embeds their one
+    shape (and its copies across the chip) here."""
+    settle.prepare(inputs, config)
+    bundles = settle.planned_tiles(inputs)
+    inputs.prepared.update(bundle_width=settle.TILE, bundle_height=settle.TILE)
+    if isinstance(solver, ShapePlanner) and bundles:
+        log.info(
+            "level %d: embedding the %dx%d tile shape (%d tiles to send)",
+            inputs.index + 1, settle.TILE, settle.TILE, len(bundles),
+        )  # fmt: skip
+        cache = solver.cache
+        solver.embed_shapes(
+            encoding=config.encoding,
+            candidates=inputs.candidates.shape[2],
+            shapes=sorted({bundle.shape for bundle in bundles}),
+        )
+        inputs.prepared.update(
+            embeddings_computed=cache.computed - before,
+            preparation_seconds=time.perf_counter() - started,
+        )
     return bundles

@@ -391,6 +391,9 @@ class DualResult:
     iterations: int
     #: Pixels whose row and column labels disagreed in the last iteration (0: optimal).
     disagreeing: int
+    #: (h, w) bool: those pixels (the row and column copies disagree), the only ones the
+    #: decomposition leaves unsettled (:mod:`shared.settle` sends tiles around them).
+    unsettled: np.ndarray | None = None
 
     @property
     def gap(self) -> float:
@@ -425,6 +428,8 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
     best_labels, best_energy = np.zeros(mrf.shape, dtype=np.int32), math.inf
     bound, gamma, stalled = -math.inf, 1.0, 0
     disagreeing, done = -1, 0
+    row_labels = np.zeros(mrf.shape, dtype=np.int32)
+    turned_labels = np.zeros(mrf.shape[::-1], dtype=np.int32)
 
     def consider(labels: np.ndarray) -> None:
         nonlocal best_labels, best_energy
@@ -460,6 +465,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
         lower_bound=float(min(bound, best_energy)),
         iterations=done,
         disagreeing=disagreeing,
+        unsettled=row_labels != turned_labels.T,
     )
 
 

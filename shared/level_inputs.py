@@ -169,6 +169,10 @@ class LevelInputs:
         -------
         list of Bundle
         """
+        if "settle" in self.prepared:  # the residual design's tiles (shared.settle)
+            from shared.settle import planned_tiles
+
+            return planned_tiles(self)
         width = self.prepared.get("bundle_width")
         if width is not None and width >= self.shape[1]:
             width = None

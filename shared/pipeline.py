@@ -68,6 +68,9 @@ class LevelReport:
     timing: dict[str, float] = field(default_factory=dict)
     #: Once per level from the solver: embeddings computed / reused, qubits, longest chain.
     info: dict = field(default_factory=dict)
+    #: A QUBO solver's residual design (:class:`shared.settle.Residual`): pixels the host
+    #: certified, tiles and pixels sent, tiles and pixels the solver improved; None otherwise.
+    residual: dict | None = None
 
 
 @dataclass
@@ -354,6 +357,7 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         solver_seconds=solution.solver_seconds,
         timing=solution.timing,
         info=solution.info,
+        residual=solution.residual,
     )
 
 

@@ -38,6 +38,11 @@ class LevelResidual:
     sent_share: float
     variables_share: float
     sent_variables_share: float
+    #: With the residual design (:mod:`shared.settle`): the 4x4 tiles the host leaves to send
+    #: (the shares are then of all the level's tiles); None: the level's own bundles.
+    tiles: int | None = None
+    #: With the residual design: the level's pixels the host certified (rows and columns agree).
+    certified: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -45,6 +50,8 @@ class LevelResidual:
             "sent_share": self.sent_share,
             "variables_share": self.variables_share,
             "sent_variables_share": self.sent_variables_share,
+            "tiles": self.tiles,
+            "certified": self.certified,
         }
 
 
@@ -52,11 +59,41 @@ def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelR
     """The exact classical steps on an evenly spread sample of at most ``limit`` of the level's
     bundles: a tile dual decomposition certifies is not sent (``certify_tiles``), roof duality
     fixes what it proves of the others."""
+    from shared import settle
+
+    share = 1.0  # of the level's bundles the sampled ones stand for
+    if settle.settles(config):  # the host settles the level; only tiles around the rest go
+        saved = inputs.initial_labels, inputs.prepared
+        inputs.prepared = {}
+        certified = settle.prepare(inputs, config).certified
+        bundles = settle.planned_tiles(inputs)
+        share = len(bundles) / settle.tiles_of(inputs.view_height, inputs.shape[1], inputs.views)
+        config = settle.tile_config(config)
+        try:
+            found = _reduced(inputs, config, bundles, limit) if bundles else None
+        finally:
+            inputs.initial_labels, inputs.prepared = saved
+        if found is None:
+            return LevelResidual(0, 0.0, 0.0, 1.0, tiles=0, certified=certified)
+        return LevelResidual(
+            sampled=found.sampled,
+            sent_share=found.sent_share * share,
+            variables_share=found.variables_share * share,
+            sent_variables_share=found.sent_variables_share,
+            tiles=len(bundles),
+            certified=certified,
+        )
+    return _reduced(
+        inputs, config, inputs.bundles(config.bundle_height, width, config.bundle_margin), limit
+    )
+
+
+def _reduced(inputs, config: MatchConfig, bundles: list, limit: int) -> LevelResidual:
+    """Roof duality on an evenly spread sample of at most ``limit`` of ``bundles``."""
     from shared.encodings import get_codec
     from shared.solve import encoded_bundles
     from shared.solvers.composites import reduce
 
-    bundles = inputs.bundles(config.bundle_height, width, config.bundle_margin)
     picked = np.unique(np.linspace(0, len(bundles) - 1, min(limit, len(bundles))).astype(int))
     preprocess = config.solver_params.get("preprocess", "roof-duality")
     codec = get_codec(config.encoding)

@@ -33,6 +33,7 @@ from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
 from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
 from shared.level_inputs import BundleSpec, LevelInputs
+from shared.settle import tile_config
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
 from shared.solvers.registry import uses_warm_start
@@ -91,6 +92,8 @@ def solve_bundles(
     """
     if not bundles:
         return []
+    if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
+        config = tile_config(config)
     items = [inputs.as_bundle(spec) for spec in bundles]
     solver = get_solver(config.solver)
     if isinstance(solver, RowSolver):

@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 from celery import Celery, chain, chord
 
-from shared import pyramid
+from shared import pyramid, settle
 from shared.assembly import BundleResult, assemble
 from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
@@ -37,6 +37,7 @@ from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
+from shared.settle import settles, tile_config
 from shared.solve import solve_bundles
 from shared.solvers.meters import is_metered
 from shared.solvers.registry import queue_of
@@ -133,6 +134,14 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     config = record.config
     started = time.time()
     remote = plans_with_solver(config)
+    if settles(config):  # the host settles the level here; its labels go with the inputs
+        counts = settle.prepare(inputs, config)
+        log.info(
+            "job %s: level %d settled on the host in %.1f s: %d of %d pixels unsettled, "
+            "%d tiles to send",
+            record.id, inputs.index + 1, counts.host_seconds, counts.unsettled, counts.pixels,
+            counts.tiles,
+        )  # fmt: skip
     if not remote:
         level_bundles(inputs, config)  # sets inputs.prepared: the bundles' width
     store.save_level(record.id, inputs, started=started)
@@ -168,6 +177,11 @@ def _fan_out_planned(
     chunks = task_chunks(inputs, config, rows_per_task(store.settings, config.solver))
     total = sum(len(chunk) for chunk in chunks)
     if _advance(store, job_id, inputs.index, total, launched_here=launched_here):
+        if not chunks:  # the host settled every pixel: nothing to send, the fan-in at once
+            celery.signature(
+                LEVEL_DONE, args=([], job_id, inputs.index), queue=store.settings.control_queue
+            ).apply_async()
+            return
         fan_out(celery, store, record, inputs.index, chunks)
 
 
@@ -397,6 +411,8 @@ def solve_chunk(
         return {"bundles": len(row_ranges), "duplicate": True}
     inputs, record = level_for(store, job_id, index)
     config = record.config
+    if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
+        config = tile_config(config)
     if is_metered(config.solver) and meter is not None:
         results = solve_metered(
             meter(),

@@ -22,6 +22,7 @@ from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.pyramid import level_shape, plan
 from shared.residual import LevelResidual
+from shared.settle import TILE, settles, tiles_of
 from shared.solvers.bundle_shapes import (
     AUTO_VARIABLES_GUESS,
     auto_width_key,
@@ -105,6 +106,10 @@ class LevelEstimate:
     bundles_sent: int | None = None
     #: Share of the level's variables expected to reach it.
     variables_share: float = 1.0
+    #: The residual design (:mod:`shared.settle`): pixels the host certifies and pixels in the
+    #: tiles sent (None without it, or without a survey).
+    pixels_certified: int | None = None
+    pixels_sent: int | None = None
 
     @property
     def classical_share(self) -> float:
@@ -125,6 +130,8 @@ class LevelEstimate:
             "variables_per_bundle": self.variables_per_bundle,
             "qubits_per_bundle": self.qubits_per_bundle,
             "embedding_known": self.embedding_known,
+            "pixels_certified": self.pixels_certified,
+            "pixels_sent": self.pixels_sent,
             "seconds": self.seconds,
         }
 
@@ -218,11 +225,15 @@ def level_estimate(
         Bundles, variables per bundle, qubits and the total estimated seconds of the level.
     """
     height, width = shape
-    rows = bundle_rows(height, config.bundle_height)
-    tallest = max(stop - start for start, stop in rows)
-    columns = segment_width(config, config.bundle_height, width, candidates, cache) or width
-    segments = len(segment_columns(width, columns, config.bundle_margin))
-    bundles = views * len(rows) * segments
+    if settles(config):  # the residual design: 4x4 tiles (shared.settle)
+        tallest, columns = min(TILE, height), min(TILE, width)
+        bundles = tiles_of(height, width, views)
+    else:
+        rows = bundle_rows(height, config.bundle_height)
+        tallest = max(stop - start for start, stop in rows)
+        columns = segment_width(config, config.bundle_height, width, candidates, cache) or width
+        segments = len(segment_columns(width, columns, config.bundle_margin))
+        bundles = views * len(rows) * segments
     variables = tallest * columns * get_codec(config.encoding).variables_per_pixel(candidates)
     params = sampler_params(config.solver_params, warm=uses_warm_start(config))
     embedding = known_embedding(
@@ -256,6 +267,8 @@ def level_estimate(
         embedding_known=embedding is not None,
         bundles_sent=sent,
         variables_share=residual.variables_share,
+        pixels_certified=residual.certified,
+        pixels_sent=None if residual.tiles is None else residual.tiles * tallest * columns,
     )
 
 

@@ -1,6 +1,7 @@
-"""Grid tiles certified on the host (``certify_tiles``): a QUBO solver's tile whose dual
-decomposition agrees is the tile's exact optimum, solved on the host, never sent and charged
-nothing; the others are sent and keep the better of the two labellings."""
+"""The host settles a QUBO solver's level (``certify_tiles``, :mod:`shared.settle`): only the
+4x4 tiles around the pixels whose row and column copies disagree are sent, and a tile's answer
+replaces the host's labels only where it lowers the energy. A tile's own dual decomposition
+(``encoded_bundles``) certifies its exact optimum."""
 
 from __future__ import annotations
 
@@ -9,14 +10,20 @@ import itertools
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from shared import settle
+from shared.assembly import assemble
 from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.energy import Costs, mrf_energy
+from shared.grid import dual_decomposition
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
 from shared.solve import encoded_bundles, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
+from shared.solvers.base import SolveResult
 from shared.solvers.qpu_time import charged_seconds
 from shared.synthetic import make_scene
 
@@ -92,36 +99,88 @@ class CountingSolver:
         return self.inner.solve(bqm, **kwargs)
 
 
-def test_a_certified_tile_is_not_sent_and_is_charged_nothing(monkeypatch):
+def test_only_tiles_around_unsettled_pixels_are_sent_and_charged(monkeypatch):
     cfg = config(encoding="one-hot", solver_params={"num_reads": 2})
     inputs = level_inputs(cfg)[-1]
-    bundles = level_bundles(inputs, cfg)
+    bundles = level_bundles(inputs, cfg)  # the host settles the level (shared.settle)
+    counts = inputs.prepared["settle"]
+    assert counts["certified"] + counts["unsettled"] == inputs.shape[0] * inputs.shape[1]
+    assert 0 < len(bundles) == counts["tiles"] < settle.tiles_of(16, 40, 2)
+    unsettled = np.zeros(inputs.shape, dtype=bool)
+    height = inputs.view_height
+    for view in range(inputs.views):  # the host's decomposition again: which pixels it left
+        grid = inputs.grid(cfg, view * height, (view + 1) * height)
+        outcome = dual_decomposition(grid, cfg.dual_iterations)
+        unsettled[view * height : (view + 1) * height] = outcome.unsettled
+    covered = np.zeros(inputs.shape, dtype=bool)
+    for bundle in bundles:
+        assert bundle.shape == (settle.TILE, settle.TILE)
+        tile = (slice(bundle.row_start, bundle.row_stop), slice(bundle.col_start, bundle.col_stop))
+        assert unsettled[tile].any()  # no tile without an unsettled pixel is sent
+        covered[tile] = True
+    assert covered[unsettled].all()  # every unsettled pixel is in a sent tile
     counting = CountingSolver()
     monkeypatch.setattr("shared.solve.get_solver", lambda name: counting)
     results = solve_bundles(inputs, cfg, bundles)
-    certified = [r for r in results if r.info["certified"]]
-    assert 0 < len(certified) < len(results)
-    assert counting.calls == len(results) - len(certified)
-    for result in certified:
-        assert result.timing == {} and charged_seconds(result.timing) == 0.0
-        assert result.info["residual_variables"] == 0 and result.info["variables"] > 0
-    for result in results:
-        assert result.info["certified"] or result.info["kept"] in ("host", "solver")
-    summary = solve_level_in_process(inputs, cfg).info  # the level's report counts them
-    assert summary["bundles_certified"] == len(certified)
-    assert summary["bundles_sent"] == len(results) - len(certified)
-    assert summary["variables_sent"] < summary["variables"]
+    assert counting.calls == len(bundles)
+    assert all(charged_seconds(r.timing) == 0.0 for r in results)  # (unmetered here)
+    solution = assemble(inputs, results, cfg)
+    assert solution.residual["tiles"] == len(bundles)
+    assert solution.residual["pixels_sent"] == 16 * len(bundles)
 
 
-def test_a_sent_tile_keeps_the_better_of_the_solvers_and_the_hosts_labels():
-    cfg = config(encoding="domain-wall", solver_params={"num_reads": 1, "num_sweeps": 1})
+class WorstSolver:
+    """Every variable 1: an invalid encoding, repaired to poor labels."""
+
+    def solve(self, bqm, **kwargs):
+        sample = np.ones(bqm.num_variables, dtype=np.int8)
+        return SolveResult(sample=sample, energy=bqm.energy(sample), wall_time=0.0)
+
+
+@pytest.mark.parametrize("solver", ["worst", "sa"])
+def test_a_tiles_answer_replaces_the_hosts_only_where_it_lowers_the_energy(monkeypatch, solver):
+    cfg = config(encoding="domain-wall", solver_params={"num_reads": 4})
     inputs = level_inputs(cfg)[-1]
     bundles = level_bundles(inputs, cfg)
-    problems = {p.bundle: p for p in encoded_bundles(inputs, cfg, bundles)}
-    for result in solve_bundles(inputs, cfg, bundles):
-        problem = next(p for b, p in problems.items() if b.row_start == result.row_start)
-        assert result.energy == pytest.approx(mrf_energy(problem.costs, result.labels))
-        assert result.energy <= mrf_energy(problem.costs, problem.dual.labels) + 1e-9
+    host = inputs.initial_labels.copy()  # the host's labels (prepare put them there)
+    height = inputs.view_height
+    grids = [inputs.grid(cfg, v * height, (v + 1) * height) for v in range(inputs.views)]
+    host_energy = sum(g.energy(host[v * height : (v + 1) * height]) for v, g in enumerate(grids))
+    if solver == "worst":
+        monkeypatch.setattr("shared.solve.get_solver", lambda name: WorstSolver())
+    solution = assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
+    energy = sum(
+        g.energy(solution.labels[v * height : (v + 1) * height]) for v, g in enumerate(grids)
+    )
+    assert solution.energy == pytest.approx(energy)
+    assert energy <= host_energy + 1e-9
+    assert solution.lower_bound <= energy + 1e-6
+    changed = int(np.count_nonzero(solution.labels != host))
+    assert changed == solution.residual["pixels_improved"]
+    if solution.residual["tiles_improved"]:
+        assert energy < host_energy
+    else:
+        assert changed == 0 and energy == pytest.approx(host_energy)
+    if solver == "worst":
+        assert solution.residual["tiles_improved"] == 0
+
+
+@given(st.data())
+@settings(max_examples=40, deadline=None)
+def test_the_tiles_sent_cover_every_unsettled_pixel_and_only_tiles_holding_one(data):
+    height = data.draw(st.integers(1, 13))
+    width = data.draw(st.integers(1, 13))
+    flat = data.draw(st.lists(st.booleans(), min_size=height * width, max_size=height * width))
+    unsettled = np.array(flat, dtype=bool).reshape(height, width)
+    tiles = settle.unsettled_tiles(unsettled)
+    covered = np.zeros_like(unsettled)
+    for top, left in tiles:
+        window = unsettled[top : top + settle.TILE, left : left + settle.TILE]
+        assert window.shape == (min(4, height), min(4, width))  # whole tiles, in bounds
+        assert window.any()
+        covered[top : top + settle.TILE, left : left + settle.TILE] = True
+    assert covered[unsettled].all()
+    assert len(set(tiles)) == len(tiles)
 
 
 @pytest.mark.parametrize(

@@ -140,9 +140,11 @@ def test_hybrid_sim_estimate_is_its_charge_within_10_percent(tmp_path, capsys):
     sent = [level.info["variables_sent"] for level in result.levels]
     assert charge == pytest.approx(sum(qpu_time.hybrid_level_seconds(n) for n in sent))
     assert estimate["seconds"] == pytest.approx(charge, rel=0.1)
-    for level in result.levels:
-        assert 0 < level.info["variables_sent"] < level.info["variables"]
-        assert level.info["bundles_certified"] > 0  # certified tiles: solved on the host
+    for level, planned in zip(result.levels, estimate["levels"], strict=True):
+        assert 0 < level.info["variables_sent"] <= level.info["variables"]
+        # the host settles the level: only the tiles around its unsettled pixels are sent
+        assert 0 < level.residual["pixels_sent"] < level.residual["pixels"]
+        assert level.residual["certified"] == planned["pixels_certified"]
 
 
 def test_qpu_sim_packs_rests_into_one_call_on_disjoint_copies(tmp_path):

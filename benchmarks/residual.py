@@ -1,0 +1,138 @@
+"""The residual design (issue 27, :mod:`shared.settle`): what the QPU and hybrid solvers are
+charged once the host settles each level, and the QUBO solvers' quality against ``exact``.
+
+    python benchmarks/residual.py                      # estimates: Tsukuba (range 16), 1280x720
+    python benchmarks/residual.py --quality            # + RMSE of exact, sa, qpu-sim: half, full
+    python benchmarks/residual.py --quality --busy 2   # ... with 2 CPU-bound processes beside
+
+The estimates are ``qhsm estimate --local``'s (:func:`shared.residual.job_residual`, then
+:func:`shared.solvers.qpu_time.job_seconds`: classical work only, nothing is sent). The
+1280x720 pair is Middlebury 2006 Lampshade1 resized to 1280x720 (no real pair of that size is
+in the data; an upscaled pair is smoother than a camera's, so read it as an indication).
+Quality runs offline (``qpu-sim``: MockDWaveSampler). Prints markdown for docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from qpu_economy import halved  # the half-size pair and ground truth, as issue 19 measured
+
+from shared.config import MatchConfig
+from shared.datasets.scenes import load_scene
+from shared.disparity_range import resolve_max_disparity
+from shared.images import load_disparity_values, load_pair
+from shared.metrics import evaluate
+from shared.pipeline import match_views, run_pipeline
+from shared.residual import job_residual
+from shared.solvers.qpu_time import job_seconds
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+TSUKUBA = DATA / "middlebury" / "tsukuba"
+WIDE = DATA / "middlebury2006" / "Lampshade1"
+
+
+def estimate_rows(name: str, left, right, max_disparity: int | str) -> list[str]:
+    """Markdown rows: per solver, the total estimate and per level the pixels certified/sent."""
+    rows = []
+    for solver in ("qpu", "hybrid"):
+        config = MatchConfig(solver=solver, max_disparity=max_disparity)
+        top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
+        started = time.perf_counter()
+        residual = job_residual(config, left, right, top.max_disparity)
+        surveyed = time.perf_counter() - started
+        estimate = job_seconds(config, left.shape[:2], top.max_disparity, residual=residual)
+        levels = "; ".join(
+            f"{level.pixels_sent} px in {level.bundles_sent} tiles" for level in estimate.levels
+        )
+        rows.append(
+            f"| {name} {left.shape[1]}x{left.shape[0]} | {solver} | {top.max_disparity} "
+            f"| {levels} | {surveyed:.0f} | **{estimate.seconds:.2f}** |"
+        )
+    return rows
+
+
+def wide_pair() -> tuple[np.ndarray, np.ndarray]:
+    """Lampshade1 resized to 1280x720."""
+    scene = load_scene(WIDE)
+    left, right = load_pair(scene.left, scene.right)
+    return tuple(cv2.resize(v, (1280, 720), interpolation=cv2.INTER_CUBIC) for v in (left, right))
+
+
+def full(pair: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    scene = load_scene(pair)
+    left, right = load_pair(scene.left, scene.right)
+    return left, right, load_disparity_values(scene.gt), scene.scale
+
+
+def quality_rows(size: str, solvers: list[str], reads: int | None) -> list[str]:
+    """Markdown rows: RMSE (and its ratio to exact's), bad-1, wall time, tiles sent/improved."""
+    left, right, gt, scale = halved("tsukuba") if size == "half" else full(TSUKUBA)
+    max_disparity = 8 if size == "half" else 16
+    rows, reference = [], None
+    for solver in solvers:
+        params = {"num_reads": reads} if reads and solver in ("sa", "qpu-sim") else {}
+        config = MatchConfig(solver=solver, max_disparity=max_disparity, solver_params=params)
+        started = time.perf_counter()
+        result = run_pipeline(left, right, config)
+        seconds = time.perf_counter() - started
+        scores = evaluate(result.disparity, gt, scale=scale, border=5)
+        reference = scores.rmse if reference is None else reference
+        tiles = [
+            f"{level.residual['tiles_improved']}/{level.residual['tiles']}"
+            for level in result.levels
+            if level.residual
+        ]
+        rows.append(
+            f"| Tsukuba {size} | {solver} | {scores.rmse:.3f} | {scores.rmse / reference - 1:+.1%} "
+            f"| {scores.bpp:.2f} % | {seconds:.0f} | {', '.join(tiles) or '-'} |"
+        )
+    return rows
+
+
+def _burn() -> None:  # a CPU-bound neighbour
+    while True:
+        sum(i * i for i in range(10_000))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quality", action="store_true", help="RMSE of exact, sa, qpu-sim")
+    parser.add_argument("--skip-estimates", action="store_true")
+    parser.add_argument("--sizes", nargs="+", default=["half", "full"])
+    parser.add_argument("--solvers", nargs="+", default=["exact", "sa", "qpu-sim"])
+    parser.add_argument("--reads", type=int, default=None, help="num_reads of sa / qpu-sim")
+    parser.add_argument("--busy", type=int, default=0, help="CPU-bound processes beside")
+    args = parser.parse_args(argv)
+    burners = [multiprocessing.Process(target=_burn, daemon=True) for _ in range(args.busy)]
+    for burner in burners:
+        burner.start()
+    try:
+        if not args.skip_estimates:
+            print("| pair | solver | range | per level: sent | survey (s) | estimate (s) |")
+            print("|---|---|---|---|---|---|")
+            scene = load_scene(TSUKUBA)
+            for row in estimate_rows("Tsukuba", *load_pair(scene.left, scene.right), 16):
+                print(row, flush=True)
+            for row in estimate_rows("Lampshade1", *wide_pair(), "auto"):
+                print(row, flush=True)
+        if args.quality:
+            print("\n| pair | solver | RMSE (px) | vs exact | bad > 1 px | wall (s) "
+                  "| tiles improved / sent per level |")  # fmt: skip
+            print("|---|---|---|---|---|---|---|")
+            for size in args.sizes:
+                for row in quality_rows(size, args.solvers, args.reads):
+                    print(row, flush=True)
+    finally:
+        for burner in burners:
+            burner.terminate()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
