@@ -271,6 +271,7 @@ MATCH_OPTIONS = (
     "data_term",
     "pyramid",
     "inference",
+    "grid_inference",
     "dual_iterations",
     "dual_gap",
     "certify_tiles",

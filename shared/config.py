@@ -63,6 +63,13 @@ class Inference(StrEnum):
     ROWS = "rows"  # each bundle of rows alone, no edge between bundles (the paper)
 
 
+class GridInference(StrEnum):
+    """How ``exact`` minimises a level's grid: both over its row and column chains, with a bound."""
+
+    DD = "dd"  # subgradient dual decomposition (Komodakis et al. 2007)
+    TRWS = "trws"  # sequential tree-reweighted message passing (Kolmogorov 2006), then a polish
+
+
 class Encoding(StrEnum):
     """How a pixel's label becomes binary variables."""
 
@@ -188,6 +195,12 @@ class MatchConfig(BaseModel):
         description="grid: the 4-connected MRF of each level (exact: dual decomposition into "
         "row and column chains, with a lower bound; QUBO solvers: tiles of bundle_height rows "
         "given their neighbours' labels); rows: every bundle alone (from preset)"
+    )
+    grid_inference: GridInference = Field(
+        GridInference.DD,
+        description="grid inference with exact: dd, subgradient dual decomposition into row "
+        "and column chains; trws, TRW-S message passing over the same chains (a few passes "
+        "to the same bound), its labels polished by the chain primal step",
     )
     dual_iterations: int = Field(
         40,

@@ -239,3 +239,175 @@ def _subgradient_step(
                 multipliers[y, x, there] -= step
                 multipliers_turned[x, y, here] += step
                 multipliers_turned[x, y, there] -= step
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _send(
+    source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
+):  # pragma: no cover - jit
+    """``out[k] = min_j source[j] + w min(T, s |L_p(j) - L_q(k)|) - c``, c its minimum (returned):
+    the message from pixel p to its neighbour q; O(K) distance transform for windows."""
+    count = source.shape[0]
+    lowest = source[0]
+    for j in range(1, count):
+        lowest = min(lowest, source[j])
+    ceiling = lowest + w * truncation
+    if windows:
+        step = w * slope
+        running = source[0]
+        envelope[0] = running
+        for j in range(1, count):
+            running = min(source[j], running + step)
+            envelope[j] = running
+        for j in range(count - 2, -1, -1):
+            running = min(envelope[j], running + step)
+            envelope[j] = running
+        shift = first[yq, xq] - first[yp, xp]
+        for k in range(count):
+            t = k + shift
+            if t < 0:
+                value = envelope[0] - step * t
+            elif t >= count:
+                value = envelope[count - 1] + step * (t - count + 1)
+            else:
+                value = envelope[t]
+            out[k] = min(value, ceiling)
+    else:
+        for k in range(count):
+            here = candidates[yq, xq, k]
+            value = ceiling
+            for j in range(count):
+                penalty = _regulariser(candidates[yp, xp, j], here, slope, truncation)
+                value = min(value, source[j] + w * penalty)
+            out[k] = value
+    smallest = out[0]
+    for k in range(1, count):
+        smallest = min(smallest, out[k])
+    for k in range(count):
+        out[k] -= smallest
+    return smallest
+
+
+@numba.njit(cache=True, nogil=True)
+def _trws_pass(
+    unary,
+    candidates,
+    first,
+    windows,
+    weight_h,
+    weight_v,
+    slope,
+    truncation,
+    from_left,
+    from_right,
+    from_up,
+    from_down,
+    forward,
+    labels,
+):  # pragma: no cover - jit
+    """One TRW-S pass (Kolmogorov 2006) over the row and column chains, each pixel in two chains
+    (rho = 1/2): in raster order (``forward``) every pixel sends its messages right and down,
+    else in reverse order left and up; ``from_*[y, x]`` is the message pixel (y, x) receives
+    from that side. Writes ``labels`` (each pixel's best candidate given the labels already
+    chosen in this pass and the messages from the others); returns the lower bound of the
+    chain decomposition the messages define after the pass: the normalisation constants sent
+    plus each chain's last min 1/2 theta-hat."""
+    height, width, count = unary.shape
+    table = _regulariser_table(slope, truncation)
+    half = np.empty(count)
+    source = np.empty(count)
+    out = np.empty(count)
+    envelope = np.empty(count)
+    bound = 0.0
+    for step_y in range(height):
+        y = step_y if forward else height - 1 - step_y
+        for step_x in range(width):
+            x = step_x if forward else width - 1 - step_x
+            # the neighbours behind (labelled in this pass) and ahead along each axis
+            xb, yb = (x - 1, y - 1) if forward else (x + 1, y + 1)
+            xa, ya = (x + 1, y + 1) if forward else (x - 1, y - 1)
+            has_xb, has_yb = 0 <= xb < width, 0 <= yb < height
+            has_xa, has_ya = 0 <= xa < width, 0 <= ya < height
+            lowest = np.inf
+            best, arg = np.inf, 0
+            for k in range(count):
+                total = (
+                    unary[y, x, k]
+                    + from_left[y, x, k]
+                    + from_right[y, x, k]
+                    + from_up[y, x, k]
+                    + from_down[y, x, k]
+                )
+                half[k] = 0.5 * total
+                lowest = min(lowest, half[k])
+                # the label: the messages from ahead, the pairwise terms to the labels behind
+                here = _label(candidates, first, windows, y, x, k)
+                score = unary[y, x, k]
+                if forward:
+                    score += from_right[y, x, k] + from_down[y, x, k]
+                else:
+                    score += from_left[y, x, k] + from_up[y, x, k]
+                if has_xb:
+                    there = _label(candidates, first, windows, y, xb, labels[y, xb])
+                    w = weight_h[y, min(x, xb)]
+                    score += w * _tabled(table, here - there, slope, truncation)
+                if has_yb:
+                    there = _label(candidates, first, windows, yb, x, labels[yb, x])
+                    w = weight_v[min(y, yb), x]
+                    score += w * _tabled(table, here - there, slope, truncation)
+                if score < best:
+                    best, arg = score, k
+            labels[y, x] = arg
+            if has_xa:
+                for k in range(count):
+                    back = from_right[y, x, k] if forward else from_left[y, x, k]
+                    source[k] = half[k] - back
+                bound += _send(
+                    source,
+                    candidates,
+                    first,
+                    windows,
+                    y,
+                    x,
+                    y,
+                    xa,
+                    weight_h[y, min(x, xa)],
+                    slope,
+                    truncation,
+                    envelope,
+                    out,
+                )
+                for k in range(count):
+                    if forward:
+                        from_left[y, xa, k] = out[k]
+                    else:
+                        from_right[y, xa, k] = out[k]
+            else:
+                bound += lowest  # the end of its row chain
+            if has_ya:
+                for k in range(count):
+                    back = from_down[y, x, k] if forward else from_up[y, x, k]
+                    source[k] = half[k] - back
+                bound += _send(
+                    source,
+                    candidates,
+                    first,
+                    windows,
+                    y,
+                    x,
+                    ya,
+                    x,
+                    weight_v[min(y, ya), x],
+                    slope,
+                    truncation,
+                    envelope,
+                    out,
+                )
+                for k in range(count):
+                    if forward:
+                        from_up[ya, x, k] = out[k]
+                    else:
+                        from_down[ya, x, k] = out[k]
+            else:
+                bound += lowest  # the end of its column chain
+    return bound

@@ -28,10 +28,10 @@ import numpy as np
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundle_plan import level_bundles
 from shared.bundles import Bundle, bundle_seed
-from shared.config import Inference, MatchConfig
+from shared.config import GridInference, Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
+from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, trws
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.settle import tile_config
 from shared.solvers import get_solver
@@ -216,15 +216,15 @@ def _solve_grids(
     row_ranges: list[tuple[int, int]],
     progress: BundleProgress | None = None,
 ) -> list[BundleResult]:
-    """Each bundle (a whole view) minimised as a grid by dual decomposition into chains; the
-    views side by side in threads (the compiled chain kernels release the GIL)."""
+    """Each bundle (a whole view) minimised as a grid over its chains (dual decomposition or
+    TRW-S, ``grid_inference``); the views side by side in threads (the compiled chain kernels
+    release the GIL)."""
     inputs.binned_volumes()
+    minimise = trws if config.grid_inference is GridInference.TRWS else dual_decomposition
 
     def solve(rows: tuple[int, int]) -> BundleResult:
         started = time.perf_counter()
-        outcome = dual_decomposition(
-            inputs.grid(config, *rows), config.dual_iterations, config.dual_gap
-        )
+        outcome = minimise(inputs.grid(config, *rows), config.dual_iterations, config.dual_gap)
         return BundleResult(
             row_start=rows[0],
             row_stop=rows[1],
