@@ -124,9 +124,11 @@ def test_preset_and_auto_range_from_the_command_line(pair, tmp_path, capsys):
 
 
 def test_bundle_width_from_the_command_line(pair, scene):
-    """--bundle-width and --bundle-margin reach the level's bundles (planned, not solved)."""
+    """--bundle-width and --bundle-margin reach the level's bundles (planned, not solved) when
+    every tile is sent (``--no-certify-tiles``; the residual design sends 4x4 tiles instead)."""
     argv = ["match", str(pair / "left.png"), str(pair / "right.png"), "-o", "d.npy"]
     argv += ["--max-disparity", "16", "--solver", "sa", "--param", "num_reads=2"]
+    argv += ["--no-certify-tiles"]
     config = config_from_args(build_parser().parse_args([*argv, "--bundle-width", "48",
                                                          "--bundle-margin", "8"]))  # fmt: skip
     left, right = match_views(scene.left, scene.right, config)
