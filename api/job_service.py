@@ -311,8 +311,9 @@ def cancel(job_id: str, svc: Services, principal: Principal) -> JobRecord:
     """Cancel a queued or running job and stop its running solver tasks; a job cancelled
     already is returned as it is, a finished one refused (``JobStateError``)."""
     find_job(job_id, svc, principal)
-    record = svc.store.transition(job_id, JobState.CANCELLED, ACTIVE)
-    if record is None:
+    applied = svc.store.apply(job_id, JobRecord.cancelled, now())
+    record = applied.record
+    if record is None or not applied.changed:
         record = find_job(job_id, svc, principal)
         if record.state is not JobState.CANCELLED:
             raise JobStateError(

@@ -17,7 +17,6 @@ from pathlib import Path
 # Nothing heavy at import time: main() is then in charge from the first instant (a Ctrl-C while
 # pydantic or numpy load is one line too), and `qhsm --help` starts fast.
 
-EXIT_USAGE = 2
 EXIT_FAILED = 1
 #: Ctrl-C: as a shell reports a process ended by SIGINT (128 + 2).
 EXIT_INTERRUPTED = 130

@@ -104,6 +104,7 @@ class LevelRecord(BaseModel):
     solver_seconds: float | None
     timing: dict[str, float | None] = Field(default_factory=dict)
     info: dict[str, Any] = Field(default_factory=dict)
+    residual: dict[str, float | None] | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -179,6 +180,8 @@ class JobRecord(BaseModel):
         updates = {"state": to, **fields}
         if to is JobState.RUNNING:
             updates.setdefault("started_at", at)
+        if to is JobState.QUEUED:  # queued again: nothing of the run so far is kept
+            updates |= {"level": 0, "bundles_total": 0, "levels": []}
         if to.terminal:
             updates.setdefault("finished_at", at)
         return self.model_copy(update=updates)
@@ -234,13 +237,11 @@ class JobRecord(BaseModel):
     def cancelled(self, at: datetime) -> JobRecord | None:
         return self.moved(JobState.CANCELLED, at)
 
-    def restarted(self, level: int) -> JobRecord | None:
+    def restarted(self, at: datetime, level: int) -> JobRecord | None:
         """Queued again from its uploads (the watchdog), if still running at ``level``."""
         if self.state is not JobState.RUNNING or self.level != level:
             return None
-        return self.model_copy(
-            update={"state": JobState.QUEUED, "level": 0, "bundles_total": 0, "levels": []}
-        )
+        return self.moved(JobState.QUEUED, at)
 
 
 #: Longest message a record keeps (a solver's error may quote a whole problem); the workers'

@@ -40,6 +40,7 @@ from workers import fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB
 from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
+from workers.records import now as utc_now
 from workers.redis_client import text
 from workers.store import JobStore
 from workers.telemetry import Telemetry
@@ -273,7 +274,7 @@ class Watchdog:
 
     def restart(self, record: JobRecord) -> str:
         """Start the job again from its uploads (nothing of the stalled level can be resumed)."""
-        if not self.store.apply(record.id, JobRecord.restarted, record.level).changed:
+        if not self.store.apply(record.id, JobRecord.restarted, utc_now(), record.level).changed:
             return "none"
         for key in self.store.redis.scan_iter(match=self.store.key("job", record.id, "level", "*")):
             self.store.redis.delete(key)

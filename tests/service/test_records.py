@@ -30,7 +30,7 @@ STORED_LEVEL = {
     "index": 0, "downsample": 1, "bin_width": 4, "views": 2, "height": 6, "width": 8,
     "candidates": 5, "bundles": 4, "energy": 12.5, "lower_bound": 12.0, "gap": 0.04,
     "repaired": 0, "seconds": 0.25, "solver_seconds": 0.125, "timing": {"qpu": 0.5},
-    "info": {"embeddings": 1},
+    "info": {"embeddings": 1}, "residual": None,
 }  # fmt: skip
 STORED_RANGE = {"max_disparity": 8, "source": "auto", "confirmed": 0.75, "note": "", "warning": ""}
 
@@ -56,7 +56,7 @@ def test_final_states_are_never_left_and_every_state_is_in_the_table():
 def test_a_change_that_no_longer_applies_is_none_not_an_error():
     running = record(JobState.RUNNING, level=2)
     assert running.started(T0) is None  # started already (a redelivered start)
-    assert running.restarted(level=1) is None  # moved on since the watchdog looked
+    assert running.restarted(T0, level=1) is None  # moved on since the watchdog looked
     assert running.with_level(1, level(1)) is None  # level 0 not assembled yet
     assert record().succeeded(T0, None) is None  # never ran
     failed = running.failed(T0, "x" * 10_000)
@@ -114,7 +114,7 @@ class JobLifecycle(RuleBasedStateMachine):
 
     @rule(stale=st.booleans())
     def restart(self, stale: bool) -> None:
-        self.apply(JobRecord.restarted, self.record.level + int(stale))
+        self.apply(JobRecord.restarted, self.clock, self.record.level + int(stale))
 
     @rule(to=st.sampled_from(JobState), limit=st.sampled_from([None, ACTIVE, {JobState.QUEUED}]))
     def move(self, to: JobState, limit) -> None:

@@ -90,7 +90,7 @@ _QPU_TIMING_PARAMS = (
 
 
 @cache
-def _reference_solver(timing_key: str = "advantage"):
+def _reference_solver():
     """A cloud-client solver object carrying only the offline timing data (no network)."""
     from dwave.cloud.solver import StructuredSolver
 
