@@ -83,14 +83,26 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """``qhsm eval``: print the RMSE and bad-pixel percentage of the map ``disparity`` against
     ``ground_truth`` (``scale``: stored value per pixel of disparity; ``border``: ignored frame,
     pixels; ``mask``) as JSON; 0."""
+    from shared.ground_truth import resolve_gt_scale
     from shared.images import load_disparity, load_disparity_values, load_mask
     from shared.metrics import evaluate
 
     disparity = load_disparity(args.disparity)
     gt = load_disparity_values(args.ground_truth)
+    scale, source = resolve_gt_scale(args.ground_truth, args.scale)
     mask = load_mask(args.mask) if args.mask else None
-    scores = evaluate(disparity, gt, scale=args.scale, border=args.border, mask=mask)
-    print(json.dumps({"rmse": scores.rmse, "bpp": scores.bpp, "pixels": scores.pixels}))
+    scores = evaluate(disparity, gt, scale=scale, border=args.border, mask=mask)
+    print(
+        json.dumps(
+            {
+                "rmse": scores.rmse,
+                "bpp": scores.bpp,
+                "pixels": scores.pixels,
+                "scale": scale,
+                "scale_source": source,
+            }
+        )
+    )
     return 0
 
 
@@ -232,8 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--scale",
         type=float,
-        required=True,
-        help="stored ground-truth value per pixel of disparity",
+        help="stored ground-truth value per pixel of disparity (default: from the format, PFM "
+        "and .npy 1, 16-bit PNG 256, or the scene folder's protocol; a warning when the given "
+        "one contradicts them)",
     )
     evaluate.add_argument("--border", type=int, default=0, help="ignored frame, pixels")
     evaluate.add_argument("--mask", help="evaluate only where this mask is non-zero")
@@ -350,8 +363,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     """Warnings for the user (:class:`shared.disparity_range.ViewsWarning`) as one line, the
     rest as Python shows them."""
     from shared.disparity_range import ViewsWarning
+    from shared.ground_truth import ScaleWarning
 
-    if issubclass(category, ViewsWarning):
+    if issubclass(category, (ViewsWarning, ScaleWarning)):
         print(f"qhsm: warning: {message}", file=file or sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)

@@ -12,12 +12,15 @@ wrong by a little would still give plausible-looking but wrong scores.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from shared.disparity_range import QuickMatch, quick_match
+from shared.images import is_pfm
 
 #: The scales ground-truth formats use (stored value per pixel of disparity).
 CONVENTIONAL_SCALES = (1, 2, 3, 4, 5, 6, 8, 10, 16, 32, 64, 100, 128, 256, 512, 1000, 1024)
@@ -25,6 +28,10 @@ CONVENTIONAL_SCALES = (1, 2, 3, 4, 5, 6, 8, 10, 16, 32, 64, 100, 128, 256, 512, 
 TOLERANCE = 0.1
 #: Matched disparities below this many shrunk pixels are too coarse to divide by.
 MIN_DISPARITY = 2
+#: Largest relative difference between a given and an inferred scale that is not warned about.
+SCALE_AGREEMENT = 1e-3
+#: A PNG's bit depth is this byte of the file (in its IHDR chunk).
+PNG_BIT_DEPTH_OFFSET = 24
 #: Pixels needed (confirmed match, known ground truth) to trust the median.
 MIN_PIXELS = 200
 #: Largest interquartile range of the ratios, relative to their median.
@@ -52,6 +59,88 @@ class ScaleEstimate:
             f"{self.ratio:.2f} x the disparities the views show, median of {self.pixels} "
             "pixels); give the scale if that is wrong"
         )
+
+
+class ScaleWarning(UserWarning):
+    """A given ground-truth scale that the file's format or dataset contradicts (the CLI shows
+    it as one ``qhsm: warning:`` line)."""
+
+
+@dataclass(frozen=True)
+class FormatScale:
+    """A ground-truth scale that the file's format or its dataset's convention states."""
+
+    scale: float
+    source: str  # why: the format or the convention
+
+    def disagreement(self, given: float) -> str:
+        """The warning when ``given`` is not this scale ("" when they agree)."""
+        if abs(given / self.scale - 1) <= SCALE_AGREEMENT:
+            return ""
+        factor = max(given, self.scale) / min(given, self.scale)
+        return (
+            f"ground-truth scale {given:g} given, but {self.source} says {self.scale:g}: the "
+            f"scores use {given:g} (wrong by {factor:.3g}x if the file is what it says)"
+        )
+
+
+def scale_of_format(data: bytes) -> FormatScale | None:
+    """The scale a ground-truth file's format implies: PFM and .npy hold disparities (1), a
+    16-bit PNG KITTI's disparity x 256; None for 8-bit images, whose scale is the dataset's."""
+    if is_pfm(data):
+        return FormatScale(1.0, "PFM (disparities in pixels; its header scale is the byte order)")
+    if data.startswith(b"\x93NUMPY"):
+        return FormatScale(1.0, ".npy (disparities in pixels)")
+    depth = data[PNG_BIT_DEPTH_OFFSET : PNG_BIT_DEPTH_OFFSET + 1]
+    if data.startswith(b"\x89PNG") and depth == b"\x10":
+        return FormatScale(256.0, "a 16-bit PNG (KITTI's convention, disparity x 256)")
+    return None
+
+
+def scale_of_file(path: str | Path) -> FormatScale | None:
+    """The scale of the ground-truth file ``path``: its scene's protocol when it is the
+    ground truth of a scene folder :mod:`shared.datasets` recognises (protocol.json, the known
+    dataset or scene: Middlebury 2001-2006's 8-bit conventions), else its format's
+    (:func:`scale_of_format`); None when neither tells."""
+    from shared.datasets.protocols import KNOWN_DATASETS, KNOWN_PROTOCOLS, protocol_file
+    from shared.datasets.scenes import load_scene
+
+    path = Path(path)
+    with path.open("rb") as stream:
+        by_format = scale_of_format(stream.read(64))
+    try:
+        scene = load_scene(path.parent)
+        stated = any(protocol_file(f).get("scale") for f in (path.parent, path.parent.parent))
+    except (FileNotFoundError, ValueError):
+        return by_format
+    if scene.gt is None or scene.gt.resolve() != path.resolve():
+        return by_format
+    # our own left/right/gt_left layout has no convention of its own: only a name it knows
+    known = stated or scene.name in KNOWN_PROTOCOLS or scene.dataset in KNOWN_DATASETS
+    if not known and scene.layout == "shared":
+        return by_format
+    return FormatScale(scene.scale, f"the {scene.qualified_name} scene's protocol ({scene.layout})")
+
+
+def resolve_gt_scale(path: str | Path, given: float | None = None) -> tuple[float, str]:
+    """The scale to score against the ground-truth file ``path``, and where it comes from.
+
+    ``given`` wins, with a :class:`ScaleWarning` when the file's format or its scene's protocol
+    (:func:`scale_of_file`) says otherwise; not given, the scale is that one, and a
+    :class:`ScaleNotInferredError` when nothing tells (an 8-bit image outside known scenes).
+    """
+    stated = scale_of_file(path)
+    if given is not None:
+        warning = stated.disagreement(given) if stated else ""
+        if warning:
+            warnings.warn(f"{path}: {warning}", ScaleWarning, stacklevel=2)
+        return float(given), "given"
+    if stated is None:
+        raise ScaleNotInferredError(
+            f"{path}: neither its format nor a known scene folder tells its scale; give it "
+            "(stored value per pixel of disparity: Tsukuba 16, Venus 8, Cones 4, KITTI 256)"
+        )
+    return stated.scale, f"inferred from {stated.source}"
 
 
 def infer_gt_scale(

@@ -8,6 +8,7 @@ Disparity maps are written as Middlebury PFM (float32), 16-bit PNG
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -18,6 +19,8 @@ REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 #: 16-bit PNG disparity maps store disparity x this factor.
 PNG_DISPARITY_SCALE = 256.0
 DISPARITY_SUFFIXES = (".pfm", ".png", ".npy")
+#: A PFM header: "PF" (colour) or "Pf" (gray), width, height, scale, then one whitespace byte.
+PFM_HEADER = re.compile(rb"^(P[Ff])\s+(\d+)\s+(\d+)\s+([-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s")
 
 
 class ImageError(ValueError):
@@ -49,12 +52,55 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
     """
     if not data:
         raise ImageError(f"{name}: the file is empty")
+    if is_pfm(data):
+        return to_unit_range(read_pfm(data, name), name)
     raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise ImageError(
             f"{name}: not a readable image (supported: PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)"
         )
     return to_unit_range(raw, name)
+
+
+def is_pfm(data: bytes) -> bool:
+    """Whether ``data`` starts like a PFM file (``PF`` or ``Pf`` and a newline or space)."""
+    return data[:2] in (b"PF", b"Pf") and data[2:3].isspace()
+
+
+def read_pfm(data: bytes, name: str = "PFM") -> np.ndarray:
+    """The values of a PFM file exactly as stored: (h, w) or (h, w, 3) BGR float32, top row first.
+
+    The header's scale says the byte order by its sign (negative: little-endian) and nothing
+    else: its magnitude is ignored, as Middlebury's SDK reads it. OpenCV divides the values by
+    it instead, so a Middlebury 2014 ground truth with scale -0.003922 would be 255x too large.
+
+    Raises
+    ------
+    ImageError
+        If the header is not PFM's or the file is shorter than the header says.
+    """
+    header = PFM_HEADER.match(data[:256])
+    if header is None:
+        raise ImageError(f"{name}: not a PFM file (its header is not 'Pf|PF width height scale')")
+    kind, width, height, scale = header.groups()
+    channels = 3 if kind == b"PF" else 1
+    columns, rows = int(width), int(height)
+    try:
+        order = "<" if float(scale) < 0 else ">"
+    except ValueError:
+        raise ImageError(f"{name}: PFM scale {scale!r} is not a number") from None
+    count = columns * rows * channels
+    body = data[header.end() :]
+    if columns == 0 or rows == 0 or len(body) < 4 * count:
+        raise ImageError(
+            f"{name}: the PFM header announces {columns}x{rows}x{channels} floats but the file "
+            f"holds {len(body) // 4}"
+        )
+    values = np.frombuffer(body, dtype=f"{order}f4", count=count).astype(np.float32)
+    image = values.reshape(rows, columns, channels)[::-1]  # stored bottom row first
+    if channels == 1:
+        return np.ascontiguousarray(image[:, :, 0])
+    return np.ascontiguousarray(image[:, :, ::-1])  # RGB as stored, BGR as OpenCV gives
 
 
 def load_view(path: str | Path) -> np.ndarray:
@@ -196,7 +242,8 @@ def load_mask(path: str | Path) -> np.ndarray:
 def load_disparity_values(path: str | Path) -> np.ndarray:
     """Read raw disparity/ground-truth values as float32 without rescaling (scale applied later).
 
-    ``.npy`` and ``.pfm`` carry real disparities; integer images carry their stored values.
+    ``.npy`` and ``.pfm`` carry real disparities (a PFM's header scale is its byte order only,
+    :func:`read_pfm`); integer images carry their stored values.
 
     Parameters
     ----------
@@ -216,7 +263,11 @@ def load_disparity_values(path: str | Path) -> np.ndarray:
     path = Path(path)
     if path.suffix.lower() == ".npy":
         return np.load(path).astype(np.float32)
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    raw: np.ndarray | None
+    if path.suffix.lower() == ".pfm" and path.is_file():
+        raw = read_pfm(path.read_bytes(), str(path))
+    else:
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise ImageError(f"{path}: not a readable disparity image")
     if raw.ndim == 3:

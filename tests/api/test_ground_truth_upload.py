@@ -1,0 +1,23 @@
+"""An uploaded ground truth is read as the datasets store it and its scale follows its format."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from api.job_service import ground_truth_protocol
+from api.uploads import decode_ground_truth
+from shared.ground_truth import scale_of_format
+
+
+def test_middlebury_2014_pfm_upload_is_read_in_pixels_and_scale_1():
+    truth = np.array([[10.5, 20.25], [np.inf, 115.0]], np.float32)
+    data = b"Pf\n2 2\n-0.003922\n" + np.ascontiguousarray(truth[::-1], "<f4").tobytes()
+    values = decode_ground_truth(data, (2, 2))
+    np.testing.assert_array_equal(values, [[10.5, 20.25], [0, 115.0]])
+    views = np.zeros((2, 2), np.float32)
+    stated = scale_of_format(data)
+    truth_protocol, note = ground_truth_protocol(views, views, values, None, 0, stated)
+    assert truth_protocol.scale == 1 and truth_protocol.inferred and "PFM" in note
+    truth_protocol, warning = ground_truth_protocol(views, views, values, 256, 0, stated)
+    assert truth_protocol.scale == 256 and "256 given, but PFM" in warning
+    assert ground_truth_protocol(views, views, values, 1, 0, stated)[1] == ""
