@@ -80,30 +80,74 @@ def cmd_match(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    """``qhsm eval``: print the RMSE and bad-pixel percentage of the map ``disparity`` against
-    ``ground_truth`` (``scale``: stored value per pixel of disparity; ``border``: ignored frame,
-    pixels; ``mask``) as JSON; 0."""
-    from shared.ground_truth import resolve_gt_scale
+    """``qhsm eval``: score the map ``disparity`` against ``ground_truth`` with Middlebury's and
+    KITTI's measures, on every pixel and, where masks exist (``nonocc``, KITTI's object map
+    ``fg``, a recognised scene's non-occluded pixels), per region; the scale and border default
+    to the file's format or scene (:func:`shared.ground_truth.resolve_gt_scale`). Prints a table
+    or (``json``) JSON; ``error_map`` writes |d - gt|; 0."""
+    import numpy as np
+
+    from shared.ground_truth import resolve_gt_scale, scene_of_ground_truth
     from shared.images import load_disparity, load_disparity_values, load_mask
-    from shared.metrics import evaluate
+    from shared.metrics import error_map, evaluate_regions
 
     disparity = load_disparity(args.disparity)
     gt = load_disparity_values(args.ground_truth)
     scale, source = resolve_gt_scale(args.ground_truth, args.scale)
+    scene = scene_of_ground_truth(args.ground_truth)
+    border = args.border if args.border is not None else (scene.border if scene else 0)
     mask = load_mask(args.mask) if args.mask else None
-    scores = evaluate(disparity, gt, scale=scale, border=args.border, mask=mask)
-    print(
-        json.dumps(
-            {
-                "rmse": scores.rmse,
-                "bpp": scores.bpp,
-                "pixels": scores.pixels,
-                "scale": scale,
-                "scale_source": source,
-            }
+    regions: dict[str, np.ndarray | None] = {}
+    if args.nonocc:
+        regions["nonocc"] = load_mask(args.nonocc)
+    elif scene is not None:
+        regions["nonocc"] = scene.non_occluded(gt)
+    if args.fg:
+        foreground = load_mask(args.fg)
+        regions["bg"], regions["fg"] = ~foreground, foreground
+    scores = evaluate_regions(disparity, gt, regions, scale, border, args.threshold, mask)
+    report = {
+        **scores["all"].as_dict(),
+        "scale": scale,
+        "scale_source": source,
+        "border": border,
+        "regions": {name: s.as_dict() for name, s in scores.items() if name != "all"},
+    }
+    if args.error_map:
+        report["error_map"] = write_error_map(
+            error_map(disparity, gt, scale, border, mask), args.error_map, args.threshold
         )
-    )
+    if args.json:
+        print(json.dumps(report))
+        return 0
+    print(f"scale {scale:g} ({source}), border {border}")
+    header = ("region", "pixels", "rmse", "avgerr", "bad-0.5", "bad-1", "bad-2", "bad-4", "D1")
+    print(("{:<8}" + " {:>8}" * 8).format(*header) + f" bad>{args.threshold:g}")
+    for name, figures in scores.items():
+        row = (figures.rmse, figures.avgerr, figures.bad_0_5, figures.bad_1, figures.bad_2)
+        cells = [*row, figures.bad_4, figures.d1, figures.bpp]
+        print(f"{name:<8} {figures.pixels:>8}" + "".join(f" {c:>8.3f}" for c in cells))
+    if args.error_map:
+        print(f"wrote {report['error_map']}")
     return 0
+
+
+def write_error_map(errors, path: str, threshold: float) -> str:
+    """Write |d - gt| to ``path``: ``.png`` colour-mapped (black: not evaluated, brightest at
+    4x the bad-pixel threshold), ``.pfm`` / ``.npy`` the errors in pixels (NaN: not
+    evaluated); returns the path."""
+    from shared.bench.report import error_map_png
+    from shared.cli_options import CommandError
+    from shared.images import save_disparity
+
+    suffix = Path(path).suffix.lower()
+    if suffix == ".png":
+        Path(path).write_bytes(error_map_png(errors, 4 * threshold))
+    elif suffix in (".pfm", ".npy"):
+        save_disparity(errors, path)
+    else:
+        raise CommandError(f"{path}: the error map must end in .png, .pfm or .npy")
+    return str(path)
 
 
 def cmd_solvers(args: argparse.Namespace) -> int:
@@ -248,8 +292,23 @@ def build_parser() -> argparse.ArgumentParser:
         "and .npy 1, 16-bit PNG 256, or the scene folder's protocol; a warning when the given "
         "one contradicts them)",
     )
-    evaluate.add_argument("--border", type=int, default=0, help="ignored frame, pixels")
+    evaluate.add_argument(
+        "--border", type=int, help="ignored frame, pixels (default: the scene's, else 0)"
+    )
     evaluate.add_argument("--mask", help="evaluate only where this mask is non-zero")
+    evaluate.add_argument(
+        "--threshold", type=float, default=1.0, help="bpp: error above which a pixel is bad, px"
+    )
+    evaluate.add_argument(
+        "--nonocc",
+        help="non-occluded pixels' mask (non-zero; default: a recognised scene's mask or its "
+        "ground truth's left-right check)",
+    )
+    evaluate.add_argument(
+        "--fg", help="foreground mask (KITTI's obj_map: non-zero = object): D1-bg and D1-fg"
+    )
+    evaluate.add_argument("--error-map", help="write |d - gt| here: .png (colours), .pfm or .npy")
+    add_json_option(evaluate, "the scores")
     evaluate.set_defaults(handler=cmd_eval)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")

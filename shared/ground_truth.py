@@ -15,12 +15,16 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from shared.disparity_range import QuickMatch, quick_match
 from shared.images import is_pfm
+
+if TYPE_CHECKING:
+    from shared.datasets.scenes import Scene
 
 #: The scales ground-truth formats use (stored value per pixel of disparity).
 CONVENTIONAL_SCALES = (1, 2, 3, 4, 5, 6, 8, 10, 16, 32, 64, 100, 128, 256, 512, 1000, 1024)
@@ -97,29 +101,36 @@ def scale_of_format(data: bytes) -> FormatScale | None:
     return None
 
 
-def scale_of_file(path: str | Path) -> FormatScale | None:
-    """The scale of the ground-truth file ``path``: its scene's protocol when it is the
-    ground truth of a scene folder :mod:`shared.datasets` recognises (protocol.json, the known
-    dataset or scene: Middlebury 2001-2006's 8-bit conventions), else its format's
-    (:func:`scale_of_format`); None when neither tells."""
+def scene_of_ground_truth(path: str | Path) -> Scene | None:
+    """The scene whose ground truth is the file ``path`` when its folder is one that
+    :mod:`shared.datasets` recognises and states the scale of (protocol.json, a known dataset or
+    scene, a Middlebury layout; our own left/right/gt_left layout alone states nothing)."""
     from shared.datasets.protocols import KNOWN_DATASETS, KNOWN_PROTOCOLS, protocol_file
     from shared.datasets.scenes import load_scene
 
     path = Path(path)
-    with path.open("rb") as stream:
-        by_format = scale_of_format(stream.read(64))
     try:
         scene = load_scene(path.parent)
         stated = any(protocol_file(f).get("scale") for f in (path.parent, path.parent.parent))
     except (FileNotFoundError, ValueError):
-        return by_format
+        return None
     if scene.gt is None or scene.gt.resolve() != path.resolve():
-        return by_format
-    # our own left/right/gt_left layout has no convention of its own: only a name it knows
+        return None
     known = stated or scene.name in KNOWN_PROTOCOLS or scene.dataset in KNOWN_DATASETS
-    if not known and scene.layout == "shared":
-        return by_format
-    return FormatScale(scene.scale, f"the {scene.qualified_name} scene's protocol ({scene.layout})")
+    return scene if known or scene.layout != "shared" else None
+
+
+def scale_of_file(path: str | Path) -> FormatScale | None:
+    """The scale of the ground-truth file ``path``: its scene's protocol when it is the
+    ground truth of a scene folder (:func:`scene_of_ground_truth`: Middlebury 2001-2006's 8-bit
+    conventions, protocol.json), else its format's (:func:`scale_of_format`); None when
+    neither tells."""
+    scene = scene_of_ground_truth(path)
+    if scene is not None:
+        source = f"the {scene.qualified_name} scene's protocol ({scene.layout})"
+        return FormatScale(scene.scale, source)
+    with Path(path).open("rb") as stream:
+        return scale_of_format(stream.read(64))
 
 
 def resolve_gt_scale(path: str | Path, given: float | None = None) -> tuple[float, str]:

@@ -11,7 +11,7 @@ import pytest
 
 from shared import bench
 from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench, scene_runners
-from shared.bench.report import fmt
+from shared.bench.report import EXTRA_COLUMNS, fmt
 from shared.cli import main
 from shared.pipeline import run_pipeline
 
@@ -125,6 +125,8 @@ def test_table_and_json_carry_every_figure(bench_result):
             fmt(run["masks"].get("disc", {}).get("bpp")),
             fmt(run["seconds"]),
         ]
+        metrics = run["metrics"]
+        assert cells[10:15] == [fmt(metrics.get(key)) for key in EXTRA_COLUMNS]
     for average in results["averages"]:
         ok = [
             r

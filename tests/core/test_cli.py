@@ -83,7 +83,8 @@ def test_eval_prints_rmse_and_bpp(pair, tmp_path, capsys):
     out = tmp_path / "d.pfm"
     match(pair, out)
     capsys.readouterr()
-    assert main(["eval", str(out), str(pair / "gt.png"), "--scale", "4", "--border", "2"]) == 0
+    command = ["eval", str(out), str(pair / "gt.png"), "--scale", "4", "--border", "2"]
+    assert main([*command, "--json"]) == 0
     scores = json.loads(capsys.readouterr().out)
     assert set(scores) >= {"rmse", "bpp"} and scores["bpp"] < 15
 

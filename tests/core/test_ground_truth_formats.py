@@ -61,7 +61,7 @@ def test_middlebury_2014_pfm_scores_as_its_stored_values(tmp_path, capsys):
     known = np.isfinite(truth)
     expected = float(np.sqrt(np.mean((disparity[known] - truth[known]) ** 2)))
 
-    command = ["eval", str(tmp_path / "d.pfm"), str(tmp_path / "disp0GT.pfm")]
+    command = ["eval", str(tmp_path / "d.pfm"), str(tmp_path / "disp0GT.pfm"), "--json"]
     assert main([*command, "--scale", "1"]) == 0
     out = capsys.readouterr()
     scores = json.loads(out.out)
@@ -88,18 +88,59 @@ def test_eight_bit_ground_truth_takes_its_scene_convention_or_asks(tmp_path, cap
     scene = tmp_path / "tsukuba"
     scene.mkdir()
     for name in ("left.png", "right.png", "gt_left.png"):
-        cv2.imwrite(str(scene / name), np.full((8, 8), 32, np.uint8))
+        cv2.imwrite(str(scene / name), np.full((40, 40), 32, np.uint8))
     assert resolve_gt_scale(scene / "gt_left.png")[0] == 16  # Tsukuba's convention
     loose = tmp_path / "gt.png"
     cv2.imwrite(str(loose), np.full((8, 8), 32, np.uint8))
     assert scale_of_file(loose) is None
-    save_disparity(np.full((8, 8), 2.0, np.float32), tmp_path / "d.pfm")
+    save_disparity(np.full((40, 40), 2.0, np.float32), tmp_path / "d.pfm")
     assert main(["eval", str(tmp_path / "d.pfm"), str(loose)]) == 1
     assert "give it" in capsys.readouterr().err
-    assert main(["eval", str(tmp_path / "d.pfm"), str(scene / "gt_left.png")]) == 0
+    assert main(["eval", str(tmp_path / "d.pfm"), str(scene / "gt_left.png"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["rmse"] == 0
 
 
 def test_format_scale_of_bytes():
     assert scale_of_format(pfm_bytes(np.ones((2, 2), np.float32), -0.003922)).scale == 1
     assert scale_of_format(cv2.imencode(".png", np.ones((2, 2), np.uint8))[1].tobytes()) is None
+
+
+def test_eval_regions_threshold_error_map_and_table(tmp_path, capsys):
+    truth = np.full((8, 8), 20.0, np.float32)
+    (tmp_path / "gt.pfm").write_bytes(pfm_bytes(truth, -1.0))
+    disparity = truth.copy()
+    disparity[:2] = 30.0  # the object rows are 10 px off
+    save_disparity(disparity, tmp_path / "d.pfm")
+    objects = np.zeros((8, 8), np.uint8)
+    objects[:4] = 1
+    cv2.imwrite(str(tmp_path / "obj_map.png"), objects)
+    errors = tmp_path / "errors.png"
+    command = ["eval", str(tmp_path / "d.pfm"), str(tmp_path / "gt.pfm"), "--fg"]
+    command += [str(tmp_path / "obj_map.png"), "--threshold", "2", "--error-map", str(errors)]
+    assert main([*command, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["d1"] == 25.0 and report["threshold"] == 2 and report["bad_4"] == 25.0
+    assert report["regions"]["fg"]["d1"] == 50.0 and report["regions"]["bg"]["d1"] == 0.0
+    assert cv2.imread(str(errors)).shape == (8, 8, 3) and report["error_map"] == str(errors)
+    assert main(command) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[1].split()[:3] == ["region", "pixels", "rmse"]
+    assert [row.split()[0] for row in table[2:5]] == ["all", "bg", "fg"]
+
+
+def test_eval_scores_a_recognised_scene_on_its_non_occluded_pixels(tmp_path, capsys):
+    scene = tmp_path / "venus"
+    scene.mkdir()
+    for name in ("left.png", "right.png"):
+        cv2.imwrite(str(scene / name), np.zeros((30, 30), np.uint8))
+    cv2.imwrite(str(scene / "gt_left.png"), np.full((30, 30), 40, np.uint8))  # 5 px at scale 8
+    nonocc = np.zeros((30, 30), np.uint8)
+    nonocc[:, 15:] = 255
+    cv2.imwrite(str(scene / "mask_nonocc.png"), nonocc)
+    disparity = np.full((30, 30), 5.0, np.float32)
+    disparity[:, :15] = 0
+    save_disparity(disparity, tmp_path / "d.pfm")
+    assert main(["eval", str(tmp_path / "d.pfm"), str(scene / "gt_left.png"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["scale"] == 8 and report["border"] == 10
+    assert report["regions"]["nonocc"]["bad_1"] == 0 and report["bad_1"] > 0
