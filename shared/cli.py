@@ -43,7 +43,8 @@ def cmd_match(args: argparse.Namespace) -> int:
     unsupported output suffix is a ``CommandError``."""
     from shared.bundle_plan import bundle_width_setting
     from shared.cli_options import CommandError, config_from_args
-    from shared.images import load_pair, preview_png, save_disparity
+    from shared.images import PNG_MAX_DISPARITY as PNG_MAX
+    from shared.images import load_pair, preview_png
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar
@@ -57,6 +58,12 @@ def cmd_match(args: argparse.Namespace) -> int:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):
         raise CommandError(f"{args.output}: the output must end in .pfm, .png or .npy")
+    top = config.max_disparity
+    if Path(args.output).suffix.lower() == ".png" and isinstance(top, int) and top > PNG_MAX:
+        raise CommandError(
+            f"{args.output}: a 16-bit PNG holds disparities up to {PNG_MAX:.3f} px (x256) and the "
+            f"range is {top}; write .pfm or .npy"
+        )
     left, right = load_pair(args.left, args.right)
     bar = LevelBar(leave=False)  # stderr, in every mode: with --json stdout is JSON alone
     try:
@@ -64,7 +71,7 @@ def cmd_match(args: argparse.Namespace) -> int:
             result = run_pipeline(left, right, config, solve_level, progress=bar.update)
     finally:
         bar.close()
-    save_disparity(result.disparity, args.output)
+    args.output = save_result(result.disparity, args.output)
     if args.preview:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
@@ -77,6 +84,21 @@ def cmd_match(args: argparse.Namespace) -> int:
     else:
         print(f"wrote {args.output} ({result.seconds:.2f} s)")
     return 0
+
+
+def save_result(disparity, output: str) -> str:
+    """Save the map to ``output``; a map a 16-bit PNG cannot hold (the range was estimated)
+    goes to ``output`` with ``.pfm`` instead, with a warning line, rather than being clipped or
+    lost. Returns the path written."""
+    from shared.images import DisparityFormatError, save_disparity
+
+    try:
+        save_disparity(disparity, output)
+    except DisparityFormatError as error:
+        output = str(Path(output).with_suffix(".pfm"))
+        save_disparity(disparity, output)
+        print(f"qhsm: warning: {error}: wrote {output} instead", file=sys.stderr)
+    return output
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

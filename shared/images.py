@@ -3,7 +3,8 @@
 Views are float32 in [0, 1] whatever their bit depth (8/16-bit PNG, PPM/PGM, JPEG, float PFM),
 gray (h, w) or colour (h, w, 3) in OpenCV's BGR order; :func:`to_gray` gives Rec. 709 luma.
 Disparity maps are written as Middlebury PFM (float32), 16-bit PNG
-(disparity x 256, the KITTI convention) or ``.npy``.
+(disparity x 256, the KITTI convention: 0 only for invalid pixels, above 255.996 px refused) or
+``.npy``.
 """
 
 from __future__ import annotations
@@ -23,8 +24,16 @@ DISPARITY_SUFFIXES = (".pfm", ".png", ".npy")
 PFM_HEADER = re.compile(rb"^(P[Ff])\s+(\d+)\s+(\d+)\s+([-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s")
 
 
+#: The largest disparity a 16-bit PNG holds (65535 / 256 px).
+PNG_MAX_DISPARITY = 65535 / PNG_DISPARITY_SCALE
+
+
 class ImageError(ValueError):
     """An input image cannot be used; the message names the file and the problem."""
+
+
+class DisparityFormatError(ValueError):
+    """A disparity map the requested format cannot hold (a 16-bit PNG above 255.996 px)."""
 
 
 def decode_image(data: bytes, name: str) -> np.ndarray:
@@ -276,6 +285,26 @@ def load_disparity_values(path: str | Path) -> np.ndarray:
     return np.where(np.isfinite(values), values, 0.0).astype(np.float32)
 
 
+def png_disparity(disparity: np.ndarray) -> np.ndarray:
+    """KITTI's 16-bit PNG values of a disparity map: round(d x 256), 0 only where the pixel is
+    invalid (not finite or negative), so a valid 0 px is written as 1 (1/256 px).
+
+    Raises
+    ------
+    DisparityFormatError
+        If a disparity exceeds :data:`PNG_MAX_DISPARITY` (never clipped silently).
+    """
+    valid = np.isfinite(disparity) & (disparity >= 0)
+    top = float(disparity[valid].max()) if valid.any() else 0.0
+    if top > PNG_MAX_DISPARITY + 0.5 / PNG_DISPARITY_SCALE:
+        raise DisparityFormatError(
+            f"the disparity reaches {top:.2f} px, above the {PNG_MAX_DISPARITY:.3f} px a 16-bit "
+            "PNG holds (x256, KITTI's convention); write .pfm or .npy instead"
+        )
+    scaled = np.rint(np.where(valid, disparity, 0.0) * PNG_DISPARITY_SCALE)
+    return np.where(valid, np.clip(scaled, 1, 65535), 0).astype(np.uint16)
+
+
 def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
     """Encode a disparity map as ``pfm``, ``png`` (16-bit, x256) or ``npy`` bytes.
 
@@ -295,14 +324,15 @@ def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
     ------
     ValueError
         If the format is unknown.
+    DisparityFormatError
+        If the map does not fit a 16-bit PNG (:func:`png_disparity`).
     """
     fmt = fmt.lower().lstrip(".")
     disparity = np.asarray(disparity, dtype=np.float32)
     if fmt == "pfm":
         ok, buf = cv2.imencode(".pfm", disparity)
     elif fmt == "png":
-        scaled = np.clip(np.rint(disparity * PNG_DISPARITY_SCALE), 0, 65535).astype(np.uint16)
-        ok, buf = cv2.imencode(".png", scaled)
+        ok, buf = cv2.imencode(".png", png_disparity(disparity))
     elif fmt == "npy":
         import io
 
