@@ -36,6 +36,7 @@ from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
 from shared.pipeline import match_views
+from shared.provenance import qhsm_version
 from shared.pyramid import plan
 from shared.residual import job_residual
 from shared.solvers import Availability, check_params
@@ -243,6 +244,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         created_at=now(),
         disparity_range=disparity_range.as_dict() if disparity_range else None,
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
+        version=qhsm_version(),
     )
     dispatch(record, arrays, svc)
     return record

@@ -171,6 +171,9 @@ class JobStatus(JobSummary):
     disparity_range: RangeEstimate | None = Field(
         None, description="The disparity range used: given, or estimated (max_disparity auto)"
     )
+    version: str | None = Field(
+        None, description="The qhsm version that ran the job (with config: preset, solver)"
+    )
 
 
 class JobPage(BaseModel):

@@ -48,6 +48,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar
+    from shared.provenance import provenance
     from shared.solvers import get_solver
 
     config = config_from_args(args)
@@ -75,12 +76,13 @@ def cmd_match(args: argparse.Namespace) -> int:
     if args.preview:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
+    summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
+    summary["provenance"] = provenance(config)
+    sidecar = Path(f"{args.output}.json")  # what made the map, beside it
+    summary["sidecar"] = str(sidecar)
+    sidecar.write_text(json.dumps(summary, indent=2))
     if args.json:
-        print(
-            json.dumps(
-                {"output": str(args.output), "solver": config.solver, **result.summary()}, indent=2
-            )
-        )
+        print(json.dumps(summary, indent=2))
     else:
         print(f"wrote {args.output} ({result.seconds:.2f} s)")
     return 0
@@ -107,45 +109,33 @@ def cmd_eval(args: argparse.Namespace) -> int:
     ``fg``, a recognised scene's non-occluded pixels), per region; the scale and border default
     to the file's format or scene (:func:`shared.ground_truth.resolve_gt_scale`). Prints a table
     or (``json``) JSON; ``error_map`` writes |d - gt|; 0."""
-    import numpy as np
-
-    from shared.ground_truth import resolve_gt_scale, scene_of_ground_truth
-    from shared.images import load_disparity, load_disparity_values, load_mask
-    from shared.metrics import error_map, evaluate_regions
+    from shared.ground_truth import evaluate_ground_truth
+    from shared.images import load_disparity, load_mask
+    from shared.metrics import error_map
 
     disparity = load_disparity(args.disparity)
-    gt = load_disparity_values(args.ground_truth)
-    scale, source = resolve_gt_scale(args.ground_truth, args.scale)
-    scene = scene_of_ground_truth(args.ground_truth)
-    border = args.border if args.border is not None else (scene.border if scene else 0)
     mask = load_mask(args.mask) if args.mask else None
-    regions: dict[str, np.ndarray | None] = {}
-    if args.nonocc:
-        regions["nonocc"] = load_mask(args.nonocc)
-    elif scene is not None:
-        regions["nonocc"] = scene.non_occluded(gt)
-    if args.fg:
-        foreground = load_mask(args.fg)
-        regions["bg"], regions["fg"] = ~foreground, foreground
-    scores = evaluate_regions(disparity, gt, regions, scale, border, args.threshold, mask)
-    report = {
-        **scores["all"].as_dict(),
-        "scale": scale,
-        "scale_source": source,
-        "border": border,
-        "regions": {name: s.as_dict() for name, s in scores.items() if name != "all"},
-    }
+    result = evaluate_ground_truth(
+        disparity,
+        args.ground_truth,
+        scale=args.scale,
+        border=args.border,
+        mask=mask,
+        nonocc=load_mask(args.nonocc) if args.nonocc else None,
+        foreground=load_mask(args.fg) if args.fg else None,
+        threshold=args.threshold,
+    )
+    report = result.report()
     if args.error_map:
-        report["error_map"] = write_error_map(
-            error_map(disparity, gt, scale, border, mask), args.error_map, args.threshold
-        )
+        errors = error_map(disparity, result.gt_values, result.scale, result.border, mask)
+        report["error_map"] = write_error_map(errors, args.error_map, args.threshold)
     if args.json:
         print(json.dumps(report))
         return 0
-    print(f"scale {scale:g} ({source}), border {border}")
+    print(f"scale {result.scale:g} ({result.scale_source}), border {result.border}")
     header = ("region", "pixels", "rmse", "avgerr", "bad-0.5", "bad-1", "bad-2", "bad-4", "D1")
     print(("{:<8}" + " {:>8}" * 8).format(*header) + f" bad>{args.threshold:g}")
-    for name, figures in scores.items():
+    for name, figures in result.scores.items():
         row = (figures.rmse, figures.avgerr, figures.bad_0_5, figures.bad_1, figures.bad_2)
         cells = [*row, figures.bad_4, figures.d1, figures.bpp]
         print(f"{name:<8} {figures.pixels:>8}" + "".join(f" {c:>8.3f}" for c in cells))
@@ -290,8 +280,10 @@ def build_parser() -> argparse.ArgumentParser:
         model_option,
     )
     from shared.config import Encoding, MatchConfig
+    from shared.provenance import qhsm_version
 
     parser = Parser(prog="qhsm", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"qhsm {qhsm_version()}")
     commands = parser.add_subparsers(dest="command", required=True)
 
     match = commands.add_parser("match", help="match a stereo pair in this process")

@@ -15,13 +15,14 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from shared.disparity_range import QuickMatch, quick_match
-from shared.images import is_pfm
+from shared.images import is_pfm, load_disparity_values
+from shared.metrics import BAD_PIXEL_THRESHOLD, Scores, evaluate_regions
 
 if TYPE_CHECKING:
     from shared.datasets.scenes import Scene
@@ -152,6 +153,63 @@ def resolve_gt_scale(path: str | Path, given: float | None = None) -> tuple[floa
             "(stored value per pixel of disparity: Tsukuba 16, Venus 8, Cones 4, KITTI 256)"
         )
     return stated.scale, f"inferred from {stated.source}"
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Scores of a map against a ground truth, with the protocol they were computed under."""
+
+    scores: dict[str, Scores]  # "all" and each region (nonocc, bg, fg) that has pixels
+    scale: float
+    scale_source: str
+    border: int
+    gt_values: np.ndarray  # the ground truth as stored
+
+    def report(self) -> dict[str, Any]:
+        """JSON-friendly: the all-pixel scores at the top level, ``scale``, ``scale_source``,
+        ``border`` and ``regions`` (``qhsm eval --json``, :func:`qhsm.evaluate`)."""
+        return {
+            **self.scores["all"].as_dict(),
+            "scale": self.scale,
+            "scale_source": self.scale_source,
+            "border": self.border,
+            "regions": {k: v.as_dict() for k, v in self.scores.items() if k != "all"},
+        }
+
+
+def evaluate_ground_truth(
+    disparity: np.ndarray,
+    ground_truth: str | Path | np.ndarray,
+    *,
+    scale: float | None = None,
+    border: int | None = None,
+    mask: np.ndarray | None = None,
+    nonocc: np.ndarray | None = None,
+    foreground: np.ndarray | None = None,
+    threshold: float = BAD_PIXEL_THRESHOLD,
+) -> Evaluation:
+    """Score ``disparity`` against a ground-truth file (its scale from :func:`resolve_gt_scale`,
+    its border and non-occluded pixels from its scene when recognised) or array (disparities
+    times ``scale``, 1 by default): every pixel within ``mask``, ``nonocc`` and, with KITTI's
+    object map as ``foreground``, ``bg`` / ``fg``."""
+    scene = None
+    if isinstance(ground_truth, np.ndarray):
+        values = np.asarray(ground_truth, np.float32)
+        scale, source = (1.0, "default for an array") if scale is None else (scale, "given")
+    else:
+        values = load_disparity_values(ground_truth)
+        scale, source = resolve_gt_scale(ground_truth, scale)
+        scene = scene_of_ground_truth(ground_truth)
+    border = border if border is not None else (scene.border if scene else 0)
+    regions: dict[str, np.ndarray | None] = {}
+    if nonocc is not None:
+        regions["nonocc"] = nonocc
+    elif scene is not None:
+        regions["nonocc"] = scene.non_occluded(values)
+    if foreground is not None:
+        regions["bg"], regions["fg"] = ~foreground.astype(bool), foreground.astype(bool)
+    scores = evaluate_regions(disparity, values, regions, scale, border, threshold, mask)
+    return Evaluation(scores, float(scale), source, int(border), values)
 
 
 def infer_gt_scale(

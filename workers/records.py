@@ -147,6 +147,8 @@ class JobRecord(BaseModel):
     levels: list[LevelRecord] = Field(default_factory=list)  # the levels assembled so far
     metrics: dict[str, float | None] | None = None
     error: str | None = None
+    #: The qhsm version that accepted the job (None: a record from before versions were kept)
+    version: str | None = None
 
     @field_validator("metrics")
     @classmethod

@@ -76,6 +76,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         ground_truth=record.ground_truth,
         config=record.config,
         disparity_range=record.disparity_range,
+        version=record.version,
     )
 
 

@@ -21,3 +21,19 @@ def test_middlebury_2014_pfm_upload_is_read_in_pixels_and_scale_1():
     truth_protocol, warning = ground_truth_protocol(views, views, values, 256, 0, stated)
     assert truth_protocol.scale == 256 and "256 given, but PFM" in warning
     assert ground_truth_protocol(views, views, values, 1, 0, stated)[1] == ""
+
+
+def test_a_job_records_its_version_and_a_pfm_ground_truth_is_scored_in_pixels(api):
+    from api_helpers import SCENE, post
+
+    import qhsm
+
+    truth = SCENE.disparity.astype(np.float32)
+    height, width = truth.shape
+    pfm = f"Pf\n{width} {height}\n-0.003922\n".encode()
+    pfm += np.ascontiguousarray(truth[::-1], "<f4").tobytes()
+    created = post(api, params={"max_disparity": 6}, ground_truth=pfm)
+    assert created.status_code == 202, created.text
+    assert any("PFM" in warning for warning in created.json()["warnings"])
+    status = api.get(f"/v1/jobs/{created.json()['id']}").json()
+    assert status["version"] == qhsm.__version__ and status["ground_truth"]["scale"] == 1
