@@ -56,6 +56,7 @@ def match(
     config: MatchConfig | None = None,
     *,
     processes: int = 0,
+    force: bool = False,
     **options: Any,
 ) -> Result:
     """Match a rectified pair in this process.
@@ -63,7 +64,9 @@ def match(
     ``left`` / ``right``: files (read by :func:`load_pair`) or float32 views in [0, 1], gray or
     BGR. ``config`` or ``options`` (``MatchConfig`` fields: ``max_disparity=16``,
     ``solver="sa"``, ``preset="paper"``, ...); the default is ``qhsm match``'s. ``processes``:
-    local processes for QUBO solvers' bundles (0: one per core).
+    local processes for QUBO solvers' bundles (0: one per core). Views that fail their check
+    (swapped, not rectified, identical) raise :class:`shared.disparity_range.ViewsRefusedError`
+    with the reason unless ``force``.
     """
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
@@ -75,7 +78,7 @@ def match(
     if not isinstance(left, np.ndarray) or not isinstance(right, np.ndarray):
         left, right = load_pair(left, right)  # type: ignore[arg-type]
     with ProcessPoolLevelSolver(processes) as solve_level:
-        result = run_pipeline(left, right, config, solve_level)
+        result = run_pipeline(left, right, config, solve_level, force=force)
     return Result(**vars(result), provenance=provenance(config))
 
 

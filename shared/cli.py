@@ -69,7 +69,9 @@ def cmd_match(args: argparse.Namespace) -> int:
     bar = LevelBar(leave=False)  # stderr, in every mode: with --json stdout is JSON alone
     try:
         with ProcessPoolLevelSolver(args.processes) as solve_level:
-            result = run_pipeline(left, right, config, solve_level, progress=bar.update)
+            result = run_pipeline(
+                left, right, config, solve_level, progress=bar.update, force=args.force
+            )
     finally:
         bar.close()
     args.output = save_result(result.disparity, args.output)
@@ -293,6 +295,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")
     match.add_argument("--json", action="store_true", help="print a JSON summary")
+    match.add_argument(
+        "--force",
+        action="store_true",
+        help="run even when the views look swapped, not rectified or identical (default: stop "
+        "with the reason)",
+    )
     add_processes_option(match)
     match.set_defaults(handler=cmd_match)
 
@@ -437,8 +445,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     rest as Python shows them."""
     from shared.disparity_range import ViewsWarning
     from shared.ground_truth import ScaleWarning
+    from shared.pyramid import RangeWarning
 
-    if issubclass(category, (ViewsWarning, ScaleWarning)):
+    if issubclass(category, (ViewsWarning, ScaleWarning, RangeWarning)):
         print(f"qhsm: warning: {message}", file=file or sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)

@@ -17,6 +17,7 @@ fan-in callbacks, so the level logic lives only here.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from functools import partial
@@ -27,7 +28,7 @@ from shared import filters, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, MatchConfig, PyramidKind
 from shared.data_terms import cost_volume
-from shared.disparity_range import RangeEstimate, resolve_max_disparity
+from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
@@ -147,6 +148,9 @@ def plan_run(
         The levels, coarsest first.
     """
     estimate = resolve_max_disparity(left, right, config.max_disparity)
+    warning = pyramid.range_warning(config, estimate.max_disparity)
+    if warning:
+        warnings.warn(warning, pyramid.RangeWarning, stacklevel=2)
     return estimate, pyramid.plan(config, estimate.max_disparity)
 
 
@@ -367,6 +371,7 @@ def run_pipeline(
     config: MatchConfig,
     solve_level: SolveLevel = solve_level_in_process,
     progress: Progress | None = None,
+    force: bool = True,
 ) -> MatchResult:
     """Match a rectified pair (float32 in [0, 1], gray or BGR); returns the left view's
     disparity in full-resolution pixels.
@@ -384,6 +389,9 @@ def run_pipeline(
     progress : callable, optional
         A :data:`Progress`: called as bundles of a level are solved (as often as
         ``solve_level`` reports) and once more when the level is done.
+    force : bool, optional
+        Run even when the views fail their check (swapped, not rectified, identical); False:
+        :class:`ViewsRefusedError` before any level (``qhsm match`` without ``--force``).
 
     Returns
     -------
@@ -393,6 +401,8 @@ def run_pipeline(
     started = time.perf_counter()
     left, right = match_views(left, right, config)
     estimate, plans = plan_run(left, right, config)
+    if estimate.warning and not force:
+        raise ViewsRefusedError(estimate.warning)
     reports: list[LevelReport] = []
     level_map: np.ndarray | None = None
     volumes: list[np.ndarray] | None = None

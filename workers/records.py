@@ -189,12 +189,16 @@ class JobRecord(BaseModel):
         """A queued job begins."""
         return self.moved(JobState.RUNNING, at)
 
-    def with_range(self, estimate: RangeEstimate, levels_total: int) -> JobRecord | None:
+    def with_range(
+        self, estimate: RangeEstimate, levels_total: int, also: tuple[str, ...] = ()
+    ) -> JobRecord | None:
         """The running job's disparity range, the levels it makes, and the views' warning
-        first among the warnings; None once a range is recorded."""
+        (then ``also``: a range the preset's pyramid does not serve) first among the warnings;
+        None once a range is recorded."""
         if self.state is not JobState.RUNNING or self.disparity_range is not None:
             return None
         notes = [estimate.warning] if estimate.warning else []
+        notes += also
         return self.model_copy(
             update={
                 "disparity_range": estimate,
