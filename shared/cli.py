@@ -79,6 +79,7 @@ def cmd_match(args: argparse.Namespace) -> int:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
     summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
+    summary["maps"] = write_maps(result, args.output)
     summary["provenance"] = provenance(config)
     sidecar = Path(f"{args.output}.json")  # what made the map, beside it
     summary["sidecar"] = str(sidecar)
@@ -103,6 +104,26 @@ def save_result(disparity, output: str) -> str:
         save_disparity(disparity, output)
         print(f"qhsm: warning: {error}: wrote {output} instead", file=sys.stderr)
     return output
+
+
+def write_maps(result, output: str) -> dict[str, str]:
+    """The maps beside the disparity ``output`` (``d.pfm`` -> ``d.valid.png``: 255 where the
+    left-right check confirmed the pixel, 0 where it was filled from the background;
+    ``d.confidence.pfm``: :func:`shared.filters.cost_confidence` in [0, 1], 0 where not
+    confirmed); those the run has, by name."""
+    import cv2
+    import numpy as np
+
+    from shared.images import save_disparity
+
+    stem = Path(output).with_suffix("")
+    written = {}
+    if result.validity is not None:
+        written["validity"] = f"{stem}.valid.png"
+        cv2.imwrite(written["validity"], np.where(result.validity, 255, 0).astype(np.uint8))
+    if result.confidence is not None:
+        written["confidence"] = str(save_disparity(result.confidence, f"{stem}.confidence.pfm"))
+    return written
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

@@ -94,3 +94,20 @@ def test_version_option():
         text=True,
     )
     assert completed.stdout.strip() == f"qhsm {qhsm.__version__}"
+
+
+def test_validity_and_confidence_maps_are_written_beside_the_disparity(scene_folder, capsys):
+    from shared.images import load_disparity, load_mask
+
+    command = ["match", "left.png", "right.png", "-o", "d.png", "--max-disparity", "16", "--json"]
+    assert main(command) == 0
+    maps = json.loads(capsys.readouterr().out)["maps"]
+    assert maps == {"validity": "d.valid.png", "confidence": "d.confidence.pfm"}
+    valid, confidence = load_mask(maps["validity"]), load_disparity(maps["confidence"])
+    assert 0.5 < valid.mean() < 1  # occlusions fail the left-right check
+    assert confidence.min() >= 0 and confidence.max() <= 1 and (confidence[~valid] == 0).all()
+    # confident pixels are right more often than the others
+    truth = load_disparity("gt.pfm")
+    errors = np.abs(load_disparity("d.png") - truth)
+    sure = confidence > np.median(confidence[valid])
+    assert (errors[sure] > 1).mean() < (errors[~sure] > 1).mean()
