@@ -185,6 +185,36 @@ def write_error_map(errors, path: str, threshold: float) -> str:
     return str(path)
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    """``qhsm batch``: match every pair below ``folder`` into ``--out`` with the ``MatchConfig``
+    options (:func:`shared.batch.run_batch`); prints the table (or ``json``) and where it is;
+    0 when every pair matched, 1 when some failed (their rows say why)."""
+    from shared.batch import COLUMNS, run_batch
+    from shared.cli_options import config_from_args
+
+    config = config_from_args(args)
+    rows = run_batch(
+        args.folder,
+        args.out,
+        config,
+        range_given=args.max_disparity is not None,
+        force=args.force,
+        processes=args.processes,
+    )
+    if args.json:
+        print(json.dumps(rows, indent=2, default=str))
+    else:
+        for row in rows:
+            figures = "  ".join(f"{key} {row[key]:.3f}" for key in COLUMNS if key in row)
+            state = row["status"] if row["status"] == "ok" else f"failed: {row['reason']}"
+            print(
+                f"{row['name']:<28} range {row.get('max_disparity', '-')} "
+                f"({row['range_source']})  {figures}  {state}"
+            )
+        print(f"wrote {Path(args.out) / 'results.csv'} and results.json")
+    return 0 if all(row["status"] == "ok" for row in rows) else EXIT_FAILED
+
+
 def cmd_solvers(args: argparse.Namespace) -> int:
     """``qhsm solvers``: list every registered solver and whether it can run here, as a table
     or (``json``) JSON rows; 0, unavailable solvers being listed, not an error."""
@@ -286,7 +316,8 @@ def cmd_datasets_list(args: argparse.Namespace) -> int:
         for row in rows:
             print(
                 f"{row['name']:<26} {row['layout']:<24} scale {row['scale']:g}  border "
-                f"{row['border']}  max disparity {row['max_disparity']}  "
+                f"{row['border']}  max disparity {row['max_disparity']} "
+                f"({row['max_disparity_source']})  "
                 f"masks {','.join(row['masks']) or '-'}  non-occluded from "
                 f"{row['non_occlusion']}"
             )
@@ -315,13 +346,13 @@ def build_parser() -> argparse.ArgumentParser:
     match.add_argument("-o", "--output", required=True, help="OUT.pfm, OUT.png (x256) or .npy")
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")
-    match.add_argument("--json", action="store_true", help="print a JSON summary")
     match.add_argument(
         "--force",
         action="store_true",
         help="run even when the views look swapped, not rectified or identical (default: stop "
         "with the reason)",
     )
+    match.add_argument("--json", action="store_true", help="print a JSON summary")
     add_processes_option(match)
     match.set_defaults(handler=cmd_match)
 
@@ -353,6 +384,21 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--error-map", help="write |d - gt| here: .png (colours), .pfm or .npy")
     add_json_option(evaluate, "the scores")
     evaluate.set_defaults(handler=cmd_eval)
+
+    batch = commands.add_parser(
+        "batch", help="match every pair below a folder (scene folders or KITTI) into a table"
+    )
+    batch.add_argument(
+        "folder", help="folder of scene folders (Middlebury layouts, ours) or KITTI's training/"
+    )
+    batch.add_argument("--out", default="out/batch", help="output folder (maps, results.csv/json)")
+    add_match_options(batch)
+    batch.add_argument(
+        "--force", action="store_true", help="match pairs whose views fail their check too"
+    )
+    add_json_option(batch, "the table")
+    add_processes_option(batch)
+    batch.set_defaults(handler=cmd_batch)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
     add_json_option(solvers, "the list")

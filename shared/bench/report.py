@@ -168,7 +168,8 @@ def markdown(results: dict) -> str:
         "ground truth's left-right check). Wall time is the whole run of the scene. "
         "Paper figures: n/a where unknown.",
         "",
-        "| scene | layout | GT scale | border px | max disparity | masks | non-occluded from |",
+        "| scene | layout | GT scale | border px | max disparity (from) | masks "
+        "| non-occluded from |",
         "|---|---|---:|---:|---:|---|---|",
     ]
     for name, protocol in results["scenes"].items():
@@ -179,7 +180,7 @@ def markdown(results: dict) -> str:
                     protocol["layout"],
                     f"{protocol['scale']:g}",
                     str(protocol["border"]),
-                    str(protocol["max_disparity"]),
+                    f"{protocol['max_disparity']} ({protocol.get('max_disparity_source', '?')})",
                     ", ".join(protocol["masks"]) or "none",
                     protocol["non_occlusion"],
                 ]

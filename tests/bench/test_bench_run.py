@@ -56,6 +56,7 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
         "scale": 16.0,
         "border": 2,
         "max_disparity": 8,
+        "max_disparity_source": "the scene's protocol.json",  # said, not assumed
         "non_occlusion": "mask",
         "masks": ["all", "disc", "nonocc"],
     }
