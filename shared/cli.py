@@ -59,6 +59,8 @@ def cmd_match(args: argparse.Namespace) -> int:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):
         raise CommandError(f"{args.output}: the output must end in .pfm, .png or .npy")
+    if args.ply and not args.calib:
+        raise CommandError("--ply needs --calib (Middlebury calib.txt or a KITTI calibration)")
     top = config.max_disparity
     if Path(args.output).suffix.lower() == ".png" and isinstance(top, int) and top > PNG_MAX:
         raise CommandError(
@@ -80,6 +82,14 @@ def cmd_match(args: argparse.Namespace) -> int:
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
     summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
     summary["maps"] = write_maps(result, args.output)
+    if args.ply:
+        from shared.datasets.calibration import read_calibration
+        from shared.depth import ply_bytes, point_cloud
+
+        calibration = read_calibration(args.calib)
+        points, colours = point_cloud(result.disparity, calibration, left, result.validity)
+        Path(args.ply).write_bytes(ply_bytes(points, colours))
+        summary["maps"]["ply"] = str(args.ply)
     summary["provenance"] = provenance(config)
     sidecar = Path(f"{args.output}.json")  # what made the map, beside it
     summary["sidecar"] = str(sidecar)
@@ -117,7 +127,7 @@ def write_maps(result, output: str) -> dict[str, str]:
     from shared.images import save_disparity
 
     stem = Path(output).with_suffix("")
-    written = {}
+    written: dict[str, str] = {}
     if result.validity is not None:
         written["validity"] = f"{stem}.valid.png"
         cv2.imwrite(written["validity"], np.where(result.validity, 255, 0).astype(np.uint8))
@@ -213,6 +223,50 @@ def cmd_batch(args: argparse.Namespace) -> int:
             )
         print(f"wrote {Path(args.out) / 'results.csv'} and results.json")
     return 0 if all(row["status"] == "ok" for row in rows) else EXIT_FAILED
+
+
+def cmd_depth(args: argparse.Namespace) -> int:
+    """``qhsm depth``: depth (Z = f B / (d + doffs)) and optionally a coloured PLY point cloud
+    from the map ``disparity`` and a calibration file or ``--focal``/``--baseline`` options."""
+    from shared.cli_options import CommandError
+    from shared.datasets.calibration import Calibration, read_calibration
+    from shared.depth import ply_bytes, point_cloud
+    from shared.images import load_disparity, load_mask, load_view, save_disparity
+
+    disparity = load_disparity(args.disparity)
+    height, width = disparity.shape
+    if args.calib:
+        calibration = read_calibration(args.calib)
+    elif args.focal and args.baseline:
+        calibration = Calibration(
+            args.focal,
+            args.cx if args.cx is not None else (width - 1) / 2,
+            args.cy if args.cy is not None else (height - 1) / 2,
+            args.baseline,
+            args.doffs,
+            args.unit,
+        )
+    else:
+        raise CommandError(
+            "give --calib (Middlebury calib.txt, KITTI calib) or --focal and --baseline"
+        )
+    written: dict[str, str | int] = {}
+    if args.output:
+        written["depth"] = str(save_disparity(calibration.depth(disparity), args.output))
+    if args.ply:
+        image = load_view(args.image) if args.image else None
+        if image is not None and image.shape[:2] != disparity.shape:
+            raise CommandError(f"{args.image} is not the size of {args.disparity}")
+        valid = load_mask(args.valid) if args.valid else None
+        points, colours = point_cloud(disparity, calibration, image, valid)
+        Path(args.ply).write_bytes(ply_bytes(points, colours))
+        written["ply"] = str(args.ply)
+        written["points"] = len(points)
+    if not written:
+        raise CommandError("nothing to write: give -o DEPTH.pfm|.npy and/or --ply CLOUD.ply")
+    report = {**written, "unit": calibration.unit, "calibration": calibration.source}
+    print(json.dumps(report) if args.json else f"wrote {', '.join(map(str, written.values()))}")
+    return 0
 
 
 def cmd_solvers(args: argparse.Namespace) -> int:
@@ -352,6 +406,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="run even when the views look swapped, not rectified or identical (default: stop "
         "with the reason)",
     )
+    match.add_argument(
+        "--ply", help="also write a coloured point cloud (binary PLY; needs --calib)"
+    )
+    match.add_argument("--calib", help="Middlebury calib.txt or KITTI calibration, for --ply")
     match.add_argument("--json", action="store_true", help="print a JSON summary")
     add_processes_option(match)
     match.set_defaults(handler=cmd_match)
@@ -399,6 +457,24 @@ def build_parser() -> argparse.ArgumentParser:
     add_json_option(batch, "the table")
     add_processes_option(batch)
     batch.set_defaults(handler=cmd_batch)
+
+    depth = commands.add_parser(
+        "depth", help="depth map and coloured PLY point cloud from a disparity map"
+    )
+    depth.add_argument("disparity", help="disparity map (.pfm, .png x256, .npy)")
+    depth.add_argument("-o", "--output", help="write the depth here (.pfm or .npy)")
+    depth.add_argument("--ply", help="write a coloured point cloud here (binary PLY)")
+    depth.add_argument("--image", help="the left view: the points' colours")
+    depth.add_argument("--valid", help="only these pixels (e.g. qhsm match's d.valid.png)")
+    depth.add_argument("--calib", help="Middlebury calib.txt or KITTI calibration file")
+    depth.add_argument("--focal", type=float, help="focal length, px (without --calib)")
+    depth.add_argument("--baseline", type=float, help="baseline, in --unit (without --calib)")
+    depth.add_argument("--doffs", type=float, default=0.0, help="cx(right) - cx(left), px")
+    depth.add_argument("--cx", type=float, help="principal point x, px (default: the centre)")
+    depth.add_argument("--cy", type=float, help="principal point y, px (default: the centre)")
+    depth.add_argument("--unit", default="mm", help="the baseline's unit (depth's)")
+    add_json_option(depth, "what was written")
+    depth.set_defaults(handler=cmd_depth)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
     add_json_option(solvers, "the list")
