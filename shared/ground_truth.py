@@ -164,6 +164,7 @@ class Evaluation:
     scale_source: str
     border: int
     gt_values: np.ndarray  # the ground truth as stored
+    warnings: list[str]  # a given scale that the file's format or scene contradicts
 
     def report(self) -> dict[str, Any]:
         """JSON-friendly: the all-pixel scores at the top level, ``scale``, ``scale_source``,
@@ -174,6 +175,7 @@ class Evaluation:
             "scale_source": self.scale_source,
             "border": self.border,
             "regions": {k: v.as_dict() for k, v in self.scores.items() if k != "all"},
+            "warnings": self.warnings,
         }
 
 
@@ -193,12 +195,18 @@ def evaluate_ground_truth(
     times ``scale``, 1 by default): every pixel within ``mask``, ``nonocc`` and, with KITTI's
     object map as ``foreground``, ``bg`` / ``fg``."""
     scene = None
+    notes: list[str] = []
     if isinstance(ground_truth, np.ndarray):
         values = np.asarray(ground_truth, np.float32)
         scale, source = (1.0, "default for an array") if scale is None else (scale, "given")
     else:
         values = load_disparity_values(ground_truth)
-        scale, source = resolve_gt_scale(ground_truth, scale)
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always", ScaleWarning)
+            scale, source = resolve_gt_scale(ground_truth, scale)
+        for warning in seen:  # shown as usual, and kept in the report
+            warnings.warn(warning.message, warning.category, stacklevel=2)
+            notes.append(str(warning.message))
         scene = scene_of_ground_truth(ground_truth)
     border = border if border is not None else (scene.border if scene else 0)
     regions: dict[str, np.ndarray | None] = {}
@@ -209,7 +217,7 @@ def evaluate_ground_truth(
     if foreground is not None:
         regions["bg"], regions["fg"] = ~foreground.astype(bool), foreground.astype(bool)
     scores = evaluate_regions(disparity, values, regions, scale, border, threshold, mask)
-    return Evaluation(scores, float(scale), source, int(border), values)
+    return Evaluation(scores, float(scale), source, int(border), values, notes)
 
 
 def infer_gt_scale(

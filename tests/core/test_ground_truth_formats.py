@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+import qhsm
 from shared.cli import main
 from shared.ground_truth import ScaleWarning, resolve_gt_scale, scale_of_file, scale_of_format
 from shared.images import ImageError, load_disparity_values, read_pfm, save_disparity
@@ -80,6 +81,9 @@ def test_a_scale_that_contradicts_the_format_is_warned_about(tmp_path):
     assert scale_of_file(gt).scale == 256
     with pytest.warns(ScaleWarning, match="given, but a 16-bit PNG"):
         assert resolve_gt_scale(gt, 16) == (16.0, "given")
+    with pytest.warns(ScaleWarning):
+        report = qhsm.evaluate(np.full((8, 8), 10.0, np.float32), gt, scale=16)
+    assert report["scale"] == 16 and "says 256" in report["warnings"][0]
     assert resolve_gt_scale(gt)[0] == 256
     assert load_disparity_values(gt)[0, 0] / resolve_gt_scale(gt)[0] == 10
 
