@@ -421,7 +421,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--scale",
         type=float,
         help="stored ground-truth value per pixel of disparity (default: from the format, PFM "
-        "and .npy 1, 16-bit PNG 256, or the scene folder's protocol; a warning when the given "
+        "1, 16-bit PNG 256, or the scene folder's protocol; a warning when the given "
         "one contradicts them)",
     )
     evaluate.add_argument(

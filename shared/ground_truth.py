@@ -90,12 +90,11 @@ class FormatScale:
 
 
 def scale_of_format(data: bytes) -> FormatScale | None:
-    """The scale a ground-truth file's format implies: PFM and .npy hold disparities (1), a
-    16-bit PNG KITTI's disparity x 256; None for 8-bit images, whose scale is the dataset's."""
+    """The scale a ground-truth file's format implies: PFM holds disparities (1), a 16-bit PNG
+    KITTI's disparity x 256; None for 8-bit images, whose scale is the dataset's, and for
+    .npy, which follows no convention (arrays of scaled values are common)."""
     if is_pfm(data):
         return FormatScale(1.0, "PFM (disparities in pixels; its header scale is the byte order)")
-    if data.startswith(b"\x93NUMPY"):
-        return FormatScale(1.0, ".npy (disparities in pixels)")
     depth = data[PNG_BIT_DEPTH_OFFSET : PNG_BIT_DEPTH_OFFSET + 1]
     if data.startswith(b"\x89PNG") and depth == b"\x10":
         return FormatScale(256.0, "a 16-bit PNG (KITTI's convention, disparity x 256)")
