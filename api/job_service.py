@@ -156,7 +156,8 @@ def ground_truth_protocol(
         return GroundTruth(scale=scale, border=border), stated.disagreement(scale) if stated else ""
     if stated is not None:
         note = f"ground-truth scale not given: {stated.scale:g}, from {stated.source}"
-        return GroundTruth(scale=stated.scale, border=border, inferred=True), note
+        # not inferred from the views (``inferred`` says that): the format states it
+        return GroundTruth(scale=stated.scale, border=border), note
     estimate = infer_gt_scale(left_image, right_image, values)
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 

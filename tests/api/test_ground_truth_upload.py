@@ -17,7 +17,7 @@ def test_middlebury_2014_pfm_upload_is_read_in_pixels_and_scale_1():
     views = np.zeros((2, 2), np.float32)
     stated = scale_of_format(data)
     truth_protocol, note = ground_truth_protocol(views, views, values, None, 0, stated)
-    assert truth_protocol.scale == 1 and truth_protocol.inferred and "PFM" in note
+    assert truth_protocol.scale == 1 and not truth_protocol.inferred and "PFM" in note
     truth_protocol, warning = ground_truth_protocol(views, views, values, 256, 0, stated)
     assert truth_protocol.scale == 256 and "256 given, but PFM" in warning
     assert ground_truth_protocol(views, views, values, 1, 0, stated)[1] == ""
