@@ -174,6 +174,11 @@ class JobStatus(JobSummary):
     version: str | None = Field(
         None, description="The qhsm version that ran the job (with config: preset, solver)"
     )
+    expires_at: datetime | None = Field(
+        None,
+        description="When the job's record, uploads and result are deleted (finished_at + "
+        "QHSM_RESULT_TTL_SECONDS); null while it runs",
+    )
 
 
 class JobPage(BaseModel):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
@@ -44,6 +45,8 @@ GT_SCALE_RANGE = (1e-3, 1e6)
 MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
+
+
 def links(job_id: str) -> Links:
     base = f"/v1/jobs/{job_id}"
     return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")
@@ -77,6 +80,11 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         config=record.config,
         disparity_range=record.disparity_range,
         version=record.version,
+        expires_at=(
+            record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
+            if record.finished_at
+            else None
+        ),
     )
 
 

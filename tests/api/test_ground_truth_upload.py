@@ -37,3 +37,21 @@ def test_a_job_records_its_version_and_a_pfm_ground_truth_is_scored_in_pixels(ap
     assert any("PFM" in warning for warning in created.json()["warnings"])
     status = api.get(f"/v1/jobs/{created.json()['id']}").json()
     assert status["version"] == qhsm.__version__ and status["ground_truth"]["scale"] == 1
+
+
+def test_a_finished_job_says_when_it_expires(api):
+    from datetime import datetime, timedelta
+
+    from api_helpers import post
+
+    from workers.records import ACTIVE, JobState
+
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    assert api.get(f"/v1/jobs/{job_id}").json()["expires_at"] is None  # still queued
+    store = api.app.state.services.store
+    assert store.transition(job_id, JobState.RUNNING, ACTIVE) is not None
+    assert store.transition(job_id, JobState.SUCCEEDED, ACTIVE, metrics=None) is not None
+    status = api.get(f"/v1/jobs/{job_id}").json()
+    ttl = timedelta(seconds=store.settings.result_ttl_seconds)
+    finished = datetime.fromisoformat(status["finished_at"])
+    assert datetime.fromisoformat(status["expires_at"]) == finished + ttl
