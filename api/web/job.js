@@ -141,6 +141,8 @@ export async function showJob(id) {
     ["finished", job.finished_at ? new Date(job.finished_at).toLocaleString() : "—"],
     ["duration", duration(jobDuration(job))]];
   if (job.qpu_seconds !== null && job.qpu_seconds !== undefined) facts.push(["QPU time charged", seconds(job.qpu_seconds)]);
+  if (job.expires_at) facts.push(["deleted on", new Date(job.expires_at).toLocaleString()]);
+  if (job.version) facts.push(["qhsm version", job.version]);
   const parts = [
     el("div", { class: "title-row" },
       el("h1", {}, job.label || `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),
