@@ -2,11 +2,12 @@
 
 Pairs are the scene folders :func:`shared.datasets.find_datasets` recognises (our layout,
 Middlebury 2001-2014's) and KITTI's own layout (``image_2/*_10.png`` with ``image_3``, ground
-truth in ``disp_occ_0`` or ``disp_noc_0``, objects in ``obj_map``, calibration in
-``calib_cam_to_cam`` or ``calib``). Each pair's range is the one given, else its stated one
-(protocol.json, Middlebury's calib.txt ndisp, a known scene), else estimated (``auto``); the
-table says which for every pair. The ground truth's own maximum is never used as the range
-(that would tell the matcher the answer).
+truth in ``disp_occ_0`` or ``disp_noc_0``, objects in ``obj_map``). Each pair's range is the one
+given, else its stated one (protocol.json, Middlebury's calib.txt ndisp, a known scene), else
+estimated (``auto``); the table says which for every pair. The ground truth's own maximum is
+never used as the range (that would tell the matcher the answer). Each pair's map and its
+validity and confidence maps go to ``OUT/<dataset>/<scene>.pfm``, ``.valid.png`` and
+``.confidence.pfm``.
 """
 
 from __future__ import annotations
@@ -135,7 +136,7 @@ def run_batch(
     their reason. ``range_given``: ``config.max_disparity`` holds for every pair."""
     from tqdm import tqdm
 
-    from shared.images import load_pair, save_disparity
+    from shared.images import load_pair, save_disparity, save_maps
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.provenance import provenance
@@ -159,11 +160,13 @@ def run_batch(
                     warnings.simplefilter("always")
                     result = run_pipeline(left, right, run, solve_level, force=force)
                 output = save_disparity(result.disparity, out / f"{pair.name}.pfm")
+                maps = save_maps(result.validity, result.confidence, output)
                 row |= {
                     "status": "ok",
                     "max_disparity": result.disparity_range.max_disparity,
                     "seconds": round(result.seconds, 3),
                     "output": str(output),
+                    **{f"{name}_map": path for name, path in maps.items()},
                     "warnings": "; ".join(str(w.message) for w in seen),
                     **score_row(pair, result.disparity),
                 }

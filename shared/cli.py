@@ -44,7 +44,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     from shared.bundle_plan import bundle_width_setting
     from shared.cli_options import CommandError, config_from_args
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
-    from shared.images import load_pair, preview_png
+    from shared.images import load_pair, preview_png, save_maps
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar
@@ -81,7 +81,7 @@ def cmd_match(args: argparse.Namespace) -> int:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
     summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
-    summary["maps"] = write_maps(result, args.output)
+    summary["maps"] = save_maps(result.validity, result.confidence, args.output)
     if args.ply:
         from shared.datasets.calibration import read_calibration
         from shared.depth import ply_bytes, point_cloud
@@ -114,26 +114,6 @@ def save_result(disparity, output: str) -> str:
         save_disparity(disparity, output)
         print(f"qhsm: warning: {error}: wrote {output} instead", file=sys.stderr)
     return output
-
-
-def write_maps(result, output: str) -> dict[str, str]:
-    """The maps beside the disparity ``output`` (``d.pfm`` -> ``d.valid.png``: 255 where the
-    left-right check confirmed the pixel, 0 where it was filled from the background;
-    ``d.confidence.pfm``: :func:`shared.filters.cost_confidence` in [0, 1], 0 where not
-    confirmed); those the run has, by name."""
-    import cv2
-    import numpy as np
-
-    from shared.images import save_disparity
-
-    stem = Path(output).with_suffix("")
-    written: dict[str, str] = {}
-    if result.validity is not None:
-        written["validity"] = f"{stem}.valid.png"
-        cv2.imwrite(written["validity"], np.where(result.validity, 255, 0).astype(np.uint8))
-    if result.confidence is not None:
-        written["confidence"] = str(save_disparity(result.confidence, f"{stem}.confidence.pfm"))
-    return written
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

@@ -375,6 +375,22 @@ def save_disparity(disparity: np.ndarray, path: str | Path) -> Path:
     return path
 
 
+def save_maps(
+    validity: np.ndarray | None, confidence: np.ndarray | None, output: str | Path
+) -> dict[str, str]:
+    """Write a run's maps beside its disparity ``output`` (``d.pfm`` -> ``d.valid.png``: 255
+    where the left-right check confirmed the pixel, 0 where it was filled from the background;
+    ``d.confidence.pfm``: float in [0, 1]); the files written, by name (those the run has)."""
+    stem = Path(output).with_suffix("")
+    written: dict[str, str] = {}
+    if validity is not None:
+        written["validity"] = f"{stem}.valid.png"
+        cv2.imwrite(written["validity"], np.where(validity, 255, 0).astype(np.uint8))
+    if confidence is not None:
+        written["confidence"] = str(save_disparity(confidence, f"{stem}.confidence.pfm"))
+    return written
+
+
 def load_disparity(path: str | Path) -> np.ndarray:
     """Read a disparity map written by :func:`save_disparity` (PNG is divided by 256).
 

@@ -79,6 +79,8 @@ def test_batch_writes_one_table_with_every_pair(folder, tmp_path, capsys):
     for name in ("lab/a", "m2014/b", "m2014/c"):
         assert rows[name]["status"] == "ok" and rows[name]["bad_2"] < 25, rows[name]
         assert Path(rows[name]["output"]).is_file()
+        assert Path(rows[name]["validity_map"]).is_file()  # the accurate preset's LR check
+        assert Path(rows[name]["confidence_map"]).is_file()
     assert rows["m2014/swapped"]["status"] == "failed"
     assert "swapped" in rows["m2014/swapped"]["reason"]
     with (out / "results.csv").open() as stream:
