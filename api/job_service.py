@@ -34,8 +34,9 @@ from api.users import UserStore
 from shared.bundle_plan import bundle_width_setting
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
-from shared.ground_truth import infer_gt_scale
+from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
 from shared.pipeline import match_views
+from shared.provenance import qhsm_version
 from shared.pyramid import plan
 from shared.residual import job_residual
 from shared.solvers import Availability, check_params
@@ -145,11 +146,18 @@ def ground_truth_protocol(
     values: np.ndarray,
     scale: float | None,
     border: int,
+    stated: FormatScale | None = None,
 ) -> tuple[GroundTruth, str]:
-    """How an uploaded ground truth is scored: the given scale, else one inferred from the
-    views, with the note that says so (``ScaleNotInferredError`` when they do not tell)."""
+    """How an uploaded ground truth is scored: the given scale (with a warning when the file's
+    format, ``stated``, says otherwise), else the format's (PFM 1, 16-bit PNG 256), else one
+    inferred from the views, with the note that says so (``ScaleNotInferredError`` when they
+    do not tell)."""
     if scale is not None:
-        return GroundTruth(scale=scale, border=border), ""
+        return GroundTruth(scale=scale, border=border), stated.disagreement(scale) if stated else ""
+    if stated is not None:
+        note = f"ground-truth scale not given: {stated.scale:g}, from {stated.source}"
+        # not inferred from the views (``inferred`` says that): the format states it
+        return GroundTruth(scale=stated.scale, border=border), note
     estimate = infer_gt_scale(left_image, right_image, values)
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 
@@ -213,11 +221,15 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
     warnings = [disparity_range.warning] if disparity_range and disparity_range.warning else []
     truth = None
     if form.ground_truth is not None:
-        arrays["ground_truth"] = decode_ground_truth(
-            read_upload(form.ground_truth, "ground_truth", settings), left_image.shape[:2]
-        )
+        stored = read_upload(form.ground_truth, "ground_truth", settings)
+        arrays["ground_truth"] = decode_ground_truth(stored, left_image.shape[:2])
         truth, note = ground_truth_protocol(
-            left_image, right_image, arrays["ground_truth"], form.gt_scale, form.gt_border
+            left_image,
+            right_image,
+            arrays["ground_truth"],
+            form.gt_scale,
+            form.gt_border,
+            scale_of_format(stored[:64]),
         )
         warnings += [note] if note else []
     record = JobRecord(
@@ -233,6 +245,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         created_at=now(),
         disparity_range=disparity_range.as_dict() if disparity_range else None,
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
+        version=qhsm_version(),
     )
     dispatch(record, arrays, svc)
     return record

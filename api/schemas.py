@@ -91,7 +91,8 @@ def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:
     fields: dict[str, Any] = {}
     for field_name, field in model.model_fields.items():
         annotation: Any = field.annotation  # a type at run time
-        fields[field_name] = (annotation | None, Field(description=field.description))
+        default = ... if field.is_required() else field.default  # records from before a field
+        fields[field_name] = (annotation | None, Field(default, description=field.description))
     return create_model(name, __doc__=doc, __module__=__name__, **fields)
 
 
@@ -169,6 +170,14 @@ class JobStatus(JobSummary):
     config: MatchConfig
     disparity_range: RangeEstimate | None = Field(
         None, description="The disparity range used: given, or estimated (max_disparity auto)"
+    )
+    version: str | None = Field(
+        None, description="The qhsm version that ran the job (with config: preset, solver)"
+    )
+    expires_at: datetime | None = Field(
+        None,
+        description="When the job's record, uploads and result are deleted (finished_at + "
+        "QHSM_RESULT_TTL_SECONDS); null while it runs",
     )
 
 

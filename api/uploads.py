@@ -19,13 +19,11 @@ from pydantic import ValidationError
 
 from api.errors import AdmissionError, Refusal
 from shared.config import MatchConfig, Settings
-from shared.images import ImageError, check_pair, decode_image
+from shared.images import PFM_HEADER, ImageError, check_pair, decode_image, is_pfm, read_pfm
 
 NPY_MAGIC = b"\x93NUMPY"
 #: Largest .npy header read (numpy's own default); anything longer is not a disparity map.
 NPY_MAX_HEADER = 10_000
-#: A PFM header: "PF" (colour) or "Pf" (gray), then width and height (imagesize has no PFM).
-PFM_HEADER = re.compile(rb"^P[Ff]\s+(\d+)\s+(\d+)\s")
 #: Signatures of the other accepted formats (PNG, JPEG, TIFF, BMP, PBM/PGM/PPM), whose header
 #: sizes imagesize reads.
 IMAGE_SIGNATURES = (
@@ -89,9 +87,9 @@ def read_upload(upload: Upload, name: str, settings: Settings) -> bytes:
 def declared_size(data: bytes) -> tuple[int, int] | None:
     """(width, height) as the file's header declares them, read without decoding any pixel;
     None when the format is not one whose header we can read."""
-    match = PFM_HEADER.match(data[:64])
+    match = PFM_HEADER.match(data[:256])  # imagesize has no PFM
     if match:
-        return int(match.group(1)), int(match.group(2))
+        return int(match.group(2)), int(match.group(3))
     if not data.startswith(IMAGE_SIGNATURES):
         return None
     width, height = imagesize.get(io.BytesIO(data), exif_rotation=False)  # (-1, -1): unreadable
@@ -165,8 +163,11 @@ def decode_ground_truth(data: bytes, shape: tuple[int, int]) -> np.ndarray:
                 f"{shape[1]}x{shape[0]}: send the left view's ground truth at full size",
             )
         try:
-            values = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-        except cv2.error:
+            if is_pfm(data):  # the header scale is the byte order only, not a factor
+                values = read_pfm(data, name)
+            else:
+                values = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except (cv2.error, ImageError):
             values = None
     if values is None or not isinstance(values, np.ndarray) or values.ndim not in (2, 3):
         raise UploadError(

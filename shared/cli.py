@@ -42,10 +42,12 @@ def cmd_match(args: argparse.Namespace) -> int:
     unsupported output suffix is a ``CommandError``."""
     from shared.bundle_plan import bundle_width_setting
     from shared.cli_options import CommandError, config_from_args
-    from shared.images import load_pair, preview_png, save_disparity
+    from shared.images import PNG_MAX_DISPARITY as PNG_MAX
+    from shared.images import load_pair, preview_png, save_maps
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar
+    from shared.provenance import provenance
     from shared.solvers import get_solver
 
     config = config_from_args(args)
@@ -56,40 +58,193 @@ def cmd_match(args: argparse.Namespace) -> int:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):
         raise CommandError(f"{args.output}: the output must end in .pfm, .png or .npy")
+    if args.ply and not args.calib:
+        raise CommandError("--ply needs --calib (Middlebury calib.txt or a KITTI calibration)")
+    top = config.max_disparity
+    if Path(args.output).suffix.lower() == ".png" and isinstance(top, int) and top > PNG_MAX:
+        raise CommandError(
+            f"{args.output}: a 16-bit PNG holds disparities up to {PNG_MAX:.3f} px (x256) and the "
+            f"range is {top}; write .pfm or .npy"
+        )
     left, right = load_pair(args.left, args.right)
     bar = LevelBar(leave=False)  # stderr, in every mode: with --json stdout is JSON alone
     try:
         with ProcessPoolLevelSolver(args.processes) as solve_level:
-            result = run_pipeline(left, right, config, solve_level, progress=bar.update)
+            result = run_pipeline(
+                left, right, config, solve_level, progress=bar.update, force=args.force
+            )
     finally:
         bar.close()
-    save_disparity(result.disparity, args.output)
+    args.output = save_result(result.disparity, args.output)
     if args.preview:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
+    summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
+    summary["maps"] = save_maps(result.validity, result.confidence, args.output)
+    if args.ply:
+        from shared.datasets.calibration import read_calibration
+        from shared.depth import ply_bytes, point_cloud
+
+        calibration = read_calibration(args.calib)
+        points, colours = point_cloud(result.disparity, calibration, left, result.validity)
+        Path(args.ply).write_bytes(ply_bytes(points, colours))
+        summary["maps"]["ply"] = str(args.ply)
+    summary["provenance"] = provenance(config)
+    sidecar = Path(f"{args.output}.json")  # what made the map, beside it
+    summary["sidecar"] = str(sidecar)
+    sidecar.write_text(json.dumps(summary, indent=2))
     if args.json:
-        print(
-            json.dumps(
-                {"output": str(args.output), "solver": config.solver, **result.summary()}, indent=2
-            )
-        )
+        print(json.dumps(summary, indent=2))
     else:
         print(f"wrote {args.output} ({result.seconds:.2f} s)")
     return 0
 
 
+def save_result(disparity, output: str) -> str:
+    """Save the map to ``output``; a map a 16-bit PNG cannot hold (the range was estimated)
+    goes to ``output`` with ``.pfm`` instead, with a warning line, rather than being clipped or
+    lost. Returns the path written."""
+    from shared.images import DisparityFormatError, save_disparity
+
+    try:
+        save_disparity(disparity, output)
+    except DisparityFormatError as error:
+        output = str(Path(output).with_suffix(".pfm"))
+        save_disparity(disparity, output)
+        print(f"qhsm: warning: {error}: wrote {output} instead", file=sys.stderr)
+    return output
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
-    """``qhsm eval``: print the RMSE and bad-pixel percentage of the map ``disparity`` against
-    ``ground_truth`` (``scale``: stored value per pixel of disparity; ``border``: ignored frame,
-    pixels; ``mask``) as JSON; 0."""
-    from shared.images import load_disparity, load_disparity_values, load_mask
-    from shared.metrics import evaluate
+    """``qhsm eval``: score the map ``disparity`` against ``ground_truth`` with Middlebury's and
+    KITTI's measures, on every pixel and, where masks exist (``nonocc``, KITTI's object map
+    ``fg``, a recognised scene's non-occluded pixels), per region; the scale and border default
+    to the file's format or scene (:func:`shared.ground_truth.resolve_gt_scale`). Prints a table
+    or (``json``) JSON; ``error_map`` writes |d - gt|; 0."""
+    from shared.ground_truth import evaluate_ground_truth
+    from shared.images import load_disparity, load_mask
+    from shared.metrics import error_map
 
     disparity = load_disparity(args.disparity)
-    gt = load_disparity_values(args.ground_truth)
     mask = load_mask(args.mask) if args.mask else None
-    scores = evaluate(disparity, gt, scale=args.scale, border=args.border, mask=mask)
-    print(json.dumps({"rmse": scores.rmse, "bpp": scores.bpp, "pixels": scores.pixels}))
+    result = evaluate_ground_truth(
+        disparity,
+        args.ground_truth,
+        scale=args.scale,
+        border=args.border,
+        mask=mask,
+        nonocc=load_mask(args.nonocc) if args.nonocc else None,
+        foreground=load_mask(args.fg) if args.fg else None,
+        threshold=args.threshold,
+    )
+    report = result.report()
+    if args.error_map:
+        errors = error_map(disparity, result.gt_values, result.scale, result.border, mask)
+        report["error_map"] = write_error_map(errors, args.error_map, args.threshold)
+    if args.json:
+        print(json.dumps(report))
+        return 0
+    print(f"scale {result.scale:g} ({result.scale_source}), border {result.border}")
+    header = ("region", "pixels", "rmse", "avgerr", "bad-0.5", "bad-1", "bad-2", "bad-4", "D1")
+    print(("{:<8}" + " {:>8}" * 8).format(*header) + f" bad>{args.threshold:g}")
+    for name, figures in result.scores.items():
+        row = (figures.rmse, figures.avgerr, figures.bad_0_5, figures.bad_1, figures.bad_2)
+        cells = [*row, figures.bad_4, figures.d1, figures.bpp]
+        print(f"{name:<8} {figures.pixels:>8}" + "".join(f" {c:>8.3f}" for c in cells))
+    if args.error_map:
+        print(f"wrote {report['error_map']}")
+    return 0
+
+
+def write_error_map(errors, path: str, threshold: float) -> str:
+    """Write |d - gt| to ``path``: ``.png`` colour-mapped (black: not evaluated, brightest at
+    4x the bad-pixel threshold), ``.pfm`` / ``.npy`` the errors in pixels (NaN: not
+    evaluated); returns the path."""
+    from shared.bench.report import error_map_png
+    from shared.cli_options import CommandError
+    from shared.images import save_disparity
+
+    suffix = Path(path).suffix.lower()
+    if suffix == ".png":
+        Path(path).write_bytes(error_map_png(errors, 4 * threshold))
+    elif suffix in (".pfm", ".npy"):
+        save_disparity(errors, path)
+    else:
+        raise CommandError(f"{path}: the error map must end in .png, .pfm or .npy")
+    return str(path)
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    """``qhsm batch``: match every pair below ``folder`` into ``--out`` with the ``MatchConfig``
+    options (:func:`shared.batch.run_batch`); prints the table (or ``json``) and where it is;
+    0 when every pair matched, 1 when some failed (their rows say why)."""
+    from shared.batch import COLUMNS, run_batch
+    from shared.cli_options import config_from_args
+
+    config = config_from_args(args)
+    rows = run_batch(
+        args.folder,
+        args.out,
+        config,
+        range_given=args.max_disparity is not None,
+        force=args.force,
+        processes=args.processes,
+    )
+    if args.json:
+        print(json.dumps(rows, indent=2, default=str))
+    else:
+        for row in rows:
+            figures = "  ".join(f"{key} {row[key]:.3f}" for key in COLUMNS if key in row)
+            state = row["status"] if row["status"] == "ok" else f"failed: {row['reason']}"
+            print(
+                f"{row['name']:<28} range {row.get('max_disparity', '-')} "
+                f"({row['range_source']})  {figures}  {state}"
+            )
+        print(f"wrote {Path(args.out) / 'results.csv'} and results.json")
+    return 0 if all(row["status"] == "ok" for row in rows) else EXIT_FAILED
+
+
+def cmd_depth(args: argparse.Namespace) -> int:
+    """``qhsm depth``: depth (Z = f B / (d + doffs)) and optionally a coloured PLY point cloud
+    from the map ``disparity`` and a calibration file or ``--focal``/``--baseline`` options."""
+    from shared.cli_options import CommandError
+    from shared.datasets.calibration import Calibration, read_calibration
+    from shared.depth import ply_bytes, point_cloud
+    from shared.images import load_disparity, load_mask, load_view, save_disparity
+
+    disparity = load_disparity(args.disparity)
+    height, width = disparity.shape
+    if args.calib:
+        calibration = read_calibration(args.calib)
+    elif args.focal and args.baseline:
+        calibration = Calibration(
+            args.focal,
+            args.cx if args.cx is not None else (width - 1) / 2,
+            args.cy if args.cy is not None else (height - 1) / 2,
+            args.baseline,
+            args.doffs,
+            args.unit,
+        )
+    else:
+        raise CommandError(
+            "give --calib (Middlebury calib.txt, KITTI calib) or --focal and --baseline"
+        )
+    written: dict[str, str | int] = {}
+    if args.output:
+        written["depth"] = str(save_disparity(calibration.depth(disparity), args.output))
+    if args.ply:
+        image = load_view(args.image) if args.image else None
+        if image is not None and image.shape[:2] != disparity.shape:
+            raise CommandError(f"{args.image} is not the size of {args.disparity}")
+        valid = load_mask(args.valid) if args.valid else None
+        points, colours = point_cloud(disparity, calibration, image, valid)
+        Path(args.ply).write_bytes(ply_bytes(points, colours))
+        written["ply"] = str(args.ply)
+        written["points"] = len(points)
+    if not written:
+        raise CommandError("nothing to write: give -o DEPTH.pfm|.npy and/or --ply CLOUD.ply")
+    report = {**written, "unit": calibration.unit, "calibration": calibration.source}
+    print(json.dumps(report) if args.json else f"wrote {', '.join(map(str, written.values()))}")
     return 0
 
 
@@ -194,7 +349,8 @@ def cmd_datasets_list(args: argparse.Namespace) -> int:
         for row in rows:
             print(
                 f"{row['name']:<26} {row['layout']:<24} scale {row['scale']:g}  border "
-                f"{row['border']}  max disparity {row['max_disparity']}  "
+                f"{row['border']}  max disparity {row['max_disparity']} "
+                f"({row['max_disparity_source']})  "
                 f"masks {','.join(row['masks']) or '-'}  non-occluded from "
                 f"{row['non_occlusion']}"
             )
@@ -211,8 +367,10 @@ def build_parser() -> argparse.ArgumentParser:
         model_option,
     )
     from shared.config import Encoding, MatchConfig
+    from shared.provenance import qhsm_version
 
     parser = Parser(prog="qhsm", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"qhsm {qhsm_version()}")
     commands = parser.add_subparsers(dest="command", required=True)
 
     match = commands.add_parser("match", help="match a stereo pair in this process")
@@ -221,6 +379,16 @@ def build_parser() -> argparse.ArgumentParser:
     match.add_argument("-o", "--output", required=True, help="OUT.pfm, OUT.png (x256) or .npy")
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")
+    match.add_argument(
+        "--force",
+        action="store_true",
+        help="run even when the views look swapped, not rectified or identical (default: stop "
+        "with the reason)",
+    )
+    match.add_argument(
+        "--ply", help="also write a coloured point cloud (binary PLY; needs --calib)"
+    )
+    match.add_argument("--calib", help="Middlebury calib.txt or KITTI calibration, for --ply")
     match.add_argument("--json", action="store_true", help="print a JSON summary")
     add_processes_option(match)
     match.set_defaults(handler=cmd_match)
@@ -231,12 +399,61 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--scale",
         type=float,
-        required=True,
-        help="stored ground-truth value per pixel of disparity",
+        help="stored ground-truth value per pixel of disparity (default: from the format, PFM "
+        "1, 16-bit PNG 256, or the scene folder's protocol; a warning when the given "
+        "one contradicts them)",
     )
-    evaluate.add_argument("--border", type=int, default=0, help="ignored frame, pixels")
+    evaluate.add_argument(
+        "--border", type=int, help="ignored frame, pixels (default: the scene's, else 0)"
+    )
     evaluate.add_argument("--mask", help="evaluate only where this mask is non-zero")
+    evaluate.add_argument(
+        "--threshold", type=float, default=1.0, help="bpp: error above which a pixel is bad, px"
+    )
+    evaluate.add_argument(
+        "--nonocc",
+        help="non-occluded pixels' mask (non-zero; default: a recognised scene's mask or its "
+        "ground truth's left-right check)",
+    )
+    evaluate.add_argument(
+        "--fg", help="foreground mask (KITTI's obj_map: non-zero = object): D1-bg and D1-fg"
+    )
+    evaluate.add_argument("--error-map", help="write |d - gt| here: .png (colours), .pfm or .npy")
+    add_json_option(evaluate, "the scores")
     evaluate.set_defaults(handler=cmd_eval)
+
+    batch = commands.add_parser(
+        "batch", help="match every pair below a folder (scene folders or KITTI) into a table"
+    )
+    batch.add_argument(
+        "folder", help="folder of scene folders (Middlebury layouts, ours) or KITTI's training/"
+    )
+    batch.add_argument("--out", default="out/batch", help="output folder (maps, results.csv/json)")
+    add_match_options(batch)
+    batch.add_argument(
+        "--force", action="store_true", help="match pairs whose views fail their check too"
+    )
+    add_json_option(batch, "the table")
+    add_processes_option(batch)
+    batch.set_defaults(handler=cmd_batch)
+
+    depth = commands.add_parser(
+        "depth", help="depth map and coloured PLY point cloud from a disparity map"
+    )
+    depth.add_argument("disparity", help="disparity map (.pfm, .png x256, .npy)")
+    depth.add_argument("-o", "--output", help="write the depth here (.pfm or .npy)")
+    depth.add_argument("--ply", help="write a coloured point cloud here (binary PLY)")
+    depth.add_argument("--image", help="the left view: the points' colours")
+    depth.add_argument("--valid", help="only these pixels (e.g. qhsm match's d.valid.png)")
+    depth.add_argument("--calib", help="Middlebury calib.txt or KITTI calibration file")
+    depth.add_argument("--focal", type=float, help="focal length, px (without --calib)")
+    depth.add_argument("--baseline", type=float, help="baseline, in --unit (without --calib)")
+    depth.add_argument("--doffs", type=float, default=0.0, help="cx(right) - cx(left), px")
+    depth.add_argument("--cx", type=float, help="principal point x, px (default: the centre)")
+    depth.add_argument("--cy", type=float, help="principal point y, px (default: the centre)")
+    depth.add_argument("--unit", default="mm", help="the baseline's unit (depth's)")
+    add_json_option(depth, "what was written")
+    depth.set_defaults(handler=cmd_depth)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
     add_json_option(solvers, "the list")
@@ -349,8 +566,10 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     """Warnings for the user (:class:`shared.disparity_range.ViewsWarning`) as one line, the
     rest as Python shows them."""
     from shared.disparity_range import ViewsWarning
+    from shared.ground_truth import ScaleWarning
+    from shared.pyramid import RangeWarning
 
-    if issubclass(category, ViewsWarning):
+    if issubclass(category, (ViewsWarning, ScaleWarning, RangeWarning)):
         print(f"qhsm: warning: {message}", file=file or sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)

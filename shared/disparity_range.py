@@ -55,6 +55,14 @@ class ViewsWarning(UserWarning):
     """The views do not look like a rectified pair with the left view first."""
 
 
+class ViewsRefusedError(ValueError):
+    """A run stopped because its views failed the check (the message is the check's warning);
+    ``qhsm match --force`` / ``qhsm.match(force=True)`` run anyway."""
+
+    def __str__(self) -> str:
+        return f"{self.args[0]}; stopped before the run (--force to run anyway)"
+
+
 @dataclass(frozen=True)
 class RangeEstimate:
     """The chosen maximum disparity (full-resolution px) and how it was found; also the job

@@ -189,3 +189,31 @@ def subpixel(disparity: np.ndarray, volume: np.ndarray) -> np.ndarray:
     usable = inner & (curvature > 1e-6)
     offset = np.where(usable, (below - above) / (2.0 * np.where(usable, curvature, 1.0)), 0.0)
     return (d + np.clip(offset, -0.5, 0.5)).astype(np.float32)
+
+
+def cost_confidence(volume: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """How clearly the cost volume prefers each pixel's disparity over every distinct one, in
+    [0, 1]: (c_alt - c_d) / c_alt, c_d the cost at the rounded disparity and c_alt the least
+    cost more than 1 px away (a peak-ratio measure: 0 where another disparity is as cheap,
+    1 where the chosen one costs nothing and every other something).
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        Costs (D + 1, h, w), lower is better, non-negative.
+    disparity : numpy.ndarray
+        The map (h, w), px.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) float32.
+    """
+    top = volume.shape[0] - 1
+    chosen = np.clip(np.rint(disparity), 0, top).astype(np.intp)[None]
+    own = np.take_along_axis(volume, chosen, axis=0)[0]
+    labels = np.arange(top + 1, dtype=np.intp)[:, None, None]
+    others = np.where(np.abs(labels - chosen) > 1, volume, np.inf).min(axis=0)
+    margin = np.where(np.isfinite(others), others - own, 0.0)
+    confidence = np.divide(margin, others, out=np.zeros_like(margin), where=others > 0)
+    return np.clip(confidence, 0.0, 1.0).astype(np.float32)

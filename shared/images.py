@@ -3,11 +3,13 @@
 Views are float32 in [0, 1] whatever their bit depth (8/16-bit PNG, PPM/PGM, JPEG, float PFM),
 gray (h, w) or colour (h, w, 3) in OpenCV's BGR order; :func:`to_gray` gives Rec. 709 luma.
 Disparity maps are written as Middlebury PFM (float32), 16-bit PNG
-(disparity x 256, the KITTI convention) or ``.npy``.
+(disparity x 256, the KITTI convention: 0 only for invalid pixels, above 255.996 px refused) or
+``.npy``.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -18,10 +20,20 @@ REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 #: 16-bit PNG disparity maps store disparity x this factor.
 PNG_DISPARITY_SCALE = 256.0
 DISPARITY_SUFFIXES = (".pfm", ".png", ".npy")
+#: A PFM header: "PF" (colour) or "Pf" (gray), width, height, scale, then one whitespace byte.
+PFM_HEADER = re.compile(rb"^(P[Ff])\s+(\d+)\s+(\d+)\s+([-+]?[0-9.]+(?:[eE][-+]?\d+)?)\s")
+
+
+#: The largest disparity a 16-bit PNG holds (65535 / 256 px).
+PNG_MAX_DISPARITY = 65535 / PNG_DISPARITY_SCALE
 
 
 class ImageError(ValueError):
     """An input image cannot be used; the message names the file and the problem."""
+
+
+class DisparityFormatError(ValueError):
+    """A disparity map the requested format cannot hold (a 16-bit PNG above 255.996 px)."""
 
 
 def decode_image(data: bytes, name: str) -> np.ndarray:
@@ -49,12 +61,55 @@ def decode_image(data: bytes, name: str) -> np.ndarray:
     """
     if not data:
         raise ImageError(f"{name}: the file is empty")
+    if is_pfm(data):
+        return to_unit_range(read_pfm(data, name), name)
     raw = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise ImageError(
             f"{name}: not a readable image (supported: PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)"
         )
     return to_unit_range(raw, name)
+
+
+def is_pfm(data: bytes) -> bool:
+    """Whether ``data`` starts like a PFM file (``PF`` or ``Pf`` and a newline or space)."""
+    return data[:2] in (b"PF", b"Pf") and data[2:3].isspace()
+
+
+def read_pfm(data: bytes, name: str = "PFM") -> np.ndarray:
+    """The values of a PFM file exactly as stored: (h, w) or (h, w, 3) BGR float32, top row first.
+
+    The header's scale says the byte order by its sign (negative: little-endian) and nothing
+    else: its magnitude is ignored, as Middlebury's SDK reads it. OpenCV divides the values by
+    it instead, so a Middlebury 2014 ground truth with scale -0.003922 would be 255x too large.
+
+    Raises
+    ------
+    ImageError
+        If the header is not PFM's or the file is shorter than the header says.
+    """
+    header = PFM_HEADER.match(data[:256])
+    if header is None:
+        raise ImageError(f"{name}: not a PFM file (its header is not 'Pf|PF width height scale')")
+    kind, width, height, scale = header.groups()
+    channels = 3 if kind == b"PF" else 1
+    columns, rows = int(width), int(height)
+    try:
+        order = "<" if float(scale) < 0 else ">"
+    except ValueError:
+        raise ImageError(f"{name}: PFM scale {scale!r} is not a number") from None
+    count = columns * rows * channels
+    body = data[header.end() :]
+    if columns == 0 or rows == 0 or len(body) < 4 * count:
+        raise ImageError(
+            f"{name}: the PFM header announces {columns}x{rows}x{channels} floats but the file "
+            f"holds {len(body) // 4}"
+        )
+    values = np.frombuffer(body, dtype=f"{order}f4", count=count).astype(np.float32)
+    image = values.reshape(rows, columns, channels)[::-1]  # stored bottom row first
+    if channels == 1:
+        return np.ascontiguousarray(image[:, :, 0])
+    return np.ascontiguousarray(image[:, :, ::-1])  # RGB as stored, BGR as OpenCV gives
 
 
 def load_view(path: str | Path) -> np.ndarray:
@@ -196,7 +251,8 @@ def load_mask(path: str | Path) -> np.ndarray:
 def load_disparity_values(path: str | Path) -> np.ndarray:
     """Read raw disparity/ground-truth values as float32 without rescaling (scale applied later).
 
-    ``.npy`` and ``.pfm`` carry real disparities; integer images carry their stored values.
+    ``.npy`` and ``.pfm`` carry real disparities (a PFM's header scale is its byte order only,
+    :func:`read_pfm`); integer images carry their stored values.
 
     Parameters
     ----------
@@ -216,13 +272,37 @@ def load_disparity_values(path: str | Path) -> np.ndarray:
     path = Path(path)
     if path.suffix.lower() == ".npy":
         return np.load(path).astype(np.float32)
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    raw: np.ndarray | None
+    if path.suffix.lower() == ".pfm" and path.is_file():
+        raw = read_pfm(path.read_bytes(), str(path))
+    else:
+        raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise ImageError(f"{path}: not a readable disparity image")
     if raw.ndim == 3:
         raw = raw[:, :, 0]
     values = raw.astype(np.float32)
     return np.where(np.isfinite(values), values, 0.0).astype(np.float32)
+
+
+def png_disparity(disparity: np.ndarray) -> np.ndarray:
+    """KITTI's 16-bit PNG values of a disparity map: round(d x 256), 0 only where the pixel is
+    invalid (not finite or negative), so a valid 0 px is written as 1 (1/256 px).
+
+    Raises
+    ------
+    DisparityFormatError
+        If a disparity exceeds :data:`PNG_MAX_DISPARITY` (never clipped silently).
+    """
+    valid = np.isfinite(disparity) & (disparity >= 0)
+    top = float(disparity[valid].max()) if valid.any() else 0.0
+    if top > PNG_MAX_DISPARITY + 0.5 / PNG_DISPARITY_SCALE:
+        raise DisparityFormatError(
+            f"the disparity reaches {top:.2f} px, above the {PNG_MAX_DISPARITY:.3f} px a 16-bit "
+            "PNG holds (x256, KITTI's convention); write .pfm or .npy instead"
+        )
+    scaled = np.rint(np.where(valid, disparity, 0.0) * PNG_DISPARITY_SCALE)
+    return np.where(valid, np.clip(scaled, 1, 65535), 0).astype(np.uint16)
 
 
 def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
@@ -244,14 +324,15 @@ def disparity_bytes(disparity: np.ndarray, fmt: str) -> bytes:
     ------
     ValueError
         If the format is unknown.
+    DisparityFormatError
+        If the map does not fit a 16-bit PNG (:func:`png_disparity`).
     """
     fmt = fmt.lower().lstrip(".")
     disparity = np.asarray(disparity, dtype=np.float32)
     if fmt == "pfm":
         ok, buf = cv2.imencode(".pfm", disparity)
     elif fmt == "png":
-        scaled = np.clip(np.rint(disparity * PNG_DISPARITY_SCALE), 0, 65535).astype(np.uint16)
-        ok, buf = cv2.imencode(".png", scaled)
+        ok, buf = cv2.imencode(".png", png_disparity(disparity))
     elif fmt == "npy":
         import io
 
@@ -292,6 +373,22 @@ def save_disparity(disparity: np.ndarray, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(disparity_bytes(disparity, suffix))
     return path
+
+
+def save_maps(
+    validity: np.ndarray | None, confidence: np.ndarray | None, output: str | Path
+) -> dict[str, str]:
+    """Write a run's maps beside its disparity ``output`` (``d.pfm`` -> ``d.valid.png``: 255
+    where the left-right check confirmed the pixel, 0 where it was filled from the background;
+    ``d.confidence.pfm``: float in [0, 1]); the files written, by name (those the run has)."""
+    stem = Path(output).with_suffix("")
+    written: dict[str, str] = {}
+    if validity is not None:
+        written["validity"] = f"{stem}.valid.png"
+        cv2.imwrite(written["validity"], np.where(validity, 255, 0).astype(np.uint8))
+    if confidence is not None:
+        written["confidence"] = str(save_disparity(confidence, f"{stem}.confidence.pfm"))
+    return written
 
 
 def load_disparity(path: str | Path) -> np.ndarray:

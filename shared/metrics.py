@@ -1,4 +1,6 @@
-"""Middlebury-style evaluation: RMSE and bad-pixel percentage (|d - gt| > 1 px).
+"""Evaluation with the benchmarks' own measures: Middlebury's RMSE, avgerr and bad-0.5/1/2/4
+(percent of pixels with |d - gt| above 0.5, 1, 2, 4 px) and KITTI's D1 (percent of pixels whose
+error exceeds both 3 px and 5 % of the true disparity), plus ``bpp`` at a chosen threshold.
 
 Conventions (see the scenes' PROVENANCE.md): stored ground-truth values are disparity x scale;
 0 means unknown; a frame of ``border`` pixels is ignored; an optional mask (``all``, ``nonocc``,
@@ -13,6 +15,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 BAD_PIXEL_THRESHOLD = 1.0
+#: Middlebury's bad-pixel thresholds (px), the ``bad_*`` fields of :class:`Scores`.
+MIDDLEBURY_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
+#: KITTI's D1: a pixel is an outlier when its error exceeds both (px, share of the truth).
+KITTI_D1 = (3.0, 0.05)
 
 
 class Scores(BaseModel):
@@ -22,8 +28,15 @@ class Scores(BaseModel):
     model_config = ConfigDict(frozen=True)
 
     rmse: float = Field(description="Root-mean-square error, pixels")
-    bpp: float = Field(description="Bad-pixel percentage, |d - gt| > 1 px")
+    bpp: float = Field(description="Bad-pixel percentage, |d - gt| > threshold (1 px default)")
     pixels: int = Field(description="Pixels evaluated")
+    threshold: float = Field(BAD_PIXEL_THRESHOLD, description="bpp's threshold, pixels")
+    avgerr: float | None = Field(None, description="Mean |d - gt|, pixels (Middlebury avgerr)")
+    bad_0_5: float | None = Field(None, description="Percent |d - gt| > 0.5 px (Middlebury)")
+    bad_1: float | None = Field(None, description="Percent |d - gt| > 1 px (Middlebury)")
+    bad_2: float | None = Field(None, description="Percent |d - gt| > 2 px (Middlebury)")
+    bad_4: float | None = Field(None, description="Percent |d - gt| > 4 px (Middlebury)")
+    d1: float | None = Field(None, description="Percent |d - gt| > 3 px and > 5 % of gt (KITTI D1)")
 
     def as_dict(self) -> dict[str, Any]:
         """The scores as a JSON-friendly dict (CLI output, job results, bench tables).
@@ -31,7 +44,8 @@ class Scores(BaseModel):
         Returns
         -------
         dict
-            ``rmse`` (px), ``bpp`` (percent) and ``pixels`` (how many were evaluated).
+            ``rmse`` (px), ``bpp`` (percent), ``pixels`` (how many were evaluated), and the
+            Middlebury and KITTI measures.
         """
         return self.model_dump()
 
@@ -111,14 +125,51 @@ def evaluate(
             f"disparity is {np.shape(disparity)[::-1]} (w x h), ground truth is "
             f"{np.shape(gt_values)[::-1]}"
         )
-    error = _errors(disparity, gt_values, scale, evaluation_mask(gt_values, border, mask))
+    keep = evaluation_mask(gt_values, border, mask)
+    error = _errors(disparity, gt_values, scale, keep)
     if error.size == 0:
         raise ValueError("no pixel left to evaluate (check border, mask and scale)")
+    truth = np.asarray(gt_values)[keep].astype(np.float64) / scale
+
+    def percent(bad: np.ndarray) -> float:
+        return float(100.0 * np.mean(bad))
+
+    pixels, share = KITTI_D1
     return Scores(
         rmse=float(np.sqrt(np.mean(error**2))),
-        bpp=float(100.0 * np.mean(error > threshold)),
+        bpp=percent(error > threshold),
         pixels=error.size,
+        threshold=threshold,
+        avgerr=float(np.mean(error)),
+        **{
+            f"bad_{limit:g}".replace(".", "_"): percent(error > limit)
+            for limit in MIDDLEBURY_THRESHOLDS
+        },
+        d1=percent((error > pixels) & (error > share * np.abs(truth))),
     )
+
+
+def evaluate_regions(
+    disparity: np.ndarray,
+    gt_values: np.ndarray,
+    regions: dict[str, np.ndarray | None],
+    scale: float = 1.0,
+    border: int = 0,
+    threshold: float = BAD_PIXEL_THRESHOLD,
+    mask: np.ndarray | None = None,
+) -> dict[str, Scores]:
+    """:func:`evaluate` on every pixel (``all``, within ``mask`` if given) and on each named
+    region within it (e.g. ``nonocc``, KITTI's ``bg`` / ``fg``); regions that are None or hold
+    no known pixel are left out."""
+    base = np.ones(np.shape(gt_values), bool) if mask is None else mask.astype(bool)
+    scores = {"all": evaluate(disparity, gt_values, scale, border, base, threshold)}
+    for name, region in regions.items():
+        if region is None:
+            continue
+        inside = base & region.astype(bool)
+        if evaluation_mask(gt_values, border, inside).any():
+            scores[name] = evaluate(disparity, gt_values, scale, border, inside, threshold)
+    return scores
 
 
 def _errors(

@@ -17,6 +17,7 @@ fan-in callbacks, so the level logic lives only here.
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from functools import partial
@@ -27,7 +28,7 @@ from shared import filters, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, MatchConfig, PyramidKind
 from shared.data_terms import cost_volume
-from shared.disparity_range import RangeEstimate, resolve_max_disparity
+from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
@@ -81,6 +82,10 @@ class MatchResult:
     levels: list[LevelReport]
     seconds: float
     disparity_range: RangeEstimate
+    #: Where the left-right check confirmed the pixel (None without ``lr_check``).
+    validity: np.ndarray | None = None
+    #: :func:`shared.filters.cost_confidence` of the final map, times the validity.
+    confidence: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The run without its map, JSON-friendly (the CLI's ``--json``, job results).
@@ -147,6 +152,9 @@ def plan_run(
         The levels, coarsest first.
     """
     estimate = resolve_max_disparity(left, right, config.max_disparity)
+    warning = pyramid.range_warning(config, estimate.max_disparity)
+    if warning:
+        warnings.warn(warning, pyramid.RangeWarning, stacklevel=2)
     return estimate, pyramid.plan(config, estimate.max_disparity)
 
 
@@ -271,6 +279,19 @@ def finish(
     views: int,
     left_volume: np.ndarray | None = None,
 ) -> np.ndarray:
+    """:func:`finish_maps`' disparity alone (the service's job result)."""
+    return finish_maps(level_map, left, right, config, last, views, left_volume)[0]
+
+
+def finish_maps(
+    level_map: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    config: MatchConfig,
+    last: LevelPlan,
+    views: int,
+    left_volume: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The full-resolution left disparity from the finest level's map (both views stacked when
     ``views`` is 2) and the pair's :func:`match_views`; ``left_volume`` is the left view's
     cost volume when already at hand (the sub-pixel fit reads it).
@@ -292,10 +313,14 @@ def finish(
 
     Returns
     -------
-    numpy.ndarray
+    disparity : numpy.ndarray
         The left view's disparity (h, w), float32, full-resolution px.
+    validity : numpy.ndarray or None
+        Where the left-right check confirmed the pixel before it was filled (None with one
+        view).
     """
     height = level_map.shape[0] // views
+    valid = None
     disparity = level_map[:height]
     if config.subpixel:  # the cost of every disparity around the label
         if left_volume is None:
@@ -318,7 +343,7 @@ def finish(
             config.bilateral_sigma_color,
             config.bilateral_sigma_space,
         )
-    return disparity.astype(np.float32)
+    return disparity.astype(np.float32), valid
 
 
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:
@@ -367,6 +392,7 @@ def run_pipeline(
     config: MatchConfig,
     solve_level: SolveLevel = solve_level_in_process,
     progress: Progress | None = None,
+    force: bool = True,
 ) -> MatchResult:
     """Match a rectified pair (float32 in [0, 1], gray or BGR); returns the left view's
     disparity in full-resolution pixels.
@@ -384,6 +410,9 @@ def run_pipeline(
     progress : callable, optional
         A :data:`Progress`: called as bundles of a level are solved (as often as
         ``solve_level`` reports) and once more when the level is done.
+    force : bool, optional
+        Run even when the views fail their check (swapped, not rectified, identical); False:
+        :class:`ViewsRefusedError` before any level (``qhsm match`` without ``--force``).
 
     Returns
     -------
@@ -393,6 +422,8 @@ def run_pipeline(
     started = time.perf_counter()
     left, right = match_views(left, right, config)
     estimate, plans = plan_run(left, right, config)
+    if estimate.warning and not force:
+        raise ViewsRefusedError(estimate.warning)
     reports: list[LevelReport] = []
     level_map: np.ndarray | None = None
     volumes: list[np.ndarray] | None = None
@@ -414,15 +445,39 @@ def run_pipeline(
         if progress is not None:
             progress(plan.index + 1, len(plans), solution.bundles, solution.bundles)
     assert level_map is not None and inputs is not None  # plan() gives at least one level
-    disparity = finish(
-        level_map, left, right, config, plans[-1], inputs.views, volumes[0] if volumes else None
+    left_volume = volumes[0] if volumes else None
+    disparity, validity = finish_maps(
+        level_map, left, right, config, plans[-1], inputs.views, left_volume
     )
     return MatchResult(
         disparity=disparity,
         levels=reports,
         seconds=time.perf_counter() - started,
         disparity_range=estimate,
+        validity=validity,
+        confidence=confidence_map(disparity, validity, left, right, config, plans[-1], left_volume),
     )
+
+
+def confidence_map(
+    disparity: np.ndarray,
+    validity: np.ndarray | None,
+    left: np.ndarray,
+    right: np.ndarray,
+    config: MatchConfig,
+    last: LevelPlan,
+    left_volume: np.ndarray | None,
+) -> np.ndarray | None:
+    """The final map's :func:`shared.filters.cost_confidence` under the run's data term, 0
+    where the left-right check failed; None when the full cost volume would exceed
+    :data:`VOLUME_CACHE_BYTES` and is not already at hand."""
+    height, width = disparity.shape
+    if left_volume is None or left_volume.shape[1:] != (height, width):
+        if (last.max_disparity + 1) * height * width * 4 > VOLUME_CACHE_BYTES:
+            return None
+        left_volume = cost_volume(config.data_term, left, right, last.max_disparity, 0, height)
+    confidence = filters.cost_confidence(left_volume, disparity)
+    return confidence if validity is None else np.where(validity, confidence, 0.0)
 
 
 def _cached_volumes(inputs: LevelInputs, config: MatchConfig) -> list[np.ndarray] | None:

@@ -105,7 +105,9 @@ def resolve_range(
         warnings.simplefilter("ignore", ViewsWarning)
         estimate = resolve_max_disparity(left, right, record.config.max_disparity)
     levels = len(pyramid.plan(record.config, estimate.max_disparity))
-    updated, _ = store.apply(record.id, JobRecord.with_range, estimate, levels)
+    pyramid_note = pyramid.range_warning(record.config, estimate.max_disparity)
+    notes = (pyramid_note,) if pyramid_note else ()
+    updated, _ = store.apply(record.id, JobRecord.with_range, estimate, levels, notes)
     if updated is None or updated.state is not JobState.RUNNING:
         return None
     return updated

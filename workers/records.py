@@ -148,6 +148,8 @@ class JobRecord(BaseModel):
     levels: list[LevelRecord] = Field(default_factory=list)  # the levels assembled so far
     metrics: dict[str, float | None] | None = None
     error: str | None = None
+    #: The qhsm version that accepted the job (None: a record from before versions were kept)
+    version: str | None = None
 
     @field_validator("metrics")
     @classmethod
@@ -190,12 +192,16 @@ class JobRecord(BaseModel):
         """A queued job begins."""
         return self.moved(JobState.RUNNING, at)
 
-    def with_range(self, estimate: RangeEstimate, levels_total: int) -> JobRecord | None:
+    def with_range(
+        self, estimate: RangeEstimate, levels_total: int, also: tuple[str, ...] = ()
+    ) -> JobRecord | None:
         """The running job's disparity range, the levels it makes, and the views' warning
-        first among the warnings; None once a range is recorded."""
+        (then ``also``: a range the preset's pyramid does not serve) first among the warnings;
+        None once a range is recorded."""
         if self.state is not JobState.RUNNING or self.disparity_range is not None:
             return None
         notes = [estimate.warning] if estimate.warning else []
+        notes += also
         return self.model_copy(
             update={
                 "disparity_range": estimate,

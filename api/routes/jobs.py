@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
@@ -19,12 +20,13 @@ from api.deps import (
     ServicesDep,
     UsersDep,
 )
+from api.errors import Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import MAX_LABEL
 from api.users import UserStore
-from shared.images import disparity_bytes, preview_png
+from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
 from workers.quota import LOCAL_USER
 from workers.records import GroundTruth, JobRecord
@@ -43,6 +45,8 @@ GT_SCALE_RANGE = (1e-3, 1e6)
 MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
+
+
 def links(job_id: str) -> Links:
     base = f"/v1/jobs/{job_id}"
     return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")
@@ -75,6 +79,12 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         ground_truth=record.ground_truth,
         config=record.config,
         disparity_range=record.disparity_range,
+        version=record.version,
+        expires_at=(
+            record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
+            if record.finished_at
+            else None
+        ),
     )
 
 
@@ -171,7 +181,12 @@ def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Us
 
 @router.get(
     "/{job_id}/disparity",
-    responses={**NOT_FOUND, 409: {"description": "Not finished"}, 200: {"content": {}}},
+    responses={
+        **NOT_FOUND,
+        409: {"description": "Not finished"},
+        422: {"description": "PNG asked for a map above 255.996 px"},
+        200: {"content": {}},
+    },
     response_class=Response,
 )
 def get_disparity(
@@ -182,8 +197,12 @@ def get_disparity(
 ):
     """Left-view disparity at full resolution: PFM (float32), 16-bit PNG (x256) or .npy."""
     _, disparity = finished_result(job_id, svc, principal)
+    try:
+        data = disparity_bytes(disparity, format)
+    except DisparityFormatError as error:
+        raise ServiceError(Refusal.INVALID, str(error)) from None
     return Response(
-        disparity_bytes(disparity, format),
+        data,
         media_type=DISPARITY_MEDIA[format],
         headers={"Content-Disposition": f'attachment; filename="{job_id}.{format}"'},
     )

@@ -51,9 +51,15 @@ export function metricsBlock(job) {
   // fixed decimals: an RMSE of 1.002 px must not read "1 px"
   const metric = (value, name) => el("div", { class: "metric" },
     el("span", { class: "metric-value" }, value), el("span", { class: "metric-name" }, name));
+  // Middlebury's and KITTI's measures (null for jobs from before they were kept)
+  const measure = (key, name, unit, digits) => (job.metrics[key] == null ? null
+    : metric(`${job.metrics[key].toFixed(digits)} ${unit}`, name));
   return el("div", { class: "metrics", "aria-label": "metrics" },
     metric(`${job.metrics.rmse.toFixed(3)} px`, "RMSE"),
     metric(`${job.metrics.bpp.toFixed(2)} %`, "bad pixels (> 1 px)"),
+    measure("avgerr", "avgerr", "px", 3),
+    measure("bad_2", "bad-2 (> 2 px)", "%", 2),
+    measure("d1", "KITTI D1 (> 3 px and > 5 %)", "%", 2),
     metric(String(job.metrics.pixels), "pixels evaluated"));
 }
 
@@ -135,6 +141,8 @@ export async function showJob(id) {
     ["finished", job.finished_at ? new Date(job.finished_at).toLocaleString() : "—"],
     ["duration", duration(jobDuration(job))]];
   if (job.qpu_seconds !== null && job.qpu_seconds !== undefined) facts.push(["QPU time charged", seconds(job.qpu_seconds)]);
+  if (job.expires_at) facts.push(["deleted on", new Date(job.expires_at).toLocaleString()]);
+  if (job.version) facts.push(["qhsm version", job.version]);
   const parts = [
     el("div", { class: "title-row" },
       el("h1", {}, job.label || `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),

@@ -23,9 +23,12 @@ ERROR_MAP_MAX = 4.0
 
 TABLE_HEADER = (
     "| scene | variant | RMSE | BPP % | RMSE nonocc | BPP nonocc % | BPP disc % | wall s "
-    "| paper RMSE | paper BPP % | note |\n"
-    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+    "| paper RMSE | paper BPP % | avgerr | bad-0.5 % | bad-2 % | bad-4 % | D1 % "
+    "| bad-2 nonocc % | note |\n"
+    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
 )
+#: The measures after the paper's columns (``Scores`` fields), all pixels.
+EXTRA_COLUMNS = ("avgerr", "bad_0_5", "bad_2", "bad_4", "d1")
 
 
 def fmt(value: float | None, digits: int = 2) -> str:
@@ -165,7 +168,8 @@ def markdown(results: dict) -> str:
         "ground truth's left-right check). Wall time is the whole run of the scene. "
         "Paper figures: n/a where unknown.",
         "",
-        "| scene | layout | GT scale | border px | max disparity | masks | non-occluded from |",
+        "| scene | layout | GT scale | border px | max disparity (from) | masks "
+        "| non-occluded from |",
         "|---|---|---:|---:|---:|---|---|",
     ]
     for name, protocol in results["scenes"].items():
@@ -176,7 +180,7 @@ def markdown(results: dict) -> str:
                     protocol["layout"],
                     f"{protocol['scale']:g}",
                     str(protocol["border"]),
-                    str(protocol["max_disparity"]),
+                    f"{protocol['max_disparity']} ({protocol.get('max_disparity_source', '?')})",
                     ", ".join(protocol["masks"]) or "none",
                     protocol["non_occlusion"],
                 ]
@@ -220,6 +224,8 @@ def _run_cells(run: dict) -> list[str]:
         fmt(run["seconds"]),
         fmt(paper.get("rmse")),
         fmt(paper.get("bpp")),
+        *(fmt(run.get("metrics", {}).get(key)) for key in EXTRA_COLUMNS),
+        fmt(nonocc.get("bad_2")),
         note.replace("|", "/").replace("\n", " "),
     ]
 
@@ -236,6 +242,8 @@ def _average_cells(average: dict) -> list[str]:
         fmt(masks.get("disc", {}).get("bpp")),
         fmt(average["seconds"]),
         "n/a",
+        "n/a",
+        *(fmt(average.get("metrics", {}).get(key)) for key in EXTRA_COLUMNS),
         "n/a",
         f"over {', '.join(average['scenes'])}",
     ]

@@ -32,6 +32,7 @@ from shared.bench.scoring import Run, averages, score
 from shared.config import AUTO
 from shared.datasets import Scene, find_scenes
 from shared.images import to_gray
+from shared.provenance import qhsm_version
 from shared.solvers import SolverUnavailableError
 
 
@@ -212,6 +213,7 @@ def run_bench(
                 bar.update()
     results = {
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "version": qhsm_version(),  # each run's full config is in its "config"
         "command": list(command) if command is not None else None,
         "dataset": str(options.dataset),
         "url": options.url,

@@ -32,6 +32,8 @@ class Run:
     bpp: float | None = None
     pixels: int | None = None
     masks: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: Every measure of :class:`shared.metrics.Scores` on all pixels (avgerr, bad-x, D1, ...).
+    metrics: dict[str, float] = field(default_factory=dict)
     seconds: float | None = None
     levels: list[dict] = field(default_factory=list)
     info: dict = field(default_factory=dict)
@@ -66,6 +68,7 @@ def score(run: Run, disparity: np.ndarray, scene: Scene, gt: np.ndarray | None) 
         return
     main = evaluate(disparity, gt, scale=scene.scale, border=scene.border)
     run.rmse, run.bpp, run.pixels = main.rmse, main.bpp, main.pixels
+    run.metrics = main.as_dict()
     masks = {name: scene.mask(name) for name in scene.masks}
     non_occluded = scene.non_occluded(gt)  # the mask, else the ground truth's left-right check
     if non_occluded is not None:
@@ -74,6 +77,10 @@ def score(run: Run, disparity: np.ndarray, scene: Scene, gt: np.ndarray | None) 
         run.masks[name] = evaluate(
             disparity, gt, scale=scene.scale, border=scene.border, mask=mask
         ).as_dict()
+
+
+#: The measures averaged per variant beside RMSE and BPP (their fields in ``Scores``).
+AVERAGED = ("avgerr", "bad_0_5", "bad_1", "bad_2", "bad_4", "d1")
 
 
 def averages(runs: list[Run]) -> list[dict]:
@@ -87,8 +94,9 @@ def averages(runs: list[Run]) -> list[dict]:
     Returns
     -------
     list of dict
-        Per variant that ran somewhere: experiment, variant, scenes, mean RMSE, BPP, wall time
-        and per-mask RMSE/BPP (masks every such scene has), in run order.
+        Per variant that ran somewhere: experiment, variant, scenes, mean RMSE, BPP, wall time,
+        the other measures (``metrics``: avgerr, bad-x, D1) and per-mask RMSE/BPP (masks every
+        such scene has), in run order.
     """
     table: list[dict] = []
     keys = list(dict.fromkeys((run.experiment, run.variant) for run in runs))
@@ -111,6 +119,11 @@ def averages(runs: list[Run]) -> list[dict]:
                 "rmse": _mean(r.rmse for r in done),
                 "bpp": _mean(r.bpp for r in done),
                 "seconds": _mean(r.seconds for r in done),
+                "metrics": {
+                    key: _mean(r.metrics[key] for r in done)
+                    for key in AVERAGED
+                    if all(r.metrics.get(key) is not None for r in done)
+                },
                 "masks": {
                     name: {
                         "rmse": _mean(r.masks[name]["rmse"] for r in done),

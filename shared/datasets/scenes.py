@@ -28,6 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from shared.datasets.calibration import CalibrationError, read_calibration, scene_calibration
 from shared.datasets.protocols import (
     DEFAULT_MAX_DISPARITY,
     GT_CONSISTENCY_TOLERANCE,
@@ -43,6 +44,14 @@ from shared.datasets.protocols import (
 )
 from shared.filters import left_right_check
 from shared.images import ImageError, load_disparity_values, load_pair
+
+#: The range source of a scene whose range nothing states but its ground truth.
+GROUND_TRUTH_RANGE = "the ground truth's maximum"
+#: ... and of one with neither.
+DEFAULT_RANGE = (
+    f"default: {DEFAULT_MAX_DISPARITY} px assumed (no protocol.json, calib.txt or ground truth; "
+    "give the range, or estimate it with auto)"
+)
 
 
 @dataclass
@@ -63,10 +72,21 @@ class Scene:
     #: The v2 evaluation masks found, by name (``all``, ``nonocc``, ``disc``).
     masks: dict[str, Path] = field(default_factory=dict)
     max_disparity: int = DEFAULT_MAX_DISPARITY
+    #: Where ``max_disparity`` comes from (given, protocol.json, calib.txt, known scene, ground
+    #: truth, or the stated default): never a silent guess.
+    max_disparity_source: str = "default"
+    #: The scene's calibration file (Middlebury calib.txt), if any.
+    calibration: Path | None = None
     #: The :class:`Layout` name the files were recognised by.
     layout: str = "shared"
     #: The dataset folder the scene is in (its parent folder's name, lower case).
     dataset: str = ""
+
+    @property
+    def range_is_stated(self) -> bool:
+        """Whether the range was stated (given, protocol.json, calib.txt, a known scene) rather
+        than taken from the ground truth or the default: what a matcher may be told."""
+        return self.max_disparity_source not in (GROUND_TRUTH_RANGE, DEFAULT_RANGE)
 
     @property
     def qualified_name(self) -> str:
@@ -187,7 +207,15 @@ class Scene:
             ``non_occlusion`` and the ``masks`` found (for results files and ``qhsm datasets
             list``).
         """
-        fields = ("dataset", "layout", "scale", "border", "max_disparity", "non_occlusion")
+        fields = (
+            "dataset",
+            "layout",
+            "scale",
+            "border",
+            "max_disparity",
+            "max_disparity_source",
+            "non_occlusion",
+        )
         return {**{key: getattr(self, key) for key in fields}, "masks": sorted(self.masks)}
 
 
@@ -279,7 +307,8 @@ def load_scene(
         found = _first(folder, files)
         if found is not None:
             masks[key] = found
-    return Scene(
+    calibration = scene_calibration(folder)
+    scene = Scene(
         name=name,
         left=left,
         right=right,
@@ -292,14 +321,34 @@ def load_scene(
         ),
         border=int(first_given(protocol["border"], known_border)),
         masks=masks,
-        max_disparity=int(
-            first_given(
-                protocol["max_disparity"], KNOWN_MAX_DISPARITY.get(name, DEFAULT_MAX_DISPARITY)
-            )
-        ),
+        calibration=calibration,
         layout=layout.name,
         dataset=dataset,
     )
+    given_range = (
+        (max_disparity, "given"),
+        (own.get("max_disparity"), "the scene's protocol.json"),
+        (shared.get("max_disparity"), "the dataset's protocol.json"),
+        (_calibrated_range(calibration), f"{calibration} (ndisp)" if calibration else ""),
+        (KNOWN_MAX_DISPARITY.get(name), "the known scene's search range"),
+    )
+    top, source = next(((v, s) for v, s in given_range if v is not None), (None, ""))
+    if top is None and gt is not None:
+        top, source = max(1, scene.ground_truth_range()), GROUND_TRUTH_RANGE
+    if top is None:
+        top, source = DEFAULT_MAX_DISPARITY, DEFAULT_RANGE
+    scene.max_disparity, scene.max_disparity_source = int(top), source
+    return scene
+
+
+def _calibrated_range(calibration: Path | None) -> int | None:
+    """Middlebury's ndisp of a calib.txt (None without one or when unreadable)."""
+    if calibration is None:
+        return None
+    try:
+        return read_calibration(calibration).ndisp
+    except CalibrationError:
+        return None
 
 
 def _is_scene(folder: Path) -> bool:

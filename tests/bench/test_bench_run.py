@@ -11,7 +11,7 @@ import pytest
 
 from shared import bench
 from shared.bench import BenchOptions, RunOutput, parse_solver_params, run_bench, scene_runners
-from shared.bench.report import fmt
+from shared.bench.report import EXTRA_COLUMNS, fmt
 from shared.cli import main
 from shared.pipeline import run_pipeline
 
@@ -56,6 +56,7 @@ def test_bench_runs_every_experiment_on_every_scene(bench_result):
         "scale": 16.0,
         "border": 2,
         "max_disparity": 8,
+        "max_disparity_source": "the scene's protocol.json",  # said, not assumed
         "non_occlusion": "mask",
         "masks": ["all", "disc", "nonocc"],
     }
@@ -125,6 +126,8 @@ def test_table_and_json_carry_every_figure(bench_result):
             fmt(run["masks"].get("disc", {}).get("bpp")),
             fmt(run["seconds"]),
         ]
+        metrics = run["metrics"]
+        assert cells[10:15] == [fmt(metrics.get(key)) for key in EXTRA_COLUMNS]
     for average in results["averages"]:
         ok = [
             r

@@ -6,6 +6,7 @@ import json
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -83,7 +84,8 @@ def test_eval_prints_rmse_and_bpp(pair, tmp_path, capsys):
     out = tmp_path / "d.pfm"
     match(pair, out)
     capsys.readouterr()
-    assert main(["eval", str(out), str(pair / "gt.png"), "--scale", "4", "--border", "2"]) == 0
+    command = ["eval", str(out), str(pair / "gt.png"), "--scale", "4", "--border", "2"]
+    assert main([*command, "--json"]) == 0
     scores = json.loads(capsys.readouterr().out)
     assert set(scores) >= {"rmse", "bpp"} and scores["bpp"] < 15
 
@@ -167,9 +169,17 @@ def test_a_closed_stdout_ends_quietly(tmp_path):
     assert error == ""
 
 
-def test_swapped_views_are_one_warning_line_before_the_run(pair, tmp_path, capsys):
+def test_swapped_views_stop_the_run_unless_forced(pair, tmp_path, capsys):
     left, right, out = str(pair / "left.png"), str(pair / "right.png"), str(tmp_path / "d.pfm")
-    assert main(["match", right, left, "-o", out, "--max-disparity", "16"]) == 0
+    assert main(["match", right, left, "-o", out, "--max-disparity", "16"]) == 1
+    error = capsys.readouterr().err
+    assert "qhsm: the views look swapped" in error and "stopped before the run" in error
+    assert "level 1/3" not in error and not Path(out).exists()
+
+
+def test_swapped_views_forced_are_one_warning_line_before_the_run(pair, tmp_path, capsys):
+    left, right, out = str(pair / "left.png"), str(pair / "right.png"), str(tmp_path / "d.pfm")
+    assert main(["match", right, left, "-o", out, "--max-disparity", "16", "--force"]) == 0
     error = capsys.readouterr().err
     [warning] = [line for line in error.splitlines() if "warning" in line]
     assert warning.startswith("qhsm: warning: the views look swapped: ")

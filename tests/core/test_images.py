@@ -97,3 +97,27 @@ def test_preview_is_a_colour_png():
     )
     assert image.shape == (3, 4, 3)
     assert not np.array_equal(image[0, 0], image[2, 3])
+
+
+def test_png_disparity_never_clips_and_keeps_zero_for_invalid(tmp_path):
+    from shared.images import PNG_MAX_DISPARITY, DisparityFormatError
+
+    disparity = np.array([[0.0, 1.5, PNG_MAX_DISPARITY, np.nan]], np.float32)
+    save_disparity(disparity, tmp_path / "d.png")
+    stored = cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED)
+    assert stored.tolist() == [[1, 384, 65535, 0]]  # a valid 0 px is not KITTI's invalid 0
+    with pytest.raises(DisparityFormatError, match=r"above the 255\.996 px a 16-bit PNG holds"):
+        save_disparity(np.array([[256.5]], np.float32), tmp_path / "e.png")
+    assert not (tmp_path / "e.png").exists()
+
+
+def test_match_output_that_a_png_cannot_hold_goes_to_pfm_with_a_warning(tmp_path, capsys):
+    from shared.cli import main, save_result
+
+    written = save_result(np.full((2, 2), 300.0, np.float32), str(tmp_path / "d.png"))
+    assert written == str(tmp_path / "d.pfm") and (tmp_path / "d.pfm").exists()
+    assert "write .pfm or .npy instead: wrote" in capsys.readouterr().err
+    view = str(tmp_path / "v.png")
+    cv2.imwrite(view, np.zeros((8, 8), np.uint8))
+    assert main(["match", view, view, "-o", str(tmp_path / "o.png"), "--max-disparity", "300"]) == 1
+    assert "range is 300; write .pfm or .npy" in capsys.readouterr().err

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shared.metrics import error_map, evaluate
+from shared.metrics import error_map, evaluate, evaluate_regions
 
 
 def test_rmse_and_bad_pixels_use_the_ground_truth_scale():
@@ -46,3 +46,30 @@ def test_error_map_is_nan_outside_the_evaluated_pixels():
 def test_nothing_to_evaluate_is_an_error():
     with pytest.raises(ValueError, match="no pixel left"):
         evaluate(np.zeros((2, 2)), np.zeros((2, 2)))
+
+
+def test_middlebury_and_kitti_measures():
+    truth = np.array([[10.0, 10.0, 100.0, 100.0, 50.0, 50.0, 20.0, 20.0]])
+    disparity = truth + np.array([[0.4, 0.6, 1.5, 3.5, 4.5, 0.0, -3.5, 0.0]])
+    scores = evaluate(disparity, truth, threshold=3.0)
+    assert scores.bad_0_5 == pytest.approx(100 * 5 / 8)  # 0.6, 1.5, 3.5, 4.5, 3.5
+    assert scores.bad_1 == pytest.approx(100 * 4 / 8)
+    assert scores.bad_2 == pytest.approx(100 * 3 / 8)
+    assert scores.bad_4 == pytest.approx(100 * 1 / 8)
+    # D1: > 3 px and > 5 %: 3.5 of 100 is 3.5 % (not an outlier), 4.5 of 50, 3.5 of 20 are
+    assert scores.d1 == pytest.approx(100 * 2 / 8)
+    assert scores.bpp == pytest.approx(100 * 3 / 8) and scores.threshold == 3.0
+    assert scores.avgerr == pytest.approx((0.4 + 0.6 + 1.5 + 3.5 + 4.5 + 3.5) / 8)
+
+
+def test_regions_are_scored_within_the_mask_and_empty_ones_left_out():
+    truth = np.full((2, 4), 8.0)
+    disparity = truth.copy()
+    disparity[0, 0] = 0.0
+    foreground = np.zeros((2, 4), bool)
+    foreground[0, :2] = True
+    scores = evaluate_regions(
+        disparity, truth, {"fg": foreground, "bg": ~foreground, "none": None, "empty": truth < 0}
+    )
+    assert set(scores) == {"all", "fg", "bg"}
+    assert (scores["fg"].d1, scores["bg"].d1, scores["all"].d1) == (50.0, 0.0, 12.5)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from pydantic import ValidationError
@@ -230,3 +232,25 @@ def test_progress_reports_bundles_from_inside_each_level(scene, solver):
     with ProcessPoolLevelSolver(2) as pool:
         again = run_pipeline(*small, config, pool, progress=lambda *event: pooled.append(event))
     _check_progress(pooled, again)
+
+
+def test_the_paper_preset_warns_beyond_the_range_its_pyramid_serves(scene):
+    from shared.pyramid import RangeWarning, served_range
+
+    assert served_range(MatchConfig(preset=Preset.PAPER)) == 23
+    assert served_range(MatchConfig()) is None  # the bin pyramid serves any range
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RangeWarning)
+        plan_run(scene.left, scene.right, MatchConfig(preset=Preset.PAPER, max_disparity=20))
+    with pytest.warns(RangeWarning, match="exceeds the 23 px the paper preset's image pyramid"):
+        plan_run(scene.left, scene.right, MatchConfig(preset=Preset.PAPER, max_disparity=40))
+
+
+def test_views_that_fail_the_check_stop_the_run_unless_forced(scene):
+    from shared.disparity_range import ViewsRefusedError
+
+    config = MatchConfig(max_disparity=16)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ViewsRefusedError, match=r"swapped.*stopped before the run"):
+            run_pipeline(scene.right, scene.left, config, force=False)

@@ -1,0 +1,125 @@
+"""qhsm's Python API: match a stereo pair, score a map, talk to the service.
+
+>>> import qhsm
+>>> left, right = qhsm.load_pair("left.png", "right.png")   # colour kept, as the CLI reads
+>>> result = qhsm.match(left, right, qhsm.MatchConfig(max_disparity=16))
+>>> qhsm.evaluate(result.disparity, "gt.pfm")["bad_2"]
+
+``match`` runs what ``qhsm match`` runs (the same views, config and solvers, in this process);
+``evaluate`` is ``qhsm eval --json``; ``Client`` (:class:`api.client.Client`, imported on first
+use so that matching needs nothing of the service) submits jobs to ``qhsm serve``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from shared.config import MatchConfig
+from shared.images import load_pair, save_disparity
+from shared.metrics import BAD_PIXEL_THRESHOLD
+from shared.pipeline import MatchResult
+from shared.provenance import provenance, qhsm_version
+
+if TYPE_CHECKING:
+    from api.client import Client
+
+__all__ = ["Client", "MatchConfig", "Result", "evaluate", "load_pair", "match"]
+__version__ = qhsm_version()
+
+PathOrArray = str | Path | np.ndarray
+
+
+@dataclass
+class Result(MatchResult):
+    """A :class:`shared.pipeline.MatchResult` (``disparity``, ``levels``, ``seconds``,
+    ``disparity_range``) with what produced it (``provenance``: version, preset, solver, full
+    config)."""
+
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        """The run without its map, JSON-friendly, as ``qhsm match --json`` prints it."""
+        return {**super().summary(), "provenance": self.provenance}
+
+    def save(self, path: str | Path) -> Path:
+        """Write the map (.pfm, .png x256 or .npy, as ``qhsm match -o``)."""
+        return save_disparity(self.disparity, path)
+
+
+def match(
+    left: PathOrArray,
+    right: PathOrArray,
+    config: MatchConfig | None = None,
+    *,
+    processes: int = 0,
+    force: bool = False,
+    **options: Any,
+) -> Result:
+    """Match a rectified pair in this process.
+
+    ``left`` / ``right``: files (read by :func:`load_pair`) or float32 views in [0, 1], gray or
+    BGR. ``config`` or ``options`` (``MatchConfig`` fields: ``max_disparity=16``,
+    ``solver="sa"``, ``preset="paper"``, ...); the default is ``qhsm match``'s. ``processes``:
+    local processes for QUBO solvers' bundles (0: one per core). Views that fail their check
+    (swapped, not rectified, identical) raise :class:`shared.disparity_range.ViewsRefusedError`
+    with the reason unless ``force``.
+    """
+    from shared.pipeline import run_pipeline
+    from shared.process_pool import ProcessPoolLevelSolver
+
+    if config is None:
+        config = MatchConfig(**options)
+    elif options:
+        config = MatchConfig(**{**config.model_dump(exclude_unset=True), **options})
+    if not isinstance(left, np.ndarray) or not isinstance(right, np.ndarray):
+        left, right = load_pair(left, right)  # type: ignore[arg-type]
+    with ProcessPoolLevelSolver(processes) as solve_level:
+        result = run_pipeline(left, right, config, solve_level, force=force)
+    return Result(**vars(result), provenance=provenance(config))
+
+
+def evaluate(
+    disparity: PathOrArray,
+    ground_truth: PathOrArray,
+    *,
+    scale: float | None = None,
+    border: int | None = None,
+    mask: np.ndarray | None = None,
+    nonocc: np.ndarray | None = None,
+    foreground: np.ndarray | None = None,
+    threshold: float = BAD_PIXEL_THRESHOLD,
+) -> dict[str, Any]:
+    """Score a map against a ground truth: ``qhsm eval --json``'s dict (rmse, avgerr, bad_0_5,
+    bad_1, bad_2, bad_4, d1, bpp at ``threshold``, ``regions``, the scale and its source).
+
+    A ground-truth file's scale comes from its format or scene folder when not given (with a
+    warning when a given one contradicts it); an array holds disparities times ``scale`` (1).
+    """
+    from shared.ground_truth import evaluate_ground_truth
+    from shared.images import load_disparity
+
+    if not isinstance(disparity, np.ndarray):
+        disparity = load_disparity(disparity)
+    return evaluate_ground_truth(
+        disparity,
+        ground_truth,
+        scale=scale,
+        border=border,
+        mask=mask,
+        nonocc=nonocc,
+        foreground=foreground,
+        threshold=threshold,
+    ).report()
+
+
+def __getattr__(name: str) -> Any:
+    """``qhsm.Client``, imported on first use (the service's HTTP client)."""
+    if name == "Client":
+        from api.client import Client
+
+        return Client
+    raise AttributeError(f"module 'qhsm' has no attribute {name!r}")
