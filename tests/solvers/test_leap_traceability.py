@@ -145,3 +145,36 @@ def test_a_refused_token_fails_at_once(name, token, monkeypatch, refusing_sapi, 
         _plan(registry.build(name))
     assert type(caught.value) is SolverUnavailableError  # not transient: never retried
     assert "rejected the API token" in str(caught.value)
+
+
+def test_planning_retries_an_unreachable_endpoint_with_backoff_then_fails_naming_it(
+    token, monkeypatch, no_client_retries
+):
+    """The issue's case: a qpu job whose planning could not reach D-Wave failed at once as an
+    "internal error". The planning task now retries (eagerly here: no waiting) and then fails
+    the job with the endpoint and the cause."""
+    from workers import orchestration, tasks
+
+    endpoint = f"http://127.0.0.1:{_closed_port()}/sapi/v2/"
+    monkeypatch.setenv("DWAVE_API_ENDPOINT", endpoint)
+    attempts: list[int] = []
+
+    def plan(store, job_id, index):
+        attempts.append(index)
+        _plan(registry.build("qpu"))
+
+    failed: list[str] = []
+    monkeypatch.setattr(orchestration, "plan_level", plan)
+    monkeypatch.setattr(tasks, "_fail", lambda job_id, message, *_: failed.append(message))
+    monkeypatch.setattr(tasks, "store", lambda: None)
+    monkeypatch.setattr(tasks, "settings", tasks.settings.model_copy(update={"task_retries": 2}))
+    delays: list[float] = []
+    backoff = orchestration.retry_delay
+    monkeypatch.setattr(
+        orchestration, "retry_delay", lambda s, n: delays.append(backoff(s, n)) or delays[-1]
+    )
+    tasks.plan_level.apply(args=("job", 0))
+    assert len(attempts) == 3 and delays == sorted(delays) and delays[1] == 2 * delays[0]
+    [message] = failed
+    assert f"endpoint {endpoint}" in message and "ConnectionRefusedError" in message
+    assert "still failing after 2 retries" in message and "internal error" not in message
