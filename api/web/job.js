@@ -121,9 +121,9 @@ async function compareChooser(job) {
 function problemsBlock(job) {
   const ids = job.problem_ids || [];
   if (!ids.length) return null;
-  return el("details", { class: "params-box problem-ids" },
+  return el("details", { class: "params-box" },
     el("summary", {}, `D-Wave problems (${ids.length}): ids on Leap`),
-    el("pre", { class: "params", "aria-label": "D-Wave problem ids" }, ids.join("\n")));
+    el("pre", { class: "problem-ids", "aria-label": "D-Wave problem ids" }, ids.join("\n")));
 }
 
 function warningsBlock(job) {
