@@ -1,6 +1,7 @@
-"""What a ``hybrid`` worker reserves for a level (issue 27, item 4): the task's bundles before
-roof duality and tile certificates (``batch_estimate``, what workers reserved before) against the
-level's estimate the job is accepted with (what they reserve now), on Tsukuba shrunk.
+"""What a ``hybrid`` worker reserves for a level (issue 27, item 4): the task's bundles as the
+worker gets them, before roof duality (``batch_estimate``, what workers reserved before: with
+the residual design the tiles the host's settling leaves) against the level's estimate the job
+is accepted with (what they reserve now), on Tsukuba shrunk.
 
     python benchmarks/hybrid_reservation.py 0.125:4 0.17:6 0.25:8
 
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import cv2
 
+from shared import settle
 from shared.config import MatchConfig
 from shared.images import load_pair
 from shared.pipeline import match_views, plan_run, prepare_level
@@ -34,7 +36,11 @@ def row(scale: float, max_disparity: int) -> str:
     accepted = qpu_time.job_seconds(config, left.shape[:2], max_disparity, None, residual)
     _, plans = plan_run(left, right, config)
     inputs = prepare_level(*match_views(left, right, config), config, plans[0])
-    before = qpu_time.batch_estimate(inputs, config, inputs.planned_bundles(config))
+    sent = config
+    if settle.settles(config):  # as the control task does: the tiles the host leaves
+        settle.prepare(inputs, config)
+        sent = settle.tile_config(config)
+    before = qpu_time.batch_estimate(inputs, sent, inputs.planned_bundles(sent))
     now = accepted.levels[0].seconds
     scene = f"{size[0]}x{size[1]}, range {max_disparity}"
     return f"| {scene} | {now:.1f} s | {before:.1f} s ({before / now:.1f}x) | {now:.1f} s |"
