@@ -187,13 +187,14 @@ def check_budget(
     owner: str,
     users: UserStore,
     svc: Services,
-) -> None:
+) -> JobEstimate | None:
     """``QuotaExceededError`` when a metered job's estimate exceeds what is left of its owner's QPU
-    budget."""
+    budget; else the estimate (None: not metered), whose levels the workers reserve."""
     if not is_metered(config.solver):
-        return
+        return None
     estimate = estimate_job(config, left_image, right_image, max_disparity, svc)
     users.ledger.check(owner, estimate.seconds, f"this job ({estimate.bundles} bundles)")
+    return estimate
 
 
 # --- submission -----------------------------------------------------------------------------
@@ -215,8 +216,9 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
     # solver's budget, or else resolved once by the job's first control task
     disparity_range = range_at_submit(left_image, right_image, config)
     top = disparity_range.max_disparity if disparity_range else config.max_disparity
+    estimate = None
     if isinstance(top, int):
-        check_budget(config, left_image, right_image, top, owner, users, svc)
+        estimate = check_budget(config, left_image, right_image, top, owner, users, svc)
     arrays = {"left": left_image, "right": right_image}
     warnings = [disparity_range.warning] if disparity_range and disparity_range.warning else []
     truth = None
@@ -246,6 +248,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         disparity_range=disparity_range.as_dict() if disparity_range else None,
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
         version=qhsm_version(),
+        estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
     )
     dispatch(record, arrays, svc)
     return record

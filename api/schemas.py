@@ -158,6 +158,11 @@ class JobStatus(JobSummary):
     usage: dict[str, float] = Field(
         description="Solver time spent so far, seconds (solver_seconds, qpu_access_time, ...)"
     )
+    problem_ids: list[str] = Field(
+        default_factory=list,
+        description="The ids SAPI gave the job's D-Wave problems (QPU, hybrid), by level: find "
+        "them on Leap, where each is labelled 'qhsm job <id> level <n> bundle <first> #k'",
+    )
     error: str | None = None
     warnings: list[str] = Field(
         default_factory=list,
@@ -297,6 +302,9 @@ class JobUsage(BaseModel):
     id: str
     qpu_seconds: float = Field(description="QPU access time (hybrid: charge time) charged")
     problems: int = Field(description="QPU / hybrid problems sent")
+    problem_ids: list[str] = Field(
+        default_factory=list, description="The ids SAPI gave those problems (find them on Leap)"
+    )
 
 
 class UserUsage(BaseModel):

@@ -40,6 +40,7 @@ from shared.pyramid import LevelPlan
 from shared.settle import settles, tile_config
 from shared.solve import solve_bundles
 from shared.solvers.meters import is_metered
+from shared.solvers.problems import sent_problems, task_label
 from shared.solvers.registry import queue_of
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
@@ -415,20 +416,23 @@ def solve_chunk(
     config = record.config
     if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
         config = tile_config(config)
-    if is_metered(config.solver) and meter is not None:
-        results = solve_metered(
-            meter(),
-            record.owner or LOCAL_USER,
-            job_id,
-            inputs,
-            config,
-            [inputs.as_bundle(tuple(spec)) for spec in row_ranges],
-            still_running=lambda: store.state(job_id) is JobState.RUNNING,
-        )
-        if results is None:
-            return None
-    else:
-        results = solve_bundles(inputs, config, [tuple(spec) for spec in row_ranges])
+    # every D-Wave problem labelled with the task, its id kept (shared.solvers.problems)
+    with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
+        if is_metered(config.solver) and meter is not None:
+            results = solve_metered(
+                meter(),
+                record.owner or LOCAL_USER,
+                job_id,
+                inputs,
+                config,
+                [inputs.as_bundle(tuple(spec)) for spec in row_ranges],
+                still_running=lambda: store.state(job_id) is JobState.RUNNING,
+                level_estimate=record.level_estimate(index),
+            )
+            if results is None:
+                return None
+        else:
+            results = solve_bundles(inputs, config, [tuple(spec) for spec in row_ranges])
     timing: dict[str, float] = {}
     for result in results:
         for key, value in result.timing.items():
@@ -439,6 +443,7 @@ def solve_chunk(
         wall_time=float(sum(result.wall_time for result in results)),
         timing=timing,
         worker=worker,
+        problem_ids=problems.ids,
     )
     store.save_bundles(job_id, index, [encode_bundle(result) for result in results])
     store.record_chunk(job_id, bundle_key(row_ranges[0]), chunk)

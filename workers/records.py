@@ -146,6 +146,9 @@ class JobRecord(BaseModel):
     #: The range the job runs with (given, or estimated when it started)
     disparity_range: RangeEstimate | None = None
     levels: list[LevelRecord] = Field(default_factory=list)  # the levels assembled so far
+    #: A metered job's estimated seconds per level when it was accepted: what its workers
+    #: reserve for the level's bundles (None: not metered, or accepted before this was kept).
+    estimate_seconds: list[float] | None = None
     metrics: dict[str, float | None] | None = None
     error: str | None = None
     #: The qhsm version that accepted the job (None: a record from before versions were kept)
@@ -155,6 +158,12 @@ class JobRecord(BaseModel):
     @classmethod
     def _finite_or_null(cls, value: Any) -> Any:
         return finite_or_null(value)
+
+    def level_estimate(self, index: int) -> float | None:
+        """The accepted estimate of level ``index`` (0-based), seconds; None when not kept."""
+        if self.estimate_seconds is None or index >= len(self.estimate_seconds):
+            return None
+        return self.estimate_seconds[index]
 
     @field_validator("error")
     @classmethod
@@ -285,7 +294,8 @@ def load_record(raw: bytes | str, job_id: str) -> JobRecord | None:
 
 
 class ChunkReport(BaseModel):
-    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it.
+    """One solved task: how many bundles, the solver's summed timing (seconds), who solved it,
+    and the D-Wave problems it sent (their ids, to find them on Leap).
 
     Timing entries that are not finite numbers are dropped (they would poison the job's usage).
     """
@@ -297,6 +307,8 @@ class ChunkReport(BaseModel):
     wall_time: float
     timing: dict[str, float] = Field(default_factory=dict)
     worker: str = ""
+    #: Ids SAPI gave the D-Wave problems the task sent (``shared.solvers.problems``), in order.
+    problem_ids: list[str] = Field(default_factory=list)
 
     @field_validator("timing")
     @classmethod

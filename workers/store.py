@@ -366,6 +366,11 @@ class JobStore(LevelStorage):
                 total[key] = total.get(key, 0.0) + value
         return total
 
+    @staticmethod
+    def problem_ids(chunks: list[ChunkReport]) -> list[str]:
+        """The ids SAPI gave the job's D-Wave problems, level by level."""
+        return [i for chunk in sorted(chunks, key=lambda c: c.level) for i in chunk.problem_ids]
+
     # running solver tasks (what a cancel terminates) ------------------------------------------
 
     def task_started(self, job_id: str, task_id: str) -> None:

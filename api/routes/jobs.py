@@ -74,6 +74,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         progress=progress.model_dump(),
         levels=record.levels,
         usage=svc.store.usage(chunks),
+        problem_ids=svc.store.problem_ids(chunks),
         error=record.error,
         warnings=record.warnings,
         ground_truth=record.ground_truth,

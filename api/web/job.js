@@ -116,6 +116,16 @@ async function compareChooser(job) {
     el("button", { type: "button", class: "small", onclick: () => { location.hash = `#/compare/${job.id}/${select.value}`; } }, "Compare"));
 }
 
+// The ids SAPI gave the job's D-Wave problems: what finds them on Leap (each is labelled
+// "qhsm job <id> level <n> bundle <first> #k" there too).
+function problemsBlock(job) {
+  const ids = job.problem_ids || [];
+  if (!ids.length) return null;
+  return el("details", { class: "params-box" },
+    el("summary", {}, `D-Wave problems (${ids.length}): ids on Leap`),
+    el("pre", { class: "problem-ids", "aria-label": "D-Wave problem ids" }, ids.join("\n")));
+}
+
 function warningsBlock(job) {
   if (!job.warnings?.length) return null;
   return el("div", { class: "card notice warnings", role: "status", "aria-label": "warnings" },
@@ -161,7 +171,7 @@ export async function showJob(id) {
     parts.push(await compareChooser(job));
   }
   parts.push(el("h2", {}, "Levels"), levelsTable(job) ?? el("p", { class: "muted" }, "No level finished yet."));
-  parts.push(el("h2", {}, "Solver usage"), usageList(job.usage));
+  parts.push(el("h2", {}, "Solver usage"), usageList(job.usage), problemsBlock(job));
   parts.push(el("details", { class: "params-box" }, el("summary", {}, "Parameters (JSON)"),
     el("pre", { class: "params" }, JSON.stringify(job.config, null, 2))));
   view.replaceChildren(...parts.filter(Boolean));

@@ -44,6 +44,7 @@ from shared.solvers.embedding_cache import EmbeddingCache, default_cache
 from shared.solvers.meters.qpu import qpu_access_seconds
 from shared.solvers.packing import PackedCalls, copies
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
+from shared.solvers.problems import LabelledSampler
 from shared.solvers.qpu_settings import chain_strength, reverse_anneal
 from shared.solvers.structure_keys import graph_fingerprint
 
@@ -142,7 +143,7 @@ class _EmbeddedQPU(Sampler):
         """The base sampler, built once (DWaveSampler fetches the solver's graph on creation)."""
         with self._lock:
             if self._sampler is None:
-                sampler = self._make_sampler()
+                sampler = self._build_sampler()
                 topology = sampler.properties.get("topology", {})
                 shape = "x".join(map(str, topology.get("shape", [])))
                 self._target = (
@@ -150,6 +151,16 @@ class _EmbeddedQPU(Sampler):
                 )
                 self._sampler = sampler
             return self._sampler
+
+    def _build_sampler(self):
+        """:meth:`_make_sampler`, its errors as ours (planning builds it outside any solve: an
+        unreachable endpoint is then a transient error, a refused token a final one)."""
+        try:
+            return self._make_sampler()
+        except SolverError:
+            raise
+        except Exception as error:
+            raise self.translate(error) from None
 
     def timing_solver(self) -> Any:
         """The cloud solver whose ``problem_timing_data`` the estimates use (``LiveTiming``);
@@ -271,10 +282,14 @@ class _EmbeddedQPU(Sampler):
             )
         if isinstance(error, api.ResourceLimitsExceededError):
             return TransientSolverError(
-                f"{self.name}: D-Wave rate limit reached (HTTP 429); retry later"
+                f"{self.name}: D-Wave rate limit reached (HTTP 429) at "
+                f"{self._scrub(reached(error))}; retry later"
             )
         if isinstance(error, cloud.SolverOfflineError):
-            return TransientSolverError(f"{self.name}: the D-Wave solver is offline; retry later")
+            return TransientSolverError(
+                f"{self.name}: the D-Wave solver is offline ({self._scrub(reached(error))}); "
+                "retry later"
+            )
         if isinstance(
             error,
             api.RequestTimeout
@@ -285,8 +300,9 @@ class _EmbeddedQPU(Sampler):
             | ConnectionError,
         ) or _is_connection_error(error):
             return TransientSolverError(
-                f"{self.name}: D-Wave did not answer in time or the connection failed "
-                f"({detail}); retry later"
+                f"{self.name}: D-Wave did not answer in time, refused, or the connection "
+                f"failed: {self._scrub(reached(error))} ({self._scrub(cause(error))}); "
+                "retry later"
             )
         if isinstance(
             error,
@@ -313,6 +329,41 @@ def _is_connection_error(error: Exception) -> bool:
     return isinstance(error, requests.ConnectionError | requests.Timeout)
 
 
+def _chain(error: BaseException) -> list[BaseException]:
+    """``error`` and the errors it was raised from or during, outermost first."""
+    seen: list[BaseException] = []
+    current: BaseException | None = error
+    while current is not None and current not in seen:
+        seen.append(current)
+        current = current.__cause__ or current.__context__
+    return seen
+
+
+def reached(error: BaseException) -> str:
+    """Which endpoint a failed request was for: its URL (without the query), else the
+    configured ``DWAVE_API_ENDPOINT``, else the region Leap's default endpoint serves."""
+    for link in _chain(error):
+        url = getattr(getattr(link, "request", None), "url", None)
+        if url:
+            return f"endpoint {str(url).split('?')[0]}"
+    settings = get_settings()
+    if settings.dwave_endpoint:
+        return f"endpoint {settings.dwave_endpoint}"
+    from dwave.cloud.config.constants import DEFAULT_REGION
+
+    return f"the Leap endpoint of region {settings.dwave_region or DEFAULT_REGION}"
+
+
+def cause(error: BaseException) -> str:
+    """The innermost reason of a failed request, e.g. ``ConnectionRefusedError: [Errno 111]
+    Connection refused`` (the outer ones only wrap it)."""
+    inner = _chain(error)[-1]
+    reason = getattr(inner, "reason", None)  # urllib3's errors wrap the socket's
+    if isinstance(reason, BaseException):
+        inner = reason
+    return f"{type(inner).__name__}: {inner}"
+
+
 class LeapCloudSolver(_EmbeddedQPU):
     """A sampler of D-Wave's cloud (Leap): the token, solver, region and endpoint come from
     ``Settings`` (``DWAVE_API_TOKEN``, ...); the token is scrubbed from every message."""
@@ -329,8 +380,9 @@ class LeapCloudSolver(_EmbeddedQPU):
         return token.get_secret_value() if token is not None else None
 
     def _connect(self, factory, **options: Any):
-        """A Leap client sampler built with the token, region and endpoint of ``Settings``;
-        the token is scrubbed from the cloud client's loggers before and after."""
+        """A Leap client sampler built with the token, region and endpoint of ``Settings``,
+        labelling its problems and logging their ids (:mod:`shared.solvers.problems`); the
+        token is scrubbed from the cloud client's loggers before and after."""
         settings = get_settings()
         if settings.dwave_api_token is None:
             raise SolverUnavailableError(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
@@ -342,7 +394,7 @@ class LeapCloudSolver(_EmbeddedQPU):
         scrub_cloud_logs(token)
         sampler = factory(token=token, **options)
         scrub_cloud_logs(token)  # loggers of modules the client imported lazily
-        return sampler
+        return LabelledSampler(sampler)
 
 
 class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):

@@ -189,7 +189,7 @@ class LeapHybridSolver(_HybridBatch, LeapCloudSolver):
     def _sample_rest(self, bqm, params: dict[str, Any], initial_states) -> dimod.SampleSet:
         with self._lock:
             if self._sampler is None:
-                self._sampler = self._make_sampler()
+                self._sampler = self._build_sampler()
         self._check_size(bqm)
         sampleset = self._sampler.sample(bqm, **params)
         sampleset.resolve()

@@ -268,3 +268,31 @@ def test_a_metered_jobs_charge_is_listed_and_shown(api, api_settings):
     assert api.get(f"/v1/jobs/{exact}").json()["qpu_seconds"] is None
     for cancelled in (job, exact):
         assert api.delete(f"/v1/jobs/{cancelled}").status_code == 200
+
+
+def test_a_metered_job_keeps_its_estimate_and_shows_its_problems_ids(api, api_settings):
+    """The levels' accepted estimate is on the record (the workers reserve it); the ids SAPI gave
+    the job's problems (chunk reports, as a worker records them, and the ledger) are in the
+    job's status and the usage."""
+    import redis
+
+    from workers.quota import QuotaLedger
+    from workers.records import ChunkReport
+    from workers.store import JobStore
+
+    params = {"solver": "hybrid-sim", "max_disparity": 6}
+    job = post(api, params=params).json()["id"]
+    expected = estimate(api, params=params).json()
+    store = JobStore.from_settings(api_settings)
+    assert store.get(job).estimate_seconds == [level["seconds"] for level in expected["levels"]]
+    owner = api.get("/v1/me").json()["name"]
+    ledger = QuotaLedger(redis.Redis.from_url(api_settings.redis_url), api_settings.key_prefix)
+    ids = ["9f1c-level-2", "0a7e-level-1"]
+    ledger.settle(ledger.reserve(owner, job, 2.0, ttl=60), 1.5, problems=2, problem_ids=ids)
+    for level, problem in ((1, ids[0]), (0, ids[1])):
+        report = ChunkReport(level=level, bundles=1, wall_time=0.1, problem_ids=[problem])
+        store.record_chunk(job, str(level), report)
+    assert api.get(f"/v1/jobs/{job}").json()["problem_ids"] == [ids[1], ids[0]]  # by level
+    [mine] = [u for u in api.get("/v1/usage").json()["users"] if u["user"] == owner]
+    assert [j["problem_ids"] for j in mine["jobs"] if j["id"] == job] == [ids]
+    assert api.delete(f"/v1/jobs/{job}").status_code == 200

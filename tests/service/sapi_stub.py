@@ -247,7 +247,15 @@ class SapiStub:
         }
         with self._lock:
             digest = zlib.crc32(json.dumps(problem["data"], sort_keys=True).encode())
-            self.problems.append({"id": problem_id, "type": kind, "params": params, "data": digest})
+            self.problems.append(
+                {
+                    "id": problem_id,
+                    "type": kind,
+                    "params": params,
+                    "data": digest,
+                    "label": problem.get("label"),
+                }
+            )
             self._answers[problem_id] = message
         return message
 

@@ -88,12 +88,16 @@ def run_job(client, solver: str) -> tuple[dict, np.ndarray]:
     return status, harness.download(client, job_id)
 
 
-def charged(client, job_id: str) -> float:
+def usage_of(client, job_id: str) -> dict:
     [entry] = [
         job for user in client.get("/v1/usage").json()["users"] for job in user["jobs"]
         if job["id"] == job_id
     ]  # fmt: skip
-    return entry["qpu_seconds"]
+    return entry
+
+
+def charged(client, job_id: str) -> float:
+    return usage_of(client, job_id)["qpu_seconds"]
 
 
 def check_job(client, stub: SapiStub, solver: str, expected: np.ndarray) -> None:
@@ -111,6 +115,12 @@ def check_job(client, stub: SapiStub, solver: str, expected: np.ndarray) -> None
         assert len(problems) == 1
     per_problem = (qpu_access_us(READS) if solver == "qpu" else HYBRID_CHARGE_US) * 1e-6
     assert charged(client, status["id"]) == pytest.approx(len(problems) * per_problem)
+    # on Leap each problem is labelled with its task and number; its id is kept with the job
+    label = re.compile(rf"qhsm job {status['id']} level 1 bundle \S+ #\d+")
+    assert all(label.fullmatch(problem["label"] or "") for problem in problems), problems
+    ids = sorted(problem["id"] for problem in problems)
+    kept = usage_of(client, status["id"])["problem_ids"]
+    assert sorted(status["problem_ids"]) == ids == sorted(kept)
     assert SENTINEL not in json.dumps(status)
 
 

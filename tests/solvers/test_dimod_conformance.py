@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import unittest
+import uuid
 from typing import Any
 from unittest import mock
 
@@ -56,11 +57,26 @@ class MockQPU(MockDWaveSampler):
         super().__init__(topology_type="pegasus", topology_shape=[6], parameter_warnings=False)
 
 
+class LabelledMockLeapHybridSolver(MockLeapHybridSolver):
+    """dwave-system's ``MockLeapHybridSolver`` (steepest descent, Leap's properties) with what
+    the real cloud client adds: a ``label`` parameter (kept in :attr:`labels`), and the
+    problem's id and label in the answer's info."""
+
+    def __init__(self) -> None:
+        self.labels: list[str | None] = []
+
+    def sample_bqm(self, sapi_problem_id: Any, time_limit: float, label: str | None = None):
+        self.labels.append(label)
+        future = super().sample_bqm(sapi_problem_id, time_limit)
+        future.sampleset.info.update(problem_id=uuid.uuid4().hex, problem_label=label)
+        return future
+
+
 def _mock_leap_client() -> Any:
-    """``LeapHybridSampler``'s cloud ``Client`` as dwave-system's tests mock it: its solver is
-    dwave-system's ``MockLeapHybridSolver`` (steepest descent, Leap's properties)."""
+    """``LeapHybridSampler``'s cloud ``Client`` as dwave-system's tests mock it, its solver
+    :class:`LabelledMockLeapHybridSolver`."""
     client = mock.MagicMock()
-    client.get_solver.return_value = MockLeapHybridSolver()
+    client.get_solver.return_value = LabelledMockLeapHybridSolver()
     return mock.patch(
         "dwave.system.samplers.leap_hybrid_sampler.Client", **{"from_config.return_value": client}
     )

@@ -134,7 +134,7 @@ def test_admin_cli_round_trip(redis_url, redis_client, prefix, monkeypatch, caps
     assert main(["admin", "usage", "ada", "--json"]) == 0
     [usage] = json.loads(capsys.readouterr().out)
     assert usage["used_seconds"] == 0.5 and usage["remaining_seconds"] == 6.5
-    assert usage["jobs"] == [{"id": "job1", "qpu_seconds": 0.5, "problems": 1}]
+    assert usage["jobs"] == [{"id": "job1", "qpu_seconds": 0.5, "problems": 1, "problem_ids": []}]
     assert main(["admin", "usage"]) == 0
     assert "ada: used 0.500 s of 7 s" in capsys.readouterr().out
     assert main(["admin", "set-quota", "bob", "1"]) == 1

@@ -389,3 +389,28 @@ def test_swapped_views_warn_on_the_job_page(page: Page, server, pair_files):
     warning = page.get_by_label("warnings")
     expect(warning).to_contain_text("the views look swapped")
     expect(warning).to_contain_text("pass the left view first")
+
+
+def test_a_job_lists_the_ids_of_its_d_wave_problems(page: Page, server, pair_files):
+    """What finds a job's problems on Leap: their SAPI ids, as the task reports record them
+    (written here as a QPU worker would), folded away under the solver usage."""
+    import redis
+
+    from shared.config import Settings
+    from workers.embedded_redis import EMBEDDED_URL_FILE
+    from workers.records import ChunkReport
+    from workers.store import JobStore
+
+    sign_in(page, server)
+    job_id = submit_pair(page, pair_files, "exact")
+    url = (server.data_dir / EMBEDDED_URL_FILE).read_text().strip()
+    store = JobStore(redis.Redis.from_url(url), Settings(redis_url=url))
+    ids = ["5f0c9a2e-0d7e-4b47-9e11-7a1c2b3d4e5f", "0b1c2d3e-4f50-6172-8394-a5b6c7d8e9f0"]
+    expect(page.locator(".downloads")).to_be_visible(timeout=RESULT_TIMEOUT)  # it finished
+    report = ChunkReport(level=0, bundles=1, wall_time=0.1, problem_ids=ids)
+    store.record_chunk(job_id, "qpu-task", report)
+    page.reload()
+    summary = page.get_by_text("D-Wave problems (2): ids on Leap")
+    expect(summary).to_be_visible()
+    summary.click()
+    expect(page.get_by_label("D-Wave problem ids")).to_have_text("\n".join(ids))

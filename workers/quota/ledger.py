@@ -15,13 +15,14 @@ Keys (under ``{key_prefix}:``):
     quota:users              set   users with a budget or usage
     usage:{user}:seconds     hash  job id -> charged seconds
     usage:{user}:problems    hash  job id -> problems sent
+    usage:{user}:ids:{job}   list  the ids SAPI gave the job's problems (to find them on Leap)
 """
 
 from __future__ import annotations
 
 import math
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import redis
 
@@ -89,6 +90,8 @@ class JobUsage:
     job_id: str
     seconds: float
     problems: int
+    #: SAPI's ids of the problems sent (none for the offline stand-ins).
+    problem_ids: tuple[str, ...] = ()
 
 
 @dataclass
@@ -100,7 +103,12 @@ class UserUsage:
         return {
             **self.status.as_dict(),
             "jobs": [
-                {"id": job.job_id, "qpu_seconds": job.seconds, "problems": job.problems}
+                {
+                    "id": job.job_id,
+                    "qpu_seconds": job.seconds,
+                    "problems": job.problems,
+                    "problem_ids": list(job.problem_ids),
+                }
                 for job in self.jobs
             ],
         }
@@ -209,7 +217,13 @@ class QuotaLedger:
             raise QuotaExceededError(user, float(remaining), seconds)
         return Reservation(user=user, job_id=job_id, id=rid, seconds=float(seconds))
 
-    def settle(self, reservation: Reservation, actual: float, problems: int = 1) -> float:
+    def settle(
+        self,
+        reservation: Reservation,
+        actual: float,
+        problems: int = 1,
+        problem_ids: list[str] | None = None,
+    ) -> float:
         """Replace the reservation with the reported time.
 
         Parameters
@@ -220,6 +234,8 @@ class QuotaLedger:
             Seconds the sample set reports (negative counts as zero).
         problems : int
             Problems to record as sent for the job.
+        problem_ids : list of str, optional
+            SAPI's ids of those problems, kept with the job's usage.
 
         Returns
         -------
@@ -231,7 +247,21 @@ class QuotaLedger:
             keys=keys,
             args=[reservation.id, repr(max(0.0, float(actual))), reservation.job_id, problems],
         )
+        if problem_ids:
+            self.redis.rpush(self.ids_key(reservation.user, reservation.job_id), *problem_ids)
         return float(charged)
+
+    def ids_key(self, user: str, job_id: str) -> str:
+        """Key of the list of SAPI's ids of the job's problems."""
+        return self.key("usage", user, "ids", job_id)
+
+    def _problem_ids(self, user: str, jobs: list[str]) -> list[tuple[str, ...]]:
+        """SAPI's ids of each job's problems, in the order of ``jobs``."""
+        with self.redis.pipeline() as pipe:
+            for job in jobs:
+                pipe.lrange(self.ids_key(user, job), 0, -1)
+            found = pipe.execute()
+        return [tuple(i.decode() if isinstance(i, bytes) else str(i) for i in ids) for ids in found]
 
     def release(self, reservation: Reservation) -> None:
         """Drop a reservation without charging (the problem was never sent)."""
@@ -254,10 +284,13 @@ class QuotaLedger:
             for job, count in problems.items()
             if job not in seconds
         ]
+        ids = self._problem_ids(user, [job.job_id for job in jobs])
+        jobs = [replace(job, problem_ids=found) for job, found in zip(jobs, ids, strict=True)]
         return UserUsage(status=self.status(user), jobs=sorted(jobs, key=lambda j: j.job_id))
 
     def job_usage(self, user: str, job_id: str) -> JobUsage:
         """Seconds charged to and problems sent for one job (zero when it used none)."""
         seconds = self.redis.hget(self.key("usage", user, "seconds"), job_id)
         problems = self.redis.hget(self.key("usage", user, "problems"), job_id)
-        return JobUsage(job_id, float(seconds or 0.0), int(problems or 0))
+        [ids] = self._problem_ids(user, [job_id])
+        return JobUsage(job_id, float(seconds or 0.0), int(problems or 0), ids)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import redis
 
 from shared.config import Settings
+from shared.solvers.problems import current
 from shared.solvers.qpu_time import batch_estimate, bundle_estimate
 from workers.quota.ledger import QuotaLedger
 from workers.quota.semaphore import QpuSemaphore
@@ -58,7 +59,8 @@ class QpuMeter:
         :class:`Charge` for the caller to fill in, then settle and free the slot.
 
         If the body raises before reporting, the reservation is released uncharged (failed
-        problems are not billed by D-Wave either).
+        problems are not billed by D-Wave either). The ids of the D-Wave problems the body sent
+        (in an open ``sent_problems`` log) are kept with the job's usage, and counted.
 
         Parameters
         ----------
@@ -73,6 +75,8 @@ class QpuMeter:
             One :class:`Charge`, for the ``with`` body to :meth:`Charge.report` on.
         """
         ttl = self.slot_ttl + estimate
+        log = current()  # the task's D-Wave problems (shared.solvers.problems)
+        before = len(log.ids) if log is not None else 0
         with self.semaphore.slot(user, ttl, self.slot_wait):
             reservation = self.ledger.reserve(user, job_id, estimate, ttl)
             charge = Charge()
@@ -80,7 +84,8 @@ class QpuMeter:
                 yield charge
             finally:
                 if charge.sent:
-                    self.ledger.settle(reservation, charge.seconds)
+                    ids = log.ids[before:] if log is not None else []
+                    self.ledger.settle(reservation, charge.seconds, len(ids) or 1, ids)
                 else:
                     self.ledger.release(reservation)
 
@@ -93,6 +98,7 @@ def solve_metered(
     config,
     bundles: list,
     still_running=lambda: True,
+    level_estimate: float | None = None,
 ):
     """``solve_bundles`` for a metered solver: one bundle at a time, each inside a lab-wide
     slot and a reservation of its estimate, charged what its sample set reports; a solver that
@@ -111,6 +117,10 @@ def solve_metered(
         The bundle specs to solve, in order.
     still_running : callable
         Checked before each bundle; false stops the job (cancelled or failed).
+    level_estimate : float, optional
+        The job's accepted estimate of the level (seconds): a batch reserves its share of it
+        (the bundles' share of the level's), so a level is reserved what its estimate said;
+        None: estimated here from the bundles (``batch_estimate``).
 
     Returns
     -------
@@ -130,7 +140,12 @@ def solve_metered(
         if not still_running():
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]
-        with meter.problem(owner, job_id, batch_estimate(inputs, config, given)) as charge:
+        if level_estimate is None:
+            reserve = batch_estimate(inputs, config, given)
+        else:
+            share = len(given) / max(len(inputs.planned_bundles(config)), len(given), 1)
+            reserve = level_estimate * share
+        with meter.problem(owner, job_id, reserve) as charge:
             results = solve_bundles(inputs, config, given)
             charge.report(sum(charged_seconds(result.timing) for result in results))
         return results
