@@ -37,7 +37,7 @@ from shared.assembly import BundleResult, LevelSolution, embedding_summary
 from shared.bundles import Bundle
 from shared.config import Inference, MatchConfig
 from shared.energy import Costs
-from shared.grid import GridMRF, boundary_unary, dual_decomposition
+from shared.grid import GridMRF, boundary_unary, dual_decomposition, minimiser
 from shared.level_inputs import LevelInputs
 
 #: Rows and columns of a sent tile (one shape: embedded once, copied across the chip).
@@ -164,8 +164,8 @@ def prepare(inputs: LevelInputs, config: MatchConfig) -> Residual:
         # the labels exact gives (stopped at dual_gap): on Tsukuba their RMSE is 3 % below the
         # longer run's, whose disagreements are still the fewer (0.3 % of the pixels, not 4 %)
         labels[top : top + height] = (
-            dual_decomposition(grid, config.dual_iterations, config.dual_gap).labels
-            if config.dual_gap > 0
+            minimiser(config)(grid, config.dual_iterations, config.dual_gap).labels
+            if config.dual_gap > 0 or minimiser(config) is not dual_decomposition
             else outcome.labels
         )
         assert outcome.unsettled is not None

@@ -28,10 +28,10 @@ import numpy as np
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundle_plan import level_bundles
 from shared.bundles import Bundle, bundle_seed
-from shared.config import GridInference, Inference, MatchConfig
+from shared.config import Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, trws
+from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.settle import pinned, tile_config
 from shared.solvers import get_solver
@@ -220,7 +220,7 @@ def _solve_grids(
     TRW-S, ``grid_inference``); the views side by side in threads (the compiled chain kernels
     release the GIL)."""
     inputs.binned_volumes()
-    minimise = trws if config.grid_inference is GridInference.TRWS else dual_decomposition
+    minimise = minimiser(config)
 
     def solve(rows: tuple[int, int]) -> BundleResult:
         started = time.perf_counter()
