@@ -4,6 +4,8 @@ charged once the host settles each level, and the QUBO solvers' quality against 
     python benchmarks/residual.py                      # estimates: Tsukuba (range 16), 1280x720
     python benchmarks/residual.py --quality            # + RMSE of exact, sa, qpu-sim: half, full
     python benchmarks/residual.py --quality --busy 2   # ... with 2 CPU-bound processes beside
+    python benchmarks/residual.py --quality --skip-estimates --solvers exact exact-all sa
+                                                       # exact-all: exact with --dual-gap 0
 
 The estimates are ``qhsm estimate --local``'s (:func:`shared.residual.job_residual`, then
 :func:`shared.solvers.qpu_time.job_seconds`: classical work only, nothing is sent). The
@@ -77,7 +79,11 @@ def quality_rows(size: str, solvers: list[str], reads: int | None) -> list[str]:
     rows, reference = [], None
     for solver in solvers:
         params = {"num_reads": reads} if reads and solver in ("sa", "qpu-sim") else {}
-        config = MatchConfig(solver=solver, max_disparity=max_disparity, solver_params=params)
+        # exact-all: exact's decomposition without the gap stop, as the residual design's host
+        options = (
+            {"solver": "exact", "dual_gap": 0.0} if solver == "exact-all" else {"solver": solver}
+        )
+        config = MatchConfig(max_disparity=max_disparity, solver_params=params, **options)
         started = time.perf_counter()
         result = run_pipeline(left, right, config)
         seconds = time.perf_counter() - started

@@ -208,7 +208,7 @@ class MatchConfig(BaseModel):
         le=1000,
         description="grid inference with exact: most dual-decomposition iterations per level "
         "(fewer when the row and column chains agree or the gap is within dual_gap); with a "
-        "QUBO solver and certify_tiles, per tile",
+        "QUBO solver and certify_tiles, of the host's settling of each level (no gap stop)",
     )
     dual_gap: float = Field(
         0.01,
@@ -219,10 +219,11 @@ class MatchConfig(BaseModel):
     )
     certify_tiles: bool = Field(
         True,
-        description="grid inference with a QUBO solver: minimise each tile by dual "
-        "decomposition on the host first; a tile whose row and column chains agree is solved "
-        "exactly there and never reaches the solver (no QPU time), the others are sent and "
-        "keep the better of the solver's and the host's labels",
+        description="grid inference with a QUBO solver: settle each level on the host first "
+        "(dual decomposition of each whole view); only the 4x4 tiles around the pixels whose "
+        "row and column chains disagree reach the solver, their other pixels pinned to the "
+        "host's labels, and a tile's answer replaces the host's only where it lowers the "
+        "level's energy (off: every bundle_height-row tile is sent)",
     )
     data_term: DataTerm = Field(
         description="squared, ad-census or census-gradient (from preset)"

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.config import LevelConfig, Regularizer
+from shared.config import GridInference, LevelConfig, MatchConfig, Regularizer
 from shared.grid_kernels import (
     _chains_general,
     _chains_windows,
@@ -550,3 +550,9 @@ def trws(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualResult:
         iterations=done,
         disagreeing=0 if best_energy <= bound else max(disagreeing, 1),
     )
+
+
+def minimiser(config: MatchConfig):
+    """``exact``'s minimiser of a whole view's grid, ``grid_inference``: :func:`trws` or
+    :func:`dual_decomposition` (the residual design's host labels are the same)."""
+    return trws if config.grid_inference is GridInference.TRWS else dual_decomposition

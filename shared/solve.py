@@ -28,12 +28,12 @@ import numpy as np
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundle_plan import level_bundles
 from shared.bundles import Bundle, bundle_seed
-from shared.config import GridInference, Inference, MatchConfig
+from shared.config import Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, trws
+from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
-from shared.settle import tile_config
+from shared.settle import pinned, tile_config
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
 from shared.solvers.registry import uses_warm_start
@@ -220,7 +220,7 @@ def _solve_grids(
     TRW-S, ``grid_inference``); the views side by side in threads (the compiled chain kernels
     release the GIL)."""
     inputs.binned_volumes()
-    minimise = trws if config.grid_inference is GridInference.TRWS else dual_decomposition
+    minimise = minimiser(config)
 
     def solve(rows: tuple[int, int]) -> BundleResult:
         started = time.perf_counter()
@@ -294,6 +294,8 @@ def encoded_bundles(
             tile = (slice(start - above, stop - above), slice(first, last))
             extra = boundary_unary(grid, grid_labels, *tile)
             costs = replace(costs, unary=costs.unary + extra)
+            if "settle" in inputs.prepared:  # the certified pixels pinned (shared.settle)
+                costs = replace(costs, unary=pinned(inputs, bundle, costs))
             if certify:
                 started = time.perf_counter()
                 dual = dual_decomposition(grid.tile(*tile, extra), config.dual_iterations)

@@ -37,6 +37,11 @@ log = logging.getLogger(__name__)
 MAX_COPIES: int = MAX_BUNDLES_PER_CALL
 
 
+#: Qubits a copy is assumed to need beyond the assumed embedding's before any search was seen:
+#: greedy searches leave gaps between copies (half the chip fills, see :func:`packed_copies`).
+PACKING_SLACK = 4
+
+
 def copies_key(target: str, digest: str) -> str:
     """Store key of a shape's disjoint embeddings on a target."""
     return f"copies-{target}-{digest}"
@@ -138,10 +143,14 @@ def packed_copies(
     config: Any,
     shape: tuple[int, int],
     candidates: int,
+    assume: bool = False,
 ) -> int:
     """Bundles of a shape per QPU call: the disjoint embeddings a run found
     (:func:`copies`), else 1 (on Tsukuba's ``auto`` widths the search found no second copy
-    within its time limit, so packing is not assumed before it has been seen).
+    within its time limit, so packing is not assumed before it has been seen) or, with
+    ``assume`` (the residual design's small tiles), as many as :data:`PACKING_SLACK` times the
+    assumed qubits fit on the chip (a 4x4 tile's greedy search found 11 copies of 215-510
+    qubits on Advantage's 5,627 where twice as many would fit, hence the slack).
 
     Parameters
     ----------
@@ -153,6 +162,8 @@ def packed_copies(
         Bundle rows and columns.
     candidates : int
         Labels per pixel.
+    assume : bool
+        Assume copies fill the chip (:data:`PACKING_SLACK`) before a search was seen.
 
     Returns
     -------
@@ -161,13 +172,15 @@ def packed_copies(
     """
     from shared.encodings import get_codec
     from shared.solvers.bundle_shapes import bundle_digest
-    from shared.solvers.meters.qpu import MAX_QUBITS
+    from shared.solvers.meters.qpu import MAX_QUBITS, assumed_qubits
 
     per_pixel = get_codec(config.encoding).variables_per_pixel(candidates)
-    if shape[0] * shape[1] * per_pixel > MAX_QUBITS:
+    variables = shape[0] * shape[1] * per_pixel
+    if variables > MAX_QUBITS:
         return 1
     digest = bundle_digest(str(config.encoding), shape[0], shape[1], candidates)
-    found = known_copies(cache, config.solver, digest) or 1
+    assumed = max(1, MAX_QUBITS // (PACKING_SLACK * assumed_qubits(variables))) if assume else 1
+    found = known_copies(cache, config.solver, digest) or assumed
     return min(found, int(config.solver_params.get("bundles_per_call", MAX_COPIES)))
 
 
@@ -186,9 +199,7 @@ def joined(rests: list[dimod.BinaryQuadraticModel]) -> dimod.BinaryQuadraticMode
     """
     linear, rows, cols, quadratic, offset, start = [], [], [], [], 0.0, 0
     for rest in rests:
-        h, (r, c, q), o, *_ = rest.binary.to_numpy_vectors(
-            variable_order=range(rest.num_variables)
-        )
+        h, (r, c, q), o, *_ = rest.binary.to_numpy_vectors(variable_order=range(rest.num_variables))
         linear.append(h)
         rows.append(r + start)
         cols.append(c + start)

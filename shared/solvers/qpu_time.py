@@ -253,7 +253,9 @@ def level_estimate(
             variables_share=residual.variables_share,
             qubits=embedding.qubits if embedding else None,
             together=(  # a shape's disjoint copies on the QPU graph, one call
-                packed_copies(cache, config, (tallest, columns), candidates) if meter.embeds else 1
+                packed_copies(cache, config, (tallest, columns), candidates, settles(config))
+                if meter.embeds
+                else 1
             ),
         )
         seconds, qubits = meter.level_seconds(config.solver, params, load)

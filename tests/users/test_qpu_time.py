@@ -81,10 +81,11 @@ def test_charged_seconds_prefers_the_hybrid_charge_time():
 @pytest.mark.parametrize("preset", ["accurate", "paper"])
 @pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])
 def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
-    # whole rows (a width beyond the row's; qpu-sim's default is --bundle-width auto)
+    # whole rows (a width beyond the row's; qpu-sim's default is --bundle-width auto), every
+    # tile sent (not the residual design's 4x4 tiles: tests/core/test_tile_certificate.py)
     config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
                          bundle_width=4096, solver_params={"num_reads": 10},
-                         warm_start=False)  # fmt: skip
+                         warm_start=False, certify_tiles=False)  # fmt: skip
     estimate = qpu_time.job_seconds(config, (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
     views = 2 if preset == "accurate" else 1  # the right view's bundles too
