@@ -55,7 +55,8 @@ COST_BLOCK_BYTES = 32 * 2**20
 #: same maps: each grid is minimised on its own). Keeps a 2000 x 2000 pair within 2 GiB.
 GRID_STATE_BYTES = 2**30
 #: (h, w, K) 4-byte arrays a grid's dual decomposition holds at its peak: unary, candidates,
-#: the transposed unary, two multiplier arrays, the primal's neighbour costs and chain buffers.
+#: the transposed unary, two multiplier arrays, the primal's neighbour costs and chain buffers
+#: (TRW-S holds fewer: unary, candidates and its four message arrays).
 GRID_STATE_ARRAYS = 7
 
 
