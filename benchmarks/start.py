@@ -1,6 +1,7 @@
 """The start of ``qhsm match`` (issue 28): CPU of its imports and of the first kernel calls.
 
     python benchmarks/start.py [--repeats 5]
+    PYTHONPATH=/other/checkout python benchmarks/start.py   # the same of another version
 
 Each statement runs in a fresh ``python -c`` process, the statements alternated, and the median
 user + system CPU of each is printed (CPU, not wall time: other users of a shared machine
@@ -24,8 +25,9 @@ STATEMENTS = [
     "import numba",
     "import dimod",
     "import pydantic_settings",
+    # what ``qhsm match`` with ``exact`` imports before it reads the views
     "from shared.cli import build_parser; build_parser(); "
-    "import shared.pipeline, shared.solvers.exact",
+    "import shared.images, shared.pipeline, shared.process_pool, shared.progress_bar",
 ]
 
 FIRST_RUN = """
