@@ -157,7 +157,7 @@ def certifies_tiles(config: MatchConfig) -> bool:
     return (
         config.certify_tiles
         and config.inference is Inference.GRID
-        and not isinstance(get_solver(config.solver), RowSolver)
+        and not is_row_solver(config.solver)
     )
 
 
