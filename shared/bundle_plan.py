@@ -14,7 +14,8 @@ from shared.config import AUTO, Inference, MatchConfig
 from shared.level_inputs import LevelInputs
 from shared.settle import settles
 from shared.solvers import get_solver
-from shared.solvers.base import RowSolver, ShapePlanner
+from shared.solvers.base import ShapePlanner
+from shared.solvers.registry import is_row_solver
 
 log = logging.getLogger(__name__)
 
@@ -41,9 +42,8 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
     ValueError
         If the width cannot apply to the solver (a row solver, or ``auto`` without an embedding).
     """
-    solver = get_solver(config.solver)
     width = config.bundle_width
-    if isinstance(solver, RowSolver):
+    if is_row_solver(config.solver):
         if width is not None:
             raise ValueError(
                 f"{config.solver} solves whole rows exactly; leave bundle_width unset "
@@ -56,6 +56,7 @@ def bundle_width_setting(config: MatchConfig) -> int | str | None:
                 "tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
             )
         return None
+    solver = get_solver(config.solver)
     if width is None:
         return AUTO if isinstance(solver, ShapePlanner) else None
     if width == AUTO and not isinstance(solver, ShapePlanner):
@@ -101,13 +102,13 @@ def plans_with_solver(config: MatchConfig) -> bool:
     """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
     (the widest segment that embeds, each shape's embedding) need their sampler, and so their
     credentials, to plan a level; a service runs it where the solver runs."""
-    return isinstance(get_solver(config.solver), ShapePlanner)
+    return not is_row_solver(config.solver) and isinstance(get_solver(config.solver), ShapePlanner)
 
 
 def solves_grids(config: MatchConfig) -> bool:
     """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
     inference with a row solver (``exact``)."""
-    return config.inference is Inference.GRID and isinstance(get_solver(config.solver), RowSolver)
+    return config.inference is Inference.GRID and is_row_solver(config.solver)
 
 
 def bundle_height(inputs: LevelInputs, config: MatchConfig) -> int:
@@ -133,7 +134,7 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     -------
     list of Bundle
     """
-    solver = get_solver(config.solver)
+    solver = None if is_row_solver(config.solver) else get_solver(config.solver)
     started = time.perf_counter()
     cache = solver.cache if isinstance(solver, ShapePlanner) else None
     before = cache.computed if cache is not None else 0

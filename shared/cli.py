@@ -49,11 +49,17 @@ def cmd_match(args: argparse.Namespace) -> int:
     from shared.progress_bar import LevelBar
     from shared.provenance import provenance
     from shared.solvers import get_solver
+    from shared.solvers.base import Availability
+    from shared.solvers.registry import is_row_solver
 
     config = config_from_args(args)
-    solver = get_solver(config.solver)
     bundle_width_setting(config)  # a width the solver cannot use: say so before any work
-    availability = solver.available()
+    # a row solver (exact) runs here on the CPU: no sampler built for it (that imports dimod)
+    availability = (
+        Availability(True)
+        if is_row_solver(config.solver)
+        else get_solver(config.solver).available()
+    )
     if not availability.ok:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):

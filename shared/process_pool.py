@@ -19,7 +19,8 @@ from shared.config import MatchConfig
 from shared.level_inputs import LevelInputs
 from shared.solve import BundleProgress, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
-from shared.solvers.base import BatchSolver, RowSolver
+from shared.solvers.base import BatchSolver
+from shared.solvers.registry import is_row_solver
 from shared.threads import limit_threads, thread_budget
 
 
@@ -64,8 +65,11 @@ class ProcessPoolLevelSolver:
     def __call__(
         self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
     ) -> LevelSolution:
-        solver = get_solver(config.solver)
-        if self.processes <= 1 or isinstance(solver, RowSolver | BatchSolver):
+        if (
+            self.processes <= 1
+            or is_row_solver(config.solver)
+            or isinstance(get_solver(config.solver), BatchSolver)
+        ):
             # a batch solver sends the level as one problem (split, it would be billed per part)
             return solve_level_in_process(inputs, config, progress)
         pool = self._started()

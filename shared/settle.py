@@ -76,13 +76,12 @@ class Residual:
 def settles(config: MatchConfig) -> bool:
     """Whether a level runs the residual design: ``grid`` inference with a QUBO solver (not a
     row solver, which solves whole views itself) and ``certify_tiles`` (the default)."""
-    from shared.solvers import get_solver
-    from shared.solvers.base import RowSolver
+    from shared.solvers.registry import is_row_solver
 
     return (
         config.certify_tiles
         and config.inference is Inference.GRID
-        and not isinstance(get_solver(config.solver), RowSolver)
+        and not is_row_solver(config.solver)
     )
 
 

@@ -21,8 +21,8 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from functools import partial
+from typing import TYPE_CHECKING
 
-import dimod
 import numpy as np
 
 from shared.assembly import BundleResult, LevelSolution, assemble
@@ -36,7 +36,10 @@ from shared.level_inputs import BundleSpec, LevelInputs
 from shared.settle import pinned, tile_config
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
-from shared.solvers.registry import uses_warm_start
+from shared.solvers.registry import is_row_solver, uses_warm_start
+
+if TYPE_CHECKING:
+    import dimod
 from shared.threads import threads
 
 BundleProgress = Callable[[int, int], None]
@@ -55,7 +58,8 @@ COST_BLOCK_BYTES = 32 * 2**20
 #: same maps: each grid is minimised on its own). Keeps a 2000 x 2000 pair within 2 GiB.
 GRID_STATE_BYTES = 2**30
 #: (h, w, K) 4-byte arrays a grid's dual decomposition holds at its peak: unary, candidates,
-#: the transposed unary, two multiplier arrays, the primal's neighbour costs and chain buffers.
+#: the transposed unary, two multiplier arrays, the primal's neighbour costs and chain buffers
+#: (TRW-S holds fewer: unary, candidates and its four message arrays).
 GRID_STATE_ARRAYS = 7
 
 
@@ -95,15 +99,17 @@ def solve_bundles(
     if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
         config = tile_config(config)
     items = [inputs.as_bundle(spec) for spec in bundles]
-    solver = get_solver(config.solver)
-    if isinstance(solver, RowSolver):
+    if is_row_solver(config.solver):  # no sampler built for exact's grids (no dimod import)
         width = inputs.shape[1]
         if any(b.col_start != 0 or b.col_stop != width for b in items):
             raise ValueError(f"{config.solver} solves whole rows only, not row segments")
         row_ranges = [(b.row_start, b.row_stop) for b in items]
         if config.inference is Inference.GRID:
             return _solve_grids(inputs, config, row_ranges, progress)
+        solver = get_solver(config.solver)
+        assert isinstance(solver, RowSolver)
         return _solve_on_costs(solver, inputs, config, row_ranges, progress)
+    solver = get_solver(config.solver)
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     problems: Iterable[TileProblem] = encoded_bundles(inputs, config, items)
@@ -151,7 +157,7 @@ def certifies_tiles(config: MatchConfig) -> bool:
     return (
         config.certify_tiles
         and config.inference is Inference.GRID
-        and not isinstance(get_solver(config.solver), RowSolver)
+        and not is_row_solver(config.solver)
     )
 
 

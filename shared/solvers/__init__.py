@@ -1,8 +1,9 @@
 """QUBO solvers as dimod samplers behind one registry (see :mod:`shared.solvers.registry`)."""
 
+from typing import TYPE_CHECKING, Any
+
 from shared.solvers.base import (
     Availability,
-    Sampler,
     SolverError,
     SolveResult,
     SolverUnavailableError,
@@ -21,8 +22,22 @@ from shared.solvers.registry import (
     spec,
 )
 
-#: The type of a registered solver (a ``dimod.Sampler`` with availability and a name).
-Solver = Sampler
+if TYPE_CHECKING:
+    from shared.solvers.sampler import Sampler
+
+    #: The type of a registered solver (a ``dimod.Sampler`` with availability and a name).
+    Solver = Sampler
+
+
+def __getattr__(name: str) -> Any:
+    """``Sampler`` (and its alias ``Solver``) on first use: importing them imports dimod, which
+    ``exact``'s grid inference never needs (:mod:`shared.solvers.sampler`)."""
+    if name in ("Sampler", "Solver"):
+        from shared.solvers.sampler import Sampler
+
+        return Sampler
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "Availability",

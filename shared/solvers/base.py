@@ -14,13 +14,11 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-import dimod
 import numpy as np
 
 from shared.energy import Costs
-from shared.solvers.canonical import Canonical
 from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always were)
     SolverError,
     SolverUnavailableError,
@@ -28,6 +26,9 @@ from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always w
     bad_parameters,
 )
 from shared.solvers.records import SolverSpec
+
+if TYPE_CHECKING:
+    import dimod
 
 
 @dataclass(frozen=True)
@@ -60,146 +61,17 @@ class SolveResult:
 _record_of: Callable[[str], SolverSpec] | None = None
 
 
+def record_of(name: str) -> SolverSpec:
+    """The registry's record of a solver (``KeyError`` when the registry is not loaded)."""
+    if _record_of is None:
+        raise KeyError(f"{name}: the solver registry is not loaded")
+    return _record_of(name)
+
+
 def use_registry(record_of: Callable[[str], SolverSpec]) -> None:
     """Install the registry's lookup (:func:`shared.solvers.registry.spec`)."""
     global _record_of
     _record_of = record_of
-
-
-def _declared(capability: str) -> property:
-    """A sampler attribute read from its registry record, where it is declared once."""
-    return property(lambda self: getattr(self.spec, capability), doc=f"The registry's {capability}")
-
-
-class Sampler(dimod.Sampler):
-    """What every registered QUBO solver adds to ``dimod.Sampler``: its registry name, whether
-    it can run here, how its errors read, the registry's record of its capabilities, and
-    ``sample`` with the registry's default parameters under the given ones (subclasses
-    implement :meth:`run`)."""
-
-    name: str = ""
-
-    def available(self) -> Availability:
-        return Availability(True, "always available (CPU)")
-
-    def translate(self, error: Exception) -> SolverError | None:
-        """Our error for one the sampler raised (None: let it through unchanged).
-
-        Parameters
-        ----------
-        error : Exception
-            What the sampler raised.
-
-        Returns
-        -------
-        SolverError or None
-            A ``SolverError`` naming the solver for ``TypeError`` and ``ValueError`` (bad
-            parameters); None for anything else.
-        """
-        return bad_parameters(self.name, error)
-
-    @property
-    def spec(self) -> SolverSpec:
-        """The registry's record of this sampler (``KeyError`` when it is not registered)."""
-        if _record_of is None:
-            raise KeyError(f"{self.name}: the solver registry is not loaded")
-        return _record_of(self.name)
-
-    description = _declared("description")
-    offline = _declared("offline")
-    uses_qpu_time = _declared("uses_qpu_time")
-    warm_start_default = _declared("warm_start_default")
-
-    @property
-    def defaults(self) -> dict[str, Any]:
-        """Default parameters: those the registry's schema states (none when unregistered)."""
-        from shared.solvers.params import schema_defaults
-
-        try:
-            return schema_defaults(self.spec.params)
-        except KeyError:  # unregistered (the registry's UnknownSolverError is a KeyError)
-            return {}
-
-    def sample(
-        self,
-        bqm: dimod.BinaryQuadraticModel,
-        *,
-        seed: int | None = None,
-        initial_states: Any = None,
-        **params: Any,
-    ) -> dimod.SampleSet:
-        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype. :meth:`run`
-        sees it BINARY on the variables 0..n-1 (:class:`~shared.solvers.canonical.Canonical`),
-        and the answer is in ``bqm``'s vartype and labels; an empty BQM is not run.
-
-        Parameters
-        ----------
-        bqm : dimod.BinaryQuadraticModel
-            The problem: any vartype, any hashable labels.
-        seed : int, optional
-            Random seed, passed to :meth:`run`.
-        initial_states : samples-like, optional
-            Warm start; None for a cold start.
-        **params
-            Solver parameters, over :attr:`defaults`.
-
-        Returns
-        -------
-        dimod.SampleSet
-            What :meth:`run` returns, in ``bqm``'s vartype and labels.
-        """
-        params = {**self.defaults, **params}
-        form = Canonical.of(bqm)
-        sampleset = form.solved()
-        if sampleset is None:
-            states = form.states(initial_states)
-            sampleset = self.run(form.bqm, params, seed=seed, initial_states=states)
-        return form.restore(sampleset)
-
-    def run(
-        self, bqm: dimod.BinaryQuadraticModel, params: dict[str, Any], *, seed, initial_states
-    ) -> dimod.SampleSet:
-        """The sampling itself, with the defaults filled in.
-
-        Parameters
-        ----------
-        bqm : dimod.BinaryQuadraticModel
-            The problem to sample: BINARY, on the variables 0..n-1, not empty.
-        params : dict
-            Defaults merged with the call's parameters.
-        seed : int or None
-            The call's seed.
-        initial_states : samples-like or None
-            The call's warm start, BINARY, on 0..n-1.
-
-        Returns
-        -------
-        dimod.SampleSet
-            Samples with ``info["timing"]`` in seconds.
-
-        Raises
-        ------
-        NotImplementedError
-            Always here; subclasses implement it.
-        """
-        raise NotImplementedError
-
-    def solve(self, bqm: dimod.BinaryQuadraticModel, **kwargs: Any) -> SolveResult:
-        """:func:`solve` with this sampler (``seed``, ``initial_state`` and parameters).
-
-        Parameters
-        ----------
-        bqm : dimod.BinaryQuadraticModel
-            The bundle's QUBO on the variables 0..n-1.
-        **kwargs
-            ``seed``, ``initial_state`` and solver parameters, as :func:`solve` takes them.
-
-        Returns
-        -------
-        SolveResult
-            The best sample and its timing.
-        """
-        return solve(self, bqm, **kwargs)
 
 
 def seconds(timing: dict[str, Any]) -> dict[str, float]:

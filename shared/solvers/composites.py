@@ -20,7 +20,8 @@ from typing import Any
 import dimod
 import numpy as np
 
-from shared.solvers.base import Sampler, SolverError
+from shared.solvers.base import SolverError
+from shared.solvers.sampler import Sampler
 
 #: What :class:`EmbeddingCacheComposite` adds to a sample set's info.
 EMBEDDING_INFO = (

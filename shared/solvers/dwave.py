@@ -28,7 +28,6 @@ import numpy as np
 from shared.config import get_settings
 from shared.solvers.base import (
     Availability,
-    Sampler,
     SolverError,
     SolverUnavailableError,
     TransientSolverError,
@@ -46,6 +45,7 @@ from shared.solvers.packing import PackedCalls, copies
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 from shared.solvers.problems import LabelledSampler
 from shared.solvers.qpu_settings import chain_strength, reverse_anneal
+from shared.solvers.sampler import Sampler
 from shared.solvers.structure_keys import graph_fingerprint
 
 log = logging.getLogger(__name__)

@@ -14,7 +14,8 @@ import dimod
 import numpy as np
 
 from shared.energy import Costs
-from shared.solvers.base import Sampler, SolverError
+from shared.solvers.base import SolverError
+from shared.solvers.sampler import Sampler
 
 #: dimod.ExactSolver enumerates 2^n states; beyond this it is hopeless.
 BRUTE_FORCE_LIMIT = 24

@@ -18,11 +18,11 @@ import numpy as np
 from shared.config import Settings, get_settings
 from shared.solvers.base import (
     Availability,
-    Sampler,
     SolverError,
     SolverUnavailableError,
     TransientSolverError,
 )
+from shared.solvers.sampler import Sampler
 
 #: Largest model with quadratic terms the size-limited pip licence accepts.
 PIP_LICENCE_VARIABLES = 200

@@ -24,10 +24,11 @@ from typing import Any
 import dimod
 import numpy as np
 
-from shared.solvers.base import Availability, Sampler, SolverError, SolveResult, result_of
+from shared.solvers.base import Availability, SolverError, SolveResult, result_of
 from shared.solvers.composites import reduce
 from shared.solvers.dwave import LeapCloudSolver, mock_qpu
 from shared.solvers.packing import joined, split
+from shared.solvers.sampler import Sampler
 
 
 def blocks(sizes: list[int], limit: int) -> list[list[int]]:

@@ -259,6 +259,22 @@ def build(name: str) -> Any:
     return solver
 
 
+def is_row_solver(name: str) -> bool:
+    """Whether the solver works on the MRF costs of whole rows (``exact``), as its record says:
+    asked without building the sampler (a QUBO sampler imports dimod).
+
+    Parameters
+    ----------
+    name
+        As for :func:`spec`.
+
+    Returns
+    -------
+    bool
+    """
+    return spec(name).row_solver
+
+
 def params_schema(name: str) -> type[schemas.SolverParams]:
     """The pydantic model bounding ``name``'s ``solver_params``.
 

@@ -70,3 +70,15 @@ def test_the_level_reports_energy_bound_and_gap_and_the_map_matches_dual_decompo
     truth = scene.disparity
     errors = {m: float(np.abs(d - truth).mean()) for m, d in maps.items()}
     assert errors[GridInference.TRWS] < errors[GridInference.DD] + 0.1
+
+
+@pytest.mark.parametrize(
+    "given, expected", [([], GridInference.DD), (["trws"], GridInference.TRWS)]
+)
+def test_the_cli_option_sets_the_grid_inference_and_dd_stays_the_default(given, expected):
+    from shared.cli import build_parser
+    from shared.cli_options import config_from_args
+
+    flag = ["--grid-inference", *given] if given else []
+    args = build_parser().parse_args(["match", "l.png", "r.png", "-o", "d.pfm", *flag])
+    assert config_from_args(args).grid_inference is expected

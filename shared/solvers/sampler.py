@@ -1,0 +1,155 @@
+"""The base class of every registered QUBO solver: a ``dimod.Sampler`` with our additions (see
+:mod:`shared.solvers.base` for the contract). Its own module so that what needs no QUBO
+(``exact``'s grid inference, the CLI's start) does not import dimod.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import dimod
+
+from shared.solvers.base import (
+    Availability,
+    SolverError,
+    SolveResult,
+    bad_parameters,
+    record_of,
+    solve,
+)
+from shared.solvers.canonical import Canonical
+from shared.solvers.records import SolverSpec
+
+
+def _declared(capability: str) -> property:
+    """A sampler attribute read from its registry record, where it is declared once."""
+    return property(lambda self: getattr(self.spec, capability), doc=f"The registry's {capability}")
+
+
+class Sampler(dimod.Sampler):
+    """What every registered QUBO solver adds to ``dimod.Sampler``: its registry name, whether
+    it can run here, how its errors read, the registry's record of its capabilities, and
+    ``sample`` with the registry's default parameters under the given ones (subclasses
+    implement :meth:`run`)."""
+
+    name: str = ""
+
+    def available(self) -> Availability:
+        return Availability(True, "always available (CPU)")
+
+    def translate(self, error: Exception) -> SolverError | None:
+        """Our error for one the sampler raised (None: let it through unchanged).
+
+        Parameters
+        ----------
+        error : Exception
+            What the sampler raised.
+
+        Returns
+        -------
+        SolverError or None
+            A ``SolverError`` naming the solver for ``TypeError`` and ``ValueError`` (bad
+            parameters); None for anything else.
+        """
+        return bad_parameters(self.name, error)
+
+    @property
+    def spec(self) -> SolverSpec:
+        """The registry's record of this sampler (``KeyError`` when it is not registered)."""
+        return record_of(self.name)
+
+    description = _declared("description")
+    offline = _declared("offline")
+    uses_qpu_time = _declared("uses_qpu_time")
+    warm_start_default = _declared("warm_start_default")
+
+    @property
+    def defaults(self) -> dict[str, Any]:
+        """Default parameters: those the registry's schema states (none when unregistered)."""
+        from shared.solvers.params import schema_defaults
+
+        try:
+            return schema_defaults(self.spec.params)
+        except KeyError:  # unregistered (the registry's UnknownSolverError is a KeyError)
+            return {}
+
+    def sample(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        *,
+        seed: int | None = None,
+        initial_states: Any = None,
+        **params: Any,
+    ) -> dimod.SampleSet:
+        """Sample ``bqm``; ``initial_states`` samples-like, in the BQM's vartype. :meth:`run`
+        sees it BINARY on the variables 0..n-1 (:class:`~shared.solvers.canonical.Canonical`),
+        and the answer is in ``bqm``'s vartype and labels; an empty BQM is not run.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem: any vartype, any hashable labels.
+        seed : int, optional
+            Random seed, passed to :meth:`run`.
+        initial_states : samples-like, optional
+            Warm start; None for a cold start.
+        **params
+            Solver parameters, over :attr:`defaults`.
+
+        Returns
+        -------
+        dimod.SampleSet
+            What :meth:`run` returns, in ``bqm``'s vartype and labels.
+        """
+        params = {**self.defaults, **params}
+        form = Canonical.of(bqm)
+        sampleset = form.solved()
+        if sampleset is None:
+            states = form.states(initial_states)
+            sampleset = self.run(form.bqm, params, seed=seed, initial_states=states)
+        return form.restore(sampleset)
+
+    def run(
+        self, bqm: dimod.BinaryQuadraticModel, params: dict[str, Any], *, seed, initial_states
+    ) -> dimod.SampleSet:
+        """The sampling itself, with the defaults filled in.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The problem to sample: BINARY, on the variables 0..n-1, not empty.
+        params : dict
+            Defaults merged with the call's parameters.
+        seed : int or None
+            The call's seed.
+        initial_states : samples-like or None
+            The call's warm start, BINARY, on 0..n-1.
+
+        Returns
+        -------
+        dimod.SampleSet
+            Samples with ``info["timing"]`` in seconds.
+
+        Raises
+        ------
+        NotImplementedError
+            Always here; subclasses implement it.
+        """
+        raise NotImplementedError
+
+    def solve(self, bqm: dimod.BinaryQuadraticModel, **kwargs: Any) -> SolveResult:
+        """:func:`solve` with this sampler (``seed``, ``initial_state`` and parameters).
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            The bundle's QUBO on the variables 0..n-1.
+        **kwargs
+            ``seed``, ``initial_state`` and solver parameters, as :func:`solve` takes them.
+
+        Returns
+        -------
+        SolveResult
+            The best sample and its timing.
+        """
+        return solve(self, bqm, **kwargs)
