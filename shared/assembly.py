@@ -84,11 +84,6 @@ def assemble(
     ValueError
         If a pixel is covered by no bundle or by several (other than segments of one row).
     """
-    if "settle" in inputs.prepared:  # the host's labels, the tiles where they lower the energy
-        from shared.settle import merge
-
-        assert config is not None
-        return merge(inputs, results, config)
     height, width = inputs.shape
     labels = np.full((height, width), -1, dtype=np.int32)
     covered = np.zeros((height, width), dtype=np.int32)

@@ -164,7 +164,7 @@ def _residual_tiles(
     the tiles around what it leaves unsettled are the bundles; a QPU solver embeds their one
     shape (and its copies across the chip) here."""
     settle.prepare(inputs, config)
-    bundles = settle.planned_tiles(inputs)
+    bundles = inputs.residual_tiles()
     inputs.prepared.update(bundle_width=settle.TILE, bundle_height=settle.TILE)
     if isinstance(solver, ShapePlanner) and bundles:
         log.info(

@@ -170,14 +170,16 @@ class LevelInputs:
         list of Bundle
         """
         if "settle" in self.prepared:  # the residual design's tiles (shared.settle)
-            from shared.settle import planned_tiles
-
-            return planned_tiles(self)
+            return self.residual_tiles()
         width = self.prepared.get("bundle_width")
         if width is not None and width >= self.shape[1]:
             width = None
         height = self.prepared.get("bundle_height", config.bundle_height)
         return self.bundles(height, width, config.bundle_margin)
+
+    def residual_tiles(self) -> list[Bundle]:
+        """The tiles :func:`shared.settle.prepare` chose (empty when every pixel is settled)."""
+        return [Bundle(*tile) for tile in self.prepared["settle"]["tile_list"]]
 
     def as_bundle(self, spec: BundleSpec) -> Bundle:
         """A :class:`Bundle` from a bundle or a row range (whole rows).

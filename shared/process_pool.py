@@ -13,10 +13,11 @@ from functools import partial
 from multiprocessing import get_context
 from multiprocessing.pool import Pool
 
-from shared.assembly import BundleResult, LevelSolution, assemble
+from shared.assembly import BundleResult, LevelSolution
 from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.level_inputs import LevelInputs
+from shared.settle import assemble_level
 from shared.solve import BundleProgress, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver
@@ -87,7 +88,7 @@ class ProcessPoolLevelSolver:
             results.extend(chunk_results)
             if progress is not None:
                 progress(len(results), len(bundles))
-        return assemble(inputs, results, config)
+        return assemble_level(inputs, results, config)
 
 
 @contextmanager

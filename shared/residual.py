@@ -66,7 +66,7 @@ def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelR
         saved = inputs.initial_labels, inputs.prepared
         inputs.prepared = {}
         certified = settle.prepare(inputs, config).certified
-        bundles = settle.planned_tiles(inputs)
+        bundles = inputs.residual_tiles()
         share = len(bundles) / settle.tiles_of(inputs.view_height, inputs.shape[1], inputs.views)
         config = settle.tile_config(config)
         try:

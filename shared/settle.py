@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.assembly import BundleResult, LevelSolution, embedding_summary
+from shared.assembly import BundleResult, LevelSolution, assemble, embedding_summary
 from shared.bundles import Bundle
 from shared.config import Inference, MatchConfig
 from shared.energy import Costs
@@ -242,9 +242,14 @@ def pin(costs: Costs) -> float:
     return 1.1 * (float(np.ptp(costs.unary)) + 4 * edges) + 1e-6
 
 
-def planned_tiles(inputs: LevelInputs) -> list[Bundle]:
-    """The tiles :func:`prepare` chose (empty when every pixel is settled)."""
-    return [Bundle(*tile) for tile in inputs.prepared["settle"]["tile_list"]]
+def assemble_level(
+    inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
+) -> LevelSolution:
+    """The level from its bundles' results: :func:`merge` when the host settled it (the
+    residual design), else :func:`shared.assembly.assemble` (every pixel from one bundle)."""
+    if "settle" in inputs.prepared:
+        return merge(inputs, results, config)
+    return assemble(inputs, results, config)
 
 
 def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig) -> LevelSolution:

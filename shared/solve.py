@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from shared.assembly import BundleResult, LevelSolution, assemble
+from shared.assembly import BundleResult, LevelSolution
 from shared.bundle_plan import level_bundles
 from shared.bundles import Bundle, bundle_seed
 from shared.config import Inference, MatchConfig
@@ -33,7 +33,7 @@ from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
 from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
-from shared.settle import pinned, tile_config
+from shared.settle import assemble_level, pinned, tile_config
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
 from shared.solvers.registry import is_row_solver, uses_warm_start
@@ -417,4 +417,4 @@ def solve_level_in_process(
     bundles = level_bundles(inputs, config)
     if progress is not None:
         progress(0, len(bundles))
-    return assemble(inputs, solve_bundles(inputs, config, bundles, progress), config)
+    return assemble_level(inputs, solve_bundles(inputs, config, bundles, progress), config)

@@ -28,7 +28,7 @@ import numpy as np
 from celery import Celery, chain, chord
 
 from shared import pyramid, settle
-from shared.assembly import BundleResult, assemble
+from shared.assembly import BundleResult
 from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
@@ -37,7 +37,7 @@ from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
-from shared.settle import settles, tile_config
+from shared.settle import assemble_level, settles, tile_config
 from shared.solve import solve_bundles
 from shared.solvers.meters import is_metered
 from shared.solvers.problems import sent_problems, task_label
@@ -328,7 +328,7 @@ def _assemble_level(
     inputs: LevelInputs, bundles: list[BundleResult], config: MatchConfig, started: float
 ) -> tuple[np.ndarray, LevelRecord]:
     """The level's filtered disparity map (``finish_level``) and its report for the record."""
-    solution = assemble(inputs, bundles, config)
+    solution = assemble_level(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = LevelRecord.of(report(inputs, solution, time.time() - started))
     return level_map, level_report

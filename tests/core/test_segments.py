@@ -10,12 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
+from shared.assembly import assemble
 from shared.bundle_plan import bundle_width_setting, level_bundles
 from shared.bundles import Bundle, owned_columns, segment_columns
 from shared.config import MatchConfig
 from shared.energy import mrf_energy
 from shared.pipeline import match_views, plan_run, prepare_level
-from shared.solve import assemble, solve_bundles, solve_level_in_process
+from shared.solve import solve_bundles, solve_level_in_process
 from shared.solvers.exact import solve_chains
 from shared.synthetic import make_scene
 
@@ -108,7 +109,10 @@ def _rows_level(scene, solver: str, bundle_width: int, **more):
 
 
 def test_every_segment_of_a_level_shares_its_shape(small):
-    config = MatchConfig(max_disparity=12, solver="sa", bundle_width=32, bundle_margin=10)
+    """With every tile sent (``certify_tiles`` off; the residual design sends 4x4 tiles)."""
+    config = MatchConfig(
+        max_disparity=12, solver="sa", bundle_width=32, bundle_margin=10, certify_tiles=False
+    )
     inputs = _finest_level(small, config)
     bundles = level_bundles(inputs, config)
     assert {b.shape for b in bundles} == {(3, 32)}  # grid inference: tiles of 3 rows

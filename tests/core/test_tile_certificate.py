@@ -14,13 +14,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared import settle
-from shared.assembly import assemble
 from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.energy import Costs, mrf_energy
 from shared.grid import dual_decomposition
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
+from shared.settle import assemble_level
 from shared.solve import encoded_bundles, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.base import SolveResult
@@ -124,7 +124,7 @@ def test_only_tiles_around_unsettled_pixels_are_sent_and_charged(monkeypatch):
     results = solve_bundles(inputs, cfg, bundles)
     assert counting.calls == len(bundles)
     assert all(charged_seconds(r.timing) == 0.0 for r in results)  # (unmetered here)
-    solution = assemble(inputs, results, cfg)
+    solution = assemble_level(inputs, results, cfg)
     assert solution.residual["tiles"] == len(bundles)
     assert solution.residual["pixels_sent"] == 16 * len(bundles)
 
@@ -148,7 +148,7 @@ def test_a_tiles_answer_replaces_the_hosts_only_where_it_lowers_the_energy(monke
     host_energy = sum(g.energy(host[v * height : (v + 1) * height]) for v, g in enumerate(grids))
     if solver == "worst":
         monkeypatch.setattr("shared.solve.get_solver", lambda name: WorstSolver())
-    solution = assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
+    solution = assemble_level(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     energy = sum(
         g.energy(solution.labels[v * height : (v + 1) * height]) for v, g in enumerate(grids)
     )
