@@ -13,6 +13,7 @@ answers with its status and message.
 from __future__ import annotations
 
 import contextlib
+import logging
 from dataclasses import dataclass
 
 import cv2
@@ -47,6 +48,8 @@ from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCapError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -249,6 +252,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
         version=qhsm_version(),
         estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
+        dispatched=False,
     )
     dispatch(record, arrays, svc)
     return record
@@ -263,7 +267,12 @@ def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> Non
 
 def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) -> None:
     """Write the job (under its owner's active-job cap: ``ActiveJobsCapError``) and send its
-    first control task; a job that could not be queued is removed again."""
+    first control task; a job that could not be queued is removed again.
+
+    Idempotent for the client: once the start is sent nothing raises (the submit answers 202
+    and the job runs once); before, the error is answered (507 on a full disk) and the job never
+    runs, even when its removal fails too: its record says its start was not sent
+    (``dispatched`` False) and the watchdog fails it instead of starting it."""
     settings = svc.settings
     svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
     try:
@@ -273,6 +282,10 @@ def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) ->
         with contextlib.suppress(Exception):
             svc.store.discard(record.id)
         raise
+    try:
+        svc.store.mark_dispatched(record.id)
+    except Exception as error:  # the start is sent: its worker runs the job regardless
+        log.warning("job %s: started, but its record could not say so: %s", record.id, error)
 
 
 def quote(

@@ -17,10 +17,13 @@ import logging
 import uuid
 from typing import Any
 
+import redis
 from fastapi import HTTPException, Request, status
+from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from api.errors import full_storage, storage_full
 from api.users import USER_SCOPE_KEY, authenticate_header, user_store_of
 from shared.config import Settings
 
@@ -124,6 +127,22 @@ class RequestGuard:
         await send_json(send, refused.status_code, {"detail": refused.detail}, headers)
 
 
+def storage_full_response(request: Request, error: BaseException) -> JSONResponse:
+    """507 with ``Retry-After``: nothing was kept of the request (uploads are removed)."""
+    error = full_storage(error) or error
+    where = "Redis cannot write" if isinstance(error, redis.RedisError) else "the disk is full"
+    log.error("%s %s: storage full (%s): %s", request.method, request.url.path, where, error)
+    return JSONResponse(
+        {
+            "detail": f"the service is out of storage ({where}); nothing of this request was "
+            "kept. Try again later; if it persists, tell the operator to free disk space on "
+            "the data directory and Redis"
+        },
+        status_code=507,
+        headers={"Retry-After": "60"},
+    )
+
+
 def _registered_handler(app: Any, error: Exception) -> Any:
     """The app's exception handler for ``error``'s class (nearest in its MRO), if any: errors
     raised outside the routes (in :class:`RequestGuard`) get the answers the routes' get."""
@@ -177,6 +196,10 @@ class ErrorBoundary:
                 if response is not None:
                     await response(scope, receive, send)
                     return
+            if not started and storage_full(error):  # e.g. kombu's error around Redis's
+                response = storage_full_response(Request(scope, receive), error)
+                await response(scope, receive, send)
+                return
             incident = uuid.uuid4().hex[:12]
             log.exception("incident %s: %s %s failed", incident, scope["method"], scope["path"])
             if started:  # half a response is out: only closing the connection can end it

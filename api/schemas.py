@@ -215,6 +215,11 @@ class SolverInfo(BaseModel):
 class Health(BaseModel):
     status: str
     redis: str | None = None
+    storage: str | None = Field(
+        None,
+        description='"ok", or "full: ..." naming what is full (the data directory\'s disk, or '
+        "Redis refusing writes it cannot persist): submits are then answered 507",
+    )
     queues_without_consumer: list[str] | None = Field(
         None,
         description="The control queue and solver queues no worker consumes (null: unknown); "

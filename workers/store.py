@@ -161,6 +161,12 @@ class JobStore(LevelStorage):
                 self.redis.delete(*written)
             raise
 
+    def mark_dispatched(self, job_id: str) -> None:
+        """Record that the job's start was sent (:attr:`JobRecord.dispatched`)."""
+        self.update(
+            job_id, lambda r: None if r.dispatched else r.model_copy(update={"dispatched": True})
+        )
+
     def discard(self, job_id: str) -> None:
         """Remove a job that was written but could not be queued (its submit failed after
         :meth:`create`): record, indexes, uploads and views, as if it had never been."""

@@ -185,3 +185,20 @@ def test_polls_are_logged_at_debug_and_other_requests_at_info(
         f"GET /v1/jobs/{job_id} HTTP/1.1": logging.DEBUG,
         "GET /v1/jobs/0123456789abcdef0123456789abcdef HTTP/1.1": logging.INFO,  # errors stay
     }
+
+
+def test_a_key_in_the_query_string_is_redacted_in_every_log(live_api, caplog, monkeypatch):
+    """The key is refused (only the Authorization header counts) and never written to a log:
+    uvicorn's access log or any other (issue 29)."""
+    for name in ("uvicorn", "uvicorn.access"):
+        monkeypatch.setattr(logging.getLogger(name), "propagate", True)
+    secret = "qhsm_0123abcd_" + "S" * 43
+    caplog.set_level(logging.DEBUG)
+    with httpx.Client(base_url=live_api.url) as client:
+        refused = client.get(f"/v1/jobs?api_key={secret}&limit=2")
+        assert refused.status_code == 401
+        assert client.get(f"/healthz?token={secret}").status_code == 200
+    logging.getLogger("qhsm.api").warning("asked for %s", f"/v1/x?key={secret}")
+    records = access_records(caplog)
+    assert any("api_key=[redacted]&limit=2" in r.getMessage() for r in records), records
+    assert all(secret not in r.getMessage() for r in caplog.records)
