@@ -52,7 +52,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.include_router(routes.v1())  # every /v1 route needs an API key
     app.include_router(health.router)
-    app.include_router(metrics.router)  # admin key checked by the route
+    app.include_router(metrics.router)  # admin key checked by the route (and by RequestGuard)
     web.mount(app)
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 
@@ -105,7 +105,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
 
     # added last = outermost: the boundary also catches what the guard raises
-    app.add_middleware(RequestGuard, settings=settings)
+    guarded = [*((routes.V1, part) for part, _ in routes.v1_parts()), ("", health.router)]
+    guarded.append(("", metrics.router))
+    app.add_middleware(RequestGuard, settings=settings, routers=guarded)
     app.add_middleware(ErrorBoundary)
     quiet_polls()
     return app

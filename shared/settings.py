@@ -99,6 +99,12 @@ class Settings(BaseSettings):
     )
     retry_backoff_max: float = seconds_field(300.0, "Longest retry delay, seconds")
     max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
+    max_json_body_bytes: int = Field(
+        64 * 2**10,
+        ge=1024,
+        description="Largest request body of a route without file uploads (JSON: users, "
+        "quotas, ...); larger is a 413 before the body is read",
+    )
     api_host: str = Field("127.0.0.1", description="`qhsm serve` / `qhsm api` bind address")
     api_port: int = Field(8000, ge=0, le=65535, description="`qhsm serve` / `qhsm api` port")
     api_url: str = Field(
