@@ -98,6 +98,13 @@ class Settings(BaseSettings):
         2.0, "First retry delay after a transient error, seconds (doubles)"
     )
     retry_backoff_max: float = seconds_field(300.0, "Longest retry delay, seconds")
+    redis_max_command_bytes: int = Field(
+        4 * 2**20,
+        ge=64 * 2**10,
+        description="Largest Redis command or reply a job's data travels in (uploads, level "
+        "inputs, solved bundles, results go in pieces of this size), so one large job never "
+        "stalls Redis for the others",
+    )
     max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
     max_json_body_bytes: int = Field(
         64 * 2**10,

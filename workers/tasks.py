@@ -31,6 +31,7 @@ from workers.app import (
     task_time_limits,
     terminate_tasks,
 )
+from workers.bounded import DataNotStoredError
 from workers.level_store import LevelInputsMissingError
 from workers.process import die_with_parent, limit_memory, lower_priority
 from workers.quota import QpuMeter, QuotaExceededError
@@ -122,7 +123,7 @@ def _start_watchdog(sender=None, **_: object) -> None:
 def start_job(self, job_id: str) -> None:
     try:
         orchestration.start_job(app, store(), job_id)
-    except (SolverError, ValueError) as error:  # e.g. no segment embeds: say what to change
+    except (SolverError, ValueError) as error:  # no segment embeds, data not stored (Redis full)
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
     except MemoryError:
@@ -139,7 +140,7 @@ def level_done(self, results: list[dict], job_id: str, index: int) -> None:
         orchestration.level_done(app, store(), results, job_id, index)
     except REDIS_DOWN as error:  # the watchdog re-sends the fan-in when Redis is back
         log.warning("job %s: Redis unavailable in the fan-in of level %d: %s", job_id, index, error)
-    except (SolverError, UploadsMissingError) as error:  # e.g. the next level's embedding failed
+    except (SolverError, UploadsMissingError, DataNotStoredError) as error:  # e.g. no embedding
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
     except MemoryError:
@@ -226,7 +227,7 @@ def solve_bundles(self, job_id: str, index: int, row_ranges: list[list[int]]) ->
         message = f"stopped: {error}; bundles not solved yet were not sent"
         store().fail(job_id, message)
         return {"error": message}
-    except SolverError as error:
+    except (SolverError, DataNotStoredError) as error:
         return _fail(job_id, str(error), task_id)
     except (LevelInputsMissingError, orchestration.JobGoneError):
         return {"skipped": True}
