@@ -36,6 +36,7 @@ from shared.bundle_plan import bundle_width_setting
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
+from shared.memory import MemoryBudgetError, check_fits, job_memory_mb, worker_budget_mb
 from shared.pipeline import match_views
 from shared.provenance import qhsm_version
 from shared.pyramid import plan
@@ -73,6 +74,8 @@ class Quote:
     estimate: JobEstimate
     max_disparity: int
     remaining_seconds: float
+    memory_mb: int | None = None
+    memory_budget_mb: int | None = None
 
 
 # --- admission checks -----------------------------------------------------------------------
@@ -200,6 +203,18 @@ def check_budget(
     return estimate
 
 
+def check_memory(config: MatchConfig, shape: tuple[int, ...], top: int, svc: Services) -> int:
+    """The job's estimated peak memory (MiB, :func:`shared.memory.job_memory_mb`), refused
+    (413) when it is above a worker process's budget on this host (a worker elsewhere checks
+    against its own when the job starts)."""
+    memory = job_memory_mb(config, shape[0], shape[1], top)
+    try:
+        check_fits(memory, worker_budget_mb(svc.settings))
+    except MemoryBudgetError as error:
+        raise AdmissionError(Refusal.TOO_LARGE, str(error)) from None
+    return memory
+
+
 # --- submission -----------------------------------------------------------------------------
 
 
@@ -220,6 +235,8 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
     disparity_range = range_at_submit(left_image, right_image, config)
     top = disparity_range.max_disparity if disparity_range else config.max_disparity
     estimate = None
+    # a range given or resolved here prices the memory now; "auto" at the job's start
+    memory = check_memory(config, left_image.shape, top, svc) if isinstance(top, int) else None
     if isinstance(top, int):
         estimate = check_budget(config, left_image, right_image, top, owner, users, svc)
     arrays = {"left": left_image, "right": right_image}
@@ -253,6 +270,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         version=qhsm_version(),
         estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
         dispatched=False,
+        memory_mb=memory,
     )
     dispatch(record, arrays, svc)
     return record
@@ -302,7 +320,14 @@ def quote(
     top = disparity_range_of(left_image, right_image, config).max_disparity
     job = estimate_job(config, left_image, right_image, top, svc)
     remaining = users.ledger.status(owner).remaining if job.seconds > 0 else float("inf")
-    return Quote(estimate=job, max_disparity=top, remaining_seconds=remaining)
+    memory = job_memory_mb(config, left_image.shape[0], left_image.shape[1], top)
+    return Quote(
+        estimate=job,
+        max_disparity=top,
+        remaining_seconds=remaining,
+        memory_mb=memory,
+        memory_budget_mb=worker_budget_mb(settings),
+    )
 
 
 # --- lookups --------------------------------------------------------------------------------

@@ -161,10 +161,25 @@ class Settings(BaseSettings):
         "shared machine (0: as started)",
     )
     task_memory_limit_mb: int | None = Field(
-        8192,
+        None,
         ge=0,
-        description="Address space a worker's pool process may use, MiB (RLIMIT_AS); a task "
-        "that needs more fails its job with a message (0 or None: no limit)",
+        description="Most memory one worker process may use, MiB; unset: its share of the "
+        "host's (QHSM_MEMORY_HOST_FRACTION x the host's memory / its worker processes); a job "
+        "estimated above it is refused (413), a task that grows past it fails its job with a "
+        "message (0: no limit)",
+    )
+    memory_host_fraction: float = Field(
+        0.8,
+        gt=0,
+        le=1,
+        description="Share of a host's memory its worker processes may use together (each "
+        "worker reads its own host's memory)",
+    )
+    host_worker_processes: int | None = Field(
+        None,
+        ge=1,
+        description="Worker processes on this host that share its memory (`qhsm serve` sets it "
+        "for the workers it starts; unset: one per core)",
     )
 
     # users, API keys and QPU quotas (issue 5)

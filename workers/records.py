@@ -157,6 +157,9 @@ class JobRecord(BaseModel):
     #: was never sent (its submit failed, e.g. on a full disk) is failed by the watchdog, never
     #: started later, so the client's retry is the only run
     dispatched: bool = True
+    #: Estimated peak memory of a worker process running it, MiB (``shared.memory``); None
+    #: until its range is known
+    memory_mb: int | None = None
 
     @field_validator("metrics")
     @classmethod
