@@ -5,6 +5,7 @@ the package (fastapi-offline), never from a CDN."""
 from __future__ import annotations
 
 import logging
+import threading
 import warnings
 
 import redis
@@ -49,6 +50,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store=JobStore.from_settings(settings),
         celery=celery,
         queues=QueueInspector(celery, settings.inspect_timeout),
+        pricing=threading.BoundedSemaphore(settings.max_concurrent_pricing),
     )
     app.include_router(routes.v1())  # every /v1 route needs an API key
     app.include_router(health.router)

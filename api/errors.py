@@ -32,7 +32,7 @@ class Refusal(Enum):
     TOO_LARGE = 413  # a file or image above the limits
     UNSUPPORTED = 415  # not an image format the service reads
     INVALID = 422  # parameters, sizes or solver the service cannot use
-    TOO_MANY = 429  # the owner's active-job cap
+    TOO_MANY = 429  # the owner's active-job cap, or every pricing slot taken
 
 
 class ServiceError(Exception):
@@ -50,6 +50,17 @@ class ServiceError(Exception):
 
 class AdmissionError(ServiceError):
     """A job (or an estimate) refused before anything is stored or queued."""
+
+
+class PricingBusyError(ServiceError):
+    """Every pricing slot of this API process is taken (``max_concurrent_pricing``)."""
+
+    def __init__(self, limit: int):
+        super().__init__(
+            Refusal.TOO_MANY,
+            f"the service is already computing {limit} estimates, its limit "
+            "(QHSM_MAX_CONCURRENT_PRICING); try again in a minute",
+        )
 
 
 class JobNotFoundError(ServiceError):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -21,7 +22,14 @@ import numpy as np
 
 from api.auth import Principal, can_see
 from api.deps import Services, load_solver
-from api.errors import AdmissionError, ExpiredError, JobNotFoundError, JobStateError, Refusal
+from api.errors import (
+    AdmissionError,
+    ExpiredError,
+    JobNotFoundError,
+    JobStateError,
+    PricingBusyError,
+    Refusal,
+)
 from api.uploads import (
     Upload,
     decode_ground_truth,
@@ -168,6 +176,19 @@ def ground_truth_protocol(
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 
 
+@contextlib.contextmanager
+def pricing_slot(svc: Services) -> Iterator[None]:
+    """One of the process's ``max_concurrent_pricing`` slots for an estimate, taken at once or
+    refused (:class:`PricingBusyError`, a 429): an estimate runs the exact pyramid here, and
+    without a bound a few large ones took the API's memory and time for an hour (issue 29)."""
+    if not svc.pricing.acquire(blocking=False):
+        raise PricingBusyError(svc.settings.max_concurrent_pricing)
+    try:
+        yield
+    finally:
+        svc.pricing.release()
+
+
 def estimate_job(
     config: MatchConfig, left_image, right_image, max_disparity: int, svc: Services
 ) -> JobEstimate:
@@ -176,8 +197,9 @@ def estimate_job(
     bundles (surveyed on the pair); refused for unusable solver_params."""
     cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
     try:
-        residual = job_residual(config, left_image, right_image, max_disparity, cache)
-        return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
+        with pricing_slot(svc):
+            residual = job_residual(config, left_image, right_image, max_disparity, cache)
+            return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
     except (TypeError, ValueError, KeyError) as error:
         raise AdmissionError(
             Refusal.INVALID,

@@ -126,6 +126,17 @@ class Settings(BaseSettings):
     inspect_timeout: float = seconds_field(
         1.0, "Seconds to wait for workers to report their queues"
     )
+    max_concurrent_pricing: int = Field(
+        2,
+        ge=1,
+        description="Estimates (POST /v1/estimate, a metered job's budget check) an API "
+        "process computes at once; more is a 429 with Retry-After",
+    )
+    api_shutdown_seconds: float = seconds_field(
+        5.0,
+        "Seconds the API waits for requests in flight after SIGTERM or Ctrl-C before it stops "
+        "regardless (an estimate still computing included)",
+    )
     max_active_jobs_per_user: int | None = Field(
         8,
         ge=0,

@@ -319,3 +319,23 @@ def test_readyz_names_full_storage(api, monkeypatch):
     monkeypatch.setattr(health, "MIN_FREE_BYTES", 2**62)
     body = api.get("/readyz")
     assert body.status_code == 503 and body.json()["storage"].startswith("full: the disk of")
+
+
+def test_pricing_beyond_its_concurrency_limit_is_429(make_client):
+    """An estimate runs the exact pyramid in the API process: at most
+    QHSM_MAX_CONCURRENT_PRICING at once (issue 29), the next is told to come back."""
+    client = make_client(max_concurrent_pricing=1)
+    slots = client.app.state.services.pricing
+    params = {"solver": "qpu-sim", "max_disparity": 6}
+    assert slots.acquire(blocking=False)  # an estimate in flight
+    try:
+        busy = estimate(client, params=params)
+        assert busy.status_code == 429, busy.text
+        assert "QHSM_MAX_CONCURRENT_PRICING" in busy.json()["detail"]
+        refused = post(client, params=params)  # a metered job's admission prices it too
+        assert refused.status_code == 429, refused.text
+    finally:
+        slots.release()
+    answered = estimate(client, params=params)
+    assert answered.status_code == 200, answered.text
+    assert answered.json()["memory_mb"] > 0
