@@ -4,8 +4,8 @@ the package (fastapi-offline), never from a CDN."""
 
 from __future__ import annotations
 
-import errno
 import logging
+import threading
 import warnings
 
 import redis
@@ -20,8 +20,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from api import routes, web
 from api.access_log import quiet_polls
 from api.deps import QueueInspector, Services
-from api.errors import DOMAIN_ERRORS, refusal_of
-from api.middleware import ErrorBoundary, RequestGuard
+from api.errors import DOMAIN_ERRORS, refusal_of, storage_full
+from api.middleware import ErrorBoundary, RequestGuard, storage_full_response
 from api.routes import health, metrics
 from api.users import UserStore
 from shared.config import Settings, get_settings
@@ -31,38 +31,6 @@ from workers.records import finite_or_null
 from workers.store import JobStore
 
 log = logging.getLogger("qhsm.api")
-
-
-#: errno values of a full disk or an exhausted quota.
-DISK_FULL = {errno.ENOSPC, errno.EDQUOT}
-#: How Redis refuses writes when it cannot persist them (full disk) or is out of memory
-#: (also quoted inside a pipeline's "Command # 1 (...) of pipeline caused error: ...").
-REDIS_FULL = ("MISCONF ", "OOM command not allowed")
-
-
-def storage_full(error: BaseException | None) -> bool:
-    """Whether ``error`` says the service's storage is full: the data directory's disk, or
-    Redis refusing writes it cannot persist."""
-    if isinstance(error, OSError):
-        return error.errno in DISK_FULL
-    if isinstance(error, redis.ResponseError):
-        return any(sign in str(error) for sign in REDIS_FULL) or storage_full(error.__context__)
-    return False
-
-
-def storage_full_response(request: Request, error: BaseException) -> JSONResponse:
-    """507 with ``Retry-After``: nothing was kept of the request (uploads are removed)."""
-    where = "Redis cannot write" if isinstance(error, redis.RedisError) else "the disk is full"
-    log.error("%s %s: storage full (%s): %s", request.method, request.url.path, where, error)
-    return JSONResponse(
-        {
-            "detail": f"the service is out of storage ({where}); nothing of this request was "
-            "kept. Try again later; if it persists, tell the operator to free disk space on "
-            "the data directory and Redis"
-        },
-        status_code=507,
-        headers={"Retry-After": "60"},
-    )
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -82,10 +50,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store=JobStore.from_settings(settings),
         celery=celery,
         queues=QueueInspector(celery, settings.inspect_timeout),
+        pricing=threading.BoundedSemaphore(settings.max_concurrent_pricing),
     )
     app.include_router(routes.v1())  # every /v1 route needs an API key
     app.include_router(health.router)
-    app.include_router(metrics.router)  # admin key checked by the route
+    app.include_router(metrics.router)  # admin key checked by the route (and by RequestGuard)
     web.mount(app)
     app.state.users = UserStore.from_settings(settings, app.state.services.store.redis)
 
@@ -138,7 +107,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
 
     # added last = outermost: the boundary also catches what the guard raises
-    app.add_middleware(RequestGuard, settings=settings)
+    guarded = [*((routes.V1, part) for part, _ in routes.v1_parts()), ("", health.router)]
+    guarded.append(("", metrics.router))
+    app.add_middleware(RequestGuard, settings=settings, routers=guarded)
     app.add_middleware(ErrorBoundary)
     quiet_polls()
     return app

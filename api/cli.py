@@ -357,7 +357,8 @@ def format_estimate(result: dict) -> str:
     """The estimate as a few lines of text: the total, then one line per level."""
     solver = result["solver"]
     if not result["metered"]:
-        return f"{solver}: not metered (no QPU or hybrid time is charged)"
+        line = f"{solver}: not metered (no QPU or hybrid time is charged)"
+        return "\n".join([line, *memory_lines(result)])
     kind = "QPU access" if result["levels"][0]["qubits_per_bundle"] is not None else "hybrid"
     sent = result.get("bundles_sent", result["bundles"])
     lines = [
@@ -390,4 +391,15 @@ def format_estimate(result: dict) -> str:
         left = "unlimited" if remaining is None else f"{remaining:.2f} s"
         verdict = "fits" if result["fits"] else "does NOT fit: submitting it would be refused (403)"
         lines.append(f"your budget: {left} remaining; this job {verdict}")
-    return "\n".join(lines)
+    return "\n".join(lines + memory_lines(result))
+
+
+def memory_lines(result: dict) -> list[str]:
+    """The job's estimated peak memory against a worker's budget (the service's estimate)."""
+    if result.get("memory_mb") is None:
+        return []
+    budget = result.get("memory_budget_mb")
+    room = "no limit" if budget is None else f"a worker's budget {budget} MiB"
+    over = budget is not None and result["memory_mb"] > budget
+    refused = "; submitting it would be refused (413)" if over else ""
+    return [f"memory: about {result['memory_mb']} MiB at its peak ({room}){refused}"]

@@ -10,7 +10,10 @@ do), or an error of the core (a budget too small, the active-job cap, an unknown
 
 from __future__ import annotations
 
+import errno
 from enum import Enum
+
+import redis
 
 from shared.ground_truth import ScaleNotInferredError
 from shared.solvers import InvalidSolverParamsError, UnknownSolverError
@@ -29,7 +32,7 @@ class Refusal(Enum):
     TOO_LARGE = 413  # a file or image above the limits
     UNSUPPORTED = 415  # not an image format the service reads
     INVALID = 422  # parameters, sizes or solver the service cannot use
-    TOO_MANY = 429  # the owner's active-job cap
+    TOO_MANY = 429  # the owner's active-job cap, or every pricing slot taken
 
 
 class ServiceError(Exception):
@@ -47,6 +50,17 @@ class ServiceError(Exception):
 
 class AdmissionError(ServiceError):
     """A job (or an estimate) refused before anything is stored or queued."""
+
+
+class PricingBusyError(ServiceError):
+    """Every pricing slot of this API process is taken (``max_concurrent_pricing``)."""
+
+    def __init__(self, limit: int):
+        super().__init__(
+            Refusal.TOO_MANY,
+            f"the service is already computing {limit} estimates, its limit "
+            "(QHSM_MAX_CONCURRENT_PRICING); try again in a minute",
+        )
 
 
 class JobNotFoundError(ServiceError):
@@ -108,3 +122,31 @@ def refusal_of(error: Exception) -> tuple[int, str]:
     if isinstance(error, ScaleNotInferredError):
         return Refusal.INVALID.value, f"gt_scale: {error}"
     raise TypeError(f"not a domain error: {type(error).__name__}") from error
+
+
+#: errno values of a full disk or an exhausted quota.
+DISK_FULL = {errno.ENOSPC, errno.EDQUOT}
+#: How Redis refuses writes when it cannot persist them (full disk) or is out of memory
+#: (also quoted inside a pipeline's "Command # 1 (...) of pipeline caused error: ...").
+REDIS_FULL = ("MISCONF ", "OOM command not allowed")
+
+
+def full_storage(error: BaseException | None) -> BaseException | None:
+    """The error in ``error``'s chain (itself or one it was raised from: kombu re-raises Redis's
+    refusal to write a task message as its own ``ChannelError``) that says the service's storage
+    is full: the data directory's disk, or Redis refusing writes it cannot persist; None when
+    none does."""
+    for _ in range(8):  # a chain, short in practice; never a cycle
+        if error is None:
+            return None
+        if isinstance(error, OSError) and error.errno in DISK_FULL:
+            return error
+        if isinstance(error, redis.ResponseError) and any(s in str(error) for s in REDIS_FULL):
+            return error
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def storage_full(error: BaseException | None) -> bool:
+    """Whether ``error`` says the service's storage is full (:func:`full_storage`)."""
+    return full_storage(error) is not None

@@ -13,6 +13,8 @@ answers with its status and message.
 from __future__ import annotations
 
 import contextlib
+import logging
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -20,7 +22,14 @@ import numpy as np
 
 from api.auth import Principal, can_see
 from api.deps import Services, load_solver
-from api.errors import AdmissionError, ExpiredError, JobNotFoundError, JobStateError, Refusal
+from api.errors import (
+    AdmissionError,
+    ExpiredError,
+    JobNotFoundError,
+    JobStateError,
+    PricingBusyError,
+    Refusal,
+)
 from api.uploads import (
     Upload,
     decode_ground_truth,
@@ -35,6 +44,7 @@ from shared.bundle_plan import bundle_width_setting
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
+from shared.memory import MemoryBudgetError, check_fits, job_memory_mb, worker_budget_mb
 from shared.pipeline import match_views
 from shared.provenance import qhsm_version
 from shared.pyramid import plan
@@ -47,6 +57,8 @@ from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
 from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCapError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -70,6 +82,8 @@ class Quote:
     estimate: JobEstimate
     max_disparity: int
     remaining_seconds: float
+    memory_mb: int | None = None
+    memory_budget_mb: int | None = None
 
 
 # --- admission checks -----------------------------------------------------------------------
@@ -162,6 +176,19 @@ def ground_truth_protocol(
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 
 
+@contextlib.contextmanager
+def pricing_slot(svc: Services) -> Iterator[None]:
+    """One of the process's ``max_concurrent_pricing`` slots for an estimate, taken at once or
+    refused (:class:`PricingBusyError`, a 429): an estimate runs the exact pyramid here, and
+    without a bound a few large ones took the API's memory and time for an hour (issue 29)."""
+    if not svc.pricing.acquire(blocking=False):
+        raise PricingBusyError(svc.settings.max_concurrent_pricing)
+    try:
+        yield
+    finally:
+        svc.pricing.release()
+
+
 def estimate_job(
     config: MatchConfig, left_image, right_image, max_disparity: int, svc: Services
 ) -> JobEstimate:
@@ -170,8 +197,9 @@ def estimate_job(
     bundles (surveyed on the pair); refused for unusable solver_params."""
     cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
     try:
-        residual = job_residual(config, left_image, right_image, max_disparity, cache)
-        return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
+        with pricing_slot(svc):
+            residual = job_residual(config, left_image, right_image, max_disparity, cache)
+            return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
     except (TypeError, ValueError, KeyError) as error:
         raise AdmissionError(
             Refusal.INVALID,
@@ -197,6 +225,18 @@ def check_budget(
     return estimate
 
 
+def check_memory(config: MatchConfig, shape: tuple[int, ...], top: int, svc: Services) -> int:
+    """The job's estimated peak memory (MiB, :func:`shared.memory.job_memory_mb`), refused
+    (413) when it is above a worker process's budget on this host (a worker elsewhere checks
+    against its own when the job starts)."""
+    memory = job_memory_mb(config, shape[0], shape[1], top)
+    try:
+        check_fits(memory, worker_budget_mb(svc.settings))
+    except MemoryBudgetError as error:
+        raise AdmissionError(Refusal.TOO_LARGE, str(error)) from None
+    return memory
+
+
 # --- submission -----------------------------------------------------------------------------
 
 
@@ -217,6 +257,8 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
     disparity_range = range_at_submit(left_image, right_image, config)
     top = disparity_range.max_disparity if disparity_range else config.max_disparity
     estimate = None
+    # a range given or resolved here prices the memory now; "auto" at the job's start
+    memory = check_memory(config, left_image.shape, top, svc) if isinstance(top, int) else None
     if isinstance(top, int):
         estimate = check_budget(config, left_image, right_image, top, owner, users, svc)
     arrays = {"left": left_image, "right": right_image}
@@ -249,6 +291,8 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
         version=qhsm_version(),
         estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
+        dispatched=False,
+        memory_mb=memory,
     )
     dispatch(record, arrays, svc)
     return record
@@ -263,7 +307,12 @@ def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> Non
 
 def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) -> None:
     """Write the job (under its owner's active-job cap: ``ActiveJobsCapError``) and send its
-    first control task; a job that could not be queued is removed again."""
+    first control task; a job that could not be queued is removed again.
+
+    Idempotent for the client: once the start is sent nothing raises (the submit answers 202
+    and the job runs once); before, the error is answered (507 on a full disk) and the job never
+    runs, even when its removal fails too: its record says its start was not sent
+    (``dispatched`` False) and the watchdog fails it instead of starting it."""
     settings = svc.settings
     svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
     try:
@@ -273,6 +322,10 @@ def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) ->
         with contextlib.suppress(Exception):
             svc.store.discard(record.id)
         raise
+    try:
+        svc.store.mark_dispatched(record.id)
+    except Exception as error:  # the start is sent: its worker runs the job regardless
+        log.warning("job %s: started, but its record could not say so: %s", record.id, error)
 
 
 def quote(
@@ -289,7 +342,14 @@ def quote(
     top = disparity_range_of(left_image, right_image, config).max_disparity
     job = estimate_job(config, left_image, right_image, top, svc)
     remaining = users.ledger.status(owner).remaining if job.seconds > 0 else float("inf")
-    return Quote(estimate=job, max_disparity=top, remaining_seconds=remaining)
+    memory = job_memory_mb(config, left_image.shape[0], left_image.shape[1], top)
+    return Quote(
+        estimate=job,
+        max_disparity=top,
+        remaining_seconds=remaining,
+        memory_mb=memory,
+        memory_budget_mb=worker_budget_mb(settings),
+    )
 
 
 # --- lookups --------------------------------------------------------------------------------

@@ -129,6 +129,11 @@ class JobSummary(BaseModel):
         description="QPU access (hybrid: charge) seconds charged to the job so far; null for "
         "solvers that are not metered",
     )
+    memory_mb: int | None = Field(
+        None,
+        description="Estimated peak memory of a worker process running the job, MiB (null "
+        "until its disparity range is known); a job above a worker's budget is refused",
+    )
     links: Links
 
     @classmethod
@@ -148,6 +153,7 @@ class JobSummary(BaseModel):
             "finished_at": record.finished_at,
             "metrics": record.metrics,
             "qpu_seconds": qpu_seconds,
+            "memory_mb": record.memory_mb,
             "links": links,
         }
 
@@ -215,6 +221,11 @@ class SolverInfo(BaseModel):
 class Health(BaseModel):
     status: str
     redis: str | None = None
+    storage: str | None = Field(
+        None,
+        description='"ok", or "full: ..." naming what is full (the data directory\'s disk, or '
+        "Redis refusing writes it cannot persist): submits are then answered 507",
+    )
     queues_without_consumer: list[str] | None = Field(
         None,
         description="The control queue and solver queues no worker consumes (null: unknown); "
@@ -281,16 +292,33 @@ class Estimate(BaseModel):
         description="Your budget left; null: unlimited, or the solver is not metered"
     )
     fits: bool = Field(description="false: POST /v1/jobs would answer 403 for this job")
+    memory_mb: int | None = Field(
+        None, description="Estimated peak memory of a worker process running the job, MiB"
+    )
+    memory_budget_mb: int | None = Field(
+        None,
+        description="A worker process's memory budget, MiB (null: no limit); POST /v1/jobs "
+        "answers 413 when memory_mb is above it",
+    )
 
     @classmethod
-    def of(cls, job: JobEstimate, max_disparity: int, remaining_seconds: float) -> Estimate:
+    def of(
+        cls,
+        job: JobEstimate,
+        max_disparity: int,
+        remaining_seconds: float,
+        memory: tuple[int | None, int | None] | None = None,
+    ) -> Estimate:
         """The estimate of ``job`` at the resolved range, against the budget left (infinite:
-        unlimited, or nothing to charge)."""
+        unlimited, or nothing to charge); ``memory``: its peak and a worker's budget, MiB."""
+        memory_mb, budget = memory or (None, None)
         return cls(
             **job.as_dict(),
             max_disparity=max_disparity,
             remaining_seconds=None if math.isinf(remaining_seconds) else remaining_seconds,
             fits=job.seconds <= remaining_seconds,
+            memory_mb=memory_mb,
+            memory_budget_mb=budget,
         )
 
 

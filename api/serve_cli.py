@@ -11,27 +11,18 @@ from shared.cli_options import CommandError, settings_from_args
 from shared.config import Settings
 
 
-def _uvicorn_server(settings: Settings, log_level: str):
-    """The API in this thread (uvicorn handles Ctrl-C and SIGTERM)."""
-    import uvicorn
-
-    from api.app import create_app
-
-    config = uvicorn.Config(
-        create_app(settings), host=settings.api_host, port=settings.api_port, log_level=log_level
-    )
-    return uvicorn.Server(config)
-
-
 def cmd_api(args: argparse.Namespace) -> int:
-    _uvicorn_server(settings_from_args(args), args.log_level).run()
+    """The API alone, in this thread (stopped within seconds of SIGTERM or Ctrl-C)."""
+    from api.server import stoppable_server
+
+    stoppable_server(settings_from_args(args), args.log_level).run()
     return 0
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
     import logging
 
-    from api.server import PortBusyError, bind_api_socket
+    from api.server import PortBusyError, bind_api_socket, once, stoppable_server
     from workers.embedded_redis import DataDirBusyError
     from workers.supervisor import Stack
 
@@ -44,6 +35,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except PortBusyError as error:
         raise CommandError(str(error)) from None
     stack = Stack(settings, concurrency=args.worker_concurrency)
+    stop = once(stack.stop)  # here at the end, or by the API's stop if a request holds it
     print("starting Redis and workers ...", file=sys.stderr)
     try:
         try:
@@ -56,11 +48,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         url = f"http://{settings.api_host}:{settings.api_port}"
         print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
         announce_web_page(settings, url)
-        _uvicorn_server(settings, args.log_level).run(sockets=[sock])
+        stoppable_server(settings, args.log_level, cleanup=stop).run(sockets=[sock])
     except KeyboardInterrupt:  # Ctrl-C is how serve is stopped (uvicorn re-raises it)
         print("qhsm serve: stopping the workers and Redis ...", file=sys.stderr)
     finally:
-        stack.stop()
+        stop()
         sock.close()
     return 0
 

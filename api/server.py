@@ -4,13 +4,20 @@
 from __future__ import annotations
 
 import errno
+import logging
+import math
+import os
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from types import FrameType
 from typing import TYPE_CHECKING
 
 from shared.config import Settings
+
+log = logging.getLogger("qhsm.api")
 
 if TYPE_CHECKING:
     import uvicorn  # imported when the thread starts (the CLI's start-up stays light)
@@ -39,6 +46,73 @@ class PortBusyError(RuntimeError):
     """The API port is taken."""
 
 
+#: Seconds beyond ``api_shutdown_seconds`` for uvicorn's own shutdown and the cleanup.
+STOP_MARGIN = 2.0
+_stopping = threading.Event()
+
+
+def stoppable_server(
+    settings: Settings, log_level: str, cleanup: Callable[[], object] = lambda: None
+) -> uvicorn.Server:
+    """uvicorn serving the API, stopped within seconds of SIGTERM or Ctrl-C whatever is in
+    flight: uvicorn waits ``api_shutdown_seconds`` for requests to finish and then cancels
+    them, but a sync route's thread (an estimate running the pyramid) cannot be cancelled and
+    held the process (the loop waits for it, the interpreter joins it). So the signal also arms
+    :func:`stop_after`: ``STOP_MARGIN`` s later ``cleanup`` runs and the process exits."""
+    import uvicorn
+
+    from api.app import create_app
+
+    class StoppableServer(uvicorn.Server):
+        def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+            super().handle_exit(sig, frame)
+            stop_after(settings.api_shutdown_seconds + STOP_MARGIN, cleanup)
+
+    config = uvicorn.Config(
+        create_app(settings),
+        host=settings.api_host,
+        port=settings.api_port,
+        log_level=log_level,
+        timeout_graceful_shutdown=math.ceil(settings.api_shutdown_seconds),
+    )
+    return StoppableServer(config)
+
+
+def stop_after(seconds: float, cleanup: Callable[[], object]) -> None:
+    """In ``seconds`` (once per process, from a daemon thread): ``cleanup``, then exit at once,
+    whatever threads are still running (a normal exit before then makes this moot)."""
+    if _stopping.is_set():
+        return
+    _stopping.set()
+
+    def stop() -> None:
+        time.sleep(seconds)
+        log.warning("still running %g s after the stop signal: exiting now", seconds)
+        try:
+            cleanup()
+        finally:
+            logging.shutdown()
+            os._exit(0)
+
+    threading.Thread(target=stop, name="qhsm-stop", daemon=True).start()
+
+
+def once(action: Callable[[], object]) -> Callable[[], None]:
+    """``action`` that runs at most once whoever calls it (the main thread or the stop); a
+    second caller waits until the first one's run has finished."""
+    lock = threading.Lock()
+    done = False
+
+    def run() -> None:
+        nonlocal done
+        with lock:
+            if not done:
+                done = True
+                action()
+
+    return run
+
+
 @dataclass
 class ApiThread:
     """The API served by uvicorn in a background thread (``qhsm demo``, the benchmark)."""
@@ -62,6 +136,7 @@ class ApiThread:
             host=self.settings.api_host,
             port=self.settings.api_port,
             log_level=self.log_level,
+            timeout_graceful_shutdown=math.ceil(self.settings.api_shutdown_seconds),
         )
         self.server = server = uvicorn.Server(config)
         self.thread = threading.Thread(target=server.run, daemon=True)

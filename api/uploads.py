@@ -226,12 +226,18 @@ def read_npy(data: bytes, shape: tuple[int, int]) -> np.ndarray:
             Refusal.UNSUPPORTED,
             f"{name}: unsupported values {dtype} (send integers or floats)",
         )
-    if len(dims) not in (2, 3) or tuple(dims[:2]) != shape or (len(dims) == 3 and dims[2] > 4):
+    if len(dims) not in (2, 3) or tuple(dims[:2]) != shape:
         described = "x".join(map(str, dims[1::-1] if len(dims) >= 2 else dims)) or "a scalar"
         raise UploadError(
             Refusal.INVALID,
             f"{name} is {described} but the views are {shape[1]}x{shape[0]}: "
             "send the left view's ground truth at full size",
+        )
+    if len(dims) == 3 and not 1 <= dims[2] <= 4:  # (h, w, 0) holds no value at all
+        raise UploadError(
+            Refusal.INVALID,
+            f"{name} has {dims[2]} channels per pixel (shape {tuple(dims)}): send one "
+            "disparity per pixel, an array of shape (height, width)",
         )
     count = math.prod(dims)
     if len(data) - stream.tell() < count * dtype.itemsize:

@@ -98,7 +98,20 @@ class Settings(BaseSettings):
         2.0, "First retry delay after a transient error, seconds (doubles)"
     )
     retry_backoff_max: float = seconds_field(300.0, "Longest retry delay, seconds")
+    redis_max_command_bytes: int = Field(
+        4 * 2**20,
+        ge=64 * 2**10,
+        description="Largest Redis command or reply a job's data travels in (uploads, level "
+        "inputs, solved bundles, results go in pieces of this size), so one large job never "
+        "stalls Redis for the others",
+    )
     max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
+    max_json_body_bytes: int = Field(
+        64 * 2**10,
+        ge=1024,
+        description="Largest request body of a route without file uploads (JSON: users, "
+        "quotas, ...); larger is a 413 before the body is read",
+    )
     api_host: str = Field("127.0.0.1", description="`qhsm serve` / `qhsm api` bind address")
     api_port: int = Field(8000, ge=0, le=65535, description="`qhsm serve` / `qhsm api` port")
     api_url: str = Field(
@@ -112,6 +125,17 @@ class Settings(BaseSettings):
     )
     inspect_timeout: float = seconds_field(
         1.0, "Seconds to wait for workers to report their queues"
+    )
+    max_concurrent_pricing: int = Field(
+        2,
+        ge=1,
+        description="Estimates (POST /v1/estimate, a metered job's budget check) an API "
+        "process computes at once; more is a 429 with Retry-After",
+    )
+    api_shutdown_seconds: float = seconds_field(
+        5.0,
+        "Seconds the API waits for requests in flight after SIGTERM or Ctrl-C before it stops "
+        "regardless (an estimate still computing included)",
     )
     max_active_jobs_per_user: int | None = Field(
         8,
@@ -148,10 +172,25 @@ class Settings(BaseSettings):
         "shared machine (0: as started)",
     )
     task_memory_limit_mb: int | None = Field(
-        8192,
+        None,
         ge=0,
-        description="Address space a worker's pool process may use, MiB (RLIMIT_AS); a task "
-        "that needs more fails its job with a message (0 or None: no limit)",
+        description="Most memory one worker process may use, MiB; unset: its share of the "
+        "host's (QHSM_MEMORY_HOST_FRACTION x the host's memory / its worker processes); a job "
+        "estimated above it is refused (413), a task that grows past it fails its job with a "
+        "message (0: no limit)",
+    )
+    memory_host_fraction: float = Field(
+        0.8,
+        gt=0,
+        le=1,
+        description="Share of a host's memory its worker processes may use together (each "
+        "worker reads its own host's memory)",
+    )
+    host_worker_processes: int | None = Field(
+        None,
+        ge=1,
+        description="Worker processes on this host that share its memory (`qhsm serve` sets it "
+        "for the workers it starts; unset: one per core)",
     )
 
     # users, API keys and QPU quotas (issue 5)

@@ -57,8 +57,10 @@ def _as_integers(array: np.ndarray) -> tuple[np.ndarray, float] | None:
     return None
 
 
-def array_fields(name: str, array: np.ndarray, *, images: bool = False) -> dict[str, bytes]:
-    """``array`` as hash fields of at most :data:`MAX_VALUE_BYTES` each: ``name`` holds its
+def array_fields(
+    name: str, array: np.ndarray, *, images: bool = False, piece: int = MAX_VALUE_BYTES
+) -> dict[str, bytes]:
+    """``array`` as hash fields of at most ``piece`` bytes each: ``name`` holds its
     .npy header (dtype, shape) and ``name:0``, ``name:1``, ... its bytes. Integer arrays travel
     in the narrowest dtype that holds their values (candidates are small disparities) and come
     back in their own. With ``images`` (the uploads), float32 images travel as the integers
@@ -75,10 +77,10 @@ def array_fields(name: str, array: np.ndarray, *, images: bool = False) -> dict[
         stored, header["divisor"] = found
     header["stored"] = stored.dtype.str
     data = stored.tobytes()
-    pieces = range(0, max(len(data), 1), MAX_VALUE_BYTES)
+    pieces = range(0, max(len(data), 1), piece)
     fields = {name: json.dumps({**header, "pieces": len(pieces)}).encode()}
     for number, start in enumerate(pieces):
-        fields[f"{name}:{number}"] = data[start : start + MAX_VALUE_BYTES]
+        fields[f"{name}:{number}"] = data[start : start + piece]
     return fields
 
 

@@ -19,14 +19,14 @@ from collections.abc import Mapping
 
 import numpy as np
 import redis
-from redis.typing import EncodableT
 
 from shared.bundles import bundle_key
 from shared.config import Settings
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
 from workers.arrays import array_fields, array_from
-from workers.redis_client import text
+from workers.bounded import batches, not_stored, piece_bytes, read_hash, write_hash
+from workers.redis_client import as_bytes, text
 
 #: Level inputs live this long at most (they are deleted as soon as the level is assembled).
 LEVEL_INPUTS_GRACE = 3600
@@ -47,8 +47,16 @@ class LevelStorage:
     def key(self, *parts: object) -> str:
         raise NotImplementedError  # JobStore's
 
+    @property
+    def limit(self) -> int:
+        """Largest Redis command or reply of a job's data (``redis_max_command_bytes``)."""
+        return self.settings.redis_max_command_bytes
+
     def save_level(self, job_id: str, inputs: LevelInputs, started: float) -> None:
-        """Write a level's inputs once; every worker of the level reads them (by reference)."""
+        """Write a level's inputs once; every worker of the level reads them (by reference).
+        In bounded commands (:mod:`workers.bounded`): :class:`DataNotStoredError` when Redis
+        refuses them."""
+        piece = piece_bytes(self.limit)
         fields = {
             "plan": inputs.plan.model_dump_json().encode(),
             "views": str(inputs.views).encode(),
@@ -60,21 +68,22 @@ class LevelStorage:
         if inputs.initial_labels is not None:
             arrays["initial_labels"] = inputs.initial_labels
         for name, array in arrays.items():
-            fields.update(array_fields(name, array))
+            fields.update(array_fields(name, array, piece=piece))
         key = self.key("job", job_id, "level", inputs.index)
         # a level's images depend on the job and the downsampling only (bin pyramid: one copy)
         images = self.key("job", job_id, "level", "views", inputs.plan.downsample)
         ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
-        with self.redis.pipeline() as pipe:
-            if not self.redis.exists(images):  # once per job and downsampling
-                for name in ("left", "right"):
-                    for field, value in array_fields(name, getattr(inputs, name)).items():
-                        pipe.hset(images, field, value)  # one bounded write per field
-            pipe.expire(images, ttl)
-            for name, value in fields.items():
-                pipe.hset(key, name, value)
-            pipe.expire(key, ttl)
-            pipe.execute()
+        what = f"the inputs of level {inputs.index + 1}"
+        if not self.redis.exists(images):  # once per job and downsampling
+            views = {
+                field: value
+                for name in ("left", "right")
+                for field, value in array_fields(name, getattr(inputs, name), piece=piece).items()
+            }
+            write_hash(self.redis, images, views, self.limit, ttl, what)
+        else:
+            self.redis.expire(images, ttl)
+        write_hash(self.redis, key, fields, self.limit, ttl, what)
 
     def save_prepared(self, job_id: str, index: int, prepared: dict) -> None:
         """Record what planning the level's bundles chose (``LevelInputs.prepared``)."""
@@ -83,7 +92,7 @@ class LevelStorage:
 
     def load_level(self, job_id: str, index: int) -> tuple[LevelInputs, float]:
         """The level's inputs and when the level was started (epoch seconds)."""
-        fields = self.redis.hgetall(self.key("job", job_id, "level", index))
+        fields = read_hash(self.redis, self.key("job", job_id, "level", index), self.limit)
         if not fields:
             raise LevelInputsMissingError(f"job {job_id}: inputs of level {index} are gone")
         left, right = self._level_images(job_id, fields)
@@ -107,7 +116,8 @@ class LevelStorage:
         them, else from Redis."""
         cache_key = (job_id, text(fields[b"images"]))
         if cache_key not in self._images:
-            stored = self.redis.hgetall(self.key("job", job_id, "level", "views", cache_key[1]))
+            images = self.key("job", job_id, "level", "views", cache_key[1])
+            stored = read_hash(self.redis, images, self.limit)
             if not stored:
                 raise LevelInputsMissingError(f"job {job_id}: the images of its levels are gone")
             self._images[cache_key] = tuple(array_from(stored, n) for n in ("left", "right"))
@@ -123,26 +133,55 @@ class LevelStorage:
 
     def drop_level(self, job_id: str, index: int) -> None:
         level = self.key("job", job_id, "level", index)
-        self.redis.delete(level, f"{level}:solved")
+        self.redis.delete(level, f"{level}:solved", f"{level}:solved:labels")
 
     def save_bundles(self, job_id: str, index: int, bundles: list[dict]) -> None:
         """Solved bundles (JSON, keyed by first row): the fan-in assembles the level from these,
-        whichever task, re-sent or redelivered, solved them (idempotent)."""
+        whichever task, re-sent or redelivered, solved them (idempotent). In bounded commands:
+        a bundle whose JSON is above a piece (a whole view's labels) keeps its labels in
+        pieces of their own, written before the bundle (a reader that sees it finds them)."""
         if not bundles:
             return
         key = self.key("job", job_id, "level", index, "solved")
-        with self.redis.pipeline() as pipe:
-            mapping: dict[EncodableT, EncodableT] = {
-                bundle_key([*b["rows"], *b.get("columns", [0])]): json.dumps(b) for b in bundles
-            }
-            pipe.hset(key, mapping=mapping)
-            pipe.expire(key, self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE)
-            pipe.execute()
+        piece = piece_bytes(self.limit)
+        entries: dict[str, bytes] = {}
+        labels: dict[str, bytes] = {}
+        for bundle in bundles:
+            name = bundle_key([*bundle["rows"], *bundle.get("columns", [0])])
+            encoded = json.dumps(bundle).encode()
+            if len(encoded) > piece:
+                raw_labels = bundle["labels"].encode()
+                parts = range(0, len(raw_labels), piece)
+                for number, start in enumerate(parts):
+                    labels[f"{name}:{number}"] = raw_labels[start : start + piece]
+                moved = {**bundle, "labels": None, "labels_pieces": len(parts)}
+                encoded = json.dumps(moved).encode()
+            entries[name] = encoded
+        ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
+        try:
+            for target, fields in ((f"{key}:labels", labels), (key, entries)):
+                for batch in batches(fields, self.limit):
+                    self.redis.hset(target, mapping=batch)  # type: ignore[arg-type]
+                if fields:
+                    self.redis.expire(target, ttl)
+        except redis.ResponseError as error:
+            total = sum(map(len, entries.values())) + sum(map(len, labels.values()))
+            raise not_stored(f"the solved bundles of level {index + 1}", total, error) from error
 
     def solved_bundles(self, job_id: str, index: int) -> dict[str, dict]:
-        """The level's solved bundles by ``bundle_key``."""
-        raw = self.redis.hgetall(self.key("job", job_id, "level", index, "solved"))
-        return {text(key): json.loads(value) for key, value in raw.items()}
+        """The level's solved bundles by ``bundle_key`` (read in bounded replies)."""
+        key = self.key("job", job_id, "level", index, "solved")
+        found = {
+            text(name): json.loads(value)
+            for name, value in read_hash(self.redis, key, self.limit).items()
+        }
+        for name, bundle in found.items():
+            if "labels_pieces" in bundle:
+                names = [f"{name}:{number}" for number in range(bundle.pop("labels_pieces"))]
+                parts = read_hash(self.redis, f"{key}:labels", self.limit, names)
+                joined = b"".join(as_bytes(parts[n.encode()]) for n in names)
+                bundle["labels"] = joined.decode("ascii")
+        return found
 
     def solved_rows(self, job_id: str, index: int) -> set[str]:
         """``bundle_key`` of the level's solved bundles (without their labels)."""

@@ -34,6 +34,7 @@ from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import ViewsWarning, resolve_max_disparity
 from shared.level_inputs import LevelInputs
+from shared.memory import check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
 from shared.pipeline import finish, finish_level, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
@@ -91,6 +92,8 @@ def start_job(celery: Celery, store: JobStore, job_id: str) -> None:
         record = resolve_range(store, record, left, right)
         if record is None:
             return
+    # this worker's own budget (its host's memory): MemoryBudgetError fails the job
+    check_fits(record.memory_mb or 0, worker_budget_mb(store.settings))
     first = job_plans(record)[0]
     launch_level(celery, store, record, prepare_level(left, right, record.config, first))
 
@@ -108,7 +111,14 @@ def resolve_range(
     levels = len(pyramid.plan(record.config, estimate.max_disparity))
     pyramid_note = pyramid.range_warning(record.config, estimate.max_disparity)
     notes = (pyramid_note,) if pyramid_note else ()
-    updated, _ = store.apply(record.id, JobRecord.with_range, estimate, levels, notes)
+    memory = job_memory_mb(record.config, record.height, record.width, estimate.max_disparity)
+
+    def with_range(current: JobRecord) -> JobRecord | None:
+        """The range (``JobRecord.with_range``) and the peak memory it makes."""
+        changed = current.with_range(estimate, levels, notes)
+        return None if changed is None else changed.model_copy(update={"memory_mb": memory})
+
+    updated, _ = store.apply(record.id, with_range)
     if updated is None or updated.state is not JobState.RUNNING:
         return None
     return updated

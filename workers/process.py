@@ -1,6 +1,7 @@
 """Process lifetime and limits: children die with the process that started them (Linux
 parent-death signal), so nothing ``qhsm serve`` or a Celery worker starts outlives it, even after
-SIGKILL; a pool process's memory is capped so one task cannot take the machine's."""
+SIGKILL; a task's memory is capped at its process's budget so one task cannot take the
+machine's."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import ctypes
 import os
 import resource
 import signal
+from collections.abc import Iterator
 
 PR_SET_PDEATHSIG = 1
 
@@ -35,21 +37,51 @@ def kill_now(pid: int) -> None:
         os.kill(pid, signal.SIGKILL)
 
 
-def limit_memory(megabytes: int | None) -> None:
-    """Cap this process's address space (``RLIMIT_AS``) at ``megabytes`` MiB: an allocation
-    beyond it raises ``MemoryError`` in this process instead of taking the machine's memory.
+def resident_and_virtual() -> tuple[int, int] | None:
+    """This process's resident memory and address space, bytes (Linux ``/proc``; None
+    elsewhere)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as statm:
+            size, resident = (int(value) for value in statm.read().split()[:2])
+    except (OSError, ValueError):
+        return None
+    page = os.sysconf("SC_PAGE_SIZE")
+    return resident * page, size * page
+
+
+@contextlib.contextmanager
+def memory_budget(megabytes: int | None) -> Iterator[None]:
+    """Within the block, this process may grow to about ``megabytes`` MiB resident: its
+    address space (``RLIMIT_AS``) is capped at what it has mapped now plus what the budget
+    leaves of its resident memory (what numba, thread stacks and allocator arenas reserve
+    without using is already counted), so an allocation beyond raises ``MemoryError`` here
+    (caught by the task, which fails its job with a message) instead of taking the machine's
+    memory; a ``dimod:`` sampler's C code runs under it too. The limit is restored after.
 
     Parameters
     ----------
     megabytes : int or None
-        The ceiling; 0 or None leaves the limit as it is."""
-    if not megabytes:
+        The process's budget (``shared.memory.worker_budget_mb``); None or 0: no limit."""
+    sizes = resident_and_virtual()
+    if not megabytes or sizes is None:
+        yield
         return
-    _, hard = resource.getrlimit(resource.RLIMIT_AS)
-    ceiling = megabytes * 2**20
-    if hard != resource.RLIM_INFINITY:
-        ceiling = min(ceiling, hard)
+    resident, virtual = sizes
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    ceiling = virtual + max(megabytes * 2**20 - resident, MIN_ROOM)
+    for bound in (soft, hard):
+        if bound != resource.RLIM_INFINITY:
+            ceiling = min(ceiling, bound)
     resource.setrlimit(resource.RLIMIT_AS, (ceiling, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+
+
+#: Address space a budgeted block may always add (a process already at its budget still
+#: reads its task's messages and fails the job), bytes.
+MIN_ROOM = 64 * 2**20
 
 
 def lower_priority(increment: int) -> None:

@@ -153,6 +153,13 @@ class JobRecord(BaseModel):
     error: str | None = None
     #: The qhsm version that accepted the job (None: a record from before versions were kept)
     version: str | None = None
+    #: The API sent the job's start (False from the write until then): a queued job whose start
+    #: was never sent (its submit failed, e.g. on a full disk) is failed by the watchdog, never
+    #: started later, so the client's retry is the only run
+    dispatched: bool = True
+    #: Estimated peak memory of a worker process running it, MiB (``shared.memory``); None
+    #: until its range is known
+    memory_mb: int | None = None
 
     @field_validator("metrics")
     @classmethod

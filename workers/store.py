@@ -44,7 +44,8 @@ import numpy as np
 import redis
 
 from shared.config import Settings
-from workers.arrays import array_fields, array_from, from_npy, npy
+from workers.arrays import array_fields, array_from, from_npy
+from workers.bounded import piece_bytes, read_hash, write_hash
 from workers.level_store import LevelStorage
 from workers.records import (
     ACTIVE,
@@ -110,6 +111,11 @@ class JobStore(LevelStorage):
         return bool(self.redis.ping())
 
     @property
+    def limit(self) -> int:
+        """Largest Redis command or reply of a job's data (``redis_max_command_bytes``)."""
+        return self.settings.redis_max_command_bytes
+
+    @property
     def view_ttl(self) -> int:
         """Lifetime of uploads and views while the job runs (at its end: :attr:`ttl`)."""
         return self.ttl + self.settings.task_visibility_timeout
@@ -129,15 +135,15 @@ class JobStore(LevelStorage):
         if not JOB_ID.match(record.id):
             raise ValueError(f"malformed job id {record.id!r}")
         written = [self._upload_key(record.id), self._truth_key(record.id)]
+        uploads: list[dict[str, bytes]] = [{}, {}]
+        piece = piece_bytes(self.limit)
+        for name, array in arrays.items():
+            fields = array_fields(name, array, images=True, piece=piece)
+            uploads[1 if name == "ground_truth" else 0].update(fields)
         try:
-            with self.redis.pipeline() as pipe:  # MULTI/EXEC: all of the uploads or none
-                for name, array in arrays.items():
-                    key = written[1] if name == "ground_truth" else written[0]
-                    for field, value in array_fields(name, array, images=True).items():
-                        pipe.hset(key, field, value)  # one bounded write per piece
-                for key in written:
-                    pipe.expire(key, self.view_ttl)
-                pipe.execute()
+            for key, fields in zip(written, uploads, strict=True):
+                # bounded commands, renamed into place: all of an upload or none
+                write_hash(self.redis, key, fields, self.limit, self.view_ttl, "the uploads")
             owner = record.owner or ""
             keys = [
                 self.key("job", record.id),
@@ -160,6 +166,12 @@ class JobStore(LevelStorage):
             with contextlib.suppress(redis.RedisError):
                 self.redis.delete(*written)
             raise
+
+    def mark_dispatched(self, job_id: str) -> None:
+        """Record that the job's start was sent (:attr:`JobRecord.dispatched`)."""
+        self.update(
+            job_id, lambda r: None if r.dispatched else r.model_copy(update={"dispatched": True})
+        )
 
     def discard(self, job_id: str) -> None:
         """Remove a job that was written but could not be queued (its submit failed after
@@ -199,7 +211,7 @@ class JobStore(LevelStorage):
         ------
         UploadsMissingError
             The job ended or expired (or was queued before uploads were kept in Redis)."""
-        fields = self.redis.hgetall(self._upload_key(job_id))
+        fields = read_hash(self.redis, self._upload_key(job_id), self.limit)
         if b"left" not in fields or b"right" not in fields:
             raise UploadsMissingError(
                 f"job {job_id}: its uploaded views are gone (it ended or expired, or was "
@@ -209,7 +221,7 @@ class JobStore(LevelStorage):
 
     def load_ground_truth(self, job_id: str) -> np.ndarray | None:
         """The job's ground truth (stored values) while its record lasts; None without one."""
-        fields = self.redis.hgetall(self._truth_key(job_id))
+        fields = read_hash(self.redis, self._truth_key(job_id), self.limit)
         if fields:
             return array_from(fields, "ground_truth")
         older = self.load_view(job_id, "ground_truth.npy")  # jobs of earlier versions
@@ -390,11 +402,18 @@ class JobStore(LevelStorage):
     # results ----------------------------------------------------------------------------------
 
     def save_result(self, job_id: str, disparity: np.ndarray) -> None:
-        self.redis.set(self.key("job", job_id, "result"), npy(disparity), ex=self.ttl)
+        """The full-resolution disparity, in bounded pieces (:mod:`workers.bounded`)."""
+        fields = array_fields("disparity", disparity, piece=piece_bytes(self.limit))
+        key = self.key("job", job_id, "result")
+        write_hash(self.redis, key, fields, self.limit, self.ttl, "the job's result")
 
     def load_result(self, job_id: str) -> np.ndarray | None:
-        data = self.redis.get(self.key("job", job_id, "result"))
-        return None if data is None else from_npy(as_bytes(data))
+        key = self.key("job", job_id, "result")
+        if self.redis.type(key) == b"string":  # written whole by an earlier version
+            data = self.redis.get(key)
+            return None if data is None else from_npy(as_bytes(data))
+        fields = read_hash(self.redis, key, self.limit)
+        return array_from(fields, "disparity") if fields else None
 
     # views ------------------------------------------------------------------------------------
 

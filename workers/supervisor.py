@@ -299,6 +299,9 @@ class Stack:
         url = redis_url(settings)  # the embedded one's when none is configured (set above)
         tag = os.getpid()
         cpu_env = worker_env(settings, url, dwave=False)
+        # the processes that share this host's memory (shared.memory.worker_budget_mb)
+        processes = settings.control_concurrency + count + (1 if dwave else 0)
+        cpu_env["QHSM_HOST_WORKER_PROCESSES"] = str(processes)
         self.workers.append(  # orchestration never waits behind solver work
             WorkerProcess(
                 f"control-{tag}",
@@ -315,6 +318,7 @@ class Stack:
         )
         if dwave:
             dwave_env = worker_env(settings, url, dwave=True)
+            dwave_env["QHSM_HOST_WORKER_PROCESSES"] = str(processes)
             self.workers.append(
                 WorkerProcess(
                     f"dwave-{tag}", dwave, 1, dwave_env, logs / "worker-dwave.log"

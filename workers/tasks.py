@@ -18,6 +18,7 @@ import redis
 from celery import Task, signals
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 
+from shared.memory import worker_budget_mb
 from shared.solvers import SolverError, TransientSolverError
 from shared.threads import inherited_threads, limit_threads, thread_budget
 from workers import fair, orchestration, watchdog
@@ -31,8 +32,9 @@ from workers.app import (
     task_time_limits,
     terminate_tasks,
 )
+from workers.bounded import DataNotStoredError
 from workers.level_store import LevelInputsMissingError
-from workers.process import die_with_parent, limit_memory, lower_priority
+from workers.process import die_with_parent, lower_priority, memory_budget
 from workers.quota import QpuMeter, QuotaExceededError
 from workers.store import JobStore, UploadsMissingError
 from workers.telemetry import Telemetry
@@ -101,7 +103,6 @@ def _share_cores(options: dict | None = None, **_: object) -> None:
 def _init_process(**_: object) -> None:
     global _store, _meter, _telemetry
     die_with_parent()  # a pool process never outlives its worker (even a SIGKILLed one)
-    limit_memory(settings.task_memory_limit_mb)  # one task cannot take the machine's memory
     # OpenCV, OpenMP/BLAS and numba threads: this process's share of the cores (shared.threads)
     limit_threads(inherited_threads() or _pool_threads or thread_budget())
     _store = None
@@ -121,8 +122,9 @@ def _start_watchdog(sender=None, **_: object) -> None:
 @app.task(name=START_JOB, bind=True, ignore_result=True)
 def start_job(self, job_id: str) -> None:
     try:
-        orchestration.start_job(app, store(), job_id)
-    except (SolverError, ValueError) as error:  # e.g. no segment embeds: say what to change
+        with memory_budget(budget()):
+            orchestration.start_job(app, store(), job_id)
+    except (SolverError, ValueError) as error:  # no segment embeds, data not stored (Redis full)
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
     except MemoryError:
@@ -136,10 +138,11 @@ def start_job(self, job_id: str) -> None:
 @app.task(name=LEVEL_DONE, bind=True, ignore_result=True)
 def level_done(self, results: list[dict], job_id: str, index: int) -> None:
     try:
-        orchestration.level_done(app, store(), results, job_id, index)
+        with memory_budget(budget()):
+            orchestration.level_done(app, store(), results, job_id, index)
     except REDIS_DOWN as error:  # the watchdog re-sends the fan-in when Redis is back
         log.warning("job %s: Redis unavailable in the fan-in of level %d: %s", job_id, index, error)
-    except (SolverError, UploadsMissingError) as error:  # e.g. the next level's embedding failed
+    except (SolverError, UploadsMissingError, DataNotStoredError) as error:  # e.g. no embedding
         log.warning("job %s: %s", job_id, error)
         store().fail(job_id, str(error))
     except MemoryError:
@@ -211,7 +214,8 @@ def solve_bundles(self, job_id: str, index: int, row_ranges: list[list[int]]) ->
         fair.task_started(store().redis, settings.key_prefix, queue, task_id, limit)
     started = time.perf_counter()
     try:
-        result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
+        with memory_budget(budget()):  # dimod: samplers included
+            result = orchestration.solve_chunk(store(), job_id, index, ranges, worker, meter=meter)
         if result is not None and not result.get("duplicate"):
             seconds = time.perf_counter() - started
             telemetry().task_done(fair.base_queue(queue), seconds, result["bundles"])
@@ -226,7 +230,7 @@ def solve_bundles(self, job_id: str, index: int, row_ranges: list[list[int]]) ->
         message = f"stopped: {error}; bundles not solved yet were not sent"
         store().fail(job_id, message)
         return {"error": message}
-    except SolverError as error:
+    except (SolverError, DataNotStoredError) as error:
         return _fail(job_id, str(error), task_id)
     except (LevelInputsMissingError, orchestration.JobGoneError):
         return {"skipped": True}
@@ -277,12 +281,19 @@ def time_limit_message(job_id: str, index: int, *, hard: bool) -> str:
     )
 
 
+def budget() -> int | None:
+    """This worker process's memory budget, MiB (``shared.memory.worker_budget_mb``: its share
+    of its own host's memory)."""
+    return worker_budget_mb(settings)
+
+
 def memory_message(index: int) -> str:
     """What a user reads when one of the job's tasks needed more memory than a process has."""
     return (
-        f"a task of level {index + 1} needed more memory than the limit of "
-        f"{settings.task_memory_limit_mb} MiB per worker process (QHSM_TASK_MEMORY_LIMIT_MB); "
-        "use fewer reads, smaller bundles or a smaller image, or ask the operator to raise it"
+        f"a task of level {index + 1} needed more memory than the limit of {budget()} MiB per "
+        "worker process (its share of the host's memory: QHSM_MEMORY_HOST_FRACTION and "
+        "QHSM_HOST_WORKER_PROCESSES, or QHSM_TASK_MEMORY_LIMIT_MB) and was stopped; use fewer "
+        "reads, smaller bundles, a smaller image or range, or ask the operator for more memory"
     )
 
 

@@ -155,7 +155,11 @@ class Watchdog:
                 if idle >= self.lost_after and now - seen.checked >= self.lost_after:
                     seen.checked = now
                     messages = self.messages() if messages is None else messages
-                    if record.id.encode() not in messages:
+                    if record.id.encode() in messages:
+                        pass
+                    elif not record.dispatched and record.started_at is None:
+                        action = self.abandon(record)
+                    else:
                         action = self.start_again(record)
             elif idle >= self.stall:
                 seen.since = seen.checked = now
@@ -200,6 +204,18 @@ class Watchdog:
         """The control queue and every solver queue, with its users' queues."""
         solvers = fair.with_user_queues(self.store.redis, self.store.prefix, queue_names())
         return [self.store.settings.control_queue, *solvers]
+
+    def abandon(self, record: JobRecord) -> str:
+        """A queued job whose start the API never sent (its submit failed after the record
+        was written, and its removal failed too: a full disk): fail it, never start it, so
+        the client's retry of the submit is the job's only run."""
+        log.warning("job %s: its submit did not complete (start never sent); failing it", record.id)
+        self.store.fail(
+            record.id,
+            "the submit of this job did not complete (the service could not queue it, e.g. "
+            "its storage was full) and it was not run; submit it again",
+        )
+        return "abandoned"
 
     def start_again(self, record: JobRecord) -> str:
         """A queued job whose start task is nowhere (the API died before it was sent, or it

@@ -32,4 +32,5 @@ def estimate(
     level, and whether it fits your remaining budget. Nothing is stored or queued. Bundle shapes
     that earlier jobs have embedded are estimated with their actual embedding."""
     quote = job_service.quote(params, left, right, principal.name, svc, users)
-    return Estimate.of(quote.estimate, quote.max_disparity, quote.remaining_seconds)
+    memory = (quote.memory_mb, quote.memory_budget_mb)
+    return Estimate.of(quote.estimate, quote.max_disparity, quote.remaining_seconds, memory)

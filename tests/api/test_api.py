@@ -8,6 +8,7 @@ import json
 import harness
 import numpy as np
 import pytest
+import redis
 from api_helpers import LEFT, RIGHT, SCENE, post
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -296,3 +297,45 @@ def test_a_metered_job_keeps_its_estimate_and_shows_its_problems_ids(api, api_se
     [mine] = [u for u in api.get("/v1/usage").json()["users"] if u["user"] == owner]
     assert [j["problem_ids"] for j in mine["jobs"] if j["id"] == job] == [ids]
     assert api.delete(f"/v1/jobs/{job}").status_code == 200
+
+
+def test_readyz_names_full_storage(api, monkeypatch):
+    """Redis refusing writes on a full disk (it refuses PING too) is storage, not Redis being
+    unreachable; a full data disk is named as well (issue 29)."""
+    store = api.app.state.services.store
+
+    def refuse():
+        raise redis.ResponseError("MISCONF Errors writing to the AOF file: No space left")
+
+    monkeypatch.setattr(store, "ping", refuse)
+    body = api.get("/readyz")
+    assert body.status_code == 503
+    assert body.json()["storage"].startswith("full: Redis cannot persist writes (MISCONF")
+    assert "unreachable" not in body.json()["redis"]
+    monkeypatch.undo()
+
+    from api.routes import health
+
+    monkeypatch.setattr(health, "MIN_FREE_BYTES", 2**62)
+    body = api.get("/readyz")
+    assert body.status_code == 503 and body.json()["storage"].startswith("full: the disk of")
+
+
+def test_pricing_beyond_its_concurrency_limit_is_429(make_client):
+    """An estimate runs the exact pyramid in the API process: at most
+    QHSM_MAX_CONCURRENT_PRICING at once (issue 29), the next is told to come back."""
+    client = make_client(max_concurrent_pricing=1)
+    slots = client.app.state.services.pricing
+    params = {"solver": "qpu-sim", "max_disparity": 6}
+    assert slots.acquire(blocking=False)  # an estimate in flight
+    try:
+        busy = estimate(client, params=params)
+        assert busy.status_code == 429, busy.text
+        assert "QHSM_MAX_CONCURRENT_PRICING" in busy.json()["detail"]
+        refused = post(client, params=params)  # a metered job's admission prices it too
+        assert refused.status_code == 429, refused.text
+    finally:
+        slots.release()
+    answered = estimate(client, params=params)
+    assert answered.status_code == 200, answered.text
+    assert answered.json()["memory_mb"] > 0

@@ -131,3 +131,65 @@ def test_a_submit_cut_short_by_a_full_redis_leaves_nothing_behind(api_settings, 
     assert refused  # the uploads had been written when Redis refused the record
     after = set(users.redis.scan_iter(match=f"{api_settings.key_prefix}:job:*:upload"))
     assert after == before
+
+
+def misconf() -> Exception:
+    """What kombu raises when Redis refuses to store a task message on a full disk: its own
+    ``ChannelError`` raised from Redis's MISCONF (a 500 before issue 29)."""
+    from kombu.exceptions import ChannelError
+
+    try:
+        raise redis.ResponseError("MISCONF Errors writing to the AOF file: No space left")
+    except redis.ResponseError as cause:
+        try:
+            raise ChannelError(str(cause)) from cause
+        except ChannelError as error:
+            return error
+
+
+def test_a_submit_whose_start_cannot_be_sent_is_507_and_never_runs_later(api_settings, monkeypatch):
+    """Redis takes the record but not the start's message (a full disk), and the removal of the
+    record fails too: 507, and the watchdog fails the orphan instead of starting it, so the
+    client's retry is the only run (a retried submit ran twice before)."""
+    from workers import store as store_module
+    from workers.records import JobState
+    from workers.store import JobStore
+    from workers.watchdog import Watchdog
+
+    users = UserStore.from_settings(api_settings)
+    _, key = users.create_user(f"orphan-{harness.unique_prefix()[-6:]}")
+    monkeypatch.setattr(
+        store_module.JobStore, "discard", lambda self, job_id: (_ for _ in ()).throw(misconf())
+    )
+    with harness.api_client(api_settings, key) as client:
+        celery = client.app.state.services.celery
+        monkeypatch.setattr(celery, "send_task", lambda *a, **k: (_ for _ in ()).throw(misconf()))
+        response = client.post(
+            "/v1/jobs", files={"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
+        )
+        assert response.status_code == 507, response.text
+        assert "out of storage (Redis cannot write)" in response.json()["detail"]
+        [orphan] = client.get("/v1/jobs").json()["items"]
+    store = JobStore.from_settings(api_settings)
+    assert store.get(orphan["id"]).dispatched is False
+
+    sent = []
+    clock = iter(range(0, 10_000, int(api_settings.watchdog_lost_seconds) + 1))
+    watchdog = Watchdog(celery, store, "test", clock=lambda: next(clock))
+    monkeypatch.setattr(celery, "send_task", lambda *a, **k: sent.append(a))
+    actions = [action for _ in range(3) for job, action in watchdog.tick() if job == orphan["id"]]
+    assert actions == ["abandoned"] and sent == []
+    record = store.get(orphan["id"])
+    assert record.state is JobState.FAILED and "submit it again" in record.error
+
+
+def test_a_submit_whose_start_was_sent_is_marked_dispatched(api_settings):
+    users = UserStore.from_settings(api_settings)
+    _, key = users.create_user(f"sent-{harness.unique_prefix()[-6:]}")
+    with harness.api_client(api_settings, key) as client:
+        response = client.post(
+            "/v1/jobs", files={"left": ("l.png", VIEW), "right": ("r.png", VIEW)}
+        )
+        assert response.status_code == 202, response.text
+        store = client.app.state.services.store
+        assert store.get(response.json()["id"]).dispatched is True

@@ -266,8 +266,20 @@ def npy_header(shape: tuple[int, ...], descr: str = "<f4") -> bytes:
         # numpy's tokenizer gives up on it (tokenize.TokenError: a 500 before)
         (b"\x93NUMPY\x01\x00\x20\x00{'descr': __import__" + b" " * 11 + b"\n", 422, "parse"),
         (b"\x93NUMPY\x03\x00" + bytes(16), 415, "not a readable .npy"),
+        # no value per pixel (an IndexError, a 500, before: issue 29)
+        (npy_header((24, 32, 0)), 422, "0 channels per pixel"),
+        (npy_header((24, 32, 5)) + bytes(24 * 32 * 5 * 4), 422, "5 channels per pixel"),
     ],
-    ids=["huge", "truncated", "object", "malformed", "unterminated", "version-3"],
+    ids=[
+        "huge",
+        "truncated",
+        "object",
+        "malformed",
+        "unterminated",
+        "version-3",
+        "no-channel",
+        "five-channels",
+    ],
 )
 def test_npy_ground_truth_header_is_checked_before_allocating(api, upload, code, message):
     response = post(api, ground_truth=upload)

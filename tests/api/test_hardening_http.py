@@ -10,6 +10,7 @@ import logging
 import socket
 import time
 
+import harness
 import httpx
 import pytest
 from api_helpers import LEFT
@@ -20,17 +21,19 @@ MiB = 2**20
 # --- 9. the key and the size are checked before the body is read ------------------------------
 
 
-def call_asgi(app, headers: dict[str, str], body_bytes: int) -> tuple[int, dict, int]:
-    """POST /v1/jobs with a multipart body of ``body_bytes`` fed in 1 MiB pieces; returns the
-    status, the JSON answer and how many body bytes the app asked for."""
+def call_asgi(
+    app, headers: dict[str, str], body_bytes: int, method: str = "POST", path: str = "/v1/jobs"
+) -> tuple[int, dict, int]:
+    """``method path`` (POST /v1/jobs) with a body of ``body_bytes`` fed in 1 MiB pieces;
+    returns the status, the JSON answer and how many body bytes the app asked for."""
     scope = {
         "type": "http",
         "asgi": {"version": "3.0"},
         "http_version": "1.1",
-        "method": "POST",
+        "method": method,
         "scheme": "http",
-        "path": "/v1/jobs",
-        "raw_path": b"/v1/jobs",
+        "path": path,
+        "raw_path": path.encode(),
         "root_path": "",
         "query_string": b"",
         "headers": [(k.lower().encode(), v.encode()) for k, v in headers.items()],
@@ -74,6 +77,44 @@ def test_an_announced_body_above_the_limit_is_413_without_reading_it(api, admin_
     status, answer, consumed = call_asgi(api.app, headers, 64 * MiB)
     assert status == 413 and "QHSM_MAX_UPLOAD_BYTES" in answer["detail"]
     assert consumed == 0
+
+
+JSON_BIG = {"content-type": "application/json", "content-length": str(BIG)}
+
+
+@pytest.mark.parametrize(
+    ("method", "path"),
+    [("POST", "/v1/users"), ("PUT", "/v1/users/ada/quota"), ("POST", "/v1/users/ada/key")],
+)
+def test_a_member_on_an_admin_route_is_403_without_reading_its_body(
+    api, api_settings, method, path
+):
+    """A member's 150 MB JSON body on an admin-only route was parsed (+900 MB of API memory)
+    before the 403 (issue 29): now refused from the headers."""
+    from api.users import UserStore
+
+    _, key = UserStore.from_settings(api_settings).create_user(
+        f"member-{harness.unique_prefix()[-6:]}"
+    )
+    headers = {"content-type": "application/json", "authorization": f"Bearer {key}"}
+    status, answer, consumed = call_asgi(api.app, headers, 8 * MiB, method, path)
+    assert status == 403 and "admin" in answer["detail"]
+    assert consumed == 0
+
+
+def test_a_json_route_has_its_own_body_limit(api, admin_headers, make_client):
+    headers = {**JSON_BIG, "authorization": admin_headers["Authorization"]}
+    status, answer, consumed = call_asgi(api.app, headers, 64 * MiB, "POST", "/v1/users")
+    assert status == 413 and "QHSM_MAX_JSON_BODY_BYTES" in answer["detail"]
+    assert consumed == 0
+    client = make_client(max_json_body_bytes=2048)
+    body = json.dumps({"name": "padded", "pad": "x" * 4096})
+    response = client.post("/v1/users", content=body, headers={"content-type": "application/json"})
+    assert response.status_code == 413
+    assert "limit of 2048 bytes (QHSM_MAX_JSON_BODY_BYTES" in response.json()["detail"]
+    # uploads keep the files' limit, far above the JSON one
+    upload = client.post("/v1/jobs", files={"left": ("l.png", LEFT), "right": ("r.png", LEFT)})
+    assert upload.status_code == 202, upload.text
 
 
 def test_a_chunked_body_is_cut_off_at_the_limit(make_client):
@@ -185,3 +226,20 @@ def test_polls_are_logged_at_debug_and_other_requests_at_info(
         f"GET /v1/jobs/{job_id} HTTP/1.1": logging.DEBUG,
         "GET /v1/jobs/0123456789abcdef0123456789abcdef HTTP/1.1": logging.INFO,  # errors stay
     }
+
+
+def test_a_key_in_the_query_string_is_redacted_in_every_log(live_api, caplog, monkeypatch):
+    """The key is refused (only the Authorization header counts) and never written to a log:
+    uvicorn's access log or any other (issue 29)."""
+    for name in ("uvicorn", "uvicorn.access"):
+        monkeypatch.setattr(logging.getLogger(name), "propagate", True)
+    secret = "qhsm_0123abcd_" + "S" * 43
+    caplog.set_level(logging.DEBUG)
+    with httpx.Client(base_url=live_api.url) as client:
+        refused = client.get(f"/v1/jobs?api_key={secret}&limit=2")
+        assert refused.status_code == 401
+        assert client.get(f"/healthz?token={secret}").status_code == 200
+    logging.getLogger("qhsm.api").warning("asked for %s", f"/v1/x?key={secret}")
+    records = access_records(caplog)
+    assert any("api_key=[redacted]&limit=2" in r.getMessage() for r in records), records
+    assert all(secret not in r.getMessage() for r in caplog.records)

@@ -100,10 +100,16 @@ def test_the_estimate_is_the_core_estimate_on_the_wire():
         "max_disparity",
         "remaining_seconds",
         "fits",
+        "memory_mb",  # issue 29: the job's peak memory and a worker's budget
+        "memory_budget_mb",
     }
     wire = Estimate.of(job, 16, float("inf")).model_dump()
-    assert wire == {**job.as_dict(), "max_disparity": 16, "remaining_seconds": None, "fits": True}
+    assert wire == {
+        **job.as_dict(), "max_disparity": 16, "remaining_seconds": None, "fits": True,
+        "memory_mb": None, "memory_budget_mb": None,
+    }  # fmt: skip
     assert not Estimate.of(job, 16, 0.25).fits
+    assert Estimate.of(job, 16, 1.0, (300, 200)).memory_mb == 300
 
 
 def test_usage_is_the_ledger_usage_on_the_wire():
