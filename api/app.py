@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import warnings
 
 import redis
 from fastapi import FastAPI, Request
@@ -25,7 +24,6 @@ from api.middleware import ErrorBoundary, RequestGuard, storage_full_response
 from api.routes import health, metrics
 from api.users import UserStore
 from shared.config import Settings, get_settings
-from shared.disparity_range import ViewsWarning
 from workers.app import make_celery
 from workers.records import finite_or_null
 from workers.store import JobStore
@@ -36,8 +34,6 @@ log = logging.getLogger("qhsm.api")
 def create_app(settings: Settings | None = None) -> FastAPI:
     """An app bound to ``settings`` (read from the environment when omitted)."""
     settings = settings or get_settings()
-    # a job's view warnings go back to its submitter (JobCreated, JobStatus), not to this log
-    warnings.filterwarnings("ignore", category=ViewsWarning)
     celery = make_celery(settings, with_tasks=False)
     app: FastAPI = FastAPIOffline(
         title="qhsm",

@@ -139,7 +139,7 @@ def bounded_params(config: MatchConfig) -> MatchConfig:
 def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEstimate:
     """The job's disparity range: it decides the levels, hence the job's size."""
     return resolve_max_disparity(
-        *match_views(left_image, right_image, config), config.max_disparity
+        *match_views(left_image, right_image, config), config.max_disparity, warn=False
     )
 
 

@@ -239,11 +239,12 @@ def estimate_max_disparity(
 
 
 def resolve_max_disparity(
-    left: np.ndarray, right: np.ndarray, max_disparity: int | str
+    left: np.ndarray, right: np.ndarray, max_disparity: int | str, *, warn: bool = True
 ) -> RangeEstimate:
     """The run's maximum disparity: the given one, or the estimate when it is ``auto``; with
     the check of the views either way (:func:`views_warning`, also issued as a
-    :class:`ViewsWarning`).
+    :class:`ViewsWarning` when ``warn``: the service hands it to the job's submitter instead,
+    and a process-wide warnings filter would silence the CLI's in the same process).
 
     Parameters
     ----------
@@ -266,5 +267,6 @@ def resolve_max_disparity(
     warning = views_warning(left, right, match)
     if not warning:
         return estimate
-    warnings.warn(warning, ViewsWarning, stacklevel=2)
+    if warn:
+        warnings.warn(warning, ViewsWarning, stacklevel=2)
     return replace(estimate, warning=warning)

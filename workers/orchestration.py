@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import time
-import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 
@@ -32,7 +31,7 @@ from shared.assembly import BundleResult
 from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
-from shared.disparity_range import ViewsWarning, resolve_max_disparity
+from shared.disparity_range import resolve_max_disparity
 from shared.level_inputs import LevelInputs
 from shared.memory import check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
@@ -105,9 +104,8 @@ def resolve_range(
     written to the running job's record: ``disparity_range``, the levels it makes, and the
     views' warning first among the job's warnings. Done here, in the job's first control task,
     rather than in the HTTP request that accepted it. None when the job is no longer running."""
-    with warnings.catch_warnings():  # the warning goes to the job's status, not the log
-        warnings.simplefilter("ignore", ViewsWarning)
-        estimate = resolve_max_disparity(left, right, record.config.max_disparity)
+    # the warning goes to the job's status, not the log
+    estimate = resolve_max_disparity(left, right, record.config.max_disparity, warn=False)
     levels = len(pyramid.plan(record.config, estimate.max_disparity))
     pyramid_note = pyramid.range_warning(record.config, estimate.max_disparity)
     notes = (pyramid_note,) if pyramid_note else ()
