@@ -4,10 +4,10 @@
 
 Runs the default pipeline (``exact``, ``grid_inference=dd``, range given) and, on every level
 and view, minimises the same grid MRF with :func:`shared.grid.dual_decomposition` and
-:func:`shared.grid.trws` (``dual_iterations`` and ``dual_gap`` of the default), alternating which
-goes first, timing each by the CPU time of its thread (``time.thread_time``: what the other
-users of a shared machine disturb least). Prints per scene the summed inference CPU (median of
-the repeats), the ratio, the worst gap of each and the summed energies and bounds.
+:func:`shared.grid_inference.trws` (``dual_iterations`` and ``dual_gap`` of the default),
+alternating which goes first, timing each by the CPU time of its thread
+(``time.thread_time``: what the other users of a shared machine disturb least). Prints per
+scene the summed inference CPU (median of the repeats), the ratio, the worst gap of each and the summed energies and bounds.
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import time
 
 from benchmarks.grid_energy import find_scene
 from shared.config import MatchConfig
-from shared.grid import DualResult, GridMRF, dual_decomposition, trws
+from shared.grid import DualResult, GridMRF, dual_decomposition
+from shared.grid_inference import trws
 from shared.pipeline import run_pipeline
 from shared.solve import solve_level_in_process
 

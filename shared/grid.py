@@ -19,11 +19,7 @@ labelling is optimal. Every :data:`PRIMAL_EVERY` iterations a primal labelling i
 solves too: rows given the column solution's vertical neighbours, then columns given that. The
 lowest energy seen is the result, reported with the bound and the gap.
 
-TRW-S (Kolmogorov, "Convergent tree-reweighted message passing for energy minimization", 2006;
-:func:`trws`) works on the same decomposition: instead of subgradient steps on the split it
-passes the chains' min-sum messages in raster order and back (each pixel in two chains, rho =
-1/2), which raises the same kind of bound monotonically and reaches a small gap in a few passes;
-its labels are then polished by the chain primal step.
+TRW-S over the same chains is the other minimiser ``exact`` may use (:mod:`shared.grid_inference`).
 
 Each chain is one QUBO bundle like a row of the ``rows`` inference; ``exact`` solves all chains of
 an iteration at once with the compiled kernels of :mod:`shared.grid_kernels` (:func:`solve_chains`;
@@ -38,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.config import GridInference, LevelConfig, MatchConfig, Regularizer
+from shared.config import LevelConfig, Regularizer
 from shared.grid_kernels import (
     _chains_general,
     _chains_windows,
@@ -46,7 +42,6 @@ from shared.grid_kernels import (
     _grid_energy,
     _neighbour_costs,
     _subgradient_step,
-    _trws_pass,
 )
 
 #: The primal heuristic runs every this many dual iterations.
@@ -454,7 +449,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
         consider(row_labels)
         consider(column_labels)
         if done % PRIMAL_EVERY == 0:
-            consider(_primal(mrf, turned, column_labels))
+            consider(chain_primal(mrf, turned, column_labels))
         disagreeing = _disagreements(row_labels, turned_labels)
         if current > bound:
             bound, stalled = current, 0
@@ -476,83 +471,9 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
     )
 
 
-def _primal(mrf: GridMRF, turned: GridMRF, column_labels: np.ndarray) -> np.ndarray:
+def chain_primal(mrf: GridMRF, turned: GridMRF, column_labels: np.ndarray) -> np.ndarray:
     """A labelling by chains: rows given the column solution's vertical neighbours, then columns
     (as rows of the transposed grid ``turned``) given those rows' horizontal neighbours."""
     rows, _ = solve_chains(mrf, False, mrf.neighbour_unary(column_labels, vertical=True))
     refined, _ = solve_chains(turned, False, turned.neighbour_unary(rows.T, vertical=True))
     return np.ascontiguousarray(refined.T)
-
-
-def trws(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualResult:
-    """Minimise the grid MRF by TRW-S over its row and column chains (module doc), then polish
-    the best labelling by the chain primal step (rows given columns, columns given rows).
-
-    Parameters
-    ----------
-    mrf : GridMRF
-        One view's grid.
-    iterations : int
-        Most iterations (each a forward and a backward pass, about two dual-decomposition
-        iterations of chain messages).
-    gap : float, optional
-        Stop once (E - LB) / |E| is at most this.
-
-    Returns
-    -------
-    DualResult
-        The lowest-energy labelling seen, its energy, the best lower bound and the gap;
-        ``disagreeing`` is 0 when the labelling is proven optimal, else the pixels whose labels
-        the last two passes chose differently.
-    """
-    height, width, _ = mrf.unary.shape
-    # the message each pixel receives from its left, right, upper and lower neighbour
-    left, right, up, down = (np.zeros(mrf.unary.shape, dtype=np.float32) for _ in range(4))
-    passes = [np.zeros((height, width), dtype=np.int32) for _ in range(2)]
-    best_labels, best_energy = passes[0], math.inf
-    bound, done = -math.inf, 0
-    for iteration in range(1, iterations + 1):
-        done = iteration
-        for forward, labels in ((True, passes[0]), (False, passes[1])):
-            pass_bound = _trws_pass(
-                mrf.unary,
-                mrf.candidates,
-                mrf.windows(),
-                mrf.first is not None,
-                mrf.weight_h,
-                mrf.weight_v,
-                mrf.slope,
-                mrf.truncation,
-                left,
-                right,
-                up,
-                down,
-                forward,
-                labels,
-            )
-            bound = max(bound, float(pass_bound))
-            energy = mrf.energy(labels)
-            if energy < best_energy:
-                best_labels, best_energy = labels.copy(), energy
-        if best_energy - bound <= gap * abs(best_energy):
-            break
-    disagreeing = int(np.count_nonzero(passes[0] != passes[1]))
-    del left, right, up, down, passes
-    polished = _primal(mrf, mrf.transposed(candidates=False), best_labels)
-    energy = mrf.energy(polished)
-    if energy < best_energy:
-        best_labels, best_energy = polished, energy
-    bound = min(bound, best_energy)
-    return DualResult(
-        labels=best_labels,
-        energy=float(best_energy),
-        lower_bound=float(bound),
-        iterations=done,
-        disagreeing=0 if best_energy <= bound else max(disagreeing, 1),
-    )
-
-
-def minimiser(config: MatchConfig):
-    """``exact``'s minimiser of a whole view's grid, ``grid_inference``: :func:`trws` or
-    :func:`dual_decomposition` (the residual design's host labels are the same)."""
-    return trws if config.grid_inference is GridInference.TRWS else dual_decomposition

@@ -37,7 +37,8 @@ from shared.assembly import BundleResult, LevelSolution, assemble, embedding_sum
 from shared.bundles import Bundle
 from shared.config import Inference, MatchConfig
 from shared.energy import Costs
-from shared.grid import GridMRF, boundary_unary, dual_decomposition, minimiser
+from shared.grid import GridMRF, boundary_unary, dual_decomposition
+from shared.grid_inference import minimiser
 from shared.level_inputs import LevelInputs
 
 #: Rows and columns of a sent tile (one shape: embedded once, copied across the chip).

@@ -31,7 +31,8 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition, minimiser
+from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
+from shared.grid_inference import minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.settle import assemble_level, pinned, tile_config
 from shared.solvers import get_solver

@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared.config import GridInference, MatchConfig
-from shared.grid import dual_decomposition, trws
+from shared.grid import dual_decomposition
+from shared.grid_inference import trws
 from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
 from tests.core.test_grid import brute_force, random_grid
