@@ -7,7 +7,8 @@ and view, minimises the same grid MRF with :func:`shared.grid.dual_decomposition
 :func:`shared.grid_inference.trws` (``dual_iterations`` and ``dual_gap`` of the default),
 alternating which goes first, timing each by the CPU time of its thread
 (``time.thread_time``: what the other users of a shared machine disturb least). Prints per
-scene the summed inference CPU (median of the repeats), the ratio, the worst gap of each and the summed energies and bounds.
+scene the summed inference CPU (median of the repeats), the ratio, the worst gap of each and
+the summed energies and bounds.
 """
 
 from __future__ import annotations
