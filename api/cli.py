@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from api.serve_cli import cmd_api, cmd_demo, cmd_serve
-from shared.cli import EXIT_INTERRUPTED
 from shared.cli_options import (
     CommandError,
     add_json_option,
@@ -37,6 +36,7 @@ from shared.cli_options import (
     settings_from_args,
 )
 from shared.config import MatchConfig
+from shared.exit_codes import EXIT_INTERRUPTED
 from workers import cli as worker_cli
 
 if TYPE_CHECKING:

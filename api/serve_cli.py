@@ -6,9 +6,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from shared.cli import EXIT_INTERRUPTED
 from shared.cli_options import CommandError, settings_from_args
 from shared.config import Settings
+from shared.exit_codes import EXIT_INTERRUPTED
 
 
 def cmd_api(args: argparse.Namespace) -> int:
