@@ -126,7 +126,7 @@ def copies(
     cache.store.set(key, json.dumps(found))
     if solver is not None:
         cache.store.set(count_key(solver, digest), str(len(found)))
-    return found, "computed"
+    return found[:limit], "computed"
 
 
 def count_key(solver: str, digest: str) -> str:
