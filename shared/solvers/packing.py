@@ -88,7 +88,7 @@ def copies(
     solver : str, optional
         Solver name under which their number is recorded for the estimates.
     progress : callable, optional
-        Told what the search is doing, in words.
+        Told what the search is doing, in words (default: logged).
 
     Returns
     -------
@@ -114,7 +114,8 @@ def copies(
             return found[:limit], "store"
     found = translated_copies(
         bqm, sampler.properties, list(sampler.nodelist), list(sampler.edgelist),
-        tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES), progress=progress,
+        tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES),
+        progress=progress or (lambda text: log.info("%s: %s", key, text)),
     )  # fmt: skip
     if found:
         cache.remember(bqm, target, found[0], solver, computed=True)
