@@ -65,6 +65,13 @@ class Settings(BaseSettings):
         "minorminer time limit per width tried by --bundle-width auto, seconds "
         "(the widest segment that embeds within it wins)",
     )
+    embedding_tries: int = Field(
+        10,
+        ge=1,
+        le=1000,
+        description="minorminer tries (seed 0) per sublattice size when a small tile shape is "
+        "embedded and copied across a Pegasus/Zephyr QPU: a budget in tries, not seconds",
+    )
     dataset_mirror: str | None = Field(
         None,
         description="Base URL replacing https://vision.middlebury.edu/ for `qhsm datasets fetch`",

@@ -41,7 +41,7 @@ from shared.solvers.composites import (
 )
 from shared.solvers.embedding_cache import EmbeddingCache, default_cache
 from shared.solvers.meters.qpu import qpu_access_seconds
-from shared.solvers.packing import PackedCalls, copies
+from shared.solvers.packing import PackedCalls
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
 from shared.solvers.problems import LabelledSampler
 from shared.solvers.qpu_settings import chain_strength, reverse_anneal
@@ -428,12 +428,8 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
         (:func:`~shared.solvers.packing.copies`), before its bundles fan out, so that no two
         workers compute the same embedding at the same time."""
         try:
-            composite = self.composite()
             for height, width in shapes:
-                bqm = shape_bqm(str(encoding), height, width, candidates)
-                embedding, _, _ = composite.embedding(bqm)
-                copies(self.cache, bqm, embedding, self.sampler().edgelist, self._target,
-                       get_settings().embedding_search_timeout, solver=self.name)  # fmt: skip
+                self.shape_copies(shape_bqm(str(encoding), height, width, candidates))
         except SolverError:
             raise
         except Exception as error:

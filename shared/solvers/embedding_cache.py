@@ -168,6 +168,8 @@ class EmbeddingCache:
         #: again for every bundle of the level (not persisted: a longer timeout may succeed).
         self._failures: dict[str, str] = {}
         self._sizes: dict[str, EmbeddingSize] = {}
+        #: Disjoint copies of a shape per key (``shared.solvers.packing.copies``).
+        self.copies: dict[str, list[Embedding]] = {}
         self._lock = threading.Lock()
         #: Embeddings this process computed (not found in memory or the store), for reports.
         self.computed = 0
@@ -254,6 +256,43 @@ class EmbeddingCache:
             self.computed += 1
         self._record_size(solver, digest, embedding)
         return embedding, "computed", key
+
+    def remember(
+        self,
+        bqm: dimod.BinaryQuadraticModel,
+        target: str,
+        embedding: Embedding,
+        solver: str | None = None,
+        computed: bool = False,
+    ) -> None:
+        """Make ``embedding`` the one :meth:`lookup` returns for ``bqm``'s structure on
+        ``target`` (found elsewhere, e.g. the first of a shape's translated copies), stored and
+        its size recorded.
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            A bundle of the shape.
+        target : str
+            Name of the target graph in the key.
+        embedding : dict of int to list of int
+            A valid embedding of the structure on the target.
+        solver : str, optional
+            Solver name under which its size is recorded.
+        computed : bool
+            Whether this process searched for it (counted in :attr:`computed`).
+        """
+        digest = structure_digest(bqm)
+        key = f"{target}-{digest}"
+        with self._lock:
+            if self._memory.get(key) == embedding:
+                return
+            self._memory[key] = embedding
+            self._failures.pop(key, None)
+            self.computed += int(computed)
+        if self.store.get(key) != _encode(embedding):
+            self.store.set(key, _encode(embedding))
+        self._record_size(solver, digest, embedding)
 
     def _record_size(self, solver: str | None, digest: str, embedding: Embedding) -> None:
         if solver is None:

@@ -17,6 +17,7 @@ import contextlib
 import json
 import logging
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import dimod
@@ -26,7 +27,7 @@ from shared.config import get_settings
 from shared.solvers.base import SolverError, SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
 from shared.solvers.embedding_cache import EmbeddingCache
-from shared.solvers.embedding_search import Embedding, find_embedding
+from shared.solvers.embedding_search import Embedding, is_valid_on
 from shared.solvers.params import MAX_BUNDLES_PER_CALL
 from shared.solvers.structure_keys import structure_digest
 
@@ -37,28 +38,38 @@ log = logging.getLogger(__name__)
 MAX_COPIES: int = MAX_BUNDLES_PER_CALL
 
 
-#: Qubits a copy is assumed to need beyond the assumed embedding's before any search was seen:
-#: greedy searches leave gaps between copies (half the chip fills, see :func:`packed_copies`).
+#: Qubits a copy is assumed to need, as a multiple of the assumed embedding's, before the
+#: shape's copies on the chip were found: the 4x4 tile's translated copies on Advantage P16
+#: (benchmarks/tile_copies.py) are 25 of 48 variables (chip / copies = 2.3 times the assumed
+#: qubits) and 9 of 80 (3.9 times), so 4 never assumes more copies than are found.
 PACKING_SLACK = 4
 
 
+#: Copies of a shape kept at most (more than a call takes: the count found feeds the estimates).
+STORED_COPIES = 64
+
+
 def copies_key(target: str, digest: str) -> str:
-    """Store key of a shape's disjoint embeddings on a target."""
-    return f"copies-{target}-{digest}"
+    """Store key of a shape's disjoint embeddings on a target (translated tile copies)."""
+    return f"copies-tiled-{target}-{digest}"
 
 
 def copies(
     cache: EmbeddingCache,
     bqm: dimod.BinaryQuadraticModel,
-    first: Embedding,
-    target_edges: list[tuple[int, int]],
+    sampler: Any,
     target: str,
-    timeout: float,
+    first: Callable[[], Embedding],
     limit: int = MAX_COPIES,
     solver: str | None = None,
-) -> list[Embedding]:
-    """Disjoint embeddings of ``bqm``'s structure, ``first`` first: found once per shape and
-    target (greedily on the qubits the others leave), then read from the store.
+    progress: Callable[[str], None] | None = None,
+) -> tuple[list[Embedding], str]:
+    """Disjoint embeddings of ``bqm``'s structure on ``sampler``'s graph: found once per shape
+    and target, then read from the store. On a Pegasus or Zephyr chip they are translations of
+    one embedding into a small sublattice (:mod:`shared.solvers.tile_embedding`: a seed and a
+    budget of ``Settings.embedding_tries`` tries, so the same on a busy machine); the first
+    copy then becomes the shape's embedding in ``cache``. Otherwise (another graph, or no
+    sublattice embeds the shape in its tries) only ``first()``: one bundle per call.
 
     Parameters
     ----------
@@ -66,46 +77,61 @@ def copies(
         Where they are kept (its store).
     bqm : dimod.BinaryQuadraticModel
         A bundle of the shape.
-    first : dict
-        The shape's own embedding (from :meth:`EmbeddingCache.lookup`).
-    target_edges : list of (int, int)
-        The QPU's couplers.
+    sampler : dimod.Structured
+        The QPU (or its mock): ``properties["topology"]``, ``nodelist``, ``edgelist``.
     target : str
-        The target's name in keys.
-    timeout : float
-        minorminer's limit per further copy, seconds.
+        The target's name in keys (topology and graph fingerprint).
+    first : callable
+        The shape's own embedding when no copies are found (:meth:`EmbeddingCache.lookup`).
     limit : int
         Copies at most.
     solver : str, optional
         Solver name under which their number is recorded for the estimates.
+    progress : callable, optional
+        Told what the search is doing, in words (default: logged).
 
     Returns
     -------
-    list of dict
-        At least ``[first]``; pairwise disjoint chains.
+    copies : list of dict
+        At least one; pairwise disjoint chains.
+    source : str
+        ``"memory"``, ``"store"`` or ``"computed"``.
     """
+    from shared.solvers.tile_embedding import translated_copies
+
     digest = structure_digest(bqm)
     key = copies_key(target, digest)
+    if key in cache.copies:
+        return cache.copies[key][:limit], "memory"
     stored = cache.store.get(key)
     if stored is not None:
         found = [{int(v): chain for v, chain in e.items()} for e in json.loads(stored)]
-        if found and found[0] == first:
-            return found[:limit]
-    found = [first]
-    used = {qubit for chain in first.values() for qubit in chain}
-    while len(found) < limit:
-        free = [(u, v) for u, v in target_edges if u not in used and v not in used]
-        try:
-            more = find_embedding(bqm, free, timeout, seed=len(found))
-        except SolverError:
-            break
-        found.append(more)
-        used.update(qubit for chain in more.values() for qubit in chain)
+        # the target key holds the graph's fingerprint: checking the first copy finds a
+        # stale record (another shape under the key) without rebuilding the graph per copy
+        if found and is_valid_on(found[0], bqm, sampler.edgelist):
+            cache.remember(bqm, target, found[0], solver)
+            cache.copies[key] = found
+            return found[:limit], "store"
+    found = translated_copies(
+        bqm, sampler.properties, list(sampler.nodelist), list(sampler.edgelist),
+        tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES),
+        progress=progress or (lambda text: log.info("%s: %s", key, text)),
+    )  # fmt: skip
+    if found:
+        cache.remember(bqm, target, found[0], solver, computed=True)
+    else:
+        log.warning(
+            "%s: no sublattice of the QPU graph takes this shape within QHSM_EMBEDDING_TRIES="
+            "%d tries; one bundle per QPU call (raise QHSM_EMBEDDING_TRIES, or use "
+            "--encoding domain-wall for fewer variables)", key, get_settings().embedding_tries,
+        )  # fmt: skip
+        found = [first()]
     log.info("%d disjoint embeddings of %s", len(found), key)
+    cache.copies[key] = found
     cache.store.set(key, json.dumps(found))
     if solver is not None:
         cache.store.set(count_key(solver, digest), str(len(found)))
-    return found
+    return found[:limit], "computed"
 
 
 def count_key(solver: str, digest: str) -> str:
@@ -149,8 +175,7 @@ def packed_copies(
     (:func:`copies`), else 1 (on Tsukuba's ``auto`` widths the search found no second copy
     within its time limit, so packing is not assumed before it has been seen) or, with
     ``assume`` (the residual design's small tiles), as many as :data:`PACKING_SLACK` times the
-    assumed qubits fit on the chip (a 4x4 tile's greedy search found 11 copies of 215-510
-    qubits on Advantage's 5,627 where twice as many would fit, hence the slack).
+    assumed qubits fit on the chip (at most the translated copies measured on Advantage).
 
     Parameters
     ----------
@@ -288,19 +313,13 @@ class PackedCalls:
         try:
             reductions = [reduce(bqm, preprocess) for bqm, _, _ in problems]
             sets: list[dimod.SampleSet | None] = [None] * len(problems)
-            composite = self.composite()
             groups: dict[str, list[int]] = {}
-            shapes: dict[str, tuple] = {}
             for i, reduction in enumerate(reductions):
                 if reduction.rest is not None:
-                    embedding, source, key = composite.embedding(reduction.bqm)
-                    groups.setdefault(key, []).append(i)
-                    shapes.setdefault(key, (reduction.bqm, embedding, source))
-            timeout = get_settings().embedding_search_timeout
-            for key, members in groups.items():
-                bqm, first, source = shapes[key]
-                found = copies(self.cache, bqm, first, self.sampler().edgelist, self._target,
-                               timeout, solver=self.name)[:per_call]  # fmt: skip
+                    groups.setdefault(structure_digest(reduction.bqm), []).append(i)
+            for members in groups.values():
+                found, source = self.shape_copies(reductions[members[0]].bqm)
+                found = found[:per_call]
                 for start in range(0, len(members), len(found)):
                     chunk = members[start : start + len(found)]
                     states = [reductions[i].states(_states(problems[i][2])) for i in chunk]
@@ -327,6 +346,30 @@ class PackedCalls:
             )
             for reduction, sampleset in zip(reductions, sets, strict=True)
         ]
+
+    def shape_copies(
+        self, bqm: dimod.BinaryQuadraticModel, progress: Callable[[str], None] | None = None
+    ) -> tuple[list[Embedding], str]:
+        """:func:`copies` of ``bqm``'s shape on this solver's QPU (the shape's own embedding
+        when none are found).
+
+        Parameters
+        ----------
+        bqm : dimod.BinaryQuadraticModel
+            A bundle of the shape.
+        progress : callable, optional
+            Told what the search is doing, in words.
+
+        Returns
+        -------
+        tuple
+            The copies and where they came from (``"store"`` or ``"computed"``).
+        """
+        composite = self.composite()
+        return copies(
+            self.cache, bqm, self.sampler(), self._target,
+            lambda: composite.embedding(bqm)[0], solver=self.name, progress=progress,
+        )  # fmt: skip
 
     def _sample_packed(
         self, reductions: list[Reduction], embeddings: list, params: dict[str, Any], seed, states

@@ -1,0 +1,97 @@
+"""Tile copies across a QPU by translation (shared.solvers.tile_embedding, packing.copies):
+deterministic for a seed and a budget in tries, the same on a busy machine, found once per chip."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from dwave.embedding import is_valid_embedding
+
+from shared.solvers import tile_embedding
+from shared.solvers.bundle_shapes import shape_bqm
+from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.packing import copies
+from shared.solvers.structure_keys import structure_edges
+
+pytest.importorskip("dwave.system.testing")
+from dwave.system.testing import MockDWaveSampler
+
+BQM = shape_bqm("domain-wall", 2, 2, 3)  # a 2x2 tile of 3 labels: 8 variables
+
+
+@pytest.fixture(scope="module", params=[("pegasus", [4]), ("zephyr", [3, 2])])
+def qpu(request):
+    kind, shape = request.param
+    return MockDWaveSampler(topology_type=kind, topology_shape=shape, parameter_warnings=False)
+
+
+def _copies(qpu, tries=2):
+    return tile_embedding.translated_copies(
+        BQM, qpu.properties, list(qpu.nodelist), list(qpu.edgelist), tries=tries, limit=64
+    )
+
+
+def test_copies_are_disjoint_valid_embeddings_and_deterministic(qpu):
+    found = _copies(qpu)
+    assert len(found) >= 2
+    edges = structure_edges(BQM).tolist()
+    assert all(is_valid_embedding(e, edges, qpu.edgelist) for e in found)
+    qubits = [q for e in found for chain in e.values() for q in chain]
+    assert len(qubits) == len(set(qubits))
+    assert _copies(qpu) == found
+
+
+def test_the_search_is_bounded_by_tries_not_time(qpu, monkeypatch):
+    """A CPU-bound process beside it changes nothing: minorminer gets a seed and tries, and
+    no time limit."""
+    import minorminer
+
+    calls = []
+    real = minorminer.find_embedding
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+
+    quiet = _copies(qpu)
+    monkeypatch.setattr(minorminer, "find_embedding", spy)
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        busy = _copies(qpu)
+    finally:
+        hog.kill()
+        hog.wait()
+    assert busy == quiet
+    assert calls and all("timeout" not in c and c["tries"] == 2 for c in calls)
+    assert {c["random_seed"] for c in calls} == {tile_embedding.SEED}
+
+
+def test_copies_are_found_once_per_chip_then_read_from_the_store(tmp_path, monkeypatch):
+    qpu = MockDWaveSampler(topology_type="pegasus", topology_shape=[4], parameter_warnings=False)
+    cache = EmbeddingCache(DirectoryStore(tmp_path))
+    first, source = copies(cache, BQM, qpu, "p4", lambda: pytest.fail("no fallback"), limit=8)
+    assert source == "computed" and len(first) >= 2 and cache.computed == 1
+    # the first copy is the shape's embedding: lookup does not search
+    assert cache.lookup(BQM, qpu.edgelist, "p4")[:2] == (first[0], "memory")
+
+    def no_search(*args, **kwargs):
+        raise AssertionError("searched again")
+
+    monkeypatch.setattr(tile_embedding, "translated_copies", no_search)
+    assert copies(cache, BQM, qpu, "p4", no_search, limit=8) == (first, "memory")
+    fresh = EmbeddingCache(DirectoryStore(tmp_path))  # another worker, the same store
+    assert copies(fresh, BQM, qpu, "p4", no_search, limit=8) == (first, "store")
+    assert fresh.lookup(BQM, qpu.edgelist, "p4")[0] == first[0] and fresh.computed == 0
+    # another chip graph (another target key) searches again
+    with pytest.raises(AssertionError, match="searched again"):
+        copies(fresh, BQM, qpu, "p4-other", no_search, limit=8)
+
+
+def test_a_graph_without_a_lattice_gets_one_embedding_per_call(tmp_path):
+    qpu = MockDWaveSampler(topology_type="chimera", topology_shape=[4, 4, 4])
+    assert tile_embedding.lattice(qpu.properties) is None
+    cache = EmbeddingCache(DirectoryStore(tmp_path))
+    fallback = cache.lookup(BQM, qpu.edgelist, "c4")[0]
+    assert copies(cache, BQM, qpu, "c4", lambda: fallback) == ([fallback], "computed")
