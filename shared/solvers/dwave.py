@@ -33,6 +33,7 @@ from shared.solvers.base import (
     TransientSolverError,
 )
 from shared.solvers.bundle_shapes import auto_width_key, shape_bqm
+from shared.solvers.cloud_errors import cause, is_connection_error, reached, scrub_cloud_logs
 from shared.solvers.composites import (
     EMBEDDING_INFO,
     EmbeddingCacheComposite,
@@ -59,37 +60,6 @@ TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION
 def _seconds(timing: dict[str, Any]) -> dict[str, float]:
     """D-Wave's microsecond timing fields in seconds."""
     return {key: float(value) * 1e-6 for key, value in timing.items() if _is_number(value)}
-
-
-class _TokenScrubber(logging.Filter):
-    """Replaces the API token in log records: dwave-cloud-client logs its whole configuration,
-    token included, at DEBUG level when a client is created."""
-
-    def __init__(self, secret: str) -> None:
-        super().__init__()
-        self.secret = secret
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        message = record.getMessage()
-        if self.secret in message:
-            record.msg, record.args = message.replace(self.secret, "***"), ()
-        return True
-
-
-def scrub_cloud_logs(secret: str) -> None:
-    """Put a :class:`_TokenScrubber` on every ``dwave.cloud`` logger (a filter on a parent logger
-    does not see its children's records, so each one gets its own).
-
-    Parameters
-    ----------
-    secret : str
-        The API token to mask as ``***``; a logger that already has a filter for it gets no other.
-    """
-    names = [n for n in list(logging.root.manager.loggerDict) if n.startswith("dwave.cloud.")]
-    for name in ["dwave.cloud", *names]:
-        logger = logging.getLogger(name)
-        if not any(getattr(f, "secret", None) == secret for f in logger.filters):
-            logger.addFilter(_TokenScrubber(secret))
 
 
 def _is_number(value: Any) -> bool:
@@ -298,7 +268,7 @@ class _EmbeddedQPU(Sampler):
             | api.InternalServerError
             | TimeoutError
             | ConnectionError,
-        ) or _is_connection_error(error):
+        ) or is_connection_error(error):
             return TransientSolverError(
                 f"{self.name}: D-Wave did not answer in time, refused, or the connection "
                 f"failed: {self._scrub(reached(error))} ({self._scrub(cause(error))}); "
@@ -321,47 +291,6 @@ class _EmbeddedQPU(Sampler):
     def _scrub(self, text: str) -> str:
         secret = self._secret()
         return text.replace(secret, "***") if secret else text
-
-
-def _is_connection_error(error: Exception) -> bool:
-    import requests
-
-    return isinstance(error, requests.ConnectionError | requests.Timeout)
-
-
-def _chain(error: BaseException) -> list[BaseException]:
-    """``error`` and the errors it was raised from or during, outermost first."""
-    seen: list[BaseException] = []
-    current: BaseException | None = error
-    while current is not None and current not in seen:
-        seen.append(current)
-        current = current.__cause__ or current.__context__
-    return seen
-
-
-def reached(error: BaseException) -> str:
-    """Which endpoint a failed request was for: its URL (without the query), else the
-    configured ``DWAVE_API_ENDPOINT``, else the region Leap's default endpoint serves."""
-    for link in _chain(error):
-        url = getattr(getattr(link, "request", None), "url", None)
-        if url:
-            return f"endpoint {str(url).split('?')[0]}"
-    settings = get_settings()
-    if settings.dwave_endpoint:
-        return f"endpoint {settings.dwave_endpoint}"
-    from dwave.cloud.config.constants import DEFAULT_REGION
-
-    return f"the Leap endpoint of region {settings.dwave_region or DEFAULT_REGION}"
-
-
-def cause(error: BaseException) -> str:
-    """The innermost reason of a failed request, e.g. ``ConnectionRefusedError: [Errno 111]
-    Connection refused`` (the outer ones only wrap it)."""
-    inner = _chain(error)[-1]
-    reason = getattr(inner, "reason", None)  # urllib3's errors wrap the socket's
-    if isinstance(reason, BaseException):
-        inner = reason
-    return f"{type(inner).__name__}: {inner}"
 
 
 class LeapCloudSolver(_EmbeddedQPU):
