@@ -55,7 +55,7 @@ from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
 from shared.solvers.registry import queue_of
 from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
-from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
+from workers.records import ACTIVE, Cameras, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCapError
 
 log = logging.getLogger(__name__)
@@ -72,6 +72,7 @@ class JobForm:
     gt_scale: float | None = None
     gt_border: int = GroundTruth.model_fields["border"].default
     label: str | None = None
+    cameras: Cameras | None = None
 
 
 @dataclass(frozen=True)
@@ -290,6 +291,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         disparity_range=disparity_range.as_dict() if disparity_range else None,
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
         version=qhsm_version(),
+        cameras=form.cameras,
         estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
         dispatched=False,
         memory_mb=memory,

@@ -23,6 +23,14 @@ class Links(BaseModel):
     self: str
     disparity: str
     preview: str
+    validity: str | None = Field(
+        None, description="Left-right check's validity map (8-bit PNG, 255 = confirmed)"
+    )
+    confidence: str | None = Field(None, description="Confidence map in [0, 1] (PFM or npy)")
+    depth: str | None = Field(
+        None, description="Depth map in the baseline's unit (jobs submitted with cameras)"
+    )
+    points: str | None = Field(None, description="Coloured point cloud (binary PLY)")
 
 
 class JobCreated(BaseModel):

@@ -23,6 +23,7 @@ from pydantic import (
 )
 
 from shared.config import MatchConfig
+from shared.datasets.calibration import Calibration
 from shared.disparity_range import RangeEstimate
 
 if TYPE_CHECKING:
@@ -79,6 +80,22 @@ class GroundTruth(BaseModel):
     inferred: bool = Field(
         False, description="The scale was not given but inferred from the views (see warnings)"
     )
+
+
+class Cameras(BaseModel):
+    """A rectified pair's cameras as given at submit: what the job's depth and point cloud
+    need (:class:`shared.datasets.calibration.Calibration`; the principal point defaults to
+    the image's centre)."""
+
+    focal: float = Field(gt=0, description="Focal length, pixels")
+    baseline: float = Field(gt=0, description="Distance between the cameras (depth's unit)")
+    doffs: float = Field(0.0, description="cx(right) - cx(left), pixels (Middlebury's doffs)")
+
+    def calibration(self, width: int, height: int) -> Calibration:
+        return Calibration(
+            self.focal, (width - 1) / 2, (height - 1) / 2, self.baseline, self.doffs, "",
+            source="job",
+        )  # fmt: skip
 
 
 class LevelRecord(BaseModel):
@@ -160,6 +177,10 @@ class JobRecord(BaseModel):
     #: Estimated peak memory of a worker process running it, MiB (``shared.memory``); None
     #: until its range is known
     memory_mb: int | None = None
+    #: The cameras given at submit (None: no depth or point cloud for the job)
+    cameras: Cameras | None = None
+    #: The maps saved beside the result (``validity``, ``confidence``: those the run has)
+    maps: list[str] = Field(default_factory=list)
 
     @field_validator("metrics")
     @classmethod
@@ -243,11 +264,15 @@ class JobRecord(BaseModel):
         return self.model_copy(update={"levels": [*self.levels, report]})
 
     def succeeded(
-        self, at: datetime, metrics: dict[str, float | None] | None, warning: str | None = None
+        self,
+        at: datetime,
+        metrics: dict[str, float | None] | None,
+        warning: str | None = None,
+        maps: list[str] | None = None,
     ) -> JobRecord | None:
-        """The running job's end, with its scores and a warning about them (kept as its
-        ``error``)."""
-        fields: dict[str, Any] = {"metrics": finite_or_null(metrics)}
+        """The running job's end, with its scores, a warning about them (kept as its
+        ``error``) and the names of the maps saved beside the result."""
+        fields: dict[str, Any] = {"metrics": finite_or_null(metrics), "maps": maps or []}
         if warning:
             fields["error"] = warning
         return self.moved(JobState.SUCCEEDED, at, **fields)

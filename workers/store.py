@@ -16,7 +16,8 @@ Keys (all under ``{key_prefix}:``):
                              in pieces): written by the API at submission, read by the control
                              worker; deleted when the job ends
     job:{id}:level:...       level inputs and solved bundles (:mod:`workers.level_store`)
-    job:{id}:result          .npy bytes of the full-resolution disparity
+    job:{id}:result          hash of the full-resolution disparity and the maps beside it
+                             (``map:validity``, ``map:confidence``), in bounded pieces
     job:{id}:tasks           set of the ids of the job's solver tasks running now
     job:{id}:view:{name}     what the web page shows next to the result: the left view
                              (``left.png``) and the ground truth (``ground_truth``, a hash like
@@ -401,19 +402,38 @@ class JobStore(LevelStorage):
 
     # results ----------------------------------------------------------------------------------
 
-    def save_result(self, job_id: str, disparity: np.ndarray) -> None:
-        """The full-resolution disparity, in bounded pieces (:mod:`workers.bounded`)."""
-        fields = array_fields("disparity", disparity, piece=piece_bytes(self.limit))
+    def save_result(
+        self, job_id: str, disparity: np.ndarray, maps: dict[str, np.ndarray] | None = None
+    ) -> None:
+        """The full-resolution disparity and the maps beside it (``validity``,
+        ``confidence``), in bounded pieces of one hash (:mod:`workers.bounded`)."""
+        piece = piece_bytes(self.limit)
+        fields = array_fields("disparity", disparity, piece=piece)
+        for name, array in (maps or {}).items():
+            fields |= array_fields(f"map:{name}", array, piece=piece)
         key = self.key("job", job_id, "result")
         write_hash(self.redis, key, fields, self.limit, self.ttl, "the job's result")
+
+    def _result_array(self, job_id: str, name: str) -> np.ndarray | None:
+        """One array of the result hash, reading only its own fields (None: absent)."""
+        key = self.key("job", job_id, "result")
+        header = self.redis.hget(key, name)
+        if header is None:
+            return None
+        names = [name, *(f"{name}:{n}" for n in range(json.loads(header)["pieces"]))]
+        fields = read_hash(self.redis, key, self.limit, names)
+        return array_from(fields, name) if len(fields) == len(names) else None
+
+    def load_map(self, job_id: str, name: str) -> np.ndarray | None:
+        """A map saved beside the result (None: the job has none, or it expired)."""
+        return self._result_array(job_id, f"map:{name}")
 
     def load_result(self, job_id: str) -> np.ndarray | None:
         key = self.key("job", job_id, "result")
         if self.redis.type(key) == b"string":  # written whole by an earlier version
             data = self.redis.get(key)
             return None if data is None else from_npy(as_bytes(data))
-        fields = read_hash(self.redis, key, self.limit)
-        return array_from(fields, "disparity") if fields else None
+        return self._result_array(job_id, "disparity")
 
     # views ------------------------------------------------------------------------------------
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Annotated, Literal
 
+import cv2
+import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
@@ -20,16 +22,18 @@ from api.deps import (
     ServicesDep,
     UsersDep,
 )
-from api.errors import Refusal, ServiceError
+from api.errors import ExpiredError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import MAX_LABEL
 from api.users import UserStore
+from shared.datasets.calibration import Calibration
+from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
 from workers.quota import LOCAL_USER
-from workers.records import GroundTruth, JobRecord
+from workers.records import Cameras, GroundTruth, JobRecord, JobState
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -47,9 +51,32 @@ MAX_GT_BORDER = 10_000
 MAX_OFFSET = 10**9
 
 
-def links(job_id: str) -> Links:
-    base = f"/v1/jobs/{job_id}"
-    return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")
+def links(record: JobRecord) -> Links:
+    """Where the job and its results are; the maps and depth only where the job has them."""
+    base = f"/v1/jobs/{record.id}"
+    extra = {}
+    if "validity" in record.maps:
+        extra["validity"] = f"{base}/validity.png"
+    if "confidence" in record.maps:
+        extra["confidence"] = f"{base}/confidence?format=pfm"
+    if record.cameras is not None and record.state is JobState.SUCCEEDED:
+        extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
+    return Links(
+        self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png", **extra
+    )
+
+
+def cameras_of(focal: float | None, baseline: float | None, doffs: float | None) -> Cameras | None:
+    """The cameras given at submit: focal and baseline together, or none of the three."""
+    if focal is None and baseline is None:
+        if doffs is not None:
+            raise ServiceError(Refusal.INVALID, "doffs needs focal and baseline")
+        return None
+    if focal is None or baseline is None:
+        raise ServiceError(
+            Refusal.INVALID, "depth needs both focal (px) and baseline; one of them is missing"
+        )
+    return Cameras(focal=focal, baseline=baseline, doffs=doffs or 0.0)
 
 
 def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
@@ -61,16 +88,14 @@ def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
 
 
 def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
-    return JobSummary(
-        **JobSummary.fields_of(record, links(record.id), charged_seconds(record, users))
-    )
+    return JobSummary(**JobSummary.fields_of(record, links(record), charged_seconds(record, users)))
 
 
 def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     chunks = svc.store.chunks(record.id)
     progress = svc.store.progress(record, chunks)
     return JobStatus(
-        **JobSummary.fields_of(record, links(record.id), charged_seconds(record, users)),
+        **JobSummary.fields_of(record, links(record), charged_seconds(record, users)),
         progress=progress.model_dump(),
         levels=record.levels,
         usage=svc.store.usage(chunks),
@@ -130,12 +155,31 @@ def create_job(
         str | None,
         Form(max_length=MAX_LABEL, description="Your name for the job, shown in job lists"),
     ] = None,
+    focal: Annotated[
+        float | None,
+        Form(gt=0, allow_inf_nan=False, description="Focal length, px (with baseline: depth)"),
+    ] = None,
+    baseline: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            allow_inf_nan=False,
+            description="Camera baseline (with focal: depth and a point cloud in its unit)",
+        ),
+    ] = None,
+    doffs: Annotated[
+        float | None,
+        Form(allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"),
+    ] = None,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
-    form = JobForm(left, right, params, ground_truth, gt_scale, gt_border, label)
+    form = JobForm(
+        left, right, params, ground_truth, gt_scale, gt_border, label,
+        cameras_of(focal, baseline, doffs),
+    )  # fmt: skip
     record = job_service.submit(form, principal.name, svc, users)
     body = JobCreated(
-        id=record.id, state=record.state, links=links(record.id), warnings=record.warnings
+        id=record.id, state=record.state, links=links(record), warnings=record.warnings
     )
     return JSONResponse(
         body.model_dump(mode="json"),
@@ -221,3 +265,97 @@ def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     return Response(
         preview_png(disparity, top), media_type="image/png", headers={SCALE_HEADER: f"{top:g}"}
     )
+
+
+def finished_map(job_id: str, name: str, svc: Services, principal) -> tuple[JobRecord, np.ndarray]:
+    """A succeeded job's map saved beside its result (404 when the job has none)."""
+    record, _ = finished_result(job_id, svc, principal)
+    if name not in record.maps:
+        raise ServiceError(
+            Refusal.NOT_FOUND,
+            f"job {job_id} has no {name} map (the run had no left-right check or its cost "
+            "volume was too large)",
+        )
+    values = svc.store.load_map(job_id, name)
+    if values is None:
+        raise ExpiredError(job_id, f"{name} map")
+    return record, values
+
+
+def attachment(data: bytes, media: str, filename: str) -> Response:
+    return Response(
+        data,
+        media_type=media,
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+MAP_RESPONSES: dict = {
+    **NOT_FOUND,
+    409: {"description": "Not finished"},
+    410: {"description": "Expired"},
+    200: {"content": {}},
+}
+
+
+@router.get("/{job_id}/validity.png", responses=MAP_RESPONSES, response_class=Response)
+def get_validity(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """Where the left-right check confirmed the disparity (255) before holes were filled (0)."""
+    _, valid = finished_map(job_id, "validity", svc, principal)
+    image = np.where(valid, 255, 0).astype(np.uint8)
+    return attachment(cv2.imencode(".png", image)[1].tobytes(), "image/png", f"{job_id}.valid.png")
+
+
+@router.get("/{job_id}/confidence", responses=MAP_RESPONSES, response_class=Response)
+def get_confidence(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    format: Literal["pfm", "npy"] = "pfm",
+):
+    """Confidence of each disparity in [0, 1] (the cost margin; 0 where the check failed)."""
+    _, confidence = finished_map(job_id, "confidence", svc, principal)
+    return attachment(
+        disparity_bytes(confidence, format),
+        DISPARITY_MEDIA[format],
+        f"{job_id}.confidence.{format}",
+    )
+
+
+def job_calibration(record: JobRecord) -> Calibration:
+    if record.cameras is None:
+        raise ServiceError(
+            Refusal.NOT_FOUND,
+            f"job {record.id} was submitted without cameras: submit with focal and baseline "
+            "for its depth and point cloud",
+        )
+    return record.cameras.calibration(record.width, record.height)
+
+
+@router.get("/{job_id}/depth", responses=MAP_RESPONSES, response_class=Response)
+def get_depth(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    format: Literal["pfm", "npy"] = "pfm",
+):
+    """Depth Z = focal x baseline / (d + doffs) in the baseline's unit; NaN: no depth."""
+    record, disparity = finished_result(job_id, svc, principal)
+    depth = job_calibration(record).depth(disparity)
+    return attachment(
+        disparity_bytes(depth, format), DISPARITY_MEDIA[format], f"{job_id}.depth.{format}"
+    )
+
+
+@router.get("/{job_id}/points.ply", responses=MAP_RESPONSES, response_class=Response)
+def get_points(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """The pixels with a depth (and a confirmed disparity, where the job has the validity map)
+    as a coloured binary PLY (Open3D, MeshLab, CloudCompare read it)."""
+    record, disparity = finished_result(job_id, svc, principal)
+    calibration = job_calibration(record)
+    left = svc.store.load_view(job_id, "left.png")
+    decoded = None if left is None else cv2.imdecode(np.frombuffer(left, np.uint8), -1)
+    image = None if decoded is None else decoded.astype(np.float32) / 255.0
+    valid = svc.store.load_map(job_id, "validity") if "validity" in record.maps else None
+    points, colours = point_cloud(disparity, calibration, image, valid)
+    return attachment(ply_bytes(points, colours), "application/octet-stream", f"{job_id}.ply")

@@ -132,6 +132,16 @@ function warningsBlock(job) {
     job.warnings.map((text) => el("p", {}, text)));
 }
 
+/** Buttons for the maps beside the disparity and, with cameras, its depth and point cloud:
+ * those the job's links name. */
+function extraDownloads(job) {
+  const files = [["validity", "validity PNG", `${job.id}.valid.png`],
+    ["confidence", "confidence PFM", `${job.id}.confidence.pfm`],
+    ["depth", "depth PFM", `${job.id}.depth.pfm`], ["points", "point cloud PLY", `${job.id}.ply`]];
+  return files.filter(([link]) => job.links?.[link]).map(([link, label, name]) =>
+    el("button", { type: "button", class: "small", "data-download": link, onclick: () => download(job.links[link], name) }, label));
+}
+
 export async function showJob(id) {
   showView("job");
   const view = $("#view-job");
@@ -167,7 +177,8 @@ export async function showJob(id) {
     parts.push(await resultImages(job));
     parts.push(el("div", { class: "downloads" }, el("span", {}, "Download:"),
       [["pfm", "PFM"], ["png", "16-bit PNG"], ["npy", "NPY"]].map(([format, label]) =>
-        el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/disparity?format=${format}`, `${job.id}.${format}`) }, label))));
+        el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/disparity?format=${format}`, `${job.id}.${format}`) }, label)),
+      extraDownloads(job)));
     parts.push(await compareChooser(job));
   }
   parts.push(el("h2", {}, "Levels"), levelsTable(job) ?? el("p", { class: "muted" }, "No level finished yet."));

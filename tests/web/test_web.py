@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import re
+from pathlib import Path
 from urllib.parse import urlsplit
 
 import cv2
@@ -98,6 +99,13 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     png = cv2.imread(download.value.path(), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint16
     np.testing.assert_allclose(png / 256.0, result, atol=1 / 256)
+    with page.expect_download() as download:  # the left-right check's map beside it
+        page.get_by_role("button", name="validity PNG").click()
+    with server.client() as api:
+        served = api.get(status["links"]["validity"]).content
+    assert Path(download.value.path()).read_bytes() == served
+    expect(page.get_by_role("button", name="confidence PFM")).to_be_visible()
+    expect(page.get_by_role("button", name="depth PFM")).to_have_count(0)  # no cameras given
 
 
 def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_files, screenshots):

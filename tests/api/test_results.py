@@ -1,0 +1,80 @@
+"""A finished job's results beyond the disparity: the validity and confidence maps, depth and
+point cloud from the cameras given at submit (the job is finished through the store: no worker
+runs here)."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+from api_helpers import SCENE, post
+
+from workers.records import ACTIVE, JobRecord, JobState, now
+
+CAMERAS = {"focal": 100.0, "baseline": 0.5, "doffs": 1.0}
+
+
+def finish(api, job_id: str, maps: dict[str, np.ndarray]) -> np.ndarray:
+    """Finish a queued job as a worker would, with its result and maps; the result."""
+    store = api.app.state.services.store
+    disparity = SCENE.disparity.astype(np.float32)
+    assert store.transition(job_id, JobState.RUNNING, ACTIVE) is not None
+    store.save_result(job_id, disparity, maps)
+    assert store.apply(job_id, JobRecord.succeeded, now(), None, None, list(maps)).changed
+    return disparity
+
+
+def test_validity_and_confidence_maps_are_linked_and_served(api):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    links = api.get(f"/v1/jobs/{job_id}").json()["links"]
+    assert links["validity"] is None and links["confidence"] is None  # not finished
+    assert api.get(f"/v1/jobs/{job_id}/validity.png").status_code == 409
+    valid = np.zeros(SCENE.disparity.shape, bool)
+    valid[:, 4:] = True
+    confidence = np.where(valid, 0.75, 0.0).astype(np.float32)
+    finish(api, job_id, {"validity": valid, "confidence": confidence})
+    links = api.get(f"/v1/jobs/{job_id}").json()["links"]
+    assert links["depth"] is None  # no cameras given
+    png = api.get(links["validity"])
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(image == 255, valid)
+    served = api.get(f"/v1/jobs/{job_id}/confidence", params={"format": "npy"})
+    assert np.array_equal(np.load(io.BytesIO(served.content)), confidence)
+    assert api.get(links["confidence"]).content.startswith(b"Pf")
+    refused = api.get(f"/v1/jobs/{job_id}/depth")
+    assert refused.status_code == 404 and "focal and baseline" in refused.json()["detail"]
+
+
+def test_a_run_without_a_map_says_so(api):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    finish(api, job_id, {})
+    assert api.get(f"/v1/jobs/{job_id}").json()["links"]["confidence"] is None
+    missing = api.get(f"/v1/jobs/{job_id}/confidence")
+    assert missing.status_code == 404 and "no confidence map" in missing.json()["detail"]
+
+
+def test_depth_and_point_cloud_from_the_cameras_given_at_submit(api):
+    created = post(api, params={"max_disparity": 6}, **CAMERAS)
+    assert created.status_code == 202, created.text
+    job_id = created.json()["id"]
+    valid = np.ones(SCENE.disparity.shape, bool)
+    valid[0] = False
+    disparity = finish(api, job_id, {"validity": valid})
+    links = api.get(f"/v1/jobs/{job_id}").json()["links"]
+    depth = np.load(io.BytesIO(api.get(links["depth"].replace("pfm", "npy")).content))
+    shifted = disparity + CAMERAS["doffs"]
+    expected = np.where(shifted > 0, 100.0 * 0.5 / shifted, np.nan)
+    assert np.allclose(depth, expected, equal_nan=True)
+    ply = api.get(links["points"]).content
+    header, _, body = ply.partition(b"end_header\n")
+    count = int(header.split(b"element vertex ")[1].split()[0])
+    assert count == int((valid & (shifted > 0)).sum()) and len(body) == count * 15
+
+
+def test_incomplete_cameras_are_422(api):
+    for fields in ({"focal": 100}, {"baseline": 0.5}, {"doffs": 2}, {"focal": -1, "baseline": 1}):
+        response = post(api, params={"max_disparity": 6}, **fields)
+        assert response.status_code == 422, (fields, response.text)
