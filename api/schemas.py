@@ -142,6 +142,9 @@ class JobSummary(BaseModel):
         description="Estimated peak memory of a worker process running the job, MiB (null "
         "until its disparity range is known); a job above a worker's budget is refused",
     )
+    pinned: bool = Field(
+        False, description="Kept past the retention until unpinned (POST/DELETE .../pin)"
+    )
     links: Links
 
     @classmethod
@@ -162,6 +165,7 @@ class JobSummary(BaseModel):
             "metrics": record.metrics,
             "qpu_seconds": qpu_seconds,
             "memory_mb": record.memory_mb,
+            "pinned": record.pinned,
             "links": links,
         }
 
@@ -196,7 +200,7 @@ class JobStatus(JobSummary):
     expires_at: datetime | None = Field(
         None,
         description="When the job's record, uploads and result are deleted (finished_at + "
-        "QHSM_RESULT_TTL_SECONDS); null while it runs",
+        "QHSM_RESULT_TTL_SECONDS); null while it runs or while pinned",
     )
 
 

@@ -179,6 +179,8 @@ class JobRecord(BaseModel):
     memory_mb: int | None = None
     #: The cameras given at submit (None: no depth or point cloud for the job)
     cameras: Cameras | None = None
+    #: Kept past the retention (``result_ttl_seconds``) until unpinned
+    pinned: bool = False
     #: The maps saved beside the result (``validity``, ``confidence``: those the run has)
     maps: list[str] = Field(default_factory=list)
 
@@ -283,6 +285,10 @@ class JobRecord(BaseModel):
 
     def cancelled(self, at: datetime) -> JobRecord | None:
         return self.moved(JobState.CANCELLED, at)
+
+    def pinned_as(self, pinned: bool) -> JobRecord | None:
+        """Pinned (kept past the retention) or not; None when it already is."""
+        return None if self.pinned is pinned else self.model_copy(update={"pinned": pinned})
 
     def restarted(self, at: datetime, level: int) -> JobRecord | None:
         """Queued again from its uploads (the watchdog), if still running at ``level``."""

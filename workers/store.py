@@ -266,11 +266,11 @@ class JobStore(LevelStorage):
                         )
                     pipe.multi()
                     pipe.set(key, changed.model_dump_json(), keepttl=True)
-                    if changed.state.terminal:
+                    if changed.state.terminal and not changed.pinned:
                         pipe.expire(key, self.ttl)
                     pipe.execute()
                     if changed.state.terminal and not current.state.terminal:
-                        self._finished(job_id)
+                        self._finished(job_id, changed.pinned)
                     return Applied(changed, True)
                 except redis.WatchError:
                     continue
@@ -296,14 +296,51 @@ class JobStore(LevelStorage):
         """Fail an active job with a message for the user; False if it had already ended."""
         return self.apply(job_id, JobRecord.failed, now(), message).changed
 
-    def _finished(self, job_id: str) -> None:
-        """A job reached a final state: drop what only running jobs need."""
+    def _finished(self, job_id: str, pinned: bool = False) -> None:
+        """A job reached a final state: drop what only running jobs need; what it keeps expires
+        with its record (a pinned job's is kept)."""
         self.redis.hdel(self.key("jobs", "active"), job_id)
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
         self.redis.delete(self._upload_key(job_id))
+        if pinned:
+            self._keep(job_id, None)
+            return
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.expire(key, self.ttl)
+
+    def _kept_keys(self, job_id: str) -> list[str]:
+        """What a job keeps after its end: record, result (with its maps), views, progress."""
+        keys = [self.key("job", job_id, part) for part in ("result", "chunks")]
+        found = self.redis.scan_iter(match=self.key("job", job_id, "view", "*"))
+        return [self.key("job", job_id), *keys, *(text(key) for key in found)]
+
+    def _keep(self, job_id: str, seconds: int | None) -> None:
+        """Every kept key of the job without expiry (None) or expiring in ``seconds``."""
+        with self.redis.pipeline() as pipe:
+            for key in self._kept_keys(job_id):
+                if seconds is None:
+                    pipe.persist(key)
+                else:
+                    pipe.expire(key, seconds)
+            pipe.execute()
+
+    def pin(self, job_id: str, pinned: bool) -> JobRecord | None:
+        """Pin the job (nothing of it expires) or unpin it: a finished job then expires
+        ``result_ttl_seconds`` after its end (at once when that has passed), an active one's
+        views as while it runs. The record as stored (None: no such job)."""
+        record = self.apply(job_id, JobRecord.pinned_as, pinned).record
+        if record is None or record.pinned is not pinned:
+            return record
+        if pinned:
+            self._keep(job_id, None)
+        elif record.state.terminal and record.finished_at is not None:
+            left = record.finished_at.timestamp() + self.ttl - now().timestamp()
+            self._keep(job_id, max(1, int(left)))
+        else:
+            for key in self._kept_keys(job_id)[1:]:
+                self.redis.expire(key, self.view_ttl)
+        return record
 
     def list_jobs(
         self, offset: int = 0, limit: int = 20, owner: str | None = None

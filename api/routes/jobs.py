@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import io
+import zipfile
 from datetime import timedelta
 from typing import Annotated, Literal
 
@@ -22,7 +24,7 @@ from api.deps import (
     ServicesDep,
     UsersDep,
 )
-from api.errors import ExpiredError, Refusal, ServiceError
+from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
@@ -108,7 +110,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         version=record.version,
         expires_at=(
             record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
-            if record.finished_at
+            if record.finished_at and not record.pinned
             else None
         ),
     )
@@ -282,6 +284,11 @@ def finished_map(job_id: str, name: str, svc: Services, principal) -> tuple[JobR
     return record, values
 
 
+def validity_png(valid: np.ndarray) -> bytes:
+    """The validity map as `qhsm match` writes it: 8-bit PNG, 255 confirmed, 0 filled."""
+    return cv2.imencode(".png", np.where(valid, 255, 0).astype(np.uint8))[1].tobytes()
+
+
 def attachment(data: bytes, media: str, filename: str) -> Response:
     return Response(
         data,
@@ -359,3 +366,57 @@ def get_points(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     valid = svc.store.load_map(job_id, "validity") if "validity" in record.maps else None
     points, colours = point_cloud(disparity, calibration, image, valid)
     return attachment(ply_bytes(points, colours), "application/octet-stream", f"{job_id}.ply")
+
+
+def pin(job_id: str, pinned: bool, svc: Services, principal) -> JobRecord:
+    find_job(job_id, svc, principal)
+    record = svc.store.pin(job_id, pinned)
+    if record is None:  # expired between the two reads
+        raise JobNotFoundError(job_id, svc.settings.result_ttl_seconds)
+    return record
+
+
+@router.post("/{job_id}/pin", response_model=JobStatus, responses=NOT_FOUND)
+def pin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """Keep the job (record, result, maps, views) past the retention until it is unpinned."""
+    return status_of(pin(job_id, True, svc, principal), svc, users)
+
+
+@router.delete("/{job_id}/pin", response_model=JobStatus, responses=NOT_FOUND)
+def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """Let the job expire again: ``QHSM_RESULT_TTL_SECONDS`` after it finished (at once when
+    that has passed)."""
+    return status_of(pin(job_id, False, svc, principal), svc, users)
+
+
+@router.get(
+    "/{job_id}/export",
+    responses={**NOT_FOUND, 200: {"content": {"application/zip": {}}}},
+    response_class=Response,
+)
+def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """The job in one zip: ``job.json`` (its status: config, version, levels, usage, metrics,
+    charge) and the files it still has: ``disparity.pfm``, ``validity.png``,
+    ``confidence.pfm``, ``left.png``."""
+    record = find_job(job_id, svc, principal)
+    files = {"job.json": status_of(record, svc, users).model_dump_json(indent=2).encode()}
+    disparity = svc.store.load_result(job_id) if record.state is JobState.SUCCEEDED else None
+    if disparity is not None:
+        files["disparity.pfm"] = disparity_bytes(disparity, "pfm")
+        if (
+            "validity" in record.maps
+            and (valid := svc.store.load_map(job_id, "validity")) is not None
+        ):
+            files["validity.png"] = validity_png(valid)
+        if (
+            "confidence" in record.maps
+            and (confidence := svc.store.load_map(job_id, "confidence")) is not None
+        ):
+            files["confidence.pfm"] = disparity_bytes(confidence, "pfm")
+    if (left := svc.store.load_view(job_id, "left.png")) is not None:
+        files["left.png"] = left
+    stream = io.BytesIO()
+    with zipfile.ZipFile(stream, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in files.items():
+            archive.writestr(f"{job_id}/{name}", data)
+    return attachment(stream.getvalue(), "application/zip", f"{job_id}.zip")

@@ -132,6 +132,12 @@ function warningsBlock(job) {
     job.warnings.map((text) => el("p", {}, text)));
 }
 
+/** Pin the job (kept past the retention) or unpin it, then show it again. */
+async function togglePin(job) {
+  await json(`/v1/jobs/${job.id}/pin`, { method: job.pinned ? "DELETE" : "POST" });
+  await showJob(job.id);
+}
+
 /** Buttons for the maps beside the disparity and, with cameras, its depth and point cloud:
  * those the job's links name. */
 function extraDownloads(job) {
@@ -162,11 +168,14 @@ export async function showJob(id) {
     ["duration", duration(jobDuration(job))]];
   if (job.qpu_seconds !== null && job.qpu_seconds !== undefined) facts.push(["QPU time charged", seconds(job.qpu_seconds)]);
   if (job.expires_at) facts.push(["deleted on", new Date(job.expires_at).toLocaleString()]);
+  if (job.pinned) facts.push(["deleted on", "never: pinned"]);
   if (job.version) facts.push(["qhsm version", job.version]);
   const parts = [
     el("div", { class: "title-row" },
       el("h1", {}, job.label || `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),
-      active ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel") : null),
+      active ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel") : null,
+      el("button", { type: "button", class: "small", onclick: () => togglePin(job) }, job.pinned ? "Unpin" : "Pin"),
+      el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/export`, `${job.id}.zip`) }, "Export")),
     warningsBlock(job),
     keyValues(facts),
   ];

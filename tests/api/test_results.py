@@ -5,10 +5,12 @@ runs here)."""
 from __future__ import annotations
 
 import io
+import uuid
 
 import numpy as np
 from api_helpers import SCENE, post
 
+from api.users import UserStore
 from workers.records import ACTIVE, JobRecord, JobState, now
 
 CAMERAS = {"focal": 100.0, "baseline": 0.5, "doffs": 1.0}
@@ -78,3 +80,60 @@ def test_incomplete_cameras_are_422(api):
     for fields in ({"focal": 100}, {"baseline": 0.5}, {"doffs": 2}, {"focal": -1, "baseline": 1}):
         response = post(api, params={"max_disparity": 6}, **fields)
         assert response.status_code == 422, (fields, response.text)
+
+
+def ttl(api, job_id: str, *part: str) -> int:
+    store = api.app.state.services.store
+    return store.redis.ttl(store.key("job", job_id, *part))
+
+
+def test_a_pinned_job_does_not_expire_until_unpinned(api):
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    pinned = api.post(f"/v1/jobs/{job_id}/pin")  # while queued: kept when it finishes
+    assert pinned.status_code == 200 and pinned.json()["pinned"] is True
+    finish(api, job_id, {"confidence": np.zeros(SCENE.disparity.shape, np.float32)})
+    status = api.get(f"/v1/jobs/{job_id}").json()
+    assert status["pinned"] is True and status["expires_at"] is None
+    for part in [(), ("result",), ("view", "left.png")]:
+        assert ttl(api, job_id, *part) == -1, part  # no expiry
+    unpinned = api.delete(f"/v1/jobs/{job_id}/pin").json()
+    assert unpinned["pinned"] is False and unpinned["expires_at"] is not None
+    retention = api.app.state.services.settings.result_ttl_seconds
+    for part in [(), ("result",), ("view", "left.png")]:
+        assert retention - 60 < ttl(api, job_id, *part) <= retention, part
+    assert api.post(f"/v1/jobs/{job_id}/pin").json()["pinned"] is True  # a finished one too
+    assert ttl(api, job_id, "result") == -1
+
+
+def test_pin_of_an_unknown_or_someone_elses_job_is_404(api, api_settings):
+    unknown = api.post(f"/v1/jobs/{'0' * 32}/pin")
+    assert unknown.status_code == 404 and "no job" in unknown.json()["detail"]
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]  # the admin's
+    _, key = UserStore.from_settings(api_settings).create_user(f"pinner-{uuid.uuid4().hex[:6]}")
+    theirs = {"Authorization": f"Bearer {key}"}
+    for method, path in [("POST", "pin"), ("DELETE", "pin"), ("GET", "export")]:
+        answer = api.request(method, f"/v1/jobs/{job_id}/{path}", headers=theirs)
+        assert answer.status_code == 404, (method, path)
+    assert api.get(f"/v1/jobs/{job_id}").json()["pinned"] is False
+
+
+def test_export_is_one_zip_of_the_status_and_the_files(api):
+    import json
+    import zipfile
+
+    job_id = post(api, params={"max_disparity": 6}, label="export me").json()["id"]
+    valid = np.ones(SCENE.disparity.shape, bool)
+    disparity = finish(api, job_id, {"validity": valid})
+    response = api.get(f"/v1/jobs/{job_id}/export")
+    assert response.status_code == 200 and response.headers["content-type"] == "application/zip"
+    archive = zipfile.ZipFile(io.BytesIO(response.content))
+    names = {name.split("/", 1)[1] for name in archive.namelist()}
+    assert names == {"job.json", "disparity.pfm", "validity.png", "left.png"}
+    record = json.loads(archive.read(f"{job_id}/job.json"))
+    assert record["label"] == "export me" and record["config"]["max_disparity"] == 6
+    assert {"levels", "usage", "version", "metrics"} <= set(record)
+    import cv2
+
+    pfm = archive.read(f"{job_id}/disparity.pfm")
+    decoded = cv2.imdecode(np.frombuffer(pfm, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(decoded, disparity)

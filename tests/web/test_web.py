@@ -106,6 +106,14 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     assert Path(download.value.path()).read_bytes() == served
     expect(page.get_by_role("button", name="confidence PFM")).to_be_visible()
     expect(page.get_by_role("button", name="depth PFM")).to_have_count(0)  # no cameras given
+    page.get_by_role("button", name="Pin", exact=True).click()  # kept past the retention
+    expect(page.get_by_role("button", name="Unpin")).to_be_visible()
+    expect(page.locator("dl.kv").first).to_contain_text("never: pinned")
+    with server.client() as api:
+        assert api.get(f"/v1/jobs/{job_id}").json()["pinned"] is True
+    with page.expect_download() as download:
+        page.get_by_role("button", name="Export").click()
+    assert download.value.suggested_filename == f"{job_id}.zip"
 
 
 def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_files, screenshots):
