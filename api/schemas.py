@@ -345,6 +345,10 @@ class JobUsage(BaseModel):
     problem_ids: list[str] = Field(
         default_factory=list, description="The ids SAPI gave those problems (find them on Leap)"
     )
+    first_charged_at: datetime | None = Field(
+        None, description="When the job was first charged (null: before dates were kept)"
+    )
+    last_charged_at: datetime | None = Field(None, description="When it was last charged")
 
 
 class UserUsage(BaseModel):
@@ -357,6 +361,9 @@ class UserUsage(BaseModel):
     used_seconds: float
     reserved_seconds: float = Field(description="Held by bundles being solved right now")
     remaining_seconds: float | None
+    warning: str | None = Field(
+        None, description="Set when less than 10 % of the budget is left: what to do"
+    )
     jobs: list[JobUsage]
 
     @classmethod

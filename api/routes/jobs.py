@@ -89,6 +89,14 @@ def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
     return users.ledger.job_usage(record.owner or LOCAL_USER, record.id).seconds
 
 
+def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
+    """A metered job's owner is told when their QPU budget runs low."""
+    if not is_metered(record.config.solver):
+        return []
+    warning = users.ledger.status(record.owner or LOCAL_USER).warning
+    return [warning] if warning else []
+
+
 def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
     return JobSummary(**JobSummary.fields_of(record, links(record), charged_seconds(record, users)))
 
@@ -103,7 +111,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         usage=svc.store.usage(chunks),
         problem_ids=svc.store.problem_ids(chunks),
         error=record.error,
-        warnings=record.warnings,
+        warnings=record.warnings + budget_warning(record, users),
         ground_truth=record.ground_truth,
         config=record.config,
         disparity_range=record.disparity_range,

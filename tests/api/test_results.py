@@ -8,7 +8,7 @@ import io
 import uuid
 
 import numpy as np
-from api_helpers import SCENE, post
+from api_helpers import LEFT, RIGHT, SCENE, post
 
 from api.users import UserStore
 from workers.records import ACTIVE, JobRecord, JobState, now
@@ -137,3 +137,25 @@ def test_export_is_one_zip_of_the_status_and_the_files(api):
     pfm = archive.read(f"{job_id}/disparity.pfm")
     decoded = cv2.imdecode(np.frombuffer(pfm, np.uint8), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(decoded, disparity)
+
+
+def test_a_metered_jobs_status_warns_when_its_owners_budget_runs_low(api, api_settings):
+    users = UserStore.from_settings(api_settings)
+    name = f"thrifty-{uuid.uuid4().hex[:6]}"
+    _, key = users.create_user(name, qpu_seconds=100.0)
+    mine = {"Authorization": f"Bearer {key}"}
+    created = api.post(
+        "/v1/jobs",
+        files={"left": ("l.png", LEFT), "right": ("r.png", RIGHT)},
+        data={"params": '{"solver": "qpu-sim", "max_disparity": 6}'},
+        headers=mine,
+    )
+    assert created.status_code == 202, created.text
+    job_id = created.json()["id"]
+    assert not any(
+        "runs low" in w for w in api.get(f"/v1/jobs/{job_id}", headers=mine).json()["warnings"]
+    )
+    users.ledger.settle(users.ledger.reserve(name, job_id, 95.0, ttl=60), 95.0)
+    warnings = api.get(f"/v1/jobs/{job_id}", headers=mine).json()["warnings"]
+    assert any("runs low: 5.000 s of 100 s left (5.0 %)" in w for w in warnings)
+    assert api.delete(f"/v1/jobs/{job_id}", headers=mine).status_code == 200
