@@ -37,6 +37,7 @@ from api.uploads import (
     display_name,
     one_line,
     parse_config,
+    parse_tags,
     read_upload,
 )
 from api.users import UserStore
@@ -73,6 +74,7 @@ class JobForm:
     gt_border: int = GroundTruth.model_fields["border"].default
     label: str | None = None
     cameras: Cameras | None = None
+    tags: str | None = None  # comma-separated
 
 
 @dataclass(frozen=True)
@@ -246,6 +248,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
     settings = svc.settings
     check_active_jobs(owner, svc)
     config = parse_config(form.params)
+    tags = parse_tags(form.tags)
     check_solver(config, svc)
     config = bounded_params(config)
     left_image, right_image = decode_pair(
@@ -284,6 +287,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         width=left_image.shape[1],
         height=left_image.shape[0],
         label=one_line(form.label) or None,
+        tags=tags,
         files=[display_name(upload.filename) for upload in (form.left, form.right)],
         warnings=warnings,
         ground_truth=truth,

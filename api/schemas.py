@@ -121,6 +121,9 @@ class JobSummary(BaseModel):
     id: str
     owner: str | None = Field(None, description="User who submitted the job")
     label: str | None = Field(None, description="The name the submitter gave the job")
+    tags: list[str] = Field(
+        default_factory=list, description="The submitter's tags (GET /v1/jobs?tag= filters)"
+    )
     files: list[str] = Field(
         default_factory=list, description="File names of the uploaded views: left, right"
     )
@@ -154,6 +157,7 @@ class JobSummary(BaseModel):
             "id": record.id,
             "owner": record.owner,
             "label": record.label,
+            "tags": record.tags,
             "files": record.files,
             "state": record.state,
             "solver": record.config.solver,

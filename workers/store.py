@@ -10,6 +10,7 @@ Keys (all under ``{key_prefix}:``):
     job:{id}                 JSON ``JobRecord`` (expires ``result_ttl_seconds`` after the end)
     jobs                     sorted set id -> creation time (newest-first listing)
     jobs:owner:{user}        the same, one user's jobs
+    jobs:tag:{tag}           the same, the jobs with that tag (and jobs:owner:{user}:tag:{tag})
     jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:upload          hash of the decoded views ``left``, ``right`` (their integer form,
@@ -163,6 +164,12 @@ class JobStore(LevelStorage):
             active = int(self._create(keys=keys, args=args))
             if active < 0:
                 raise ActiveJobsCapError(owner, -1 - active, cap or 0)
+            if record.tags:
+                created = record.created_at.timestamp()
+                with self.redis.pipeline() as pipe:
+                    for index in self._tag_indexes(record):
+                        pipe.zadd(index, {record.id: created})
+                    pipe.execute()
         except BaseException:
             with contextlib.suppress(redis.RedisError):
                 self.redis.delete(*written)
@@ -184,9 +191,16 @@ class JobStore(LevelStorage):
             pipe.hdel(self.key("jobs", "active"), job_id)
             if record is not None and record.owner is not None:
                 pipe.zrem(self.key("jobs", "owner", record.owner), job_id)
+            for index in self._tag_indexes(record) if record is not None else []:
+                pipe.zrem(index, job_id)
             pipe.execute()
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.delete(key)
+
+    def _tag_indexes(self, record: JobRecord) -> list[str]:
+        """The job's entries in the tag indexes: everyone's (admins) and its owner's."""
+        mine = ("jobs", "owner", record.owner or "")
+        return [self.key(*scope, "tag", tag) for tag in record.tags for scope in (("jobs",), mine)]
 
     def _upload_key(self, job_id: str) -> str:
         return self.key("job", job_id, "upload")
@@ -343,11 +357,12 @@ class JobStore(LevelStorage):
         return record
 
     def list_jobs(
-        self, offset: int = 0, limit: int = 20, owner: str | None = None
+        self, offset: int = 0, limit: int = 20, owner: str | None = None, tag: str | None = None
     ) -> tuple[list[JobRecord], int]:
-        """Jobs newest first (only ``owner``'s when given), and how many there are; expired
-        records are dropped on the way."""
-        index = self.key("jobs") if owner is None else self.key("jobs", "owner", owner)
+        """Jobs newest first (only ``owner``'s, only those tagged ``tag``, when given), and how
+        many there are; expired records are dropped on the way."""
+        scope = ("jobs",) if owner is None else ("jobs", "owner", owner)
+        index = self.key(*scope) if tag is None else self.key(*scope, "tag", tag)
         ids = members(self.redis.zrevrange(index, offset, offset + limit - 1))
         raws = self.redis.mget([self.key("job", job_id) for job_id in ids]) if ids else []
         records, expired = [], []

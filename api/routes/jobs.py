@@ -28,7 +28,7 @@ from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
-from api.uploads import MAX_LABEL
+from api.uploads import MAX_LABEL, MAX_TAGS, TAG
 from api.users import UserStore
 from shared.datasets.calibration import Calibration
 from shared.depth import ply_bytes, point_cloud
@@ -181,11 +181,19 @@ def create_job(
         float | None,
         Form(allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"),
     ] = None,
+    tags: Annotated[
+        str | None,
+        Form(
+            max_length=MAX_TAGS * 41,
+            description=f"Comma-separated tags (at most {MAX_TAGS}: letters, digits, '.', '_', "
+            "'-'); GET /v1/jobs?tag= lists the jobs with one",
+        ),
+    ] = None,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
     form = JobForm(
         left, right, params, ground_truth, gt_scale, gt_border, label,
-        cameras_of(focal, baseline, doffs),
+        cameras_of(focal, baseline, doffs), tags,
     )  # fmt: skip
     record = job_service.submit(form, principal.name, svc, users)
     body = JobCreated(
@@ -206,13 +214,17 @@ def list_jobs(
     users: UsersDep,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
+    tag: Annotated[
+        str | None, Query(pattern=TAG.pattern, description="Only the jobs with this tag")
+    ] = None,
 ):
-    """Your jobs, newest first (admins: everyone's)."""
+    """Your jobs, newest first (admins: everyone's); ``?tag=`` only those with the tag."""
     owner = None if principal.admin else principal.name
-    records, total = svc.store.list_jobs(offset, limit, owner=owner)
+    records, total = svc.store.list_jobs(offset, limit, owner=owner, tag=tag)
     items = [summary_of(r, users) for r in records if can_see(principal, r)]
     following = offset + limit
-    next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None
+    more = f"&tag={tag}" if tag else ""
+    next_url = f"/v1/jobs?offset={following}&limit={limit}{more}" if following < total else None
     return JobPage(items=items, total=total, offset=offset, limit=limit, next=next_url)
 
 

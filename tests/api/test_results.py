@@ -159,3 +159,26 @@ def test_a_metered_jobs_status_warns_when_its_owners_budget_runs_low(api, api_se
     warnings = api.get(f"/v1/jobs/{job_id}", headers=mine).json()["warnings"]
     assert any("runs low: 5.000 s of 100 s left (5.0 %)" in w for w in warnings)
     assert api.delete(f"/v1/jobs/{job_id}", headers=mine).status_code == 200
+
+
+def test_jobs_are_listed_by_tag(api, api_settings):
+    run = f"run-{uuid.uuid4().hex[:6]}"
+    tagged = [
+        post(api, params={"max_disparity": 6}, tags=f"{run}, scene.a,{run}").json()["id"]
+        for _ in range(3)
+    ]
+    post(api, params={"max_disparity": 6}, tags="other")
+    status = api.get(f"/v1/jobs/{tagged[0]}").json()
+    assert status["tags"] == sorted([run, "scene.a"])
+    page = api.get("/v1/jobs", params={"tag": run, "limit": 2}).json()
+    assert [item["id"] for item in page["items"]] == tagged[::-1][:2] and page["total"] == 3
+    assert page["next"] == f"/v1/jobs?offset=2&limit=2&tag={run}"
+    assert api.get(page["next"]).json()["items"][0]["id"] == tagged[0]
+    # another user sees none of them under the tag
+    _, key = UserStore.from_settings(api_settings).create_user(f"tagger-{uuid.uuid4().hex[:6]}")
+    theirs = api.get("/v1/jobs", params={"tag": run}, headers={"Authorization": f"Bearer {key}"})
+    assert theirs.json()["total"] == 0
+    for bad in ("a b", "x" * 41, ",".join(f"t{i}" for i in range(11))):
+        refused = post(api, params={"max_disparity": 6}, tags=bad)
+        assert refused.status_code == 422 and "tags" in refused.text, bad
+    assert api.get("/v1/jobs", params={"tag": "no spaces"}).status_code == 422
