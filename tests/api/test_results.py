@@ -182,3 +182,38 @@ def test_jobs_are_listed_by_tag(api, api_settings):
         refused = post(api, params={"max_disparity": 6}, tags=bad)
         assert refused.status_code == 422 and "tags" in refused.text, bad
     assert api.get("/v1/jobs", params={"tag": "no spaces"}).status_code == 422
+
+
+def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings, tmp_path, capsys):
+    import json
+
+    import cv2
+    import harness
+
+    from shared.cli import main
+    from shared.synthetic import make_scene
+
+    for name, seed in (("a", 1), ("b", 2)):
+        folder = tmp_path / "lab" / name
+        folder.mkdir(parents=True)
+        scene = make_scene(24, 32, max_disparity=6, seed=seed)
+        for view, image in (("left.png", scene.left), ("right.png", scene.right)):
+            cv2.imwrite(str(folder / view), (image * 255).round().astype(np.uint8))
+        cv2.imwrite(str(folder / "gt_left.png"), (scene.disparity * 8).astype(np.uint8))
+        (folder / "protocol.json").write_text(json.dumps({"scale": 8, "max_disparity": 7}))
+    tag = f"batch-{uuid.uuid4().hex[:6]}"
+    key = harness.admin_key(api_settings)
+    argv = ["submit-batch", str(tmp_path), "--url", live_api.url, "--key", key, "--json"]
+    assert main([*argv, "--tag", tag, "--solver", "exact"]) == 0
+    batch = json.loads(capsys.readouterr().out)
+    assert batch["tag"] == tag and batch["url"].endswith(f"/v1/jobs?tag={tag}")
+    assert [(job["name"], job["max_disparity"]) for job in batch["jobs"]] == [
+        ("lab/a", 7),
+        ("lab/b", 7),
+    ]
+    listed = api.get("/v1/jobs", params={"tag": tag}).json()["items"]
+    assert sorted(item["label"] for item in listed) == ["lab/a", "lab/b"]
+    status = api.get(f"/v1/jobs/{batch['jobs'][0]['id']}").json()
+    assert status["ground_truth"]["scale"] == 8 and status["config"]["solver"] == "exact"
+    assert main(["submit-batch", str(tmp_path / "none"), "--url", live_api.url, "--key", key]) == 1
+    assert "no such directory" in capsys.readouterr().err
