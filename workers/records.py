@@ -90,12 +90,22 @@ class Cameras(BaseModel):
     focal: float = Field(gt=0, description="Focal length, pixels")
     baseline: float = Field(gt=0, description="Distance between the cameras (depth's unit)")
     doffs: float = Field(0.0, description="cx(right) - cx(left), pixels (Middlebury's doffs)")
+    cx: float | None = Field(None, description="Principal point, px (None: the centre)")
+    cy: float | None = None
+    unit: str = Field("", description="The baseline's unit, when a calibration file says")
+
+    @classmethod
+    def of(cls, calibration: Calibration) -> Cameras:
+        """What a calibration file gives (:mod:`shared.datasets.calibration`)."""
+        return cls(
+            focal=calibration.focal, baseline=calibration.baseline, doffs=calibration.doffs,
+            cx=calibration.cx, cy=calibration.cy, unit=calibration.unit,
+        )  # fmt: skip
 
     def calibration(self, width: int, height: int) -> Calibration:
-        return Calibration(
-            self.focal, (width - 1) / 2, (height - 1) / 2, self.baseline, self.doffs, "",
-            source="job",
-        )  # fmt: skip
+        cx = (width - 1) / 2 if self.cx is None else self.cx
+        cy = (height - 1) / 2 if self.cy is None else self.cy
+        return Calibration(self.focal, cx, cy, self.baseline, self.doffs, self.unit, source="job")
 
 
 class LevelRecord(BaseModel):

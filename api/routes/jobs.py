@@ -12,6 +12,7 @@ import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
+from pydantic import ValidationError
 
 from api import job_service
 from api.auth import can_see
@@ -30,7 +31,7 @@ from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import MAX_LABEL, MAX_TAGS, TAG
 from api.users import UserStore
-from shared.datasets.calibration import Calibration
+from shared.datasets.calibration import Calibration, CalibrationError, calibration_text
 from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
@@ -68,8 +69,36 @@ def links(record: JobRecord) -> Links:
     )
 
 
-def cameras_of(focal: float | None, baseline: float | None, doffs: float | None) -> Cameras | None:
-    """The cameras given at submit: focal and baseline together, or none of the three."""
+#: Largest calibration file read at submit (a Middlebury calib.txt is ~200 bytes, KITTI's ~1 KB).
+MAX_CALIB_BYTES = 64 * 1024
+
+
+def cameras_of(
+    focal: float | None,
+    baseline: float | None,
+    doffs: float | None,
+    calib: UploadFile | None = None,
+) -> Cameras | None:
+    """The cameras given at submit: a calibration file (Middlebury's calib.txt or KITTI's), or
+    focal and baseline together (doffs optional), or none of them."""
+    if calib is not None:
+        if focal is not None or baseline is not None or doffs is not None:
+            raise ServiceError(
+                Refusal.INVALID, "give either calib or focal/baseline/doffs, not both"
+            )
+        data = calib.file.read(MAX_CALIB_BYTES + 1)
+        if len(data) > MAX_CALIB_BYTES:
+            raise ServiceError(
+                Refusal.TOO_LARGE, f"calib: above {MAX_CALIB_BYTES} bytes; not a calibration file"
+            )
+        try:
+            calibration = calibration_text(data.decode("utf-8"), "calib")
+            return Cameras.of(calibration)
+        except (UnicodeDecodeError, CalibrationError, ValidationError) as error:
+            reason = "not UTF-8 text" if isinstance(error, UnicodeDecodeError) else str(error)
+            if isinstance(error, ValidationError):
+                reason = "calib: its focal length and baseline must be > 0"
+            raise ServiceError(Refusal.INVALID, reason) from None
     if focal is None and baseline is None:
         if doffs is not None:
             raise ServiceError(Refusal.INVALID, "doffs needs focal and baseline")
@@ -181,6 +210,10 @@ def create_job(
         float | None,
         Form(allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"),
     ] = None,
+    calib: Annotated[
+        UploadFile | None,
+        File(description="Calibration file (Middlebury calib.txt or KITTI's): depth and PLY"),
+    ] = None,
     tags: Annotated[
         str | None,
         Form(
@@ -193,7 +226,7 @@ def create_job(
     """Queue a matching job; poll the ``Location`` it answers with."""
     form = JobForm(
         left, right, params, ground_truth, gt_scale, gt_border, label,
-        cameras_of(focal, baseline, doffs), tags,
+        cameras_of(focal, baseline, doffs, calib), tags,
     )  # fmt: skip
     record = job_service.submit(form, principal.name, svc, users)
     body = JobCreated(

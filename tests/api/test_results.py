@@ -217,3 +217,26 @@ def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings
     assert status["ground_truth"]["scale"] == 8 and status["config"]["solver"] == "exact"
     assert main(["submit-batch", str(tmp_path / "none"), "--url", live_api.url, "--key", key]) == 1
     assert "no such directory" in capsys.readouterr().err
+
+
+CALIB = "cam0=[100 0 15.5; 0 100 11.5; 0 0 1]\ncam1=[100 0 16.5; 0 100 11.5; 0 0 1]\n"
+CALIB += "doffs=1\nbaseline=500\nwidth=32\nheight=24\nndisp=8\n"
+
+
+def test_a_calibration_file_at_submit_gives_the_depth(api):
+    created = post(api, params={"max_disparity": 6}, calib=CALIB.encode())
+    assert created.status_code == 202, created.text
+    job_id = created.json()["id"]
+    disparity = finish(api, job_id, {})
+    depth = api.get(f"/v1/jobs/{job_id}/depth", params={"format": "npy"})
+    shifted = disparity + 1.0
+    expected = np.where(shifted > 0, 100.0 * 500 / shifted, np.nan)
+    assert np.allclose(np.load(io.BytesIO(depth.content)), expected, equal_nan=True)
+    for extra, message in [
+        ({"calib": b"baseline=1\n"}, "no P2/P3"),  # no cam0: read as KITTI
+        ({"calib": b"cam0=[1 0]\nbaseline=1\n"}, "not a Middlebury calib.txt"),
+        ({"calib": b"\xff\xfe"}, "not UTF-8"),
+        ({"calib": CALIB.encode(), "focal": 10}, "either calib or focal"),
+    ]:
+        refused = post(api, params={"max_disparity": 6}, **extra)
+        assert refused.status_code == 422 and message in refused.json()["detail"], refused.text
