@@ -114,6 +114,11 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     with page.expect_download() as download:
         page.get_by_role("button", name="Export").click()
     assert download.value.suggested_filename == f"{job_id}.zip"
+    page.get_by_role("link", name="Usage", exact=True).click()
+    with page.expect_download() as download:  # the QPU ledger as CSV
+        page.get_by_role("button", name="Export CSV").click()
+    header = Path(download.value.path()).read_text().splitlines()[0]
+    assert header == "user,job,qpu_seconds,problems,first_charged_at,last_charged_at"
 
 
 def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_files, screenshots):
