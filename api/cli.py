@@ -78,6 +78,10 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument(
         "--tag", action="append", help="a tag for the job (repeatable); GET /v1/jobs?tag= lists"
     )
+    submit.add_argument(
+        "--calib",
+        help="Middlebury calib.txt or KITTI calibration: the job then serves depth and PLY",
+    )
     submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
     submit.add_argument(
         "--gt-scale",
@@ -219,6 +223,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     params = match_params(args)
     url = settings_from_args(args).api_url
     files = _existing([args.left, args.right] + ([args.ground_truth] if args.ground_truth else []))
+    calib = _existing([args.calib])[0].read_bytes() if args.calib else None
     with _api_client(args, key_source=KEY_OPTION) as client:
         job = client.submit(
             files[0].read_bytes(),
@@ -230,6 +235,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
             names=(files[0].name, files[1].name),
             label=args.label,
             tags=args.tag,
+            calib=calib,
         )
         shown: set[str] = set()
         _print_warnings(job, shown)
@@ -248,7 +254,8 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
 def cmd_submit_batch(args: argparse.Namespace) -> int:
     """``qhsm submit-batch FOLDER``: every pair below the folder as one job each, with its
-    ground truth and its stated range (else the given one, else ``auto``), all under one tag."""
+    ground truth, its calibration file and its stated range (else the given one, else
+    ``auto``), all under one tag."""
     from datetime import UTC, datetime
 
     from shared.batch import find_pairs
@@ -274,6 +281,7 @@ def cmd_submit_batch(args: argparse.Namespace) -> int:
                 names=(pair.left.name, pair.right.name),
                 label=pair.name,
                 tags=tags,
+                calib=pair.calib.read_bytes() if pair.calib else None,
             )
             jobs.append({"name": pair.name, "id": job["id"], "max_disparity": top})
             if not args.json:

@@ -201,6 +201,7 @@ def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings
             cv2.imwrite(str(folder / view), (image * 255).round().astype(np.uint8))
         cv2.imwrite(str(folder / "gt_left.png"), (scene.disparity * 8).astype(np.uint8))
         (folder / "protocol.json").write_text(json.dumps({"scale": 8, "max_disparity": 7}))
+    (tmp_path / "lab" / "a" / "calib.txt").write_text(CALIB.replace("ndisp=8\n", ""))
     tag = f"batch-{uuid.uuid4().hex[:6]}"
     key = harness.admin_key(api_settings)
     argv = ["submit-batch", str(tmp_path), "--url", live_api.url, "--key", key, "--json"]
@@ -215,6 +216,10 @@ def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings
     assert sorted(item["label"] for item in listed) == ["lab/a", "lab/b"]
     status = api.get(f"/v1/jobs/{batch['jobs'][0]['id']}").json()
     assert status["ground_truth"]["scale"] == 8 and status["config"]["solver"] == "exact"
+    assert status["links"]["self"] and "cameras" not in status  # the record keeps them
+    store = api.app.state.services.store
+    cameras = [store.get(job["id"]).cameras for job in batch["jobs"]]
+    assert cameras[0] is not None and cameras[0].focal == 100 and cameras[1] is None
     assert main(["submit-batch", str(tmp_path / "none"), "--url", live_api.url, "--key", key]) == 1
     assert "no such directory" in capsys.readouterr().err
 
