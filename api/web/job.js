@@ -170,6 +170,7 @@ export async function showJob(id) {
   if (job.expires_at) facts.push(["deleted on", new Date(job.expires_at).toLocaleString()]);
   if (job.pinned) facts.push(["deleted on", "never: pinned"]);
   if (job.version) facts.push(["qhsm version", job.version]);
+  if (job.tags?.length) facts.push(["tags", job.tags.join(", ")]);
   const parts = [
     el("div", { class: "title-row" },
       el("h1", {}, job.label || `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),

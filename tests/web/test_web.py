@@ -29,13 +29,17 @@ def sign_in(page: Page, server, key: str | None = None) -> None:
     expect(page.locator("#who")).to_be_visible()
 
 
-def submit_pair(page: Page, pair_files, solver: str, *, ground_truth: bool = False) -> str:
+def submit_pair(
+    page: Page, pair_files, solver: str, *, ground_truth: bool = False, tags: str = ""
+) -> str:
     """Fill and send the submit form; the id of the job the page then shows."""
     page.get_by_role("link", name="Submit", exact=True).click()
     page.get_by_label("Left image").set_input_files(pair_files["left"])
     page.get_by_label("Right image").set_input_files(pair_files["right"])
     page.get_by_label("Solver").select_option(solver)
     page.get_by_label("Max disparity (px)").fill("8")
+    if tags:
+        page.get_by_label("Tags (optional)").fill(tags)
     if ground_truth:
         page.get_by_text("Ground truth (optional)").click()
         page.get_by_label("Ground truth", exact=True).set_input_files(pair_files["ground_truth"])
@@ -79,7 +83,7 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     page.get_by_role("link", name="Submit", exact=True).click()
     expect(page.get_by_label("Solver")).to_contain_text("exact")
     screenshots(page, "submit")
-    job_id = submit_pair(page, pair_files, "exact", ground_truth=True)
+    job_id = submit_pair(page, pair_files, "exact", ground_truth=True, tags="web-run, exact")
     disparity = page.get_by_alt_text("Disparity", exact=True)
     expect(disparity).to_be_visible(timeout=RESULT_TIMEOUT)
     assert disparity.evaluate("img => [img.naturalWidth, img.naturalHeight]") == [64, 48]
@@ -109,6 +113,7 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     page.get_by_role("button", name="Pin", exact=True).click()  # kept past the retention
     expect(page.get_by_role("button", name="Unpin")).to_be_visible()
     expect(page.locator("dl.kv").first).to_contain_text("never: pinned")
+    expect(page.locator("dl.kv").first).to_contain_text("exact, web-run")  # its tags
     with server.client() as api:
         assert api.get(f"/v1/jobs/{job_id}").json()["pinned"] is True
     with page.expect_download() as download:
