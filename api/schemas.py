@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
-from workers.records import GroundTruth, JobState, Progress
+from workers.records import Cameras, GroundTruth, JobState, Progress
 
 if TYPE_CHECKING:
     from shared.solvers.qpu_time import JobEstimate
@@ -200,6 +200,9 @@ class JobStatus(JobSummary):
     )
     version: str | None = Field(
         None, description="The qhsm version that ran the job (with config: preset, solver)"
+    )
+    cameras: Cameras | None = Field(
+        None, description="The cameras given at submit (calib or focal/baseline/doffs)"
     )
     expires_at: datetime | None = Field(
         None,

@@ -145,6 +145,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         config=record.config,
         disparity_range=record.disparity_range,
         version=record.version,
+        cameras=record.cameras,
         expires_at=(
             record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
             if record.finished_at and not record.pinned
