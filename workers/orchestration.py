@@ -33,7 +33,7 @@ from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
 from shared.level_inputs import LevelInputs
-from shared.memory import check_fits, job_memory_mb, worker_budget_mb
+from shared.memory import VOLUME_CACHE_MB, check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
 from shared.pipeline import (
     confidence_map,
@@ -366,7 +366,11 @@ def _next_level_or_finish(
         launch_level(celery, store, record, next_inputs)
         return
     result, validity = finish_maps(level_map, left, right, config, plans[-1], inputs.views)
-    confidence = confidence_map(result, validity, left, right, config, plans[-1], None)
+    confidence = None
+    if (plans[-1].max_disparity + 1) * result.size * 4 <= VOLUME_CACHE_MB * 2**20:
+        # within the volume the job's memory estimate allows for (shared.memory): larger
+        # jobs keep the validity map only
+        confidence = confidence_map(result, validity, left, right, config, plans[-1], None)
     maps = {
         name: array
         for name, array in (("validity", validity), ("confidence", confidence))
