@@ -5,7 +5,7 @@
     qhsm admin rotate-key NAME                                 prints the new key ONCE
     qhsm admin revoke NAME
     qhsm admin set-quota NAME SECONDS                          ("unlimited" lifts the limit)
-    qhsm admin usage [NAME]
+    qhsm admin usage [NAME] [--json | --csv]
 
 It talks to Redis directly, so it needs no API key (whoever can reach the service's Redis
 administers it anyway): --redis-url, else QHSM_REDIS_URL / REDIS_URL, else the data directory's
@@ -195,13 +195,19 @@ def cmd_set_quota(args: argparse.Namespace) -> int:
 
 
 def cmd_usage(args: argparse.Namespace) -> int:
+    from workers.quota.ledger import usage_csv
+
     with _store(args) as store:
         if args.name:
             _call(lambda: store.require(args.name))
             names = [args.name]
         else:
             names = sorted({u.name for u in store.list_users()} | set(store.ledger.users()))
-        usage = [store.ledger.usage(name).as_dict() for name in names]
+        ledger = [store.ledger.usage(name) for name in names]
+        if args.csv:
+            print(usage_csv(ledger), end="")
+            return 0
+        usage = [entry.as_dict() for entry in ledger]
         if args.json:
             print(json.dumps(usage, indent=2))
             return 0
@@ -212,8 +218,13 @@ def cmd_usage(args: argparse.Namespace) -> int:
                 f"{'unlimited' if limit is None else f'{limit:g} s'}"
                 f" ({entry['reserved_seconds']:.3f} s reserved)"
             )
+            if entry["warning"]:
+                print(f"  warning: {entry['warning']}")
             for job in entry["jobs"]:
-                print(f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems")
+                when = job["last_charged_at"] or "-"
+                print(
+                    f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems  {when}"
+                )
         return 0
 
 
@@ -260,4 +271,7 @@ def register(subparsers) -> None:
     usage = commands.add_parser("usage", help="QPU time used, per user and job")
     usage.add_argument("name", nargs="?", help="one user (default: every user)")
     usage.add_argument("--json", action="store_true")
+    usage.add_argument(
+        "--csv", action="store_true", help="one row per user and job, with the charge dates"
+    )
     usage.set_defaults(handler=cmd_usage)

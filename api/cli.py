@@ -75,6 +75,13 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument("right", help="right view, same size, rectified")
     add_match_options(submit)
     submit.add_argument("--label", help="your name for the job, shown in job lists")
+    submit.add_argument(
+        "--tag", action="append", help="a tag for the job (repeatable); GET /v1/jobs?tag= lists"
+    )
+    submit.add_argument(
+        "--calib",
+        help="Middlebury calib.txt or KITTI calibration: the job then serves depth and PLY",
+    )
     submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
     submit.add_argument(
         "--gt-scale",
@@ -93,6 +100,22 @@ def register(commands: argparse._SubParsersAction) -> None:
     _result_options(submit, "implies --wait")
     _client_options(submit)
     submit.set_defaults(handler=cmd_submit)
+
+    batch = commands.add_parser(
+        "submit-batch",
+        help="send every stereo pair below a folder (scene folders or KITTI's layout) as one "
+        "tagged batch",
+    )
+    batch.add_argument("folder", help="what `qhsm batch` reads: scene folders or KITTI's layout")
+    add_match_options(batch)
+    batch.add_argument(
+        "--tag",
+        action="append",
+        help="the batch's tag (default: batch-<UTC time>); more --tag add tags to every job",
+    )
+    add_json_option(batch, "the batch's tag and its jobs")
+    _client_options(batch, json=False)
+    batch.set_defaults(handler=cmd_submit_batch)
 
     wait = commands.add_parser(
         "wait", help="follow a submitted job (progress on stderr) and download its result"
@@ -200,6 +223,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     params = match_params(args)
     url = settings_from_args(args).api_url
     files = _existing([args.left, args.right] + ([args.ground_truth] if args.ground_truth else []))
+    calib = _existing([args.calib])[0].read_bytes() if args.calib else None
     with _api_client(args, key_source=KEY_OPTION) as client:
         job = client.submit(
             files[0].read_bytes(),
@@ -210,6 +234,8 @@ def cmd_submit(args: argparse.Namespace) -> int:
             gt_border=args.gt_border,
             names=(files[0].name, files[1].name),
             label=args.label,
+            tags=args.tag,
+            calib=calib,
         )
         shown: set[str] = set()
         _print_warnings(job, shown)
@@ -224,6 +250,48 @@ def cmd_submit(args: argparse.Namespace) -> int:
             return 0
         print(f"job {job['id']} {job['state']}", file=sys.stderr)
         return _follow(client, job["id"], args, shown)
+
+
+def cmd_submit_batch(args: argparse.Namespace) -> int:
+    """``qhsm submit-batch FOLDER``: every pair below the folder as one job each, with its
+    ground truth, its calibration file and its stated range (else the given one, else
+    ``auto``), all under one tag."""
+    from datetime import UTC, datetime
+
+    from shared.batch import find_pairs
+
+    config_from_args(args)  # refuse bad options before uploading anything
+    params = match_params(args)
+    try:
+        pairs = find_pairs(args.folder)
+    except FileNotFoundError as error:
+        raise CommandError(str(error)) from None
+    tags = args.tag or [f"batch-{datetime.now(UTC):%Y%m%d-%H%M%S}"]
+    jobs = []
+    with _api_client(args, key_source=KEY_OPTION) as client:
+        for pair in pairs:
+            top = params.get("max_disparity", pair.max_disparity or "auto")
+            job = client.submit(
+                pair.left.read_bytes(),
+                pair.right.read_bytes(),
+                {**params, "max_disparity": top},
+                ground_truth=pair.gt.read_bytes() if pair.gt else None,
+                gt_scale=pair.scale if pair.gt else None,
+                gt_border=pair.border if pair.gt else None,
+                names=(pair.left.name, pair.right.name),
+                label=pair.name,
+                tags=tags,
+                calib=pair.calib.read_bytes() if pair.calib else None,
+            )
+            jobs.append({"name": pair.name, "id": job["id"], "max_disparity": top})
+            if not args.json:
+                print(f"{job['id']}  {pair.name}  (max disparity {top})")
+    listing = f"{settings_from_args(args).api_url.rstrip('/')}/v1/jobs?tag={tags[0]}"
+    if args.json:
+        print(json.dumps({"tag": tags[0], "jobs": jobs, "url": listing}))
+    else:
+        print(f"{len(jobs)} jobs tagged {tags[0]}: {listing}", file=sys.stderr)
+    return 0
 
 
 def cmd_wait(args: argparse.Namespace) -> int:

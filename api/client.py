@@ -103,14 +103,22 @@ class Client:
         gt_border: int | None = None,
         names: tuple[str, str] = ("left.png", "right.png"),
         label: str | None = None,
+        tags: list[str] | None = None,
+        calib: bytes | None = None,
     ) -> dict:
         """POST /v1/jobs; returns ``{id, state, links, warnings}``. ``gt_scale`` not given:
         inferred by the service (with a warning); ``gt_border`` not given: the service's
-        default. ``label``: a name for the job in job lists."""
+        default. ``label``: a name for the job in job lists; ``tags``: what
+        ``GET /v1/jobs?tag=`` lists it by; ``calib``: a calibration file's bytes (Middlebury
+        calib.txt or KITTI's), for the job's depth and point cloud."""
         files = {"left": (names[0], left), "right": (names[1], right)}
         data = {"params": json.dumps(params or {})}
         if label:
             data["label"] = label
+        if tags:
+            data["tags"] = ",".join(tags)
+        if calib is not None:
+            files["calib"] = ("calib.txt", calib)
         if ground_truth is not None:
             files["ground_truth"] = ("ground_truth", ground_truth)
             given = {"gt_scale": gt_scale, "gt_border": gt_border}

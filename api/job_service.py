@@ -37,6 +37,7 @@ from api.uploads import (
     display_name,
     one_line,
     parse_config,
+    parse_tags,
     read_upload,
 )
 from api.users import UserStore
@@ -55,7 +56,7 @@ from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
 from shared.solvers.registry import queue_of
 from workers import embedding_store
 from workers.app import START_JOB, terminate_tasks
-from workers.records import ACTIVE, GroundTruth, JobRecord, JobState, new_job_id, now
+from workers.records import ACTIVE, Cameras, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCapError
 
 log = logging.getLogger(__name__)
@@ -72,6 +73,8 @@ class JobForm:
     gt_scale: float | None = None
     gt_border: int = GroundTruth.model_fields["border"].default
     label: str | None = None
+    cameras: Cameras | None = None
+    tags: str | None = None  # comma-separated
 
 
 @dataclass(frozen=True)
@@ -245,6 +248,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
     settings = svc.settings
     check_active_jobs(owner, svc)
     config = parse_config(form.params)
+    tags = parse_tags(form.tags)
     check_solver(config, svc)
     config = bounded_params(config)
     left_image, right_image = decode_pair(
@@ -283,6 +287,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         width=left_image.shape[1],
         height=left_image.shape[0],
         label=one_line(form.label) or None,
+        tags=tags,
         files=[display_name(upload.filename) for upload in (form.left, form.right)],
         warnings=warnings,
         ground_truth=truth,
@@ -290,6 +295,7 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         disparity_range=disparity_range.as_dict() if disparity_range else None,
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
         version=qhsm_version(),
+        cameras=form.cameras,
         estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
         dispatched=False,
         memory_mb=memory,

@@ -12,7 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
-from workers.records import GroundTruth, JobState, Progress
+from workers.records import Cameras, GroundTruth, JobState, Progress
 
 if TYPE_CHECKING:
     from shared.solvers.qpu_time import JobEstimate
@@ -23,6 +23,14 @@ class Links(BaseModel):
     self: str
     disparity: str
     preview: str
+    validity: str | None = Field(
+        None, description="Left-right check's validity map (8-bit PNG, 255 = confirmed)"
+    )
+    confidence: str | None = Field(None, description="Confidence map in [0, 1] (PFM or npy)")
+    depth: str | None = Field(
+        None, description="Depth map in the baseline's unit (jobs submitted with cameras)"
+    )
+    points: str | None = Field(None, description="Coloured point cloud (binary PLY)")
 
 
 class JobCreated(BaseModel):
@@ -113,6 +121,9 @@ class JobSummary(BaseModel):
     id: str
     owner: str | None = Field(None, description="User who submitted the job")
     label: str | None = Field(None, description="The name the submitter gave the job")
+    tags: list[str] = Field(
+        default_factory=list, description="The submitter's tags (GET /v1/jobs?tag= filters)"
+    )
     files: list[str] = Field(
         default_factory=list, description="File names of the uploaded views: left, right"
     )
@@ -134,6 +145,9 @@ class JobSummary(BaseModel):
         description="Estimated peak memory of a worker process running the job, MiB (null "
         "until its disparity range is known); a job above a worker's budget is refused",
     )
+    pinned: bool = Field(
+        False, description="Kept past the retention until unpinned (POST/DELETE .../pin)"
+    )
     links: Links
 
     @classmethod
@@ -143,6 +157,7 @@ class JobSummary(BaseModel):
             "id": record.id,
             "owner": record.owner,
             "label": record.label,
+            "tags": record.tags,
             "files": record.files,
             "state": record.state,
             "solver": record.config.solver,
@@ -154,6 +169,7 @@ class JobSummary(BaseModel):
             "metrics": record.metrics,
             "qpu_seconds": qpu_seconds,
             "memory_mb": record.memory_mb,
+            "pinned": record.pinned,
             "links": links,
         }
 
@@ -185,10 +201,13 @@ class JobStatus(JobSummary):
     version: str | None = Field(
         None, description="The qhsm version that ran the job (with config: preset, solver)"
     )
+    cameras: Cameras | None = Field(
+        None, description="The cameras given at submit (calib or focal/baseline/doffs)"
+    )
     expires_at: datetime | None = Field(
         None,
         description="When the job's record, uploads and result are deleted (finished_at + "
-        "QHSM_RESULT_TTL_SECONDS); null while it runs",
+        "QHSM_RESULT_TTL_SECONDS); null while it runs or while pinned",
     )
 
 
@@ -333,6 +352,10 @@ class JobUsage(BaseModel):
     problem_ids: list[str] = Field(
         default_factory=list, description="The ids SAPI gave those problems (find them on Leap)"
     )
+    first_charged_at: datetime | None = Field(
+        None, description="When the job was first charged (null: before dates were kept)"
+    )
+    last_charged_at: datetime | None = Field(None, description="When it was last charged")
 
 
 class UserUsage(BaseModel):
@@ -345,6 +368,9 @@ class UserUsage(BaseModel):
     used_seconds: float
     reserved_seconds: float = Field(description="Held by bundles being solved right now")
     remaining_seconds: float | None
+    warning: str | None = Field(
+        None, description="Set when less than 10 % of the budget is left: what to do"
+    )
     jobs: list[JobUsage]
 
     @classmethod

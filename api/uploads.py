@@ -38,6 +38,10 @@ IMAGE_SIGNATURES = (
 
 #: Longest job label (characters).
 MAX_LABEL = 200
+#: A job's tags: at most this many, each of these characters (letters, digits, ``.``, ``_``,
+#: ``-``, at most 40).
+MAX_TAGS = 10
+TAG = re.compile(r"^[A-Za-z0-9._-]{1,40}$")
 #: Longest file name kept for display (characters).
 MAX_NAME = 120
 
@@ -63,6 +67,21 @@ def one_line(text: str | None, limit: int = MAX_LABEL) -> str:
         return ""
     printable = "".join(char if char.isprintable() else " " for char in text)
     return " ".join(printable.split())[:limit]
+
+
+def parse_tags(text: str | None) -> list[str]:
+    """The ``tags`` form field (comma-separated) as a sorted list without repeats;
+    ``UploadError`` naming a bad one."""
+    tags = sorted({tag.strip() for tag in (text or "").split(",") if tag.strip()})
+    bad = [tag for tag in tags if not TAG.fullmatch(tag)]
+    if bad:
+        raise UploadError(
+            Refusal.INVALID,
+            f"tags: {bad[0][:60]!r} is not a tag (1-40 letters, digits, '.', '_' or '-')",
+        )
+    if len(tags) > MAX_TAGS:
+        raise UploadError(Refusal.INVALID, f"tags: {len(tags)} given, at most {MAX_TAGS}")
+    return tags
 
 
 def display_name(filename: str | None) -> str:

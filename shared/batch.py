@@ -44,6 +44,7 @@ class Pair:
     max_disparity: int | None = None  # None: estimated
     range_source: str = "estimated (auto)"
     regions: dict[str, Path] = field(default_factory=dict)  # nonocc / fg mask files
+    calib: Path | None = None  # the scene's calibration file (Middlebury calib.txt)
     nonocc: Any = None  # a callable giving the non-occluded pixels, when the scene tells
 
 
@@ -62,6 +63,7 @@ def scene_pairs(root: Path) -> Iterator[Pair]:
                 max_disparity=scene.max_disparity if stated else None,
                 range_source=scene.max_disparity_source if stated else "estimated (auto)",
                 nonocc=scene.non_occluded if scene.non_occlusion != "none" else None,
+                calib=scene.calibration,
             )
 
 

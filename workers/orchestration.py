@@ -33,9 +33,16 @@ from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
 from shared.level_inputs import LevelInputs
-from shared.memory import check_fits, job_memory_mb, worker_budget_mb
+from shared.memory import VOLUME_CACHE_MB, check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
-from shared.pipeline import finish, finish_level, match_views, prepare_level, report
+from shared.pipeline import (
+    confidence_map,
+    finish_level,
+    finish_maps,
+    match_views,
+    prepare_level,
+    report,
+)
 from shared.pyramid import LevelPlan
 from shared.settle import assemble_level, settles, tile_config
 from shared.solve import solve_bundles
@@ -358,10 +365,20 @@ def _next_level_or_finish(
         next_inputs = prepare_level(left, right, config, plans[index + 1], level_map)
         launch_level(celery, store, record, next_inputs)
         return
-    result = finish(level_map, left, right, config, plans[-1], inputs.views)
+    result, validity = finish_maps(level_map, left, right, config, plans[-1], inputs.views)
+    confidence = None
+    if (plans[-1].max_disparity + 1) * result.size * 4 <= VOLUME_CACHE_MB * 2**20:
+        # within the volume the job's memory estimate allows for (shared.memory): larger
+        # jobs keep the validity map only
+        confidence = confidence_map(result, validity, left, right, config, plans[-1], None)
+    maps = {
+        name: array
+        for name, array in (("validity", validity), ("confidence", confidence))
+        if array is not None
+    }
     metrics, warning = _evaluate_result(store, record, result)
-    store.save_result(record.id, result)
-    store.apply(record.id, JobRecord.succeeded, now(), metrics, warning)
+    store.save_result(record.id, result, maps)
+    store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps))
 
 
 def _evaluate_result(

@@ -23,6 +23,7 @@ from pydantic import (
 )
 
 from shared.config import MatchConfig
+from shared.datasets.calibration import Calibration
 from shared.disparity_range import RangeEstimate
 
 if TYPE_CHECKING:
@@ -81,6 +82,32 @@ class GroundTruth(BaseModel):
     )
 
 
+class Cameras(BaseModel):
+    """A rectified pair's cameras as given at submit: what the job's depth and point cloud
+    need (:class:`shared.datasets.calibration.Calibration`; the principal point defaults to
+    the image's centre)."""
+
+    focal: float = Field(gt=0, description="Focal length, pixels")
+    baseline: float = Field(gt=0, description="Distance between the cameras (depth's unit)")
+    doffs: float = Field(0.0, description="cx(right) - cx(left), pixels (Middlebury's doffs)")
+    cx: float | None = Field(None, description="Principal point, px (None: the centre)")
+    cy: float | None = None
+    unit: str = Field("", description="The baseline's unit, when a calibration file says")
+
+    @classmethod
+    def of(cls, calibration: Calibration) -> Cameras:
+        """What a calibration file gives (:mod:`shared.datasets.calibration`)."""
+        return cls(
+            focal=calibration.focal, baseline=calibration.baseline, doffs=calibration.doffs,
+            cx=calibration.cx, cy=calibration.cy, unit=calibration.unit,
+        )  # fmt: skip
+
+    def calibration(self, width: int, height: int) -> Calibration:
+        cx = (width - 1) / 2 if self.cx is None else self.cx
+        cy = (height - 1) / 2 if self.cy is None else self.cy
+        return Calibration(self.focal, cx, cy, self.baseline, self.doffs, self.unit, source="job")
+
+
 class LevelRecord(BaseModel):
     """One assembled level as the record keeps it: :class:`shared.pipeline.LevelReport`'s fields
     (the job status's ``levels``), numbers that are not finite as null. Fields it does not name
@@ -133,6 +160,7 @@ class JobRecord(BaseModel):
     width: int
     height: int
     label: str | None = None  # the submitter's name for the job
+    tags: list[str] = Field(default_factory=list)  # the submitter's tags (list filter)
     files: list[str] = Field(default_factory=list)  # the uploads' file names: left, right
     #: What the submitter should know: views that look swapped, a scale that was inferred, ...
     warnings: list[str] = Field(default_factory=list)
@@ -160,6 +188,12 @@ class JobRecord(BaseModel):
     #: Estimated peak memory of a worker process running it, MiB (``shared.memory``); None
     #: until its range is known
     memory_mb: int | None = None
+    #: The cameras given at submit (None: no depth or point cloud for the job)
+    cameras: Cameras | None = None
+    #: Kept past the retention (``result_ttl_seconds``) until unpinned
+    pinned: bool = False
+    #: The maps saved beside the result (``validity``, ``confidence``: those the run has)
+    maps: list[str] = Field(default_factory=list)
 
     @field_validator("metrics")
     @classmethod
@@ -243,11 +277,15 @@ class JobRecord(BaseModel):
         return self.model_copy(update={"levels": [*self.levels, report]})
 
     def succeeded(
-        self, at: datetime, metrics: dict[str, float | None] | None, warning: str | None = None
+        self,
+        at: datetime,
+        metrics: dict[str, float | None] | None,
+        warning: str | None = None,
+        maps: list[str] | None = None,
     ) -> JobRecord | None:
-        """The running job's end, with its scores and a warning about them (kept as its
-        ``error``)."""
-        fields: dict[str, Any] = {"metrics": finite_or_null(metrics)}
+        """The running job's end, with its scores, a warning about them (kept as its
+        ``error``) and the names of the maps saved beside the result."""
+        fields: dict[str, Any] = {"metrics": finite_or_null(metrics), "maps": maps or []}
         if warning:
             fields["error"] = warning
         return self.moved(JobState.SUCCEEDED, at, **fields)
@@ -258,6 +296,10 @@ class JobRecord(BaseModel):
 
     def cancelled(self, at: datetime) -> JobRecord | None:
         return self.moved(JobState.CANCELLED, at)
+
+    def pinned_as(self, pinned: bool) -> JobRecord | None:
+        """Pinned (kept past the retention) or not; None when it already is."""
+        return None if self.pinned is pinned else self.model_copy(update={"pinned": pinned})
 
     def restarted(self, at: datetime, level: int) -> JobRecord | None:
         """Queued again from its uploads (the watchdog), if still running at ``level``."""

@@ -10,13 +10,15 @@ Keys (all under ``{key_prefix}:``):
     job:{id}                 JSON ``JobRecord`` (expires ``result_ttl_seconds`` after the end)
     jobs                     sorted set id -> creation time (newest-first listing)
     jobs:owner:{user}        the same, one user's jobs
+    jobs:tag:{tag}           the same, the jobs with that tag (and jobs:owner:{user}:tag:{tag})
     jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
     job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:upload          hash of the decoded views ``left``, ``right`` (their integer form,
                              in pieces): written by the API at submission, read by the control
                              worker; deleted when the job ends
     job:{id}:level:...       level inputs and solved bundles (:mod:`workers.level_store`)
-    job:{id}:result          .npy bytes of the full-resolution disparity
+    job:{id}:result          hash of the full-resolution disparity and the maps beside it
+                             (``map:validity``, ``map:confidence``), in bounded pieces
     job:{id}:tasks           set of the ids of the job's solver tasks running now
     job:{id}:view:{name}     what the web page shows next to the result: the left view
                              (``left.png``) and the ground truth (``ground_truth``, a hash like
@@ -162,6 +164,12 @@ class JobStore(LevelStorage):
             active = int(self._create(keys=keys, args=args))
             if active < 0:
                 raise ActiveJobsCapError(owner, -1 - active, cap or 0)
+            if record.tags:
+                created = record.created_at.timestamp()
+                with self.redis.pipeline() as pipe:
+                    for index in self._tag_indexes(record):
+                        pipe.zadd(index, {record.id: created})
+                    pipe.execute()
         except BaseException:
             with contextlib.suppress(redis.RedisError):
                 self.redis.delete(*written)
@@ -183,9 +191,16 @@ class JobStore(LevelStorage):
             pipe.hdel(self.key("jobs", "active"), job_id)
             if record is not None and record.owner is not None:
                 pipe.zrem(self.key("jobs", "owner", record.owner), job_id)
+            for index in self._tag_indexes(record) if record is not None else []:
+                pipe.zrem(index, job_id)
             pipe.execute()
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.delete(key)
+
+    def _tag_indexes(self, record: JobRecord) -> list[str]:
+        """The job's entries in the tag indexes: everyone's (admins) and its owner's."""
+        mine = ("jobs", "owner", record.owner or "")
+        return [self.key(*scope, "tag", tag) for tag in record.tags for scope in (("jobs",), mine)]
 
     def _upload_key(self, job_id: str) -> str:
         return self.key("job", job_id, "upload")
@@ -265,11 +280,11 @@ class JobStore(LevelStorage):
                         )
                     pipe.multi()
                     pipe.set(key, changed.model_dump_json(), keepttl=True)
-                    if changed.state.terminal:
+                    if changed.state.terminal and not changed.pinned:
                         pipe.expire(key, self.ttl)
                     pipe.execute()
                     if changed.state.terminal and not current.state.terminal:
-                        self._finished(job_id)
+                        self._finished(job_id, changed.pinned)
                     return Applied(changed, True)
                 except redis.WatchError:
                     continue
@@ -295,21 +310,59 @@ class JobStore(LevelStorage):
         """Fail an active job with a message for the user; False if it had already ended."""
         return self.apply(job_id, JobRecord.failed, now(), message).changed
 
-    def _finished(self, job_id: str) -> None:
-        """A job reached a final state: drop what only running jobs need."""
+    def _finished(self, job_id: str, pinned: bool = False) -> None:
+        """A job reached a final state: drop what only running jobs need; what it keeps expires
+        with its record (a pinned job's is kept)."""
         self.redis.hdel(self.key("jobs", "active"), job_id)
         for key in self.redis.scan_iter(match=self.key("job", job_id, "level", "*")):
             self.redis.delete(key)
         self.redis.delete(self._upload_key(job_id))
+        if pinned:
+            self._keep(job_id, None)
+            return
         for key in self.redis.scan_iter(match=self.key("job", job_id, "view", "*")):
             self.redis.expire(key, self.ttl)
 
+    def _kept_keys(self, job_id: str) -> list[str]:
+        """What a job keeps after its end: record, result (with its maps), views, progress."""
+        keys = [self.key("job", job_id, part) for part in ("result", "chunks")]
+        found = self.redis.scan_iter(match=self.key("job", job_id, "view", "*"))
+        return [self.key("job", job_id), *keys, *(text(key) for key in found)]
+
+    def _keep(self, job_id: str, seconds: int | None) -> None:
+        """Every kept key of the job without expiry (None) or expiring in ``seconds``."""
+        with self.redis.pipeline() as pipe:
+            for key in self._kept_keys(job_id):
+                if seconds is None:
+                    pipe.persist(key)
+                else:
+                    pipe.expire(key, seconds)
+            pipe.execute()
+
+    def pin(self, job_id: str, pinned: bool) -> JobRecord | None:
+        """Pin the job (nothing of it expires) or unpin it: a finished job then expires
+        ``result_ttl_seconds`` after its end (at once when that has passed), an active one's
+        views as while it runs. The record as stored (None: no such job)."""
+        record = self.apply(job_id, JobRecord.pinned_as, pinned).record
+        if record is None or record.pinned is not pinned:
+            return record
+        if pinned:
+            self._keep(job_id, None)
+        elif record.state.terminal and record.finished_at is not None:
+            left = record.finished_at.timestamp() + self.ttl - now().timestamp()
+            self._keep(job_id, max(1, int(left)))
+        else:
+            for key in self._kept_keys(job_id)[1:]:
+                self.redis.expire(key, self.view_ttl)
+        return record
+
     def list_jobs(
-        self, offset: int = 0, limit: int = 20, owner: str | None = None
+        self, offset: int = 0, limit: int = 20, owner: str | None = None, tag: str | None = None
     ) -> tuple[list[JobRecord], int]:
-        """Jobs newest first (only ``owner``'s when given), and how many there are; expired
-        records are dropped on the way."""
-        index = self.key("jobs") if owner is None else self.key("jobs", "owner", owner)
+        """Jobs newest first (only ``owner``'s, only those tagged ``tag``, when given), and how
+        many there are; expired records are dropped on the way."""
+        scope = ("jobs",) if owner is None else ("jobs", "owner", owner)
+        index = self.key(*scope) if tag is None else self.key(*scope, "tag", tag)
         ids = members(self.redis.zrevrange(index, offset, offset + limit - 1))
         raws = self.redis.mget([self.key("job", job_id) for job_id in ids]) if ids else []
         records, expired = [], []
@@ -401,19 +454,38 @@ class JobStore(LevelStorage):
 
     # results ----------------------------------------------------------------------------------
 
-    def save_result(self, job_id: str, disparity: np.ndarray) -> None:
-        """The full-resolution disparity, in bounded pieces (:mod:`workers.bounded`)."""
-        fields = array_fields("disparity", disparity, piece=piece_bytes(self.limit))
+    def save_result(
+        self, job_id: str, disparity: np.ndarray, maps: dict[str, np.ndarray] | None = None
+    ) -> None:
+        """The full-resolution disparity and the maps beside it (``validity``,
+        ``confidence``), in bounded pieces of one hash (:mod:`workers.bounded`)."""
+        piece = piece_bytes(self.limit)
+        fields = array_fields("disparity", disparity, piece=piece)
+        for name, array in (maps or {}).items():
+            fields |= array_fields(f"map:{name}", array, piece=piece)
         key = self.key("job", job_id, "result")
         write_hash(self.redis, key, fields, self.limit, self.ttl, "the job's result")
+
+    def _result_array(self, job_id: str, name: str) -> np.ndarray | None:
+        """One array of the result hash, reading only its own fields (None: absent)."""
+        key = self.key("job", job_id, "result")
+        header = self.redis.hget(key, name)
+        if header is None:
+            return None
+        names = [name, *(f"{name}:{n}" for n in range(json.loads(header)["pieces"]))]
+        fields = read_hash(self.redis, key, self.limit, names)
+        return array_from(fields, name) if len(fields) == len(names) else None
+
+    def load_map(self, job_id: str, name: str) -> np.ndarray | None:
+        """A map saved beside the result (None: the job has none, or it expired)."""
+        return self._result_array(job_id, f"map:{name}")
 
     def load_result(self, job_id: str) -> np.ndarray | None:
         key = self.key("job", job_id, "result")
         if self.redis.type(key) == b"string":  # written whole by an earlier version
             data = self.redis.get(key)
             return None if data is None else from_npy(as_bytes(data))
-        fields = read_hash(self.redis, key, self.limit)
-        return array_from(fields, "disparity") if fields else None
+        return self._result_array(job_id, "disparity")
 
     # views ------------------------------------------------------------------------------------
 

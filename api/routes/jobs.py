@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import io
+import zipfile
 from datetime import timedelta
 from typing import Annotated, Literal
 
+import cv2
+import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
+from pydantic import ValidationError
 
 from api import job_service
 from api.auth import can_see
@@ -20,16 +25,18 @@ from api.deps import (
     ServicesDep,
     UsersDep,
 )
-from api.errors import Refusal, ServiceError
+from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
-from api.uploads import MAX_LABEL
+from api.uploads import MAX_LABEL, MAX_TAGS, TAG
 from api.users import UserStore
+from shared.datasets.calibration import Calibration, CalibrationError, calibration_text
+from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
 from workers.quota import LOCAL_USER
-from workers.records import GroundTruth, JobRecord
+from workers.records import Cameras, GroundTruth, JobRecord, JobState
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -47,9 +54,60 @@ MAX_GT_BORDER = 10_000
 MAX_OFFSET = 10**9
 
 
-def links(job_id: str) -> Links:
-    base = f"/v1/jobs/{job_id}"
-    return Links(self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png")
+def links(record: JobRecord) -> Links:
+    """Where the job and its results are; the maps and depth only where the job has them."""
+    base = f"/v1/jobs/{record.id}"
+    extra = {}
+    if "validity" in record.maps:
+        extra["validity"] = f"{base}/validity.png"
+    if "confidence" in record.maps:
+        extra["confidence"] = f"{base}/confidence?format=pfm"
+    if record.cameras is not None and record.state is JobState.SUCCEEDED:
+        extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
+    return Links(
+        self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png", **extra
+    )
+
+
+#: Largest calibration file read at submit (a Middlebury calib.txt is ~200 bytes, KITTI's ~1 KB).
+MAX_CALIB_BYTES = 64 * 1024
+
+
+def cameras_of(
+    focal: float | None,
+    baseline: float | None,
+    doffs: float | None,
+    calib: UploadFile | None = None,
+) -> Cameras | None:
+    """The cameras given at submit: a calibration file (Middlebury's calib.txt or KITTI's), or
+    focal and baseline together (doffs optional), or none of them."""
+    if calib is not None:
+        if focal is not None or baseline is not None or doffs is not None:
+            raise ServiceError(
+                Refusal.INVALID, "give either calib or focal/baseline/doffs, not both"
+            )
+        data = calib.file.read(MAX_CALIB_BYTES + 1)
+        if len(data) > MAX_CALIB_BYTES:
+            raise ServiceError(
+                Refusal.TOO_LARGE, f"calib: above {MAX_CALIB_BYTES} bytes; not a calibration file"
+            )
+        try:
+            calibration = calibration_text(data.decode("utf-8"), "calib")
+            return Cameras.of(calibration)
+        except (UnicodeDecodeError, CalibrationError, ValidationError) as error:
+            reason = "not UTF-8 text" if isinstance(error, UnicodeDecodeError) else str(error)
+            if isinstance(error, ValidationError):
+                reason = "calib: its focal length and baseline must be > 0"
+            raise ServiceError(Refusal.INVALID, reason) from None
+    if focal is None and baseline is None:
+        if doffs is not None:
+            raise ServiceError(Refusal.INVALID, "doffs needs focal and baseline")
+        return None
+    if focal is None or baseline is None:
+        raise ServiceError(
+            Refusal.INVALID, "depth needs both focal (px) and baseline; one of them is missing"
+        )
+    return Cameras(focal=focal, baseline=baseline, doffs=doffs or 0.0)
 
 
 def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
@@ -60,30 +118,37 @@ def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
     return users.ledger.job_usage(record.owner or LOCAL_USER, record.id).seconds
 
 
+def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
+    """A metered job's owner is told when their QPU budget runs low."""
+    if not is_metered(record.config.solver):
+        return []
+    warning = users.ledger.status(record.owner or LOCAL_USER).warning
+    return [warning] if warning else []
+
+
 def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
-    return JobSummary(
-        **JobSummary.fields_of(record, links(record.id), charged_seconds(record, users))
-    )
+    return JobSummary(**JobSummary.fields_of(record, links(record), charged_seconds(record, users)))
 
 
 def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     chunks = svc.store.chunks(record.id)
     progress = svc.store.progress(record, chunks)
     return JobStatus(
-        **JobSummary.fields_of(record, links(record.id), charged_seconds(record, users)),
+        **JobSummary.fields_of(record, links(record), charged_seconds(record, users)),
         progress=progress.model_dump(),
         levels=record.levels,
         usage=svc.store.usage(chunks),
         problem_ids=svc.store.problem_ids(chunks),
         error=record.error,
-        warnings=record.warnings,
+        warnings=record.warnings + budget_warning(record, users),
         ground_truth=record.ground_truth,
         config=record.config,
         disparity_range=record.disparity_range,
         version=record.version,
+        cameras=record.cameras,
         expires_at=(
             record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
-            if record.finished_at
+            if record.finished_at and not record.pinned
             else None
         ),
     )
@@ -130,12 +195,43 @@ def create_job(
         str | None,
         Form(max_length=MAX_LABEL, description="Your name for the job, shown in job lists"),
     ] = None,
+    focal: Annotated[
+        float | None,
+        Form(gt=0, allow_inf_nan=False, description="Focal length, px (with baseline: depth)"),
+    ] = None,
+    baseline: Annotated[
+        float | None,
+        Form(
+            gt=0,
+            allow_inf_nan=False,
+            description="Camera baseline (with focal: depth and a point cloud in its unit)",
+        ),
+    ] = None,
+    doffs: Annotated[
+        float | None,
+        Form(allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"),
+    ] = None,
+    calib: Annotated[
+        UploadFile | None,
+        File(description="Calibration file (Middlebury calib.txt or KITTI's): depth and PLY"),
+    ] = None,
+    tags: Annotated[
+        str | None,
+        Form(
+            max_length=MAX_TAGS * 41,
+            description=f"Comma-separated tags (at most {MAX_TAGS}: letters, digits, '.', '_', "
+            "'-'); GET /v1/jobs?tag= lists the jobs with one",
+        ),
+    ] = None,
 ):
     """Queue a matching job; poll the ``Location`` it answers with."""
-    form = JobForm(left, right, params, ground_truth, gt_scale, gt_border, label)
+    form = JobForm(
+        left, right, params, ground_truth, gt_scale, gt_border, label,
+        cameras_of(focal, baseline, doffs, calib), tags,
+    )  # fmt: skip
     record = job_service.submit(form, principal.name, svc, users)
     body = JobCreated(
-        id=record.id, state=record.state, links=links(record.id), warnings=record.warnings
+        id=record.id, state=record.state, links=links(record), warnings=record.warnings
     )
     return JSONResponse(
         body.model_dump(mode="json"),
@@ -152,13 +248,17 @@ def list_jobs(
     users: UsersDep,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
+    tag: Annotated[
+        str | None, Query(pattern=TAG.pattern, description="Only the jobs with this tag")
+    ] = None,
 ):
-    """Your jobs, newest first (admins: everyone's)."""
+    """Your jobs, newest first (admins: everyone's); ``?tag=`` only those with the tag."""
     owner = None if principal.admin else principal.name
-    records, total = svc.store.list_jobs(offset, limit, owner=owner)
+    records, total = svc.store.list_jobs(offset, limit, owner=owner, tag=tag)
     items = [summary_of(r, users) for r in records if can_see(principal, r)]
     following = offset + limit
-    next_url = f"/v1/jobs?offset={following}&limit={limit}" if following < total else None
+    more = f"&tag={tag}" if tag else ""
+    next_url = f"/v1/jobs?offset={following}&limit={limit}{more}" if following < total else None
     return JobPage(items=items, total=total, offset=offset, limit=limit, next=next_url)
 
 
@@ -221,3 +321,156 @@ def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     return Response(
         preview_png(disparity, top), media_type="image/png", headers={SCALE_HEADER: f"{top:g}"}
     )
+
+
+def finished_map(job_id: str, name: str, svc: Services, principal) -> tuple[JobRecord, np.ndarray]:
+    """A succeeded job's map saved beside its result (404 when the job has none)."""
+    record, _ = finished_result(job_id, svc, principal)
+    if name not in record.maps:
+        raise ServiceError(
+            Refusal.NOT_FOUND,
+            f"job {job_id} has no {name} map (the run had no left-right check or its cost "
+            "volume was too large)",
+        )
+    values = svc.store.load_map(job_id, name)
+    if values is None:
+        raise ExpiredError(job_id, f"{name} map")
+    return record, values
+
+
+def validity_png(valid: np.ndarray) -> bytes:
+    """The validity map as `qhsm match` writes it: 8-bit PNG, 255 confirmed, 0 filled."""
+    return cv2.imencode(".png", np.where(valid, 255, 0).astype(np.uint8))[1].tobytes()
+
+
+def attachment(data: bytes, media: str, filename: str) -> Response:
+    return Response(
+        data,
+        media_type=media,
+        headers={"Content-Disposition": f'attachment; filename="{filename}"'},
+    )
+
+
+MAP_RESPONSES: dict = {
+    **NOT_FOUND,
+    409: {"description": "Not finished"},
+    410: {"description": "Expired"},
+    200: {"content": {}},
+}
+
+
+@router.get("/{job_id}/validity.png", responses=MAP_RESPONSES, response_class=Response)
+def get_validity(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """Where the left-right check confirmed the disparity (255) before holes were filled (0)."""
+    _, valid = finished_map(job_id, "validity", svc, principal)
+    image = np.where(valid, 255, 0).astype(np.uint8)
+    return attachment(cv2.imencode(".png", image)[1].tobytes(), "image/png", f"{job_id}.valid.png")
+
+
+@router.get("/{job_id}/confidence", responses=MAP_RESPONSES, response_class=Response)
+def get_confidence(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    format: Literal["pfm", "npy"] = "pfm",
+):
+    """Confidence of each disparity in [0, 1] (the cost margin; 0 where the check failed)."""
+    _, confidence = finished_map(job_id, "confidence", svc, principal)
+    return attachment(
+        disparity_bytes(confidence, format),
+        DISPARITY_MEDIA[format],
+        f"{job_id}.confidence.{format}",
+    )
+
+
+def job_calibration(record: JobRecord) -> Calibration:
+    if record.cameras is None:
+        raise ServiceError(
+            Refusal.NOT_FOUND,
+            f"job {record.id} was submitted without cameras: submit with focal and baseline "
+            "for its depth and point cloud",
+        )
+    return record.cameras.calibration(record.width, record.height)
+
+
+@router.get("/{job_id}/depth", responses=MAP_RESPONSES, response_class=Response)
+def get_depth(
+    job_id: str,
+    svc: ServicesDep,
+    principal: PrincipalDep,
+    format: Literal["pfm", "npy"] = "pfm",
+):
+    """Depth Z = focal x baseline / (d + doffs) in the baseline's unit; NaN: no depth."""
+    record, disparity = finished_result(job_id, svc, principal)
+    depth = job_calibration(record).depth(disparity)
+    return attachment(
+        disparity_bytes(depth, format), DISPARITY_MEDIA[format], f"{job_id}.depth.{format}"
+    )
+
+
+@router.get("/{job_id}/points.ply", responses=MAP_RESPONSES, response_class=Response)
+def get_points(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+    """The pixels with a depth (and a confirmed disparity, where the job has the validity map)
+    as a coloured binary PLY (Open3D, MeshLab, CloudCompare read it)."""
+    record, disparity = finished_result(job_id, svc, principal)
+    calibration = job_calibration(record)
+    left = svc.store.load_view(job_id, "left.png")
+    decoded = None if left is None else cv2.imdecode(np.frombuffer(left, np.uint8), -1)
+    image = None if decoded is None else decoded.astype(np.float32) / 255.0
+    valid = svc.store.load_map(job_id, "validity") if "validity" in record.maps else None
+    points, colours = point_cloud(disparity, calibration, image, valid)
+    return attachment(ply_bytes(points, colours), "application/octet-stream", f"{job_id}.ply")
+
+
+def pin(job_id: str, pinned: bool, svc: Services, principal) -> JobRecord:
+    find_job(job_id, svc, principal)
+    record = svc.store.pin(job_id, pinned)
+    if record is None:  # expired between the two reads
+        raise JobNotFoundError(job_id, svc.settings.result_ttl_seconds)
+    return record
+
+
+@router.post("/{job_id}/pin", response_model=JobStatus, responses=NOT_FOUND)
+def pin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """Keep the job (record, result, maps, views) past the retention until it is unpinned."""
+    return status_of(pin(job_id, True, svc, principal), svc, users)
+
+
+@router.delete("/{job_id}/pin", response_model=JobStatus, responses=NOT_FOUND)
+def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """Let the job expire again: ``QHSM_RESULT_TTL_SECONDS`` after it finished (at once when
+    that has passed)."""
+    return status_of(pin(job_id, False, svc, principal), svc, users)
+
+
+@router.get(
+    "/{job_id}/export",
+    responses={**NOT_FOUND, 200: {"content": {"application/zip": {}}}},
+    response_class=Response,
+)
+def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+    """The job in one zip: ``job.json`` (its status: config, version, levels, usage, metrics,
+    charge) and the files it still has: ``disparity.pfm``, ``validity.png``,
+    ``confidence.pfm``, ``left.png``."""
+    record = find_job(job_id, svc, principal)
+    files = {"job.json": status_of(record, svc, users).model_dump_json(indent=2).encode()}
+    disparity = svc.store.load_result(job_id) if record.state is JobState.SUCCEEDED else None
+    if disparity is not None:
+        files["disparity.pfm"] = disparity_bytes(disparity, "pfm")
+        if (
+            "validity" in record.maps
+            and (valid := svc.store.load_map(job_id, "validity")) is not None
+        ):
+            files["validity.png"] = validity_png(valid)
+        if (
+            "confidence" in record.maps
+            and (confidence := svc.store.load_map(job_id, "confidence")) is not None
+        ):
+            files["confidence.pfm"] = disparity_bytes(confidence, "pfm")
+    if (left := svc.store.load_view(job_id, "left.png")) is not None:
+        files["left.png"] = left
+    stream = io.BytesIO()
+    with zipfile.ZipFile(stream, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, data in files.items():
+            archive.writestr(f"{job_id}/{name}", data)
+    return attachment(stream.getvalue(), "application/zip", f"{job_id}.zip")

@@ -2,25 +2,36 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, HTTPException, Query
 from fastapi import status as http
+from fastapi.responses import Response
 
 from api.deps import PrincipalDep, UsersDep
 from api.schemas import Usage, UserUsage
+from workers.quota.ledger import usage_csv
 
 router = APIRouter(tags=["usage"])
 
 
-@router.get("/usage", response_model=Usage)
+@router.get(
+    "/usage",
+    response_model=Usage,
+    responses={200: {"content": {"text/csv": {}}}, 403: {"description": "Another user's"}},
+)
 def usage(
     caller: PrincipalDep,
     store: UsersDep,
     user: Annotated[str | None, Query(description="Admins: only this user")] = None,
-) -> Usage:
-    """Your QPU usage per job and in total, and what is left of your budget. Admins see every
-    user (or one, with ``?user=NAME``) and how many QPU problems are in flight lab-wide."""
+    format: Annotated[
+        Literal["json", "csv"], Query(description="csv: one row per user and job")
+    ] = "json",
+) -> Usage | Response:
+    """Your QPU usage per job (with the dates it was charged) and in total, and what is left
+    of your budget (with a ``warning`` when less than 10 % is). Admins see every user (or one,
+    with ``?user=NAME``) and how many QPU problems are in flight lab-wide. ``?format=csv``: the
+    ledger as CSV (user, job, qpu_seconds, problems, first/last_charged_at)."""
     if not caller.admin:
         if user not in (None, caller.name):
             raise HTTPException(http.HTTP_403_FORBIDDEN, "only admins may see others' usage")
@@ -31,7 +42,14 @@ def usage(
         names = [user]
     else:
         names = sorted({u.name for u in store.list_users()} | set(store.ledger.users()))
-    entries = [UserUsage.of(store.ledger.usage(name)) for name in names]
+    ledger = [store.ledger.usage(name) for name in names]
+    if format == "csv":
+        return Response(
+            usage_csv(ledger),
+            media_type="text/csv",
+            headers={"Content-Disposition": 'attachment; filename="qpu-usage.csv"'},
+        )
+    entries = [UserUsage.of(usage) for usage in ledger]
     in_flight = None
     if caller.admin:
         from workers.quota import QpuSemaphore

@@ -7,7 +7,7 @@ import { fmt, seconds } from "./format.js";
 import { showView } from "./views.js";
 
 const FIELD_NAMES = ["left", "right", "preset", "solver", "encoding", "max_disparity",
-  "solver_params", "ground_truth", "gt_scale", "gt_border", "label"];
+  "solver_params", "ground_truth", "gt_scale", "gt_border", "label", "tags"];
 
 /** The schemas of /openapi.json, fetched once. */
 let apiSchemas = null;
@@ -84,7 +84,7 @@ function fieldOfError(detail) {
   if (param) return [["solver_params", text]];
   if (/^solver /.test(text)) return [["solver", text]];
   if (/ but right is /.test(text)) return [["right", text]];
-  const form = text.match(/^(gt_scale|gt_border|label)\b/);
+  const form = text.match(/^(gt_scale|gt_border|label|tags)\b/);
   if (form) return [[form[1], text]];
   const file = text.match(/^(left|right|ground_truth)\b/);
   if (file) return [[file[1], text]];
@@ -128,6 +128,8 @@ async function jobRequest(form) {
   data.append("params", JSON.stringify(params));
   const label = $("#label").value.trim();
   if (label) data.append("label", label);
+  const tags = $("#tags").value.trim();
+  if (tags) data.append("tags", tags);
   const truth = $("#ground-truth").files[0];
   if (truth) {
     data.append("ground_truth", truth);
@@ -145,7 +147,7 @@ async function estimateJob() {
   const out = $("#estimate-result");
   const data = await jobRequest(form);
   if (!data) return;
-  for (const name of ["ground_truth", "gt_scale", "gt_border", "label"]) data.delete(name);
+  for (const name of ["ground_truth", "gt_scale", "gt_border", "label", "tags"]) data.delete(name);
   out.textContent = "Estimating…";
   try {
     const e = await json("/v1/estimate", { method: "POST", body: data });

@@ -132,6 +132,22 @@ function warningsBlock(job) {
     job.warnings.map((text) => el("p", {}, text)));
 }
 
+/** Pin the job (kept past the retention) or unpin it, then show it again. */
+async function togglePin(job) {
+  await json(`/v1/jobs/${job.id}/pin`, { method: job.pinned ? "DELETE" : "POST" });
+  await showJob(job.id);
+}
+
+/** Buttons for the maps beside the disparity and, with cameras, its depth and point cloud:
+ * those the job's links name. */
+function extraDownloads(job) {
+  const files = [["validity", "validity PNG", `${job.id}.valid.png`],
+    ["confidence", "confidence PFM", `${job.id}.confidence.pfm`],
+    ["depth", "depth PFM", `${job.id}.depth.pfm`], ["points", "point cloud PLY", `${job.id}.ply`]];
+  return files.filter(([link]) => job.links?.[link]).map(([link, label, name]) =>
+    el("button", { type: "button", class: "small", "data-download": link, onclick: () => download(job.links[link], name) }, label));
+}
+
 export async function showJob(id) {
   showView("job");
   const view = $("#view-job");
@@ -152,11 +168,15 @@ export async function showJob(id) {
     ["duration", duration(jobDuration(job))]];
   if (job.qpu_seconds !== null && job.qpu_seconds !== undefined) facts.push(["QPU time charged", seconds(job.qpu_seconds)]);
   if (job.expires_at) facts.push(["deleted on", new Date(job.expires_at).toLocaleString()]);
+  if (job.pinned) facts.push(["deleted on", "never: pinned"]);
   if (job.version) facts.push(["qhsm version", job.version]);
+  if (job.tags?.length) facts.push(["tags", job.tags.join(", ")]);
   const parts = [
     el("div", { class: "title-row" },
       el("h1", {}, job.label || `Job ${job.id.slice(0, 8)}`), stateBadge(job.state),
-      active ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel") : null),
+      active ? el("button", { type: "button", class: "small danger", onclick: () => cancelJob(job.id) }, "Cancel") : null,
+      el("button", { type: "button", class: "small", onclick: () => togglePin(job) }, job.pinned ? "Unpin" : "Pin"),
+      el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/export`, `${job.id}.zip`) }, "Export")),
     warningsBlock(job),
     keyValues(facts),
   ];
@@ -167,7 +187,8 @@ export async function showJob(id) {
     parts.push(await resultImages(job));
     parts.push(el("div", { class: "downloads" }, el("span", {}, "Download:"),
       [["pfm", "PFM"], ["png", "16-bit PNG"], ["npy", "NPY"]].map(([format, label]) =>
-        el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/disparity?format=${format}`, `${job.id}.${format}`) }, label))));
+        el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/disparity?format=${format}`, `${job.id}.${format}`) }, label)),
+      extraDownloads(job)));
     parts.push(await compareChooser(job));
   }
   parts.push(el("h2", {}, "Levels"), levelsTable(job) ?? el("p", { class: "muted" }, "No level finished yet."));

@@ -1,6 +1,6 @@
 // QPU budgets: used, reserved and left, and the QPU time of each job (admins see every user).
 
-import { json, session } from "./api.js";
+import { download, json, session } from "./api.js";
 import { $, el, keyValues } from "./dom.js";
 import { seconds } from "./format.js";
 import { showView } from "./views.js";
@@ -22,6 +22,7 @@ export async function showUsage() {
   const usage = await json("/v1/usage");
   const cards = usage.users.map((entry) => el("div", { class: "card usage-card", "data-user": entry.user },
     el("h2", {}, entry.user),
+    entry.warning ? el("p", { class: "field-error", role: "alert" }, entry.warning) : null,
     budgetBar(entry),
     keyValues([["used", seconds(entry.used_seconds)], ["reserved", seconds(entry.reserved_seconds)],
       ["left", entry.remaining_seconds === null ? "unlimited" : seconds(entry.remaining_seconds)],
@@ -36,5 +37,6 @@ export async function showUsage() {
     el("h1", {}, "QPU usage"),
     el("p", { class: "muted" }, `QPU access time (hybrid: charge time) charged to ${session.me.admin ? "every user" : "you"}; ` +
       `total ${seconds(usage.total_used_seconds)}` + (usage.qpu_in_flight === null || usage.qpu_in_flight === undefined ? "" : `, ${usage.qpu_in_flight} problem(s) in flight lab-wide`)),
+    el("button", { type: "button", class: "small", onclick: () => download("/v1/usage?format=csv", "qpu-usage.csv") }, "Export CSV"),
     el("div", { class: "cards" }, cards));
 }

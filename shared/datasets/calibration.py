@@ -64,8 +64,12 @@ def _numbers(text: str) -> list[float]:
 
 def read_middlebury(path: str | Path) -> Calibration:
     """A Middlebury ``calib.txt`` (``key=value`` lines)."""
-    path = Path(path)
-    fields = dict(line.split("=", 1) for line in path.read_text().splitlines() if "=" in line)
+    return middlebury_text(Path(path).read_text(), str(path))
+
+
+def middlebury_text(text: str, source: str) -> Calibration:
+    """Middlebury's ``calib.txt`` content; ``source`` names it in errors."""
+    fields = dict(line.split("=", 1) for line in text.splitlines() if "=" in line)
     try:
         cam0 = _numbers(fields["cam0"])
         focal, cx, cy = cam0[0], cam0[2], cam0[5]
@@ -73,18 +77,22 @@ def read_middlebury(path: str | Path) -> Calibration:
         doffs = float(fields.get("doffs", "0"))
     except (KeyError, IndexError, ValueError) as error:
         raise CalibrationError(
-            f"{path}: not a Middlebury calib.txt (needs cam0=[f 0 cx; 0 f cy; 0 0 1], baseline; "
-            f"{error})"
+            f"{source}: not a Middlebury calib.txt (needs cam0=[f 0 cx; 0 f cy; 0 0 1], "
+            f"baseline; {error})"
         ) from None
     ndisp = int(float(fields["ndisp"])) if "ndisp" in fields else None
-    return Calibration(focal, cx, cy, baseline, doffs, "mm", ndisp, str(path))
+    return Calibration(focal, cx, cy, baseline, doffs, "mm", ndisp, source)
 
 
 def read_kitti(path: str | Path) -> Calibration:
     """A KITTI calibration file (``P2:``/``P3:`` or ``P_rect_02:``/``P_rect_03:``)."""
-    path = Path(path)
+    return kitti_text(Path(path).read_text(), str(path))
+
+
+def kitti_text(text: str, source: str) -> Calibration:
+    """A KITTI calibration file's content; ``source`` names it in errors."""
     rows: dict[str, list[float]] = {}
-    for line in path.read_text().splitlines():
+    for line in text.splitlines():
         key, sep, value = line.partition(":")
         if sep:
             rows[key.strip()] = _numbers(value)
@@ -95,8 +103,8 @@ def read_kitti(path: str | Path) -> Calibration:
             baseline = float(p2[0, 3] - p3[0, 3]) / focal
             doffs = float(p3[0, 2] - p2[0, 2])
             return Calibration(focal, float(p2[0, 2]), float(p2[1, 2]), baseline, doffs, "m",
-                               None, str(path))  # fmt: skip
-    raise CalibrationError(f"{path}: no P2/P3 or P_rect_02/P_rect_03 rows of 12 numbers (KITTI)")
+                               None, source)  # fmt: skip
+    raise CalibrationError(f"{source}: no P2/P3 or P_rect_02/P_rect_03 rows of 12 numbers (KITTI)")
 
 
 def read_calibration(path: str | Path) -> Calibration:
@@ -104,8 +112,14 @@ def read_calibration(path: str | Path) -> Calibration:
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"{path}: no such calibration file")
-    text = path.read_text()
-    return read_middlebury(path) if re.search(r"^cam0\s*=", text, re.M) else read_kitti(path)
+    return calibration_text(path.read_text(), str(path))
+
+
+def calibration_text(text: str, source: str) -> Calibration:
+    """A calibration file's content, Middlebury's or KITTI's format by what it holds."""
+    if re.search(r"^cam0\s*=", text, re.M):
+        return middlebury_text(text, source)
+    return kitti_text(text, source)
 
 
 def scene_calibration(folder: str | Path) -> Path | None:

@@ -3,6 +3,7 @@ and a worker process killed mid-level."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -98,6 +99,14 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
         assert response.status_code == 200 and response.content.startswith(magic)
     preview = client.get(f"/v1/jobs/{job_id}/preview.png")
     assert preview.status_code == 200 and preview.headers["content-type"] == "image/png"
+    if params["solver"] == "exact":  # the maps beside the result, as `qhsm match` writes them
+        _, _, left_view, right_view, _ = pair
+        local = run_pipeline(left_view, right_view, MatchConfig.model_validate(params))
+        links = status["links"]
+        valid = decode_image(client.get(links["validity"]).content, "validity")
+        assert np.array_equal(valid > 0.5, local.validity)
+        confidence = client.get(links["confidence"].replace("pfm", "npy"))
+        assert np.allclose(np.load(io.BytesIO(confidence.content)), local.confidence, atol=1e-6)
 
 
 def test_an_auto_range_is_resolved_by_the_job_as_in_process(client, pair):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from datetime import UTC, datetime
 from typing import Annotated
 
 import pytest
@@ -134,7 +135,12 @@ def test_admin_cli_round_trip(redis_url, redis_client, prefix, monkeypatch, caps
     assert main(["admin", "usage", "ada", "--json"]) == 0
     [usage] = json.loads(capsys.readouterr().out)
     assert usage["used_seconds"] == 0.5 and usage["remaining_seconds"] == 6.5
-    assert usage["jobs"] == [{"id": "job1", "qpu_seconds": 0.5, "problems": 1, "problem_ids": []}]
+    [job] = usage["jobs"]
+    charged = datetime.fromisoformat(job.pop("last_charged_at"))
+    assert job.pop("first_charged_at") == charged.isoformat()
+    assert abs((datetime.now(UTC) - charged).total_seconds()) < 60  # Redis's clock is this one's
+    assert job == {"id": "job1", "qpu_seconds": 0.5, "problems": 1, "problem_ids": []}
+    assert usage["warning"] is None  # 6.5 of 7 s left
     assert main(["admin", "usage"]) == 0
     assert "ada: used 0.500 s of 7 s" in capsys.readouterr().out
     assert main(["admin", "set-quota", "bob", "1"]) == 1
@@ -177,3 +183,46 @@ def test_usage_route_shows_own_usage_and_admins_everyones(store):
     ).json()
     assert [entry["user"] for entry in only_bob["users"]] == ["bob"]
     assert bob not in str(everyone) and ada not in str(everyone)
+
+
+def test_usage_has_dates_a_csv_export_and_warns_when_the_budget_runs_low(
+    store, redis_url, prefix, monkeypatch, capsys
+):
+    import csv
+    import io
+
+    from api.routes import usage
+
+    app = FastAPI()
+    app.state.users = store
+    app.include_router(usage.router, prefix="/v1")
+    client = TestClient(app)
+    _, ada = store.create_user("ada", qpu_seconds=10)
+    headers = {"Authorization": f"Bearer {ada}"}
+    first = store.ledger.settle(store.ledger.reserve("ada", "j1", 1.0, ttl=60), 0.5)
+    assert first == 0.5
+    [entry] = client.get("/v1/usage", headers=headers).json()["users"]
+    assert entry["warning"] is None
+    store.ledger.settle(store.ledger.reserve("ada", "j1", 1.0, ttl=60), 0.5)
+    store.ledger.settle(store.ledger.reserve("ada", "j2", 9.0, ttl=60), 8.25)  # 0.75 s left
+    [entry] = client.get("/v1/usage", headers=headers).json()["users"]
+    assert "runs low: 0.750 s of 10 s left (7.5 %)" in entry["warning"]
+    j1 = next(job for job in entry["jobs"] if job["id"] == "j1")
+    assert j1["first_charged_at"] <= j1["last_charged_at"] and j1["problems"] == 2
+
+    answer = client.get("/v1/usage", params={"format": "csv"}, headers=headers)
+    assert answer.status_code == 200 and answer.headers["content-type"].startswith("text/csv")
+    rows = list(csv.DictReader(io.StringIO(answer.text)))
+    assert [(row["user"], row["job"], float(row["qpu_seconds"])) for row in rows] == [
+        ("ada", "j1", 1.0),
+        ("ada", "j2", 8.25),
+    ]
+    assert rows[0]["last_charged_at"] == j1["last_charged_at"].replace("Z", "+00:00")
+    assert client.get("/v1/usage", params={"format": "xml"}, headers=headers).status_code == 422
+
+    monkeypatch.setenv("QHSM_REDIS_URL", redis_url)
+    monkeypatch.setenv("QHSM_KEY_PREFIX", prefix)
+    assert main(["admin", "usage", "ada", "--csv"]) == 0
+    assert capsys.readouterr().out == answer.text
+    assert main(["admin", "usage", "ada"]) == 0
+    assert "warning: QPU budget of user 'ada' runs low" in capsys.readouterr().out

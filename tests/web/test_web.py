@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import re
+from pathlib import Path
 from urllib.parse import urlsplit
 
 import cv2
@@ -28,13 +29,17 @@ def sign_in(page: Page, server, key: str | None = None) -> None:
     expect(page.locator("#who")).to_be_visible()
 
 
-def submit_pair(page: Page, pair_files, solver: str, *, ground_truth: bool = False) -> str:
+def submit_pair(
+    page: Page, pair_files, solver: str, *, ground_truth: bool = False, tags: str = ""
+) -> str:
     """Fill and send the submit form; the id of the job the page then shows."""
     page.get_by_role("link", name="Submit", exact=True).click()
     page.get_by_label("Left image").set_input_files(pair_files["left"])
     page.get_by_label("Right image").set_input_files(pair_files["right"])
     page.get_by_label("Solver").select_option(solver)
     page.get_by_label("Max disparity (px)").fill("8")
+    if tags:
+        page.get_by_label("Tags (optional)").fill(tags)
     if ground_truth:
         page.get_by_text("Ground truth (optional)").click()
         page.get_by_label("Ground truth", exact=True).set_input_files(pair_files["ground_truth"])
@@ -78,7 +83,7 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     page.get_by_role("link", name="Submit", exact=True).click()
     expect(page.get_by_label("Solver")).to_contain_text("exact")
     screenshots(page, "submit")
-    job_id = submit_pair(page, pair_files, "exact", ground_truth=True)
+    job_id = submit_pair(page, pair_files, "exact", ground_truth=True, tags="web-run, exact")
     disparity = page.get_by_alt_text("Disparity", exact=True)
     expect(disparity).to_be_visible(timeout=RESULT_TIMEOUT)
     assert disparity.evaluate("img => [img.naturalWidth, img.naturalHeight]") == [64, 48]
@@ -98,6 +103,27 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     png = cv2.imread(download.value.path(), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint16
     np.testing.assert_allclose(png / 256.0, result, atol=1 / 256)
+    with page.expect_download() as download:  # the left-right check's map beside it
+        page.get_by_role("button", name="validity PNG").click()
+    with server.client() as api:
+        served = api.get(status["links"]["validity"]).content
+    assert Path(download.value.path()).read_bytes() == served
+    expect(page.get_by_role("button", name="confidence PFM")).to_be_visible()
+    expect(page.get_by_role("button", name="depth PFM")).to_have_count(0)  # no cameras given
+    page.get_by_role("button", name="Pin", exact=True).click()  # kept past the retention
+    expect(page.get_by_role("button", name="Unpin")).to_be_visible()
+    expect(page.locator("dl.kv").first).to_contain_text("never: pinned")
+    expect(page.locator("dl.kv").first).to_contain_text("exact, web-run")  # its tags
+    with server.client() as api:
+        assert api.get(f"/v1/jobs/{job_id}").json()["pinned"] is True
+    with page.expect_download() as download:
+        page.get_by_role("button", name="Export").click()
+    assert download.value.suggested_filename == f"{job_id}.zip"
+    page.get_by_role("link", name="Usage", exact=True).click()
+    with page.expect_download() as download:  # the QPU ledger as CSV
+        page.get_by_role("button", name="Export CSV").click()
+    header = Path(download.value.path()).read_text().splitlines()[0]
+    assert header == "user,job,qpu_seconds,problems,first_charged_at,last_charged_at"
 
 
 def test_two_jobs_on_one_pair_compare_side_by_side(page: Page, server, pair_files, screenshots):

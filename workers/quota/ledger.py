@@ -15,14 +15,19 @@ Keys (under ``{key_prefix}:``):
     quota:users              set   users with a budget or usage
     usage:{user}:seconds     hash  job id -> charged seconds
     usage:{user}:problems    hash  job id -> problems sent
+    usage:{user}:first       hash  job id -> first charge (Redis server time, epoch seconds)
+    usage:{user}:last        hash  job id -> last charge
     usage:{user}:ids:{job}   list  the ids SAPI gave the job's problems (to find them on Leap)
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import uuid
 from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
 
 import redis
 
@@ -32,8 +37,13 @@ from workers.quota.scripts import load_script
 from workers.redis_client import text
 
 _RESERVE = load_script("now", "expire", "reserve")
-_SETTLE = load_script("settle")
+_SETTLE = load_script("now", "settle")
 _STATUS = load_script("now", "expire", "status")
+
+#: Share of a budget below which what is left is warned about (``QuotaStatus.warning``).
+LOW_BUDGET_SHARE = 0.10
+#: Columns of the usage ledger as CSV (:func:`usage_csv`).
+CSV_COLUMNS = ("user", "job", "qpu_seconds", "problems", "first_charged_at", "last_charged_at")
 
 #: The user every request acts as (and owns jobs) while ``Settings.auth_enabled`` is off.
 LOCAL_USER = "local"
@@ -66,6 +76,17 @@ class QuotaStatus:
             return float("inf")
         return self.limit - self.used - self.reserved
 
+    @property
+    def warning(self) -> str | None:
+        """What to say when less than :data:`LOW_BUDGET_SHARE` of a (non-zero) budget is left."""
+        if not self.limit or self.remaining >= LOW_BUDGET_SHARE * self.limit:
+            return None
+        left = max(self.remaining, 0.0)
+        return (
+            f"QPU budget of user {self.user!r} runs low: {left:.3f} s of {self.limit:g} s left "
+            f"({100 * left / self.limit:.1f} %); ask an admin to raise it (qhsm admin set-quota)"
+        )
+
     def as_dict(self) -> dict:
         """The budget as the API and the admin CLI show it: ``{what}_seconds``, None unlimited."""
         remaining = None if self.limit is None else self.remaining
@@ -74,6 +95,7 @@ class QuotaStatus:
             "user": self.user,
             **{f"{what}_seconds": value for what, value in seconds.items()},
             "remaining_seconds": remaining,
+            "warning": self.warning,
         }
 
 
@@ -92,6 +114,9 @@ class JobUsage:
     problems: int
     #: SAPI's ids of the problems sent (none for the offline stand-ins).
     problem_ids: tuple[str, ...] = ()
+    #: When the job was first and last charged (UTC; None: charged before dates were kept)
+    first_charged_at: datetime | None = None
+    last_charged_at: datetime | None = None
 
 
 @dataclass
@@ -108,10 +133,34 @@ class UserUsage:
                     "qpu_seconds": job.seconds,
                     "problems": job.problems,
                     "problem_ids": list(job.problem_ids),
+                    "first_charged_at": iso(job.first_charged_at),
+                    "last_charged_at": iso(job.last_charged_at),
                 }
                 for job in self.jobs
             ],
         }
+
+
+def iso(moment: datetime | None) -> str | None:
+    return None if moment is None else moment.isoformat()
+
+
+def usage_csv(usages: list[UserUsage]) -> str:
+    """The ledger as CSV, one row per user and job (:data:`CSV_COLUMNS`), for spreadsheets."""
+    stream = io.StringIO()
+    writer = csv.writer(stream, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for usage in usages:
+        for job in usage.jobs:
+            writer.writerow(
+                [usage.status.user, job.job_id, repr(job.seconds), job.problems,
+                 iso(job.first_charged_at) or "", iso(job.last_charged_at) or ""]
+            )  # fmt: skip
+    return stream.getvalue()
+
+
+def _moment(raw: bytes | str | None) -> datetime | None:
+    return None if raw is None else datetime.fromtimestamp(float(raw), UTC)
 
 
 class QuotaLedger:
@@ -242,7 +291,10 @@ class QuotaLedger:
         float
             The seconds charged now (negative when a lapsed estimate was too high).
         """
-        keys = [*self._keys(reservation.user), self.key("usage", reservation.user, "problems")]
+        keys = [
+            *self._keys(reservation.user),
+            *(self.key("usage", reservation.user, what) for what in ("problems", "first", "last")),
+        ]
         charged = self._settle(
             keys=keys,
             args=[reservation.id, repr(max(0.0, float(actual))), reservation.job_id, problems],
@@ -285,7 +337,19 @@ class QuotaLedger:
             if job not in seconds
         ]
         ids = self._problem_ids(user, [job.job_id for job in jobs])
-        jobs = [replace(job, problem_ids=found) for job, found in zip(jobs, ids, strict=True)]
+        first, last = (
+            {text(job): at for job, at in self.redis.hgetall(self.key("usage", user, w)).items()}
+            for w in ("first", "last")
+        )
+        jobs = [
+            replace(
+                job,
+                problem_ids=found,
+                first_charged_at=_moment(first.get(job.job_id)),
+                last_charged_at=_moment(last.get(job.job_id)),
+            )
+            for job, found in zip(jobs, ids, strict=True)
+        ]
         return UserUsage(status=self.status(user), jobs=sorted(jobs, key=lambda j: j.job_id))
 
     def job_usage(self, user: str, job_id: str) -> JobUsage:
@@ -293,4 +357,8 @@ class QuotaLedger:
         seconds = self.redis.hget(self.key("usage", user, "seconds"), job_id)
         problems = self.redis.hget(self.key("usage", user, "problems"), job_id)
         [ids] = self._problem_ids(user, [job_id])
-        return JobUsage(job_id, float(seconds or 0.0), int(problems or 0), ids)
+        first = self.redis.hget(self.key("usage", user, "first"), job_id)
+        last = self.redis.hget(self.key("usage", user, "last"), job_id)
+        return JobUsage(
+            job_id, float(seconds or 0.0), int(problems or 0), ids, _moment(first), _moment(last)
+        )
