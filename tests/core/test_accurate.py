@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import filters, pyramid
+from shared import filters, pipeline, pyramid
 from shared.config import MatchConfig, Preset
 from shared.data_terms import ad_census_volume, bin_minimum, census
 from shared.disparity_range import estimate_max_disparity
@@ -94,6 +94,43 @@ def test_a_bin_costs_the_least_of_its_disparities():
     binned = bin_minimum(volume, 4)
     assert binned.shape == (3, 2, 3)
     np.testing.assert_array_equal(binned[2], volume[8:11].min(axis=0))
+
+
+@settings(max_examples=50, deadline=None)
+@given(volume_width=st.integers(1, 40), bins=st.integers(0, 3), finer=st.integers(0, 3))
+def test_bins_of_bins_are_the_bins_of_the_volume(volume_width, bins, finer):
+    """The coarse levels read their bins from a volume binned finer (``volume_bin_width``): a
+    bin's minimum over its sub-bins' minima is the very value of its minimum over disparities."""
+    volume = np.random.default_rng(volume_width).random((volume_width, 2, 3)).astype(np.float32)
+    width = 2 ** (bins + finer)
+    np.testing.assert_array_equal(
+        bin_minimum(bin_minimum(volume, 2**finer), 2**bins), bin_minimum(volume, width)
+    )
+
+
+@pytest.mark.parametrize(("cache_bytes", "cached"), [(0, None), (150_000, 2), (2**30, 1)])
+def test_the_map_is_the_same_whatever_volume_is_cached(monkeypatch, cache_bytes, cached):
+    """Without a cache (costs per block at every level), with the volumes binned at a middle
+    level's width (the coarser level reads them, the finer builds its own) or with the full
+    volumes: the same map, bit for bit. (Bins 4, 2, 1; a bin of both views is 7,680 bytes.)"""
+    scene = make_scene(24, 40, max_disparity=30, seed=2)
+    config = MatchConfig(max_disparity=30)
+    assert [plan.bin_width for plan in plan_run(scene.left, scene.right, config)[1]] == [4, 2, 1]
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", 0)
+    reference = run_pipeline(scene.left, scene.right, config).disparity
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", cache_bytes)
+    built = []
+    original = pipeline._cached_volumes
+
+    def recorded(*args):
+        volumes, width = original(*args)
+        built.append(None if volumes is None else width)
+        return volumes, width
+
+    monkeypatch.setattr(pipeline, "_cached_volumes", recorded)
+    disparity = run_pipeline(scene.left, scene.right, config).disparity
+    assert built == [cached]
+    np.testing.assert_array_equal(disparity, reference)
 
 
 @settings(max_examples=200, deadline=None)
