@@ -41,8 +41,11 @@ Progress = Callable[[int, int, int, int], None]
 levels, and the level's :data:`shared.solve.BundleProgress`."""
 
 #: In process, the views' aggregated cost volumes are computed once for all levels when together
-#: they are at most this large; larger volumes are recomputed per block of rows (memory bound by
-#: rows). 512 MiB holds a 0.36 MP / 106 px pair's two views (305 MB): its CPU time -16 to -27 %.
+#: they are at most this large; larger volumes are kept binned at the finest level width that
+#: fits, for the levels that width divides, and recomputed per block of rows at the finer levels
+#: (memory bound by rows). 512 MiB holds a 0.36 MP / 106 px pair's two views (305 MB): its CPU
+#: time -16 to -27 %; a 4 MP / 64 px pair's at width 8 (2 levels of 5; peak RSS 1.56 GB, where
+#: 640 MiB, width 4 for 3 levels, peaked at 2.08 GB).
 VOLUME_CACHE_BYTES = 512 * 2**20
 
 
