@@ -273,3 +273,26 @@ def test_subpixel_lowers_the_rmse_on_a_slanted_scene(scene):
         evaluate(refined.disparity, scene.disparity).rmse
         < evaluate(plain.disparity, scene.disparity).rmse
     )
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    labels=st.integers(1, 12),
+    seed=st.integers(0, 2**16),
+    scale=st.sampled_from([0.5, 1.0, 4.0]),
+)
+def test_the_cost_confidence_is_the_peak_ratio_over_every_far_disparity(labels, seed, scale):
+    """Plane by plane, the confidence is the formula over the whole volume at once: c_alt the
+    least cost more than 1 px from the rounded disparity (ties and zero costs included)."""
+    rng = np.random.default_rng(seed)
+    volume = np.rint(rng.random((labels, 3, 4)) * 4).astype(np.float32)  # ties, zeros
+    disparity = (rng.random((3, 4)) * (labels + 2) - 1) * scale
+    chosen = np.clip(np.rint(disparity), 0, labels - 1).astype(np.intp)[None]
+    own = np.take_along_axis(volume, chosen, axis=0)[0]
+    far = np.abs(np.arange(labels)[:, None, None] - chosen) > 1
+    others = np.where(far, volume, np.inf).min(axis=0)
+    margin = np.where(np.isfinite(others), others - own, 0.0)
+    expected = np.divide(margin, others, out=np.zeros_like(margin), where=others > 0)
+    np.testing.assert_array_equal(
+        filters.cost_confidence(volume, disparity), np.clip(expected, 0, 1).astype(np.float32)
+    )
