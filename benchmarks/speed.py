@@ -143,9 +143,9 @@ def make_pairs(folder: Path, names: list[str], large_range: int = 256) -> list[P
     return pairs
 
 
-def timed(command: list[str], checkout: Path | None = None) -> tuple[float, float]:
-    """Wall seconds and peak RSS (MiB) of ``command`` run to completion as its own process
-    (with ``checkout`` first on its PYTHONPATH when given)."""
+def timed(command: list[str], checkout: Path | None = None) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (MiB) and CPU seconds (user + system) of ``command`` run to
+    completion as its own process (with ``checkout`` first on its PYTHONPATH when given)."""
     wrapped = [TIME, "-v", *command] if Path(TIME).exists() else command
     env = None if checkout is None else {**os.environ, "PYTHONPATH": str(checkout)}
     started = time.perf_counter()
@@ -154,7 +154,12 @@ def timed(command: list[str], checkout: Path | None = None) -> tuple[float, floa
     if done.returncode:
         raise RuntimeError(f"{command[:3]} failed ({done.returncode}): {done.stderr[-2000:]}")
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr)
-    return seconds, (int(peak[1]) / 1024 if peak else float("nan"))
+    cpu = re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)", done.stderr)
+    return (
+        seconds,
+        int(peak[1]) / 1024 if peak else float("nan"),
+        sum(map(float, cpu)) if cpu else float("nan"),
+    )
 
 
 def qhsm_command(pair: Pair, out: Path, on_path: bool = True) -> list[str]:
@@ -180,7 +185,7 @@ def sgbm_command(pair: Pair, out: Path) -> list[str]:
 def compare(pair: Pair, folder: Path, repeats: int, before: Path | None = None) -> dict:
     """Alternated runs of both methods (and of the ``before`` checkout's ``qhsm match``) on
     ``pair``: medians, ratio, peak RSS."""
-    runs: dict[str, list[tuple[float, float]]] = {"qhsm": [], "sgbm": []}
+    runs: dict[str, list[tuple[float, float, float]]] = {"qhsm": [], "sgbm": []}
     commands = {
         "qhsm": qhsm_command(pair, folder / f"{pair.name}-qhsm.pfm"),
         "sgbm": sgbm_command(pair, folder / f"{pair.name}-sgbm.pfm"),
@@ -196,17 +201,25 @@ def compare(pair: Pair, folder: Path, repeats: int, before: Path | None = None) 
         order = methods if repeat % 2 == 0 else methods[::-1]
         for method in order:
             runs[method].append(timed(commands[method], checkouts[method]))
-            seconds, peak = runs[method][-1]
-            print(f"{pair.name} {method}: {seconds:.2f} s, {peak:.0f} MiB", file=sys.stderr)
-    qhsm = statistics.median(s for s, _ in runs["qhsm"])
-    sgbm = statistics.median(s for s, _ in runs["sgbm"])
+            seconds, peak, cpu = runs[method][-1]
+            print(
+                f"{pair.name} {method}: {seconds:.2f} s, {cpu:.2f} s CPU, {peak:.0f} MiB",
+                file=sys.stderr,
+            )
+    qhsm = statistics.median(s for s, _, _ in runs["qhsm"])
+    sgbm = statistics.median(s for s, _, _ in runs["sgbm"])
     earlier = {}
     if before is not None:
-        before_s = statistics.median(s for s, _ in runs["before"])
+        before_s = statistics.median(s for s, _, _ in runs["before"])
+        before_cpu = statistics.median(c for _, _, c in runs["before"])
+        qhsm_cpu = statistics.median(c for _, _, c in runs["qhsm"])
         earlier = {
             "before_s": round(before_s, 2),
             "before_over_now": round(before_s / qhsm, 2),
-            "before_peak_rss_mib": round(max(p for _, p in runs["before"])),
+            "before_cpu_s": round(before_cpu, 2),
+            "qhsm_cpu_s": round(qhsm_cpu, 2),
+            "before_over_now_cpu": round(before_cpu / qhsm_cpu, 2),
+            "before_peak_rss_mib": round(max(p for _, p, _ in runs["before"])),
         }
     return {
         "pair": pair.name,
@@ -216,8 +229,8 @@ def compare(pair: Pair, folder: Path, repeats: int, before: Path | None = None) 
         "qhsm_s": round(qhsm, 2),
         "sgbm_s": round(sgbm, 2),
         "ratio": round(qhsm / sgbm, 2),
-        "qhsm_peak_rss_mib": round(max(p for _, p in runs["qhsm"])),
-        "sgbm_peak_rss_mib": round(max(p for _, p in runs["sgbm"])),
+        "qhsm_peak_rss_mib": round(max(p for _, p, _ in runs["qhsm"])),
+        "sgbm_peak_rss_mib": round(max(p for _, p, _ in runs["sgbm"])),
         "repeats": repeats,
         **earlier,
     }
