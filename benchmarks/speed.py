@@ -149,7 +149,8 @@ def timed(command: list[str], checkout: Path | None = None) -> tuple[float, floa
     wrapped = [TIME, "-v", *command] if Path(TIME).exists() else command
     env = None if checkout is None else {**os.environ, "PYTHONPATH": str(checkout)}
     started = time.perf_counter()
-    done = subprocess.run(wrapped, capture_output=True, text=True, env=env)
+    # run in the checkout: ``python -c`` puts the working directory before the PYTHONPATH
+    done = subprocess.run(wrapped, capture_output=True, text=True, env=env, cwd=checkout)
     seconds = time.perf_counter() - started
     if done.returncode:
         raise RuntimeError(f"{command[:3]} failed ({done.returncode}): {done.stderr[-2000:]}")
