@@ -4,6 +4,7 @@ the CLI, whole processes, on this machine.
     python benchmarks/speed.py              # every pair, median of 3 (~15 min on 2 cores)
     python benchmarks/speed.py --quick      # Tsukuba and Aloe, one run each, service once
     python benchmarks/speed.py --pairs tsukuba,aloe --repeats 5 --no-service
+    python benchmarks/speed.py --no-service --before /tmp/main-copy  # also an older checkout
 
 Pairs (the range is given, as a user who knows it would):
 
@@ -14,7 +15,12 @@ Pairs (the range is given, as a user who knows it would):
   74.7 px), so this is them upsampled x3 with ``cv2.resize(INTER_CUBIC)``: 1389x1110 (1.54 MP),
   225 px. Smoother than the real full-size views; a stand-in for a 1.5 MP / 225 px pair.
 * ``synthetic-2000``: ``shared.synthetic.make_scene(2000, 2000, max_disparity=256, seed=0)``
-  (4 MP, 256 px), run ``--large-repeats`` times (default once) with its peak RSS.
+  (4 MP, 256 px; ``--large-range`` another range), run ``--large-repeats`` times (default once)
+  with its peak RSS.
+
+``--before CHECKOUT`` also runs ``qhsm match`` from another checkout of the repository (its
+``shared`` first on PYTHONPATH; this file's checkout likewise for the current code) in the same
+alternation, and reports its median, its peak RSS and before / now.
 
 Each repeat runs ``qhsm match LEFT RIGHT -o OUT --max-disparity D`` (the defaults otherwise) and
 the SGBM script, alternating which goes first, each as a fresh process under ``/usr/bin/time -v``
@@ -108,7 +114,7 @@ def write_pair(folder: Path, name: str, left: np.ndarray, right: np.ndarray) -> 
     return paths[0], paths[1]
 
 
-def make_pairs(folder: Path, names: list[str]) -> list[Pair]:
+def make_pairs(folder: Path, names: list[str], large_range: int = 256) -> list[Pair]:
     """The benchmark's pairs (see the module doc), the derived ones written to ``folder``."""
     pairs = []
     for name in names:
@@ -129,30 +135,39 @@ def make_pairs(folder: Path, names: list[str]) -> list[Pair]:
         elif name == "synthetic-2000":
             from shared.synthetic import make_scene
 
-            scene = make_scene(2000, 2000, max_disparity=256, seed=0)
+            scene = make_scene(2000, 2000, max_disparity=large_range, seed=0)
             left, right = write_pair(folder, name, scene.left, scene.right)
-            pairs.append(Pair(name, left, right, 256, "shared.synthetic, seed 0"))
+            pairs.append(Pair(name, left, right, large_range, "shared.synthetic, seed 0"))
         else:
             raise SystemExit(f"unknown pair {name!r}")
     return pairs
 
 
-def timed(command: list[str]) -> tuple[float, float]:
-    """Wall seconds and peak RSS (MiB) of ``command`` run to completion as its own process."""
+def timed(command: list[str], checkout: Path | None = None) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (MiB) and CPU seconds (user + system) of ``command`` run to
+    completion as its own process (with ``checkout`` first on its PYTHONPATH when given)."""
     wrapped = [TIME, "-v", *command] if Path(TIME).exists() else command
+    env = None if checkout is None else {**os.environ, "PYTHONPATH": str(checkout)}
     started = time.perf_counter()
-    done = subprocess.run(wrapped, capture_output=True, text=True)
+    # run in the checkout: ``python -c`` puts the working directory before the PYTHONPATH
+    done = subprocess.run(wrapped, capture_output=True, text=True, env=env, cwd=checkout)
     seconds = time.perf_counter() - started
     if done.returncode:
         raise RuntimeError(f"{command[:3]} failed ({done.returncode}): {done.stderr[-2000:]}")
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", done.stderr)
-    return seconds, (int(peak[1]) / 1024 if peak else float("nan"))
+    cpu = re.findall(r"(?:User|System) time \(seconds\): ([\d.]+)", done.stderr)
+    return (
+        seconds,
+        int(peak[1]) / 1024 if peak else float("nan"),
+        sum(map(float, cpu)) if cpu else float("nan"),
+    )
 
 
-def qhsm_command(pair: Pair, out: Path) -> list[str]:
-    """``qhsm match`` on the pair with the defaults and the range given."""
-    qhsm = shutil.which("qhsm")
-    program = [qhsm] if qhsm else [sys.executable, "-m", "shared.cli"]
+def qhsm_command(pair: Pair, out: Path, on_path: bool = True) -> list[str]:
+    """``qhsm match`` on the pair with the defaults and the range given (``on_path`` False: the
+    CLI of whatever ``shared`` the PYTHONPATH finds first, not the installed script)."""
+    qhsm = shutil.which("qhsm") if on_path else None
+    program = [qhsm] if qhsm else [sys.executable, "-c", "from shared.cli import main; main()"]
     views = [str(pair.left), str(pair.right)]
     return [*program, "match", *views, "-o", str(out), "--max-disparity", str(pair.max_disparity)]
 
@@ -168,21 +183,45 @@ def sgbm_command(pair: Pair, out: Path) -> list[str]:
     return [sys.executable, "-c", SGBM_SCRIPT, left, right, str(out), json.dumps(parameters)]
 
 
-def compare(pair: Pair, folder: Path, repeats: int) -> dict:
-    """Alternated runs of both methods on ``pair``: medians, ratio, peak RSS."""
-    runs: dict[str, list[tuple[float, float]]] = {"qhsm": [], "sgbm": []}
+def compare(pair: Pair, folder: Path, repeats: int, before: Path | None = None) -> dict:
+    """Alternated runs of both methods (and of the ``before`` checkout's ``qhsm match``) on
+    ``pair``: medians, ratio, peak RSS."""
+    runs: dict[str, list[tuple[float, float, float]]] = {"qhsm": [], "sgbm": []}
     commands = {
         "qhsm": qhsm_command(pair, folder / f"{pair.name}-qhsm.pfm"),
         "sgbm": sgbm_command(pair, folder / f"{pair.name}-sgbm.pfm"),
     }
+    checkouts: dict[str, Path | None] = {"qhsm": None, "sgbm": None}
+    if before is not None:
+        runs["before"] = []
+        commands["qhsm"] = qhsm_command(pair, folder / f"{pair.name}-qhsm.pfm", on_path=False)
+        commands["before"] = qhsm_command(pair, folder / f"{pair.name}-before.pfm", False)
+        checkouts.update(qhsm=Path(__file__).resolve().parents[1], before=before)
+    methods = list(runs)
     for repeat in range(repeats):
-        order = ["qhsm", "sgbm"] if repeat % 2 == 0 else ["sgbm", "qhsm"]
+        order = methods if repeat % 2 == 0 else methods[::-1]
         for method in order:
-            runs[method].append(timed(commands[method]))
-            seconds, peak = runs[method][-1]
-            print(f"{pair.name} {method}: {seconds:.2f} s, {peak:.0f} MiB", file=sys.stderr)
-    qhsm = statistics.median(s for s, _ in runs["qhsm"])
-    sgbm = statistics.median(s for s, _ in runs["sgbm"])
+            runs[method].append(timed(commands[method], checkouts[method]))
+            seconds, peak, cpu = runs[method][-1]
+            print(
+                f"{pair.name} {method}: {seconds:.2f} s, {cpu:.2f} s CPU, {peak:.0f} MiB",
+                file=sys.stderr,
+            )
+    qhsm = statistics.median(s for s, _, _ in runs["qhsm"])
+    sgbm = statistics.median(s for s, _, _ in runs["sgbm"])
+    earlier = {}
+    if before is not None:
+        before_s = statistics.median(s for s, _, _ in runs["before"])
+        before_cpu = statistics.median(c for _, _, c in runs["before"])
+        qhsm_cpu = statistics.median(c for _, _, c in runs["qhsm"])
+        earlier = {
+            "before_s": round(before_s, 2),
+            "before_over_now": round(before_s / qhsm, 2),
+            "before_cpu_s": round(before_cpu, 2),
+            "qhsm_cpu_s": round(qhsm_cpu, 2),
+            "before_over_now_cpu": round(before_cpu / qhsm_cpu, 2),
+            "before_peak_rss_mib": round(max(p for _, p, _ in runs["before"])),
+        }
     return {
         "pair": pair.name,
         "note": pair.note,
@@ -191,9 +230,10 @@ def compare(pair: Pair, folder: Path, repeats: int) -> dict:
         "qhsm_s": round(qhsm, 2),
         "sgbm_s": round(sgbm, 2),
         "ratio": round(qhsm / sgbm, 2),
-        "qhsm_peak_rss_mib": round(max(p for _, p in runs["qhsm"])),
-        "sgbm_peak_rss_mib": round(max(p for _, p in runs["sgbm"])),
+        "qhsm_peak_rss_mib": round(max(p for _, p, _ in runs["qhsm"])),
+        "sgbm_peak_rss_mib": round(max(p for _, p, _ in runs["sgbm"])),
         "repeats": repeats,
+        **earlier,
     }
 
 
@@ -327,6 +367,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", default="tsukuba,aloe,art-x3,synthetic-2000")
     parser.add_argument("--repeats", type=int, default=3, help="runs per pair (median)")
     parser.add_argument("--large-repeats", type=int, default=1, help="runs of synthetic-2000")
+    parser.add_argument("--large-range", type=int, default=256, help="synthetic-2000's range")
+    parser.add_argument(
+        "--before", type=Path, help="another checkout whose qhsm match runs alternated too"
+    )
     parser.add_argument("--service-repeats", type=int, default=3)
     parser.add_argument("--no-service", action="store_true", help="skip the service part")
     parser.add_argument("--poll", type=float, help="poll the job every POLL s (default: as qhsm)")
@@ -341,10 +385,10 @@ def main(argv: list[str] | None = None) -> int:
     results: dict = {"load_average_1min_at_start": round(os.getloadavg()[0], 2), "pairs": []}
     with tempfile.TemporaryDirectory(prefix="qhsm-speed-") as tmp:
         folder = Path(tmp)
-        pairs = make_pairs(folder, names)
+        pairs = make_pairs(folder, names, args.large_range)
         for pair in pairs:
             repeats = args.large_repeats if pair.name == "synthetic-2000" else args.repeats
-            results["pairs"].append(compare(pair, folder, repeats))
+            results["pairs"].append(compare(pair, folder, repeats, args.before))
             print(json.dumps(results["pairs"][-1]), flush=True)
         if not args.no_service:
             tsukuba = make_pairs(folder, ["tsukuba"])[0]

@@ -45,8 +45,12 @@ class LevelInputs:
     candidates: np.ndarray
     initial_labels: np.ndarray | None = None
     views: int = 1
-    #: Optional per-view full cost volumes (in process only; workers build costs per block).
+    #: Optional per-view cost volumes (in process only; workers build costs per block), binned
+    #: at ``volume_bin_width`` (1: the full volumes; :meth:`binned_view_volumes`).
     volumes: list[np.ndarray] | None = None
+    #: The bin width of ``volumes``: a level whose width is a multiple reads its bins from them
+    #: (a bin's minimum is the minimum of its sub-bins' minima: the very values).
+    volume_bin_width: int = 1
     #: What preparing the bundles did (:func:`level_bundles`): segment width, embeddings.
     prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
@@ -214,9 +218,13 @@ class LevelInputs:
             for v in range(self.views)
         ]
 
+    def _cached(self) -> bool:
+        """Whether this level's bin costs come from the cached ``volumes``."""
+        return self.volumes is not None and self.plan.bin_width % self.volume_bin_width == 0
+
     def _bin_costs(self, data_term: DataTerm, view: int, first: int, last: int) -> np.ndarray:
         """The data term of every label (bins, last - first, w) on rows of one view."""
-        if self.volumes is None:
+        if not self._cached():
             left, right = self.view_images()[view]
             volume = cost_volume(data_term, left, right, self.plan.max_disparity, first, last)
             return bin_minimum(volume, self.plan.bin_width)
@@ -236,30 +244,67 @@ class LevelInputs:
         (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
         257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
         volume's own precision: exact) halves the view's costs."""
-        if self.volumes is not None:
+        if self._cached():
             return gather(self._bin_costs(data_term, view, first, last), candidates, dtype)
-        row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
-        step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
-        for start in range(first, last, step):
-            stop = min(start + step, last)
+        for start, stop in self._volume_blocks(first, last):
             costs[start - first : stop - first] = gather(
                 self._bin_costs(data_term, view, start, stop),
                 candidates[start - first : stop - first],
             )
         return costs
 
-    def binned_volumes(self) -> list[np.ndarray]:
-        """The cached volumes' bin minima per view, built once (call before sharing the inputs
-        between threads).
+    def _volume_blocks(self, first: int, last: int) -> list[tuple[int, int]]:
+        """Rows [first, last) in blocks whose full cost volume fits :data:`VOLUME_BLOCK_BYTES`."""
+        row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
+        step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
+        return [(start, min(start + step, last)) for start in range(first, last, step)]
+
+    def binned_view_volumes(self, data_term: DataTerm, bin_width: int) -> list[np.ndarray]:
+        """Every view's cost volume binned at ``bin_width`` (bins, view_height, w), built a block
+        of rows at a time: memory bound by the bins, not by the disparities (the cache of the
+        coarse levels when the full volumes are too large to keep).
+
+        Parameters
+        ----------
+        data_term : DataTerm
+            The run's data term.
+        bin_width : int
+            Disparities per bin.
 
         Returns
         -------
         list of numpy.ndarray
-            (bins, view_height, w) per view; empty without cached volumes.
+            One (bins, view_height, w) array per view, of the data term's precision.
         """
-        if self._binned is None and self.volumes is not None:
-            self._binned = [bin_minimum(v, self.plan.bin_width) for v in self.volumes]
+        max_disparity = self.plan.max_disparity
+        binned = []
+        for left, right in self.view_images():
+            blocks = self._volume_blocks(0, self.view_height)
+            view: np.ndarray | None = None
+            for start, stop in blocks:
+                volume = cost_volume(data_term, left, right, max_disparity, start, stop)
+                block = bin_minimum(volume, bin_width)
+                if view is None:
+                    view = np.empty((len(block), self.view_height, self.shape[1]), block.dtype)
+                view[:, start:stop] = block
+            assert view is not None  # a view has rows
+            binned.append(view)
+        return binned
+
+    def binned_volumes(self) -> list[np.ndarray]:
+        """The cached volumes' bin minima per view at this level's width, built once (call before
+        sharing the inputs between threads).
+
+        Returns
+        -------
+        list of numpy.ndarray
+            (bins, view_height, w) per view; empty without cached volumes of a width dividing
+            this level's.
+        """
+        if self._binned is None and self.volumes is not None and self._cached():
+            ratio = self.plan.bin_width // self.volume_bin_width
+            self._binned = [bin_minimum(v, ratio) for v in self.volumes]
         return self._binned or []
 
     def view_unary(

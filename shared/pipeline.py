@@ -41,8 +41,11 @@ Progress = Callable[[int, int, int, int], None]
 levels, and the level's :data:`shared.solve.BundleProgress`."""
 
 #: In process, the views' aggregated cost volumes are computed once for all levels when together
-#: they are at most this large; larger volumes are recomputed per block of rows (memory bound by
-#: rows). 512 MiB holds a 0.36 MP / 106 px pair's two views (305 MB): its CPU time -16 to -27 %.
+#: they are at most this large; larger volumes are kept binned at the finest level width that
+#: fits, for the levels that width divides, and recomputed per block of rows at the finer levels
+#: (memory bound by rows). 512 MiB holds a 0.36 MP / 106 px pair's two views (305 MB): its CPU
+#: time -16 to -27 %; a 4 MP / 64 px pair's at width 8 (2 levels of 5; peak RSS 1.56 GB, where
+#: 640 MiB, width 4 for 3 levels, peaked at 2.08 GB).
 VOLUME_CACHE_BYTES = 512 * 2**20
 
 
@@ -228,10 +231,13 @@ def prepare_level(
                 previous, shape, plan.candidates, plan.max_label
             )
             target = pyramid.upsample_disparity(previous, shape)
+            initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
         else:
             candidates = pyramid.refined_bins(previous, plan.candidates, plan.max_label)
-            target = 2.0 * previous  # the lower child of the coarser bin
-        initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
+            # the lower child of the coarser bin, among consecutive candidates
+            initial = pyramid.nearest_in_window(
+                2.0 * previous, candidates[:, :, 0], plan.candidates
+            )
     return LevelInputs(
         plan=plan,
         left=left_k,
@@ -427,13 +433,16 @@ def run_pipeline(
     reports: list[LevelReport] = []
     level_map: np.ndarray | None = None
     volumes: list[np.ndarray] | None = None
+    volume_bin_width = 1
     inputs: LevelInputs | None = None
     for plan in plans:
         level_started = time.perf_counter()
         inputs = prepare_level(left, right, config, plan, level_map)
-        if volumes is None:
-            volumes = _cached_volumes(inputs, config)
-        inputs.volumes = volumes
+        if plan.index == 0:
+            volumes, volume_bin_width = _cached_volumes(inputs, config, plans)
+        elif plan.bin_width < volume_bin_width:
+            volumes = None  # finer than the cached bins: no later level reads them
+        inputs.volumes, inputs.volume_bin_width = volumes, volume_bin_width
         if progress is None:
             solution = solve_level(inputs, config)
         else:
@@ -445,7 +454,7 @@ def run_pipeline(
         if progress is not None:
             progress(plan.index + 1, len(plans), solution.bundles, solution.bundles)
     assert level_map is not None and inputs is not None  # plan() gives at least one level
-    left_volume = volumes[0] if volumes else None
+    left_volume = volumes[0] if volumes and volume_bin_width == 1 else None
     disparity, validity = finish_maps(
         level_map, left, right, config, plans[-1], inputs.views, left_volume
     )
@@ -480,16 +489,28 @@ def confidence_map(
     return confidence if validity is None else np.where(validity, confidence, 0.0)
 
 
-def _cached_volumes(inputs: LevelInputs, config: MatchConfig) -> list[np.ndarray] | None:
-    """Every view's full cost volume when the bin pyramid reads the same one at each level and
-    it fits :data:`VOLUME_CACHE_BYTES`; ``None`` otherwise (costs are then built per block)."""
+def _cached_volumes(
+    inputs: LevelInputs, config: MatchConfig, plans: list[LevelPlan]
+) -> tuple[list[np.ndarray] | None, int]:
+    """Every view's cost volume, built once for the levels of the bin pyramid that read it, and
+    its bin width: the full volumes (width 1) when they fit :data:`VOLUME_CACHE_BYTES`, else the
+    volumes binned at the finest level width that fits, which every coarser level reads too
+    (finer levels build their costs per block). ``(None, 1)`` when the pyramid does not share a
+    volume between levels or no width below the coarsest fits."""
     if config.pyramid is not PyramidKind.BINS or config.data_term is DataTerm.SQUARED:
-        return None
+        return None, 1
     height, width = inputs.view_height, inputs.shape[1]
-    size = (inputs.plan.max_disparity + 1) * height * width * 4 * inputs.views
-    if size > VOLUME_CACHE_BYTES:
-        return None
-    return [
-        cost_volume(config.data_term, left, right, inputs.plan.max_disparity, 0, height)
-        for left, right in inputs.view_images()
-    ]
+    max_disparity = inputs.plan.max_disparity
+    for bin_width in sorted({plan.bin_width for plan in plans} | {1}):
+        if bin_width > 1 and bin_width >= plans[0].bin_width:
+            break  # the coarsest level alone gains nothing
+        bins = max_disparity // bin_width + 1
+        if bins * height * width * 4 * inputs.views > VOLUME_CACHE_BYTES:
+            continue
+        if bin_width == 1:  # the full volumes (the sub-pixel fit and the confidence read them)
+            return [
+                cost_volume(config.data_term, left, right, max_disparity, 0, height)
+                for left, right in inputs.view_images()
+            ], 1
+        return inputs.binned_view_volumes(config.data_term, bin_width), bin_width
+    return None, 1

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import filters, pyramid
+from shared import filters, pipeline, pyramid
 from shared.config import MatchConfig, Preset
 from shared.data_terms import ad_census_volume, bin_minimum, census
 from shared.disparity_range import estimate_max_disparity
@@ -94,6 +94,43 @@ def test_a_bin_costs_the_least_of_its_disparities():
     binned = bin_minimum(volume, 4)
     assert binned.shape == (3, 2, 3)
     np.testing.assert_array_equal(binned[2], volume[8:11].min(axis=0))
+
+
+@settings(max_examples=50, deadline=None)
+@given(volume_width=st.integers(1, 40), bins=st.integers(0, 3), finer=st.integers(0, 3))
+def test_bins_of_bins_are_the_bins_of_the_volume(volume_width, bins, finer):
+    """The coarse levels read their bins from a volume binned finer (``volume_bin_width``): a
+    bin's minimum over its sub-bins' minima is the very value of its minimum over disparities."""
+    volume = np.random.default_rng(volume_width).random((volume_width, 2, 3)).astype(np.float32)
+    width = 2 ** (bins + finer)
+    np.testing.assert_array_equal(
+        bin_minimum(bin_minimum(volume, 2**finer), 2**bins), bin_minimum(volume, width)
+    )
+
+
+@pytest.mark.parametrize(("cache_bytes", "cached"), [(0, None), (150_000, 2), (2**30, 1)])
+def test_the_map_is_the_same_whatever_volume_is_cached(monkeypatch, cache_bytes, cached):
+    """Without a cache (costs per block at every level), with the volumes binned at a middle
+    level's width (the coarser level reads them, the finer builds its own) or with the full
+    volumes: the same map, bit for bit. (Bins 4, 2, 1; a bin of both views is 7,680 bytes.)"""
+    scene = make_scene(24, 40, max_disparity=30, seed=2)
+    config = MatchConfig(max_disparity=30)
+    assert [plan.bin_width for plan in plan_run(scene.left, scene.right, config)[1]] == [4, 2, 1]
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", 0)
+    reference = run_pipeline(scene.left, scene.right, config).disparity
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", cache_bytes)
+    built = []
+    original = pipeline._cached_volumes
+
+    def recorded(*args):
+        volumes, width = original(*args)
+        built.append(None if volumes is None else width)
+        return volumes, width
+
+    monkeypatch.setattr(pipeline, "_cached_volumes", recorded)
+    disparity = run_pipeline(scene.left, scene.right, config).disparity
+    assert built == [cached]
+    np.testing.assert_array_equal(disparity, reference)
 
 
 @settings(max_examples=200, deadline=None)
@@ -235,4 +272,27 @@ def test_subpixel_lowers_the_rmse_on_a_slanted_scene(scene):
     assert (
         evaluate(refined.disparity, scene.disparity).rmse
         < evaluate(plain.disparity, scene.disparity).rmse
+    )
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    labels=st.integers(1, 12),
+    seed=st.integers(0, 2**16),
+    scale=st.sampled_from([0.5, 1.0, 4.0]),
+)
+def test_the_cost_confidence_is_the_peak_ratio_over_every_far_disparity(labels, seed, scale):
+    """Plane by plane, the confidence is the formula over the whole volume at once: c_alt the
+    least cost more than 1 px from the rounded disparity (ties and zero costs included)."""
+    rng = np.random.default_rng(seed)
+    volume = np.rint(rng.random((labels, 3, 4)) * 4).astype(np.float32)  # ties, zeros
+    disparity = (rng.random((3, 4)) * (labels + 2) - 1) * scale
+    chosen = np.clip(np.rint(disparity), 0, labels - 1).astype(np.intp)[None]
+    own = np.take_along_axis(volume, chosen, axis=0)[0]
+    far = np.abs(np.arange(labels)[:, None, None] - chosen) > 1
+    others = np.where(far, volume, np.inf).min(axis=0)
+    margin = np.where(np.isfinite(others), others - own, 0.0)
+    expected = np.divide(margin, others, out=np.zeros_like(margin), where=others > 0)
+    np.testing.assert_array_equal(
+        filters.cost_confidence(volume, disparity), np.clip(expected, 0, 1).astype(np.float32)
     )

@@ -58,3 +58,23 @@ def test_upsampled_disparity_is_in_the_finer_levels_pixels():
     coarse = np.full((2, 3), 4.0, dtype=np.float32)
     fine = pyramid.upsample_disparity(coarse, (4, 6))
     assert fine.shape == (4, 6) and np.all(fine == 8.0)
+
+
+@given(
+    targets=st.lists(
+        st.one_of(st.integers(-5, 40).map(float), st.integers(-10, 80).map(lambda h: h / 2)),
+        min_size=1,
+        max_size=8,
+    ),
+    starts=st.lists(st.integers(0, 30), min_size=8, max_size=8),
+    count=st.integers(1, 8),
+)
+@settings(max_examples=100, deadline=None)
+def test_the_nearest_in_a_window_is_the_argmin_of_the_distances(targets, starts, count):
+    """The warm start of a bin level, computed from each window's first label, is the argmin of
+    the distances to every candidate (ties to the first), as for any candidate array."""
+    target = np.array([targets], dtype=np.float32)
+    start = np.array([starts[: len(targets)]], dtype=np.int32)
+    candidates = start[:, :, None] + np.arange(count, dtype=np.int32)
+    expected = np.abs(candidates - target[:, :, None]).argmin(axis=2)
+    np.testing.assert_array_equal(pyramid.nearest_in_window(target, start, count), expected)
