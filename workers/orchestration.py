@@ -8,7 +8,7 @@
                               embeddings; then fan_out_level (control) launches the chord
     solve_bundles  (solver)   load the level's inputs once per process, solve_bundles, labels back
     level_done     (control)  assemble, finish_level, report; prepare the next level and launch
-                              its chord, or finish() (+ metrics) and store the result
+                              its chord, or finish_maps() (+ metrics) and store the result
 
 No task ever waits for another: each level's callback launches the next level. The level logic
 is ``shared.pipeline``'s and ``shared.solve``'s; this module only moves data between them.
@@ -32,17 +32,11 @@ from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
+from shared.finishing import finish_level, finish_maps
 from shared.level_inputs import LevelInputs
 from shared.memory import VOLUME_CACHE_MB, check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
-from shared.pipeline import (
-    confidence_map,
-    finish_level,
-    finish_maps,
-    match_views,
-    prepare_level,
-    report,
-)
+from shared.pipeline import confidence_map, match_views, prepare_level, report
 from shared.pyramid import LevelPlan
 from shared.settle import assemble_level, settles, tile_config
 from shared.solve import solve_bundles

@@ -86,7 +86,7 @@ def _finest_level(scene, config):
         inputs = prepare_level(left, right, config, plan, previous)
         if plan is plans[-1]:
             return inputs
-        from shared.pipeline import finish_level
+        from shared.finishing import finish_level
 
         previous = finish_level(inputs, solve_level_in_process(inputs, exact), exact)
     raise AssertionError("no level")
