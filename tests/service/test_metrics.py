@@ -33,6 +33,21 @@ def value(samples, name: str, **labels) -> float:
     return samples.get((name, tuple(sorted(labels.items()))), 0.0)
 
 
+def quiet_scrape(client, seconds: float = 1.0, limit: float = 15.0) -> dict:
+    """A scrape once no ``exact`` bundle has been solved for ``seconds``: the session's workers
+    may still be finishing an earlier test's (e.g. cancelled) job, whose bundles would count."""
+    deadline = time.monotonic() + limit
+    samples = scrape(client)
+    while time.monotonic() < deadline:
+        time.sleep(seconds)
+        again = scrape(client)
+        key = ("qhsm_bundles_solved_total", (("solver", "exact"),))
+        if again.get(key) == samples.get(key):
+            return again
+        samples = again
+    return samples
+
+
 def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
     scene = make_scene(16, 24, max_disparity=4, seed=8)
     left, right = harness.png(scene.left), harness.png(scene.right)
@@ -41,7 +56,7 @@ def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
         "levels": [LevelConfig(downsample=1, candidates=4).model_dump()],
         "max_disparity": 4,
     }
-    before = scrape(client)
+    before = quiet_scrape(client)
 
     done = harness.submit(client, left, right, {**level, "solver": "exact"})
     assert harness.wait_for(client, done)["state"] == "succeeded"
