@@ -116,6 +116,7 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
     expect(page.locator("dl.kv").first).to_contain_text("exact, web-run")  # its tags
     with server.client() as api:
         assert api.get(f"/v1/jobs/{job_id}").json()["pinned"] is True
+    screenshots(page, "job")
     with page.expect_download() as download:
         page.get_by_role("button", name="Export").click()
     assert download.value.suggested_filename == f"{job_id}.zip"
