@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy import ndimage
 
 from shared import settle
 from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.energy import Costs, mrf_energy
-from shared.grid import dual_decomposition
+from shared.grid import GridMRF, dual_decomposition
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
 from shared.settle import assemble_level
@@ -213,3 +214,57 @@ def test_rows_inference_and_row_solvers_are_not_certified():
     assert not certifies_tiles(config(certify_tiles=False))
     assert not certifies_tiles(config(inference="rows"))
     assert not certifies_tiles(MatchConfig(solver="exact", max_disparity=6))
+
+
+def small_grid(data, height: int, width: int, labels: int) -> GridMRF:
+    """A random grid MRF whose costs are small integers (ties happen), candidates 0..K-1."""
+    def values(*shape):
+        flat = data.draw(st.lists(st.integers(0, 3), min_size=int(np.prod(shape)),
+                                  max_size=int(np.prod(shape))))  # fmt: skip
+        return np.array(flat, dtype=np.float32).reshape(shape)
+
+    candidates = np.broadcast_to(np.arange(labels, dtype=np.int32), (height, width, labels))
+    return GridMRF(
+        unary=values(height, width, labels),
+        candidates=np.ascontiguousarray(candidates),
+        weight_h=values(height, width - 1),
+        weight_v=values(height - 1, width),
+        slope=1.0,
+        truncation=2.0,
+    )
+
+
+@given(st.data())
+@settings(max_examples=60, deadline=None)
+def test_a_tiles_answer_is_kept_exactly_in_the_parts_that_lower_the_level_energy(data):
+    grid = small_grid(data, 6, 6, 3)
+    host = np.array(data.draw(st.lists(st.integers(0, 2), min_size=36, max_size=36)),
+                    dtype=np.int32).reshape(6, 6)  # fmt: skip
+    proposed = np.array(data.draw(st.lists(st.integers(0, 2), min_size=16, max_size=16)),
+                        dtype=np.int32).reshape(4, 4)  # fmt: skip
+    top, left = data.draw(st.integers(0, 2)), data.draw(st.integers(0, 2))
+    rows, columns = slice(top, top + 4), slice(left, left + 4)
+    labels = host.copy()
+    kept = settle._keep_improving(grid, labels, rows, columns, proposed)
+    assert kept == np.count_nonzero(labels != host)
+    outside = np.ones_like(host, dtype=bool)
+    outside[rows, columns] = False
+    assert np.array_equal(labels[outside], host[outside])  # only the tile's pixels change
+    assert np.all((labels[rows, columns] == host[rows, columns]) | (labels[rows, columns] == proposed))
+    # brute force over the subsets of the answer's 4-connected parts of change
+    parts, count = ndimage.label(host[rows, columns] != proposed)
+    best = grid.energy(host)
+    for chosen in itertools.product([False, True], repeat=count):
+        trial = host.copy()
+        mask = np.isin(parts, [i + 1 for i, on in enumerate(chosen) if on])
+        trial[rows, columns] = np.where(mask, proposed, host[rows, columns])
+        best = min(best, grid.energy(trial))
+    assert grid.energy(labels) == pytest.approx(best, abs=1e-6)
+    assert grid.energy(labels) <= grid.energy(host)
+    # no part kept at equal energy: undoing any kept part raises the energy
+    kept_parts = np.unique(parts[labels[rows, columns] != host[rows, columns]])
+    for part in kept_parts:
+        undone = labels.copy()
+        window = undone[rows, columns]
+        window[parts == part] = host[rows, columns][parts == part]
+        assert grid.energy(undone) > grid.energy(labels)
