@@ -218,6 +218,7 @@ def test_rows_inference_and_row_solvers_are_not_certified():
 
 def small_grid(data, height: int, width: int, labels: int) -> GridMRF:
     """A random grid MRF whose costs are small integers (ties happen), candidates 0..K-1."""
+
     def values(*shape):
         flat = data.draw(st.lists(st.integers(0, 3), min_size=int(np.prod(shape)),
                                   max_size=int(np.prod(shape))))  # fmt: skip
@@ -250,7 +251,8 @@ def test_a_tiles_answer_is_kept_exactly_in_the_parts_that_lower_the_level_energy
     outside = np.ones_like(host, dtype=bool)
     outside[rows, columns] = False
     assert np.array_equal(labels[outside], host[outside])  # only the tile's pixels change
-    assert np.all((labels[rows, columns] == host[rows, columns]) | (labels[rows, columns] == proposed))
+    inside = labels[rows, columns]
+    assert np.all((inside == host[rows, columns]) | (inside == proposed))
     # brute force over the subsets of the answer's 4-connected parts of change
     parts, count = ndimage.label(host[rows, columns] != proposed)
     best = grid.energy(host)
