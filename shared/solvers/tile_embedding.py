@@ -56,6 +56,11 @@ def lattice(properties: dict[str, Any]) -> tuple[str, int, int] | None:
     return None
 
 
+def chip_name(family: str, m: int) -> str:
+    """``Pegasus P16``, ``Zephyr Z12``: a chip graph as D-Wave names it."""
+    return f"{family.capitalize()} {family[0].upper()}{m}"
+
+
 def _graph(family: str, m: int, t: int, nodes=None, edges=None) -> Any:
     import dwave.graphs as graphs
 
@@ -114,9 +119,13 @@ def translated_copies(
     source.add_edges_from(structure_edges(bqm).tolist())
     chip = _graph(family, m, t, nodes, edges)
     lowest = max(2, int(lattice_size_lower_bound(source, T=chip) or 2))
-    for size in range(lowest, min(lowest + EXTRA_SIZES, (m + 1) // 2) + 1):
+    sizes = range(lowest, min(lowest + EXTRA_SIZES, (m + 1) // 2) + 1)
+    for number, size in enumerate(sizes, 1):
         if progress is not None:
-            progress(f"embedding the tile shape on a {family} m={size} sublattice ({tries} tries)")
+            progress(
+                f"embedding a {bqm.num_variables}-variable tile shape into {chip_name(family, m)}: "
+                f"sublattice m={size} ({number}/{len(sizes)}), {tries} tries"
+            )
         tile = _graph(family, size, t)
         started = time.perf_counter()
         first = minorminer.find_embedding(source, tile, random_seed=SEED, tries=tries)
