@@ -434,7 +434,7 @@ def format_estimate(result: dict) -> str:
         f"({result['bundles']} bundles, {len(result['levels'])} levels, "
         f"max disparity {result['max_disparity']}); "
         f"{1 - sent / max(result['bundles'], 1):.0%} of the bundles solved classically "
-        "(tile certificates, roof duality), the rest sent"
+        "(the host's settling, roof duality), the rest sent"
     ]
     for level in result["levels"]:
         qubits = ""
