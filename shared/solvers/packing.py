@@ -124,6 +124,7 @@ def copies(
     found = translated_copies(
         bqm, sampler.properties, list(sampler.nodelist), list(sampler.edgelist),
         tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES), progress=searching,
+        store=cache.store,
     )  # fmt: skip
     if found:
         cache.remember(bqm, target, found[0], solver, computed=True)
