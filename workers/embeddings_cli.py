@@ -21,8 +21,6 @@ DEFAULT_CANDIDATES = (4, 5, 6)
 
 
 def register(commands: argparse._SubParsersAction) -> None:
-    from shared.solvers.tile_embedding import KNOWN_CHIPS
-
     embeddings = commands.add_parser("embeddings", help="QPU tile embeddings kept for workers")
     actions = embeddings.add_subparsers(dest="embeddings_command", required=True)
     warm = actions.add_parser(
@@ -38,8 +36,8 @@ def register(commands: argparse._SubParsersAction) -> None:
         help="the QUBO encoding the jobs use (default: domain-wall)",
     )  # fmt: skip
     warm.add_argument(
-        "--chips", nargs="+", default=list(KNOWN_CHIPS), choices=list(KNOWN_CHIPS),
-        help="chips to embed for (default: all of them)",
+        "--chips", nargs="+",
+        help="chips to embed for: P16 (Advantage), Z12, Z15 (Advantage2); default: all",
     )  # fmt: skip
     warm.add_argument(
         "--store", choices=["redis", "directory"],
@@ -70,7 +68,12 @@ def cmd_warm(args: argparse.Namespace) -> int:
     if any(k < 2 for k in args.candidates):
         raise CommandError("--candidates: at least 2 labels per pixel")
     shapes = [shape_bqm(args.encoding, TILE, TILE, k) for k in args.candidates]
-    chips = {name: KNOWN_CHIPS[name] for name in args.chips}
+    unknown = sorted(set(args.chips or []) - set(KNOWN_CHIPS))
+    if unknown:
+        raise CommandError(
+            f"--chips: unknown {', '.join(unknown)}; choose from {', '.join(KNOWN_CHIPS)}"
+        )
+    chips = {name: KNOWN_CHIPS[name] for name in args.chips or KNOWN_CHIPS}
     found = warm(store, shapes, settings.embedding_tries, chips, progress=print)
     for chip, variables, copies in found:
         print(f"{chip}: {variables}-variable tile shape, {copies} copies on the defect-free chip")

@@ -130,3 +130,17 @@ def test_warmed_sublattice_embeddings_serve_any_chip_of_the_family_without_a_sea
 
 def _no_search(*args, **kwargs):
     raise AssertionError("minorminer searched although the sublattice embedding was warmed")
+
+
+def test_qhsm_embeddings_warm_fills_the_directory_store(tmp_path, monkeypatch, capsys):
+    from shared.cli import main
+
+    monkeypatch.setenv("QHSM_DATA_DIR", str(tmp_path))
+    monkeypatch.delenv("QHSM_REDIS_URL", raising=False)
+    monkeypatch.setattr(tile_embedding, "KNOWN_CHIPS", {"P6": ("pegasus", 6, 12)})
+    assert main(["embeddings", "warm", "--chips", "Z99"]) == 1
+    assert "--chips: unknown Z99; choose from P6" in capsys.readouterr().err
+    assert main(["embeddings", "warm", "--candidates", "2"]) == 0  # 4x4 x 1 domain-wall bit
+    printed = capsys.readouterr().out
+    assert "P6: 16-variable tile shape," in printed and "directory embedding store" in printed
+    assert any(p.name.startswith("sublattice-pegasus") for p in (tmp_path / "embeddings").iterdir())
