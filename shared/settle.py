@@ -255,7 +255,8 @@ def assemble_level(
 
 def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig) -> LevelSolution:
     """The level from the host's labels and the solved tiles: each tile's answer is kept only
-    where it lowers the energy, priced against its neighbours' labels as they are when it is
+    where it lowers the energy (each connected part of its changes on its own,
+    :func:`_keep_improving`), priced against its neighbours' labels as they are when it is
     considered (tiles in row-major order), so the level's energy is at most the host's.
 
     Parameters
@@ -283,8 +284,8 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         top = result.row_start - view * height
         rows = slice(top, top + result.labels.shape[0])
         columns = slice(result.col_start, result.col_start + result.labels.shape[1])
-        kept = _keep_improving(grids[view], labels[view * height : (view + 1) * height], rows,
-                               columns, result.labels)  # fmt: skip
+        view_labels = labels[view * height : (view + 1) * height]  # a view: written in place
+        kept = _keep_improving(grids[view], view_labels, rows, columns, result.labels)
         improved, changed = improved + (kept > 0), changed + kept
     energy = sum(
         grids[v].energy(labels[v * height : (v + 1) * height]) for v in range(inputs.views)
