@@ -4,6 +4,7 @@ qhsm serve    API + workers for every solver that runs here (+ an embedded Redis
 qhsm demo     the same, then one job end to end on a sample scene, then stop
 qhsm api      the API alone
 qhsm worker   one worker of a running service, on any host (``workers/cli.py``)
+qhsm embeddings warm   the QPU tile shapes embedded ahead of time (``workers/embeddings_cli.py``)
 qhsm submit   the client: upload a pair, show progress, download the disparity map
 qhsm wait     follow a submitted job (again) and download its result
 qhsm cancel   cancel a submitted job
@@ -38,6 +39,7 @@ from shared.cli_options import (
 from shared.config import MatchConfig
 from shared.exit_codes import EXIT_INTERRUPTED
 from workers import cli as worker_cli
+from workers import embeddings_cli
 
 if TYPE_CHECKING:
     from api.client import Client
@@ -149,6 +151,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     estimate.set_defaults(handler=cmd_estimate)
 
     worker_cli.register(commands)
+    embeddings_cli.register(commands)
 
 
 def _result_options(parser: argparse.ArgumentParser, output_default: str) -> None:
@@ -434,7 +437,7 @@ def format_estimate(result: dict) -> str:
         f"({result['bundles']} bundles, {len(result['levels'])} levels, "
         f"max disparity {result['max_disparity']}); "
         f"{1 - sent / max(result['bundles'], 1):.0%} of the bundles solved classically "
-        "(tile certificates, roof duality), the rest sent"
+        "(the host's settling, roof duality), the rest sent"
     ]
     for level in result["levels"]:
         qubits = ""

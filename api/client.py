@@ -204,7 +204,9 @@ class JobBar:
         progress = Progress.model_validate(status["progress"])
         state = status["state"]
         done = progress.bundles_total if state == "succeeded" else progress.bundles_done
-        self._bar.update(progress.level, progress.levels, done, progress.bundles_total, state)
+        self._bar.update(
+            progress.level, progress.levels, done, progress.bundles_total, state, progress.phase
+        )
         if state in TERMINAL:
             self.close()
 

@@ -265,7 +265,7 @@ class LevelEstimate(BaseModel):
     bundles: int
     bundles_sent: int = Field(
         description="Bundles expected to reach the metered solver; the host solves the others "
-        "exactly (tile certificates, roof duality), charged nothing"
+        "exactly (the host's settling, roof duality), charged nothing"
     )
     classical_share: float = Field(description="Share of the bundles solved classically")
     variables_share: float = Field(description="Share of the variables sent to the solver")
@@ -303,7 +303,7 @@ class Estimate(BaseModel):
     bundles: int
     bundles_sent: int = Field(description="Bundles expected to reach the metered solver")
     classical_share: float = Field(
-        description="Share of the bundles solved classically (tile certificates, roof duality), "
+        description="Share of the bundles solved classically (the host's settling, roof duality), "
         "charged nothing"
     )
     levels: list[LevelEstimate]

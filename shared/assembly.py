@@ -154,9 +154,7 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
     ``auto`` tried, and by the bundles) vs reused by bundles (from memory or the shared store),
     and the qubits and longest chain of the embeddings used; for the metered solvers, the
     bundles and variables that roof duality left for the solver (``bundles_sent``,
-    ``variables_sent`` of ``variables``); with ``certify_tiles`` the tiles dual decomposition
-    solved exactly on the host (``bundles_certified``, counted as not sent). Empty for solvers
-    that do none of these.
+    ``variables_sent`` of ``variables``). Empty for solvers that do neither.
 
     Parameters
     ----------
@@ -178,9 +176,6 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
             variables=sum(int(info["variables"]) for info in reduced),
             variables_sent=sum(int(info["residual_variables"]) for info in reduced),
         )
-    certifying = [r.info for r in results if "certified" in r.info]
-    if certifying:  # grid tiles that dual decomposition solved exactly on the host
-        prepared["bundles_certified"] = sum(1 for info in certifying if info["certified"])
     embedded = [r.info for r in results if "embedding_cache" in r.info]
     if not embedded:
         return prepared

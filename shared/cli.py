@@ -37,6 +37,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     the disparity map to ``output`` (.pfm, .png or .npy), with the ``MatchConfig`` options,
     ``preview``, ``json`` and ``processes``; 0 on success. A solver not available here or an
     unsupported output suffix is a ``CommandError``."""
+    from shared.activity import reporting
     from shared.bundle_plan import bundle_width_setting
     from shared.cli_options import CommandError, config_from_args
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
@@ -72,7 +73,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     left, right = load_pair(args.left, args.right)
     bar = LevelBar(leave=False)  # stderr, in every mode: with --json stdout is JSON alone
     try:
-        with ProcessPoolLevelSolver(args.processes) as solve_level:
+        with ProcessPoolLevelSolver(args.processes) as solve_level, reporting(bar.show_phase):
             result = run_pipeline(
                 left, right, config, solve_level, progress=bar.update, force=args.force
             )

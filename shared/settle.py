@@ -255,7 +255,8 @@ def assemble_level(
 
 def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig) -> LevelSolution:
     """The level from the host's labels and the solved tiles: each tile's answer is kept only
-    where it lowers the energy, priced against its neighbours' labels as they are when it is
+    where it lowers the energy (each connected part of its changes on its own,
+    :func:`_keep_improving`), priced against its neighbours' labels as they are when it is
     considered (tiles in row-major order), so the level's energy is at most the host's.
 
     Parameters
@@ -283,12 +284,9 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         top = result.row_start - view * height
         rows = slice(top, top + result.labels.shape[0])
         columns = slice(result.col_start, result.col_start + result.labels.shape[1])
-        view_labels = labels[view * height : (view + 1) * height]
-        before, after = _tile_energies(grids[view], view_labels, rows, columns, result.labels)
-        if after < before - 1e-9 * max(1.0, abs(before)):
-            improved += 1
-            changed += int(np.count_nonzero(view_labels[rows, columns] != result.labels))
-            view_labels[rows, columns] = result.labels
+        view_labels = labels[view * height : (view + 1) * height]  # a view: written in place
+        kept = _keep_improving(grids[view], view_labels, rows, columns, result.labels)
+        improved, changed = improved + (kept > 0), changed + kept
     energy = sum(
         grids[v].energy(labels[v * height : (v + 1) * height]) for v in range(inputs.views)
     )
@@ -312,6 +310,34 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         lower_bound=float(recorded["lower_bound"]),
         residual=residual.as_dict(),
     )
+
+
+def _keep_improving(
+    grid: GridMRF, labels: np.ndarray, rows: slice, columns: slice, proposed: np.ndarray
+) -> int:
+    """Write into ``labels`` each connected part of a tile's answer that lowers the level's
+    energy, given the labels around it as they are; return the pixels changed.
+
+    A part is a 4-connected set of pixels where ``proposed`` differs from ``labels``: two parts
+    share no edge, so their energy changes add up and keeping exactly the parts that lower the
+    energy is the best of the answer's subsets. A part that leaves the energy as it is (within
+    float rounding) keeps the host's labels: the annealer's answer wins only where it is
+    strictly better, never on a tie, and a pixel changed without lowering the energy (e.g. one
+    the tile's own problem left free beside an improving part) stays the host's.
+    """
+    from scipy import ndimage  # slow to import: only where tiles are merged
+
+    current = labels[rows, columns]
+    parts, count = ndimage.label(current != proposed)
+    kept = 0
+    for part in range(1, count + 1):
+        where = parts == part
+        candidate = np.where(where, proposed, labels[rows, columns])
+        before, after = _tile_energies(grid, labels, rows, columns, candidate)
+        if after < before - 1e-9 * max(1.0, abs(before)):
+            labels[rows, columns] = candidate
+            kept += int(where.sum())
+    return kept
 
 
 def _tile_energies(

@@ -9,9 +9,8 @@ With ``grid`` inference a row solver's bundle is a whole view, minimised by dual
 into its row and column chains (:mod:`shared.grid`); a QUBO solver's bundle is a tile of
 ``bundle_height`` rows (a segment of them with ``bundle_width``) whose edges to the pixels around
 it become unaries, given those pixels' starting labels (the coarser level's estimate). With
-``certify_tiles`` (the default) each tile is first minimised by dual decomposition on the host;
-a tile whose row and column chains agree is exact and never reaches the solver (no QPU time),
-the others keep the better of the solver's and the host's labels (:func:`encoded_bundles`).
+``certify_tiles`` (the default) the host settles the whole level first and only 4x4 tiles around
+what it leaves unsettled are solved (:mod:`shared.settle`).
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
+from shared.grid import GridMRF, boundary_unary
 from shared.grid_inference import minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.settle import assemble_level, pinned, tile_config
@@ -117,13 +116,10 @@ def solve_bundles(
     batch = solver.solve_batch if isinstance(solver, BatchSolver) else None
     if batch is not None:  # one problem for many bundles (hybrid: a level's BQM)
         problems = list(problems)
-        sent = [p for p in problems if p.bqm is not None]
-        outcomes = iter(batch([(p.bqm, p.seed, p.initial) for p in sent], **params) if sent else [])
+        outcomes = iter(batch([(p.bqm, p.seed, p.initial) for p in problems], **params))
     results = []
     for problem in problems:
-        if problem.bqm is None:  # certified on the host: nothing to send
-            outcome = None
-        elif batch is not None:
+        if batch is not None:
             outcome = next(outcomes)
         else:
             outcome = solver.solve(
@@ -138,65 +134,28 @@ def solve_bundles(
 @dataclass
 class TileProblem:
     """One QUBO bundle as the solver gets it: its costs (with a grid tile's boundary unaries),
-    QUBO, seed and warm start; with :func:`certifies_tiles`, the host's dual decomposition of
-    the tile too, and then ``bqm`` is None when that certified the optimum (nothing to send)."""
+    QUBO, seed and warm start."""
 
     bundle: Bundle
     costs: Costs
-    bqm: dimod.BinaryQuadraticModel | None
+    bqm: dimod.BinaryQuadraticModel
     seed: int
     initial: np.ndarray | None
-    dual: DualResult | None = None
-    #: Host seconds the dual decomposition took.
-    dual_seconds: float = 0.0
 
 
-def certifies_tiles(config: MatchConfig) -> bool:
-    """Whether a QUBO solver's grid tiles are first minimised by dual decomposition on the host
-    (``certify_tiles``): a tile whose row and column chains agree is exact and is not sent.
-    False for ``rows`` inference and for row solvers (they solve whole views)."""
-    return (
-        config.certify_tiles
-        and config.inference is Inference.GRID
-        and not is_row_solver(config.solver)
-    )
-
-
-def _bundle_result(problem: TileProblem, outcome: SolveResult | None, codec) -> BundleResult:
-    """A bundle's result from the solver's ``outcome`` (None: certified on the host). With a
-    host labelling the better of the two by MRF energy is kept, and ``info`` counts the bundle
-    as roof duality's reports do (``variables``, ``residual_variables``: what reached the
-    solver) plus ``certified``."""
+def _bundle_result(problem: TileProblem, outcome: SolveResult, codec) -> BundleResult:
+    """A bundle's result from the solver's ``outcome``: its decoded labels and their energy."""
     start, stop, first, last = problem.bundle.as_list()
-    dual, costs = problem.dual, problem.costs
-    if outcome is None:
-        assert dual is not None
-        labels, repaired, wall, timing, info = dual.labels, 0, 0.0, {}, {}
-    else:
-        decoded = codec.decode(costs, outcome.sample)
-        labels, repaired, wall = decoded.labels, decoded.repaired, outcome.wall_time
-        timing, info = outcome.timing, outcome.info
-    energy = mrf_energy(costs, labels)
-    if dual is not None:
-        variables = costs.shape[0] * costs.shape[1] * codec.variables_per_pixel(costs.num_labels)
-        info = {"variables": variables, "residual_variables": variables, **info}
-        info["certified"] = outcome is None
-        if outcome is None:
-            info.update(fixed_fraction=1.0, residual_variables=0)
-        else:
-            host = mrf_energy(costs, dual.labels)
-            info["kept"] = "host" if host < energy else "solver"
-            if host < energy:
-                labels, energy, repaired = dual.labels, host, 0
+    decoded = codec.decode(problem.costs, outcome.sample)
     return BundleResult(
         row_start=start,
         row_stop=stop,
-        labels=labels,
-        energy=energy,
-        repaired=repaired,
-        wall_time=wall + problem.dual_seconds,
-        timing=timing,
-        info=info,
+        labels=decoded.labels,
+        energy=mrf_energy(problem.costs, decoded.labels),
+        repaired=decoded.repaired,
+        wall_time=outcome.wall_time,
+        timing=outcome.timing,
+        info=outcome.info,
         col_start=first,
         col_stop=last,
     )
@@ -265,11 +224,9 @@ def encoded_bundles(
 ) -> Iterator[TileProblem]:
     """Each bundle as a :class:`TileProblem`, one at a time.
 
-    A grid tile's edges to the pixels around it become unaries given their starting labels.
-    With :func:`certifies_tiles` the tile is first minimised by dual decomposition on the host
-    (its own small grid: milliseconds); when the row and column chains agree that labelling is
-    the tile's optimum and no QUBO is built, otherwise the host's best labels are the warm start
-    (when the run warm-starts) in place of the starting labels.
+    A grid tile's edges to the pixels around it become unaries given their starting labels
+    (with the residual design, :mod:`shared.settle`, the host's labels, and the tile's certified
+    pixels pinned to them); the starting labels are the warm start when the run warm-starts.
 
     Parameters
     ----------
@@ -287,7 +244,6 @@ def encoded_bundles(
     codec = get_codec(config.encoding)
     warm = uses_warm_start(config)
     grid_tiles = config.inference is Inference.GRID
-    certify = certifies_tiles(config)
     rows: tuple[int, int] | None = None
     for bundle in items:
         start, stop, first, last = bundle.as_list()
@@ -296,31 +252,19 @@ def encoded_bundles(
             if grid_tiles:
                 grid, grid_labels, above = _surroundings(inputs, config, start, stop)
         costs = row_costs.columns(first, last)
-        dual, dual_seconds = None, 0.0
         if grid_tiles:
             tile = (slice(start - above, stop - above), slice(first, last))
             extra = boundary_unary(grid, grid_labels, *tile)
             costs = replace(costs, unary=costs.unary + extra)
             if "settle" in inputs.prepared:  # the certified pixels pinned (shared.settle)
                 costs = replace(costs, unary=pinned(inputs, bundle, costs))
-            if certify:
-                started = time.perf_counter()
-                dual = dual_decomposition(grid.tile(*tile, extra), config.dual_iterations)
-                dual_seconds = time.perf_counter() - started
         seed = bundle_seed(config.seed, inputs.index, start, first)
-        if dual is not None and dual.disagreeing == 0:
-            yield TileProblem(bundle, costs, None, seed, None, dual, dual_seconds)
-            continue
         initial = None
         if warm:
-            labels = (
-                dual.labels
-                if dual is not None
-                else inputs.starting_labels(row_costs, start, stop)[:, first:last]
-            )
+            labels = inputs.starting_labels(row_costs, start, stop)[:, first:last]
             initial = codec.encode_labels(labels, costs.num_labels)
         bqm = codec.encode(costs, config.rectifier)
-        yield TileProblem(bundle, costs, bqm, seed, initial, dual, dual_seconds)
+        yield TileProblem(bundle, costs, bqm, seed, initial)
 
 
 def _solve_on_costs(

@@ -22,11 +22,13 @@ import logging
 import time
 from collections import OrderedDict
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 from celery import Celery, chain, chord
 
 from shared import pyramid, settle
+from shared.activity import reporting
 from shared.assembly import BundleResult
 from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
@@ -146,7 +148,9 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     config = record.config
     started = time.time()
     remote = plans_with_solver(config)
+    phase = partial(store.set_phase, record.id, inputs.index)
     if settles(config):  # the host settles the level here; its labels go with the inputs
+        phase("settling the level on the host (dual decomposition of each view)")
         counts = settle.prepare(inputs, config)
         log.info(
             "job %s: level %d settled on the host in %.1f s: %d of %d pixels unsettled, "
@@ -155,7 +159,8 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
             counts.tiles,
         )  # fmt: skip
     if not remote:
-        level_bundles(inputs, config)  # sets inputs.prepared: the bundles' width
+        with reporting(phase):
+            level_bundles(inputs, config)  # sets inputs.prepared: the bundles' width
     store.save_level(record.id, inputs, started=started)
     if remote:
         if _advance(store, record.id, inputs.index):
@@ -225,7 +230,8 @@ def plan_level(store: JobStore, job_id: str, index: int) -> dict | None:
         raise JobGoneError(job_id)
     inputs, _ = store.load_level(job_id, index)
     if not is_planned(inputs):
-        level_bundles(inputs, record.config)
+        with reporting(partial(store.set_phase, job_id, index)):  # e.g. the embedding search
+            level_bundles(inputs, record.config)
         store.save_prepared(job_id, index, inputs.prepared)
     return inputs.prepared
 

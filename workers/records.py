@@ -372,6 +372,11 @@ class Progress(BaseModel):
     levels: int
     bundles_done: int = Field(description="Bundles of the current level solved so far")
     bundles_total: int
+    phase: str | None = Field(
+        None,
+        description="While the level is prepared (bundles_total 0): what it is doing, e.g. "
+        "'embedding a 64-variable tile shape into Pegasus P16: sublattice m=4 (1/4), 10 tries'",
+    )
 
 
 def now() -> datetime:

@@ -22,7 +22,7 @@ function progressOf(job) {
   if (!p.level || !p.bundles_total) {
     // the level is being prepared (a QPU solver's embedding search can take minutes)
     return { fraction: Math.max(0, p.level - 1) / Math.max(p.levels, 1),
-      text: `preparing level ${Math.max(p.level, 1)}/${p.levels || "?"}` };
+      text: `level ${Math.max(p.level, 1)}/${p.levels || "?"}: ${p.phase || "preparing"}` };
   }
   return {
     fraction: Math.min(1, (p.level - 1 + p.bundles_done / p.bundles_total) / Math.max(p.levels, 1)),
