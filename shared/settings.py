@@ -5,11 +5,21 @@ for the service's addresses, limits, timeouts, folders and credentials. Re-expor
 
 from __future__ import annotations
 
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from pydantic import AliasChoices, Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class BudgetPeriod(StrEnum):
+    """Over what QPU budgets are counted: every charge ever (``lifetime``), or the current UTC
+    calendar month (``monthly``) or ISO week, Monday 00:00 UTC on (``weekly``)."""
+
+    LIFETIME = "lifetime"
+    MONTHLY = "monthly"
+    WEEKLY = "weekly"
 
 
 def seconds_field(default: float, description: str) -> Any:
@@ -209,6 +219,12 @@ class Settings(BaseSettings):
         ge=0,
         allow_inf_nan=False,
         description="QPU/hybrid budget of a new user without --qpu-seconds, seconds",
+    )
+    budget_period: BudgetPeriod = Field(
+        BudgetPeriod.LIFETIME,
+        description="What a QPU budget covers: lifetime (every charge ever), monthly (the UTC "
+        "calendar month) or weekly (the ISO week, from Monday 00:00 UTC); a user's own period "
+        "(qhsm admin set-quota --period) overrides it",
     )
     qpu_max_in_flight: int = Field(
         2, ge=1, description="Lab-wide limit on QPU/hybrid problems being solved at once"
