@@ -123,6 +123,9 @@ class Settings(BaseSettings):
         "stalls Redis for the others",
     )
     max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
+    max_batch_pairs: int = Field(
+        100, ge=1, description="Most stereo pairs one POST /v1/batches may send"
+    )
     max_json_body_bytes: int = Field(
         64 * 2**10,
         ge=1024,

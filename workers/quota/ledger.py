@@ -2,11 +2,12 @@
 
 A reservation is refused when ``limit - used - reserved < estimate``; settling replaces it with
 the time the sample set reports. The steps run as Lua scripts (``reserve.lua``, ``settle.lua``,
-``status.lua``, sharing ``now.lua`` and ``expire.lua``), so concurrent workers see consistent
-budgets. A budget covers a period (``Settings.budget_period`` or the user's own): lifetime, the
-UTC calendar month or the ISO week; what is charged is booked on its day, and the total is kept
-too, so no history is lost when the period changes. An expired reservation (its worker died) is charged at its estimate, because the problem
-may well have run; a late settlement corrects the charge to the reported time.
+``status.lua``, sharing ``now.lua``, ``period.lua`` and ``expire.lua``), so concurrent
+workers see consistent budgets. A budget covers a period (``Settings.budget_period`` or the
+user's own): lifetime, the UTC calendar month or the ISO week; what is charged is booked on its
+day, and the total is kept too, so no history is lost when the period changes. An expired
+reservation (its worker died) is charged at its estimate, because the problem may well have
+run; a late settlement corrects the charge to the reported time.
 
 Keys (under ``{key_prefix}:``):
 
@@ -31,8 +32,8 @@ import csv
 import io
 import math
 import uuid
-from dataclasses import dataclass, field, replace
 from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 
 import redis
@@ -88,7 +89,7 @@ class QuotaStatus:
     limit: float | None
     used: float
     reserved: float
-    period: PeriodWindow = PeriodWindow(BudgetPeriod.LIFETIME)
+    period: PeriodWindow = field(default_factory=lambda: PeriodWindow(BudgetPeriod.LIFETIME))
     total: float | None = None
 
     @property

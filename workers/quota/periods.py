@@ -67,8 +67,10 @@ def window(period: BudgetPeriod | str, moment: datetime) -> PeriodWindow:
     day = moment.astimezone(UTC).replace(hour=0, minute=0, second=0, microsecond=0)
     if period is BudgetPeriod.MONTHLY:
         start = day.replace(day=1)
-        end = start.replace(year=start.year + 1, month=1) if start.month == 12 else (
-            start.replace(month=start.month + 1)
+        end = (
+            start.replace(year=start.year + 1, month=1)
+            if start.month == 12
+            else (start.replace(month=start.month + 1))
         )
         return PeriodWindow(period, start, end)
     if period is BudgetPeriod.WEEKLY:
