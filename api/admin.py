@@ -236,16 +236,19 @@ def cmd_usage(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(usage, indent=2))
             return 0
-        for entry in usage:
-            print(usage_line(entry))
-            if entry["warning"]:
-                print(f"  warning: {entry['warning']}")
-            for job in entry["jobs"]:
-                when = job["last_charged_at"] or "-"
-                print(
-                    f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems  {when}"
-                )
+        print_usage(usage)
         return 0
+
+
+def print_usage(usage: list[dict]) -> None:
+    """Each user's budget line (:func:`usage_line`), its warning and its jobs' charges."""
+    for entry in usage:
+        print(usage_line(entry))
+        if entry["warning"]:
+            print(f"  warning: {entry['warning']}")
+        for job in entry["jobs"]:
+            when = job["last_charged_at"] or "-"
+            print(f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems  {when}")
 
 
 def register(subparsers) -> None:

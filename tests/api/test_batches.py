@@ -38,9 +38,7 @@ def total_jobs(client, headers=None) -> int:
 def test_a_batch_makes_one_job_per_pair_and_lists_them_with_its_progress(api):
     tag = f"t{uuid.uuid4().hex[:8]}"
     pairs = [{"name": "first", "ground_truth": 0, "gt_scale": 4}, {"max_disparity": 5}]
-    created = post_batch(
-        api, params={"max_disparity": 6}, pairs=pairs, gts=[GT], tags=f"{tag},lab"
-    )
+    created = post_batch(api, params={"max_disparity": 6}, pairs=pairs, gts=[GT], tags=f"{tag},lab")
     assert created.status_code == 202, created.text
     body = created.json()
     assert created.headers["location"] == f"/v1/batches/{body['id']}"
@@ -79,8 +77,17 @@ def test_a_batch_makes_one_job_per_pair_and_lists_them_with_its_progress(api):
         ({"params": {"solver": "quantum-magic"}}, 422, "pair 0 (l0.png): params"),
         ({"gts": [GT]}, 422, "ground_truth: 1 files for 2 pairs"),
     ],
-    ids=["sizes", "format", "count", "pairs-count", "gt-index", "pairs-field", "pairs-json",
-         "solver", "gt-count"],  # fmt: skip
+    ids=[
+        "sizes",
+        "format",
+        "count",
+        "pairs-count",
+        "gt-index",
+        "pairs-field",
+        "pairs-json",
+        "solver",
+        "gt-count",
+    ],
 )
 def test_a_bad_pair_is_named_and_nothing_is_created(api, change, status, says):
     before = total_jobs(api)

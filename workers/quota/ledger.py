@@ -104,10 +104,14 @@ class QuotaStatus:
         if not self.limit or self.remaining >= LOW_BUDGET_SHARE * self.limit:
             return None
         left = max(self.remaining, 0.0)
+        share = f"{100 * left / self.limit:.1f} %"
+        if self.period.end is not None:
+            share = f"{self.period.this} ({share}; {self.period.describe()})"
+        else:
+            share = f"({share})"
         return (
             f"QPU budget of user {self.user!r} runs low: {left:.3f} s of {self.limit:g} s left "
-            f"{self.period.this} ({100 * left / self.limit:.1f} %; {self.period.describe()}); "
-            "ask an admin to raise it (qhsm admin set-quota)"
+            f"{share}; ask an admin to raise it (qhsm admin set-quota)"
         )
 
     def as_dict(self) -> dict:
