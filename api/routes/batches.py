@@ -70,8 +70,7 @@ def create_batch(
     body = BatchCreated(
         id=batch.id,
         jobs=[
-            JobCreated(id=r.id, state=r.state, links=links(r), warnings=r.warnings)
-            for r in records
+            JobCreated(id=r.id, state=r.state, links=links(r), warnings=r.warnings) for r in records
         ],
         links={"self": f"/v1/batches/{batch.id}"},
     )
