@@ -99,6 +99,11 @@ class QuotaStatus:
         return self.limit - self.used - self.reserved
 
     @property
+    def total_used(self) -> float:
+        """Seconds ever charged, in any period (a lifetime budget's ``used``)."""
+        return self.used if self.total is None else self.total
+
+    @property
     def warning(self) -> str | None:
         """What to say when less than :data:`LOW_BUDGET_SHARE` of a (non-zero) budget is left."""
         if not self.limit or self.remaining >= LOW_BUDGET_SHARE * self.limit:
@@ -122,7 +127,7 @@ class QuotaStatus:
             "user": self.user,
             **{f"{what}_seconds": value for what, value in seconds.items()},
             "remaining_seconds": remaining,
-            "total_used_seconds": self.used if self.total is None else self.total,
+            "total_used_seconds": self.total_used,
             "period": self.period.period.value,
             "period_start": iso(self.period.start),
             "resets_at": iso(self.period.end),
