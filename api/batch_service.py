@@ -187,7 +187,7 @@ def submit_batch(
     check_room(owner, names, svc)
     batch_id = new_batch_id()
     admitted: list[tuple[JobRecord, Any]] = []
-    seconds = 0.0
+    seconds, pixels = 0.0, 0
     for index, spec in enumerate(specs):
         try:
             job = JobForm(
@@ -202,6 +202,14 @@ def submit_batch(
                 ",".join(tags),
             )
             record, arrays = job_service.admit(job, owner, svc, users, batch=batch_id)
+            pixels += record.width * record.height
+            if pixels > svc.settings.max_batch_pixels:
+                raise ServiceError(
+                    Refusal.TOO_LARGE,
+                    f"the batch's views reach {pixels} pixels with this pair, above "
+                    f"QHSM_MAX_BATCH_PIXELS={svc.settings.max_batch_pixels} (the views are held "
+                    "until every pair is admitted); send fewer pairs per batch",
+                )
             if record.estimate_seconds:  # metered: the batch's pairs so far must fit together
                 seconds += sum(record.estimate_seconds)
                 what = f"this pair and the {index} before it" if index else "this pair"

@@ -126,6 +126,13 @@ class Settings(BaseSettings):
     max_batch_pairs: int = Field(
         100, ge=1, description="Most stereo pairs one POST /v1/batches may send"
     )
+    max_batch_pixels: int = Field(
+        40_000_000,
+        ge=1,
+        description="Most left-view pixels of all the pairs of one POST /v1/batches together "
+        "(the API holds them decoded until every pair is admitted); more is a 413 naming the "
+        "pair",
+    )
     max_json_body_bytes: int = Field(
         64 * 2**10,
         ge=1024,

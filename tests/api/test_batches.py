@@ -139,3 +139,13 @@ def test_the_qpu_budget_is_checked_for_the_pairs_together(api, api_settings):
     created = post_batch(api, count=1, headers=ada, params=params)
     assert created.status_code == 202, created.text
     api.delete(f"/v1/jobs/{created.json()['jobs'][0]['id']}")
+
+
+def test_a_batch_above_its_pixel_bound_is_refused_at_the_pair_that_crosses_it(make_client):
+    with make_client(max_batch_pixels=2 * 24 * 32) as client:
+        before = total_jobs(client)
+        refused = post_batch(client, count=3, params={"max_disparity": 6})
+        assert refused.status_code == 413, refused.text
+        detail = refused.json()["detail"]
+        assert "pair 2 (l2.png)" in detail and "QHSM_MAX_BATCH_PIXELS=1536" in detail
+        assert total_jobs(client) == before
