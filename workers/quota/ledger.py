@@ -241,18 +241,14 @@ class QuotaLedger:
             self.key("usage", user, "last"),
         ]
 
-    def now(self) -> datetime:
-        """The ledger's time: its clock's, else the Redis server's."""
-        if self.clock is not None:
-            return self.clock()
-        seconds, micros = self.redis.time()
-        return datetime.fromtimestamp(seconds + micros / 1e6, UTC)
-
     def window(self, user: str) -> tuple[PeriodWindow, list[str]]:
         """The user's budget period now, and the scripts' arguments that say it (the window's
         first and stop epoch days, ``''`` for lifetime; the time as ``@seconds``)."""
-        moment = self.now()
-        own = self.redis.hget(self.key("quota", user), "period")
+        with self.redis.pipeline(transaction=False) as pipe:  # one round trip
+            pipe.time()
+            pipe.hget(self.key("quota", user), "period")
+            (seconds, micros), own = pipe.execute()
+        moment = self.clock() if self.clock else datetime.fromtimestamp(seconds + micros / 1e6, UTC)
         current = window(text(own) if own else self.period, moment)
         days = current.days
         first, stop = ("", "") if days is None else (str(days[0]), str(days[1]))
