@@ -149,3 +149,13 @@ def test_a_period_contains_its_moment_and_starts_where_the_calendar_says(moment,
     else:
         assert current.start.weekday() == 0 and stop - first == 7
     assert window(period, current.end).start == current.end  # the next one follows at once
+
+
+def test_a_reservation_that_lapses_is_charged_in_the_period_it_lapsed_in(monthly, clock):
+    monthly.set_limit("ada", 10.0)
+    monthly.reserve("ada", "job", 3.0, ttl=60)  # its worker dies in November...
+    assert monthly.status("ada").reserved == pytest.approx(3.0)
+    clock.moment = DECEMBER  # ...and it is found lapsed in December: charged at its estimate
+    status = monthly.status("ada")
+    assert status.reserved == 0.0 and status.used == pytest.approx(3.0)
+    assert status.total == pytest.approx(3.0)
