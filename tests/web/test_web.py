@@ -283,6 +283,9 @@ def test_admin_creates_a_user_sets_a_quota_and_sees_usage(page: Page, server, sc
     row.get_by_label("QPU budget of web-carol").fill("12.5")
     row.get_by_role("button", name="Set").click()
     expect(row.locator('td[data-label="Budget s"]')).to_have_text("12.5")
+    row.get_by_label("Budget period of web-carol").select_option("monthly")
+    row.get_by_role("button", name="Set").click()
+    expect(row.get_by_label("Budget period of web-carol")).to_have_value("monthly")
     with server.client() as api:
         usage = api.get("/v1/usage", params={"user": "web-carol"}).json()["users"][0]
     assert usage["limit_seconds"] == 12.5
@@ -295,8 +298,9 @@ def test_admin_creates_a_user_sets_a_quota_and_sees_usage(page: Page, server, sc
     page.get_by_role("link", name="Usage", exact=True).click()
     card = page.locator('.usage-card[data-user="web-carol"]')
     expect(card.locator("dd")).to_have_text(
-        ["1.5 s", "0 ms", "11 s", "12.5 s", "lifetime", "never", "1.5 s"]
-    )
+        ["1.5 s", "0 ms", "11 s", "12.5 s", re.compile(r"^monthly since \d{4}-\d\d-01$"),
+         re.compile(r"^\d{4}-\d\d-01 00:00:00 UTC$"), "1.5 s"]
+    )  # fmt: skip
     expect(card.locator("tbody td")).to_have_text(["cccccccc", "1.5 s", "3"])
     screenshots(page, "usage")
     page.get_by_role("link", name="Users", exact=True).click()
