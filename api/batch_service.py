@@ -164,12 +164,13 @@ def check_room(owner: str, names: list[str], svc: Services) -> None:
     active = svc.store.active_jobs(owner)
     if active + len(names) > cap:
         first = max(cap - active, 0)
+        before = f" and the batch's first {first} pairs would reach it" if first else ""
         raise BatchPairError(
             Refusal.TOO_MANY,
-            f"pair {first} ({names[first]}): user {owner!r} has {active} jobs queued or running "
-            f"and the batch's first {first} pairs would reach {cap}, the limit per user "
-            f"(QHSM_MAX_ACTIVE_JOBS_PER_USER); send at most {first} pairs now, or wait for jobs "
-            "to finish; no job of the batch was created",
+            f"pair {first} ({names[first]}): user {owner!r} has {active} jobs queued or running"
+            f"{before}: {cap} is the limit per user (QHSM_MAX_ACTIVE_JOBS_PER_USER); send at "
+            f"most {first} pairs now, or wait for jobs to finish (or cancel some); no job of the "
+            "batch was created",
         )
 
 
@@ -225,19 +226,19 @@ def submit_batch(
             except ActiveJobsCapError as error:  # another request took the room meanwhile
                 raise refused(index, names[index], error) from None
             written.append(record)
-    except BaseException:
+        batch = BatchRecord(
+            id=batch_id,
+            owner=owner,
+            created_at=now(),
+            tags=tags,
+            jobs=[BatchEntry(name=name, id=r.id) for name, r in zip(names, written, strict=True)],
+        )
+        batches(svc).save(batch)
+    except BaseException:  # nothing of the batch stays: a full disk, Redis gone, the cap
         for record in written:
             with contextlib.suppress(Exception):
                 svc.store.discard(record.id)
         raise
-    batch = BatchRecord(
-        id=batch_id,
-        owner=owner,
-        created_at=now(),
-        tags=tags,
-        jobs=[BatchEntry(name=name, id=r.id) for name, r in zip(names, written, strict=True)],
-    )
-    batches(svc).save(batch)
     start(written, svc)
     return batch, written
 

@@ -149,3 +149,27 @@ def test_a_batch_above_its_pixel_bound_is_refused_at_the_pair_that_crosses_it(ma
         detail = refused.json()["detail"]
         assert "pair 2 (l2.png)" in detail and "QHSM_MAX_BATCH_PIXELS=1536" in detail
         assert total_jobs(client) == before
+
+
+def test_a_pair_that_loses_its_room_while_written_takes_the_batch_back(api, monkeypatch):
+    """Another request took the last slot between admission and writing: the jobs written
+    already are removed, the pair is named."""
+    from api import job_service
+    from workers.store import ActiveJobsCapError
+
+    written = []
+    write = job_service.write
+
+    def racing(record, arrays, svc):
+        if written:
+            raise ActiveJobsCapError(record.owner, 8, 8)
+        write(record, arrays, svc)
+        written.append(record.id)
+
+    monkeypatch.setattr(job_service, "write", racing)
+    before = total_jobs(api)
+    refused = post_batch(api, count=2, params={"max_disparity": 6})
+    assert refused.status_code == 429, refused.text
+    assert "pair 1 (l1.png)" in refused.json()["detail"]
+    assert written and api.get(f"/v1/jobs/{written[0]}").status_code == 404
+    assert total_jobs(api) == before
