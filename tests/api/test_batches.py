@@ -3,12 +3,15 @@ validated all or nothing, admission per pair, seen only by its owner and admins.
 
 from __future__ import annotations
 
+import io
 import json
 import uuid
 
 import harness
 import pytest
 from api_helpers import LEFT, RIGHT, SCENE
+from hypothesis import given
+from hypothesis import strategies as st
 
 from api.users import UserStore
 
@@ -173,3 +176,29 @@ def test_a_pair_that_loses_its_room_while_written_takes_the_batch_back(api, monk
     assert "pair 1 (l1.png)" in refused.json()["detail"]
     assert written and api.get(f"/v1/jobs/{written[0]}").status_code == 404
     assert total_jobs(api) == before
+
+
+@given(
+    pairs=st.integers(0, 6),
+    rights=st.integers(0, 6),
+    truths=st.integers(0, 6),
+    limit=st.integers(1, 5),
+)
+def test_pair_specs_accept_exactly_the_uploads_that_pair_up(pairs, rights, truths, limit):
+    """Without ``pairs``: as many right as left views, 1 to the limit, and a ground truth for
+    every pair or none; each pair then gets its own file, in order."""
+    from api.batch_service import BatchForm, pair_specs
+    from api.errors import ServiceError
+
+    upload = io.BytesIO()
+    form = BatchForm([upload] * pairs, [upload] * rights, ground_truth=[upload] * truths)
+    fits = pairs == rights and 1 <= pairs <= limit and truths in (0, pairs)
+    try:
+        specs = pair_specs(form, limit)
+    except ServiceError as error:
+        assert not fits, error.message
+        assert error.status_code == 422
+    else:
+        assert fits
+        expected = list(range(pairs)) if truths else [None] * pairs
+        assert [spec.ground_truth for spec in specs] == expected
