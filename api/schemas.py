@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
+from shared.settings import BudgetPeriod
 from workers.records import Cameras, GroundTruth, JobState, Progress
 
 if TYPE_CHECKING:
@@ -127,6 +128,7 @@ class JobSummary(BaseModel):
     files: list[str] = Field(
         default_factory=list, description="File names of the uploaded views: left, right"
     )
+    batch: str | None = Field(None, description="The batch it was submitted in (/v1/batches)")
     state: JobState
     solver: str
     width: int
@@ -159,6 +161,7 @@ class JobSummary(BaseModel):
             "label": record.label,
             "tags": record.tags,
             "files": record.files,
+            "batch": record.batch,
             "state": record.state,
             "solver": record.config.solver,
             "width": record.width,
@@ -364,12 +367,20 @@ class UserUsage(BaseModel):
     ``{what}_seconds`` fields beside the jobs; built by ``of``."""
 
     user: str
-    limit_seconds: float | None = Field(description="Total budget; null: unlimited")
-    used_seconds: float
+    limit_seconds: float | None = Field(description="Budget per period; null: unlimited")
+    used_seconds: float = Field(description="Charged in the current period")
     reserved_seconds: float = Field(description="Held by bundles being solved right now")
-    remaining_seconds: float | None
+    remaining_seconds: float | None = Field(description="Left in the current period")
+    total_used_seconds: float = Field(description="Everything ever charged, in any period")
+    period: BudgetPeriod = Field(
+        description="What the budget covers (QHSM_BUDGET_PERIOD or the user's own)"
+    )
+    period_start: datetime | None = Field(description="Start of the current period (UTC)")
+    resets_at: datetime | None = Field(
+        description="When the period ends and the whole budget is available again; null: never"
+    )
     warning: str | None = Field(
-        None, description="Set when less than 10 % of the budget is left: what to do"
+        None, description="Set when less than 10 % of the period's budget is left: what to do"
     )
     jobs: list[JobUsage]
 
@@ -384,3 +395,40 @@ class Usage(BaseModel):
     users: list[UserUsage] = Field(description="Your own entry; admins: everyone's")
     total_used_seconds: float
     qpu_in_flight: int | None = Field(None, description="Lab-wide problems in flight (admins)")
+
+
+class BatchCreated(BaseModel):
+    """``POST /v1/batches``: the batch and its jobs, one per pair, in the order sent."""
+
+    id: str
+    jobs: list[JobCreated]
+    links: dict[str, str] = Field(description="self: the batch's status")
+
+
+class BatchProgress(BaseModel):
+    """How far a batch is: its jobs by state (``expired``: a job whose record is gone)."""
+
+    total: int
+    by_state: dict[str, int] = Field(description="Jobs per state (queued, running, ...)")
+    finished: int = Field(description="Jobs that ended (succeeded, failed, cancelled, expired)")
+    fraction: float = Field(description="Finished jobs' share, 0-1")
+
+
+class BatchJob(BaseModel):
+    """One pair of a batch: its name and its job (null once the job's record expired)."""
+
+    pair: int = Field(description="The pair's index in the request, from 0")
+    name: str
+    id: str
+    job: JobSummary | None
+
+
+class Batch(BaseModel):
+    """``GET /v1/batches/{id}``: the batch's jobs with their states and its progress."""
+
+    id: str
+    owner: str
+    created_at: datetime
+    tags: list[str]
+    jobs: list[BatchJob]
+    progress: BatchProgress

@@ -161,6 +161,7 @@ class JobRecord(BaseModel):
     height: int
     label: str | None = None  # the submitter's name for the job
     tags: list[str] = Field(default_factory=list)  # the submitter's tags (list filter)
+    batch: str | None = None  # the batch it was submitted in (POST /v1/batches)
     files: list[str] = Field(default_factory=list)  # the uploads' file names: left, right
     #: What the submitter should know: views that look swapped, a scale that was inferred, ...
     warnings: list[str] = Field(default_factory=list)

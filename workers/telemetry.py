@@ -168,7 +168,7 @@ class ServiceCollector(Collector):
             "qhsm_qpu_seconds_used", "Metered D-Wave seconds charged, by user", labels=["user"]
         )
         for user in ledger.users():
-            family.add_metric([user], ledger.status(user).used)
+            family.add_metric([user], ledger.status(user).total_used)  # every period: a counter
         return family
 
 

@@ -12,7 +12,6 @@ import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
-from pydantic import ValidationError
 
 from api import job_service
 from api.auth import can_see
@@ -27,16 +26,24 @@ from api.deps import (
 )
 from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
-from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
-from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
-from api.uploads import MAX_LABEL, MAX_TAGS, TAG
+from api.responses import (
+    NOT_FOUND,
+    SCALE_HEADER,
+    UPLOAD_ERRORS,
+    charged_seconds,
+    display_max,
+    links,
+    summary_of,
+)
+from api.schemas import JobCreated, JobPage, JobStatus, JobSummary
+from api.uploads import GT_SCALE_RANGE, MAX_GT_BORDER, MAX_LABEL, MAX_TAGS, TAG, cameras_of
 from api.users import UserStore
-from shared.datasets.calibration import Calibration, CalibrationError, calibration_text
+from shared.datasets.calibration import Calibration
 from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
 from workers.quota import LOCAL_USER
-from workers.records import Cameras, GroundTruth, JobRecord, JobState
+from workers.records import GroundTruth, JobRecord, JobState
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -45,77 +52,8 @@ DISPARITY_MEDIA = {
     "png": "image/png",
     "npy": "application/x-npy",
 }
-#: A ground truth's scale: stored value per disparity pixel. Outside this range the scaled
-#: errors lose all precision or overflow (an infinite RMSE).
-GT_SCALE_RANGE = (1e-3, 1e6)
-#: Widest ignored frame, pixels (above any image side the pixel limit allows evaluating).
-MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
-
-
-def links(record: JobRecord) -> Links:
-    """Where the job and its results are; the maps and depth only where the job has them."""
-    base = f"/v1/jobs/{record.id}"
-    extra = {}
-    if "validity" in record.maps:
-        extra["validity"] = f"{base}/validity.png"
-    if "confidence" in record.maps:
-        extra["confidence"] = f"{base}/confidence?format=pfm"
-    if record.cameras is not None and record.state is JobState.SUCCEEDED:
-        extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
-    return Links(
-        self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png", **extra
-    )
-
-
-#: Largest calibration file read at submit (a Middlebury calib.txt is ~200 bytes, KITTI's ~1 KB).
-MAX_CALIB_BYTES = 64 * 1024
-
-
-def cameras_of(
-    focal: float | None,
-    baseline: float | None,
-    doffs: float | None,
-    calib: UploadFile | None = None,
-) -> Cameras | None:
-    """The cameras given at submit: a calibration file (Middlebury's calib.txt or KITTI's), or
-    focal and baseline together (doffs optional), or none of them."""
-    if calib is not None:
-        if focal is not None or baseline is not None or doffs is not None:
-            raise ServiceError(
-                Refusal.INVALID, "give either calib or focal/baseline/doffs, not both"
-            )
-        data = calib.file.read(MAX_CALIB_BYTES + 1)
-        if len(data) > MAX_CALIB_BYTES:
-            raise ServiceError(
-                Refusal.TOO_LARGE, f"calib: above {MAX_CALIB_BYTES} bytes; not a calibration file"
-            )
-        try:
-            calibration = calibration_text(data.decode("utf-8"), "calib")
-            return Cameras.of(calibration)
-        except (UnicodeDecodeError, CalibrationError, ValidationError) as error:
-            reason = "not UTF-8 text" if isinstance(error, UnicodeDecodeError) else str(error)
-            if isinstance(error, ValidationError):
-                reason = "calib: its focal length and baseline must be > 0"
-            raise ServiceError(Refusal.INVALID, reason) from None
-    if focal is None and baseline is None:
-        if doffs is not None:
-            raise ServiceError(Refusal.INVALID, "doffs needs focal and baseline")
-        return None
-    if focal is None or baseline is None:
-        raise ServiceError(
-            Refusal.INVALID, "depth needs both focal (px) and baseline; one of them is missing"
-        )
-    return Cameras(focal=focal, baseline=baseline, doffs=doffs or 0.0)
-
-
-def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
-    """QPU (hybrid: charge) seconds the job's owner was charged for it; None when the job's
-    solver is not metered."""
-    if not is_metered(record.config.solver):
-        return None
-    return users.ledger.job_usage(record.owner or LOCAL_USER, record.id).seconds
 
 
 def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
@@ -124,10 +62,6 @@ def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
         return []
     warning = users.ledger.status(record.owner or LOCAL_USER).warning
     return [warning] if warning else []
-
-
-def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
-    return JobSummary(**JobSummary.fields_of(record, links(record), charged_seconds(record, users)))
 
 
 def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:

@@ -8,6 +8,7 @@ import io
 import uuid
 
 import numpy as np
+import pytest
 from api_helpers import LEFT, RIGHT, SCENE, post
 
 from api.users import UserStore
@@ -184,7 +185,10 @@ def test_jobs_are_listed_by_tag(api, api_settings):
     assert api.get("/v1/jobs", params={"tag": "no spaces"}).status_code == 422
 
 
-def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings, tmp_path, capsys):
+@pytest.mark.parametrize("per_job", [False, True], ids=["one-request", "per-job"])
+def test_submit_batch_sends_every_pair_under_one_tag(
+    live_api, api, api_settings, tmp_path, capsys, per_job
+):
     import json
 
     import cv2
@@ -205,8 +209,14 @@ def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings
     tag = f"batch-{uuid.uuid4().hex[:6]}"
     key = harness.admin_key(api_settings)
     argv = ["submit-batch", str(tmp_path), "--url", live_api.url, "--key", key, "--json"]
-    assert main([*argv, "--tag", tag, "--solver", "exact"]) == 0
+    assert main([*argv, "--tag", tag, "--solver", "exact", *["--per-job"] * per_job]) == 0
     batch = json.loads(capsys.readouterr().out)
+    if per_job:
+        assert batch["batch"] is None
+    else:  # one POST /v1/batches: its jobs listed under its id, in the order of the pairs
+        listing = api.get(f"/v1/batches/{batch['batch']}").json()
+        assert [job["id"] for job in listing["jobs"]] == [job["id"] for job in batch["jobs"]]
+        assert listing["tags"] == [tag] and listing["progress"]["total"] == 2
     assert batch["tag"] == tag and batch["url"].endswith(f"/v1/jobs?tag={tag}")
     assert [(job["name"], job["max_disparity"]) for job in batch["jobs"]] == [
         ("lab/a", 7),
