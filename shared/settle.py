@@ -40,6 +40,7 @@ from shared.energy import Costs
 from shared.grid import GridMRF, boundary_unary, dual_decomposition
 from shared.grid_inference import minimiser
 from shared.level_inputs import LevelInputs
+from shared.provenance_map import Stage
 
 #: Rows and columns of a sent tile (one shape: embedded once, copied across the chip).
 TILE = 4
@@ -275,6 +276,7 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
     recorded = inputs.prepared["settle"]
     assert inputs.initial_labels is not None
     labels = inputs.initial_labels.copy()
+    stages = host_stages(inputs)
     height = inputs.view_height
     grids = [inputs.grid(config, v * height, (v + 1) * height) for v in range(inputs.views)]
     improved = changed = 0
@@ -289,6 +291,10 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
             improved += 1
             changed += int(np.count_nonzero(view_labels[rows, columns] != result.labels))
             view_labels[rows, columns] = result.labels
+            tile = stages[view * height : (view + 1) * height][rows, columns]
+            kept = Stage.SOLVER if result.stages is None else result.stages
+            # the tile's certified pixels were pinned to the host's labels: still the host's
+            tile[...] = np.where(tile == Stage.CERTIFIED, tile, kept)
     energy = sum(
         grids[v].energy(labels[v * height : (v + 1) * height]) for v in range(inputs.views)
     )
@@ -311,7 +317,18 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         info=embedding_summary(results, prepared),
         lower_bound=float(recorded["lower_bound"]),
         residual=residual.as_dict(),
+        stages=stages,
     )
+
+
+def host_stages(inputs: LevelInputs) -> np.ndarray:
+    """A settled level's provenance codes before its tiles: :attr:`Stage.CERTIFIED`, and
+    :attr:`Stage.HOST` at the pixels the host left unsettled."""
+    stages = np.full(inputs.shape, int(Stage.CERTIFIED), dtype=np.uint8)
+    loose = np.asarray(inputs.prepared["settle"]["unsettled_pixels"], dtype=np.int64)
+    if loose.size:
+        stages[loose[:, 0], loose[:, 1]] = Stage.HOST
+    return stages
 
 
 def _tile_energies(

@@ -34,6 +34,7 @@ from shared.energy import Costs, mrf_energy, row_energies
 from shared.grid import DualResult, GridMRF, boundary_unary, dual_decomposition
 from shared.grid_inference import minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
+from shared.provenance_map import Stage, filled
 from shared.settle import assemble_level, pinned, tile_config
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
@@ -172,10 +173,14 @@ def _bundle_result(problem: TileProblem, outcome: SolveResult | None, codec) -> 
     if outcome is None:
         assert dual is not None
         labels, repaired, wall, timing, info = dual.labels, 0, 0.0, {}, {}
+        stages = filled(labels.shape, Stage.CERTIFIED)
     else:
         decoded = codec.decode(costs, outcome.sample)
         labels, repaired, wall = decoded.labels, decoded.repaired, outcome.wall_time
         timing, info = outcome.timing, outcome.info
+        per_pixel = codec.variables_per_pixel(costs.num_labels)
+        stages = sampler_stages(decoded.invalid, info.get("fixed_variables"), per_pixel, labels)
+        info = {k: v for k, v in info.items() if k != "fixed_variables"}
     energy = mrf_energy(costs, labels)
     if dual is not None:
         variables = costs.shape[0] * costs.shape[1] * codec.variables_per_pixel(costs.num_labels)
@@ -188,6 +193,7 @@ def _bundle_result(problem: TileProblem, outcome: SolveResult | None, codec) -> 
             info["kept"] = "host" if host < energy else "solver"
             if host < energy:
                 labels, energy, repaired = dual.labels, host, 0
+                stages = filled(labels.shape, Stage.HOST)
     return BundleResult(
         row_start=start,
         row_stop=stop,
@@ -199,7 +205,35 @@ def _bundle_result(problem: TileProblem, outcome: SolveResult | None, codec) -> 
         info=info,
         col_start=first,
         col_stop=last,
+        stages=stages,
     )
+
+
+def sampler_stages(
+    invalid: np.ndarray | None, fixed: list[int] | None, per_pixel: int, labels: np.ndarray
+) -> np.ndarray:
+    """A sampled bundle's provenance codes: :attr:`Stage.SOLVER`, :attr:`Stage.ROOF_DUALITY`
+    where roof duality fixed every variable of the pixel (``fixed``: the bundle's variables it
+    fixed, pixel-major as the codecs number them, ``per_pixel`` a pixel), and
+    :attr:`Stage.REPAIRED` where the bits were no valid code (``invalid``)."""
+    stages = filled(labels.shape, Stage.SOLVER)
+    if fixed:
+        mask = np.zeros(labels.size * per_pixel, dtype=bool)
+        mask[np.asarray(fixed, dtype=np.int64)] = True
+        whole = mask.reshape(labels.size, per_pixel).all(axis=1).reshape(labels.shape)
+        stages[whole] = Stage.ROOF_DUALITY
+    if invalid is not None:
+        stages[invalid] = Stage.REPAIRED
+    return stages
+
+
+def grid_stages(outcome: DualResult) -> np.ndarray:
+    """A host-minimised grid's codes: :attr:`Stage.CERTIFIED` where dual decomposition's row and
+    column copies agree (everywhere when the labelling is proved optimal), else
+    :attr:`Stage.HOST`."""
+    if outcome.unsettled is None:
+        return filled(outcome.labels.shape, Stage.CERTIFIED if outcome.disagreeing == 0 else Stage.HOST)
+    return np.where(outcome.unsettled, np.uint8(Stage.HOST), np.uint8(Stage.CERTIFIED))
 
 
 def _surroundings(
@@ -241,6 +275,7 @@ def _solve_grids(
             repaired=0,
             wall_time=time.perf_counter() - started,
             info={"dual_iterations": outcome.iterations, "disagreeing": outcome.disagreeing},
+            stages=grid_stages(outcome),
         )
 
     results: list[BundleResult] = []
@@ -372,6 +407,7 @@ def _solve_block(
                 energy=energy,
                 repaired=0,
                 wall_time=share,
+                stages=filled(bundle_labels.shape, Stage.CERTIFIED),  # a row's exact optimum
             )
         )
     return results
