@@ -232,7 +232,8 @@ def grid_stages(outcome: DualResult) -> np.ndarray:
     column copies agree (everywhere when the labelling is proved optimal), else
     :attr:`Stage.HOST`."""
     if outcome.unsettled is None:
-        return filled(outcome.labels.shape, Stage.CERTIFIED if outcome.disagreeing == 0 else Stage.HOST)
+        proved = outcome.disagreeing == 0
+        return filled(outcome.labels.shape, Stage.CERTIFIED if proved else Stage.HOST)
     return np.where(outcome.unsettled, np.uint8(Stage.HOST), np.uint8(Stage.CERTIFIED))
 
 

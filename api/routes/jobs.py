@@ -31,10 +31,12 @@ from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
 from api.uploads import MAX_LABEL, MAX_TAGS, TAG
 from api.users import UserStore
+from shared import provenance_map
 from shared.datasets.calibration import Calibration, CalibrationError, calibration_text
 from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
+from workers.arrays import npy
 from workers.quota import LOCAL_USER
 from workers.records import Cameras, GroundTruth, JobRecord, JobState
 
@@ -62,6 +64,8 @@ def links(record: JobRecord) -> Links:
         extra["validity"] = f"{base}/validity.png"
     if "confidence" in record.maps:
         extra["confidence"] = f"{base}/confidence?format=pfm"
+    if "provenance" in record.maps:
+        extra["provenance"] = f"{base}/provenance?format=png"
     if record.cameras is not None and record.state is JobState.SUCCEEDED:
         extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
     return Links(
@@ -383,6 +387,18 @@ def get_confidence(
     )
 
 
+@router.get("/{job_id}/provenance", responses=MAP_RESPONSES, response_class=Response)
+def get_provenance(
+    job_id: str, svc: ServicesDep, principal: PrincipalDep, format: Literal["png", "npy"] = "png"
+):
+    """Which stage decided each pixel: a colour PNG, or the uint8 codes as npy (the legend:
+    ``GET /v1/provenance-legend``; the pixels per stage are the status' ``provenance_counts``)."""
+    _, stages = finished_map(job_id, "provenance", svc, principal)
+    data = provenance_map.png(stages) if format == "png" else npy(stages)
+    media = "image/png" if format == "png" else DISPARITY_MEDIA["npy"]
+    return attachment(data, media, f"{job_id}.provenance.{format}")
+
+
 def job_calibration(record: JobRecord) -> Calibration:
     if record.cameras is None:
         raise ServiceError(
@@ -451,7 +467,7 @@ def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Use
 def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
     """The job in one zip: ``job.json`` (its status: config, version, levels, usage, metrics,
     charge) and the files it still has: ``disparity.pfm``, ``validity.png``,
-    ``confidence.pfm``, ``left.png``."""
+    ``confidence.pfm``, ``provenance.png``, ``left.png``."""
     record = find_job(job_id, svc, principal)
     files = {"job.json": status_of(record, svc, users).model_dump_json(indent=2).encode()}
     disparity = svc.store.load_result(job_id) if record.state is JobState.SUCCEEDED else None
@@ -467,6 +483,11 @@ def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Us
             and (confidence := svc.store.load_map(job_id, "confidence")) is not None
         ):
             files["confidence.pfm"] = disparity_bytes(confidence, "pfm")
+        if (
+            "provenance" in record.maps
+            and (stages := svc.store.load_map(job_id, "provenance")) is not None
+        ):
+            files["provenance.png"] = provenance_map.png(stages)
     if (left := svc.store.load_view(job_id, "left.png")) is not None:
         files["left.png"] = left
     stream = io.BytesIO()
