@@ -150,6 +150,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         disparity_range=record.disparity_range,
         version=record.version,
         cameras=record.cameras,
+        provenance_counts=record.provenance_counts,
         expires_at=(
             record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
             if record.finished_at and not record.pinned
