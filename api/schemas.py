@@ -105,6 +105,12 @@ class LevelTiming(BaseModel):
         "answer lowered the energy and replaced the host's (tiles_improved, pixels_improved), "
         "and the host's seconds; null for other solvers",
     )
+    provenance_counts: dict[str, int] | None = Field(
+        None,
+        description="The level's pixels (every view) per stage that decided them as solved "
+        "(certified, host, roof_duality, solver, repaired; the job's provenance_counts are the "
+        "final map's)",
+    )
 
 
 def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:

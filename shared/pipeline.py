@@ -78,6 +78,9 @@ class LevelReport:
     #: A QUBO solver's residual design (:class:`shared.settle.Residual`): pixels the host
     #: certified, tiles and pixels sent, tiles and pixels the solver improved; None otherwise.
     residual: dict | None = None
+    #: Pixels of the level (every view) per stage that decided them as solved
+    #: (:func:`shared.provenance_map.counts`; the final map's are the finest level's).
+    provenance_counts: dict[str, int] | None = None
 
 
 @dataclass
@@ -294,6 +297,9 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         timing=solution.timing,
         info=solution.info,
         residual=solution.residual,
+        provenance_counts=None
+        if solution.stages is None
+        else provenance_map.counts(solution.stages),
     )
 
 
