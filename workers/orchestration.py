@@ -58,6 +58,7 @@ from workers.level_store import LevelInputsMissingError
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, LevelRecord, now
 from workers.store import JobStore
+from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -383,7 +384,9 @@ def _next_level_or_finish(
     metrics, warning = _evaluate_result(store, record, result)
     store.save_result(record.id, result, maps)
     counts = None if provenance is None else pixel_counts(provenance)
-    store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps), counts)
+    done = store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps), counts)
+    if done.changed and counts is not None:
+        Telemetry(store.redis, store.settings.key_prefix).pixels_decided(config.solver, counts)
 
 
 def _evaluate_result(
