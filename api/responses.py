@@ -43,6 +43,8 @@ def links(record: JobRecord) -> Links:
         extra["validity"] = f"{base}/validity.png"
     if "confidence" in record.maps:
         extra["confidence"] = f"{base}/confidence?format=pfm"
+    if "provenance" in record.maps:
+        extra["provenance"] = f"{base}/provenance?format=png"
     if record.cameras is not None and record.state is JobState.SUCCEEDED:
         extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
     return Links(

@@ -28,10 +28,24 @@ class Links(BaseModel):
         None, description="Left-right check's validity map (8-bit PNG, 255 = confirmed)"
     )
     confidence: str | None = Field(None, description="Confidence map in [0, 1] (PFM or npy)")
+    provenance: str | None = Field(
+        None,
+        description="Provenance map: which stage decided each pixel (colour PNG, or npy of the "
+        "codes; legend: GET /v1/provenance-legend, README)",
+    )
     depth: str | None = Field(
         None, description="Depth map in the baseline's unit (jobs submitted with cameras)"
     )
     points: str | None = Field(None, description="Coloured point cloud (binary PLY)")
+
+
+class LegendEntry(BaseModel):
+    """One code of the provenance map (``shared.provenance_map.legend``)."""
+
+    code: int
+    name: str
+    colour: str = Field(description="Its colour in the PNG, RGB hex")
+    meaning: str
 
 
 class JobCreated(BaseModel):
@@ -91,6 +105,12 @@ class LevelTiming(BaseModel):
         "unsettled, the 4x4 tiles sent and their pixels, the tiles and pixels whose solver "
         "answer lowered the energy and replaced the host's (tiles_improved, pixels_improved), "
         "and the host's seconds; null for other solvers",
+    )
+    provenance_counts: dict[str, int] | None = Field(
+        None,
+        description="The level's pixels (every view) per stage that decided them as solved "
+        "(certified, host, roof_duality, solver, repaired; the job's provenance_counts are the "
+        "final map's)",
     )
 
 
@@ -211,6 +231,11 @@ class JobStatus(JobSummary):
         None,
         description="When the job's record, uploads and result are deleted (finished_at + "
         "QHSM_RESULT_TTL_SECONDS); null while it runs or while pinned",
+    )
+    provenance_counts: dict[str, int] | None = Field(
+        None,
+        description="Pixels of the provenance map per stage that decided them (filled, "
+        "certified, host, roof_duality, solver, repaired, filtered); null until it succeeded",
     )
 
 

@@ -13,6 +13,7 @@ from shared.bundles import owned_columns
 from shared.config import Inference, MatchConfig
 from shared.energy import mrf_energy
 from shared.level_inputs import LevelInputs
+from shared.provenance_map import Stage
 
 
 @dataclass
@@ -32,6 +33,9 @@ class BundleResult:
     col_stop: int | None = None
     #: A lower bound on the bundle's least energy (dual decomposition), when the solver has one.
     lower_bound: float | None = None
+    #: What decided each pixel (:class:`shared.provenance_map.Stage` codes, uint8, the labels'
+    #: shape); None: not recorded (taken as :attr:`Stage.HOST`).
+    stages: np.ndarray | None = None
 
     @property
     def columns(self) -> tuple[int, int]:
@@ -54,6 +58,8 @@ class LevelSolution:
     lower_bound: float | None = None
     #: The residual design's counts (:class:`shared.settle.Residual`), None without it.
     residual: dict | None = None
+    #: What decided each pixel of the level (:class:`shared.provenance_map.Stage`, uint8).
+    stages: np.ndarray | None = None
 
 
 def assemble(
@@ -86,6 +92,7 @@ def assemble(
     """
     height, width = inputs.shape
     labels = np.full((height, width), -1, dtype=np.int32)
+    stages = np.full((height, width), int(Stage.HOST), dtype=np.uint8)
     covered = np.zeros((height, width), dtype=np.int32)
     timing: dict[str, float] = {}
     # sums independent of arrival order
@@ -103,6 +110,10 @@ def assemble(
             labels[start:stop, own_first:own_last] = result.labels[
                 :, own_first - first : own_last - first
             ]
+            if result.stages is not None:
+                stages[start:stop, own_first:own_last] = result.stages[
+                    :, own_first - first : own_last - first
+                ]
             covered[start:stop, own_first:own_last] += 1
         if len(group) == 1:
             energy += group[0].energy
@@ -137,6 +148,7 @@ def assemble(
         solver_seconds=float(sum(r.wall_time for r in results)),
         timing=timing,
         info=embedding_summary(results, inputs.prepared),
+        stages=stages,
     )
 
 

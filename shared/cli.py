@@ -84,7 +84,9 @@ def cmd_match(args: argparse.Namespace) -> int:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
     summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
-    summary["maps"] = save_maps(result.validity, result.confidence, args.output)
+    summary["maps"] = save_maps(
+        result.validity, result.confidence, args.output, result.provenance_map
+    )
     if args.ply:
         from shared.datasets.calibration import read_calibration
         from shared.depth import ply_bytes, point_cloud

@@ -40,6 +40,7 @@ from shared.energy import Costs
 from shared.grid import GridMRF, boundary_unary, dual_decomposition
 from shared.grid_inference import minimiser
 from shared.level_inputs import LevelInputs
+from shared.provenance_map import Stage
 
 #: Rows and columns of a sent tile (one shape: embedded once, copied across the chip).
 TILE = 4
@@ -276,6 +277,7 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
     recorded = inputs.prepared["settle"]
     assert inputs.initial_labels is not None
     labels = inputs.initial_labels.copy()
+    stages = host_stages(inputs)
     height = inputs.view_height
     grids = [inputs.grid(config, v * height, (v + 1) * height) for v in range(inputs.views)]
     improved = changed = 0
@@ -285,7 +287,11 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         rows = slice(top, top + result.labels.shape[0])
         columns = slice(result.col_start, result.col_start + result.labels.shape[1])
         view_labels = labels[view * height : (view + 1) * height]  # a view: written in place
-        kept = _keep_improving(grids[view], view_labels, rows, columns, result.labels)
+        view_stages = stages[view * height : (view + 1) * height]
+        proposed_stages = Stage.SOLVER if result.stages is None else result.stages
+        kept = _keep_improving(
+            grids[view], view_labels, rows, columns, result.labels, view_stages, proposed_stages
+        )
         improved, changed = improved + (kept > 0), changed + kept
     energy = sum(
         grids[v].energy(labels[v * height : (v + 1) * height]) for v in range(inputs.views)
@@ -309,14 +315,22 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         info=embedding_summary(results, prepared),
         lower_bound=float(recorded["lower_bound"]),
         residual=residual.as_dict(),
+        stages=stages,
     )
 
 
 def _keep_improving(
-    grid: GridMRF, labels: np.ndarray, rows: slice, columns: slice, proposed: np.ndarray
+    grid: GridMRF,
+    labels: np.ndarray,
+    rows: slice,
+    columns: slice,
+    proposed: np.ndarray,
+    stages: np.ndarray,
+    proposed_stages: np.ndarray | int,
 ) -> int:
     """Write into ``labels`` each connected part of a tile's answer that lowers the level's
-    energy, given the labels around it as they are; return the pixels changed.
+    energy, given the labels around it as they are; return the pixels changed. The kept
+    parts' provenance codes go into ``stages`` (a pinned, certified pixel stays certified).
 
     A part is a 4-connected set of pixels where ``proposed`` differs from ``labels``: two parts
     share no edge, so their energy changes add up and keeping exactly the parts that lower the
@@ -329,6 +343,8 @@ def _keep_improving(
 
     current = labels[rows, columns]
     parts, count = ndimage.label(current != proposed)
+    tile_stages = stages[rows, columns]  # a view: written in place
+    codes = np.broadcast_to(np.asarray(proposed_stages, dtype=stages.dtype), proposed.shape)
     kept = 0
     for part in range(1, count + 1):
         where = parts == part
@@ -336,8 +352,20 @@ def _keep_improving(
         before, after = _tile_energies(grid, labels, rows, columns, candidate)
         if after < before - 1e-9 * max(1.0, abs(before)):
             labels[rows, columns] = candidate
+            settled = where & (tile_stages != Stage.CERTIFIED)
+            tile_stages[settled] = codes[settled]
             kept += int(where.sum())
     return kept
+
+
+def host_stages(inputs: LevelInputs) -> np.ndarray:
+    """A settled level's provenance codes before its tiles: :attr:`Stage.CERTIFIED`, and
+    :attr:`Stage.HOST` at the pixels the host left unsettled."""
+    stages = np.full(inputs.shape, int(Stage.CERTIFIED), dtype=np.uint8)
+    loose = np.asarray(inputs.prepared["settle"]["unsettled_pixels"], dtype=np.int64)
+    if loose.size:
+        stages[loose[:, 0], loose[:, 1]] = Stage.HOST
+    return stages
 
 
 def _tile_energies(

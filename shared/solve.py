@@ -30,9 +30,10 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import Inference, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy, row_energies
-from shared.grid import GridMRF, boundary_unary
+from shared.grid import DualResult, GridMRF, boundary_unary
 from shared.grid_inference import minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
+from shared.provenance_map import Stage, filled
 from shared.settle import assemble_level, pinned, tile_config
 from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
@@ -147,6 +148,11 @@ def _bundle_result(problem: TileProblem, outcome: SolveResult, codec) -> BundleR
     """A bundle's result from the solver's ``outcome``: its decoded labels and their energy."""
     start, stop, first, last = problem.bundle.as_list()
     decoded = codec.decode(problem.costs, outcome.sample)
+    per_pixel = codec.variables_per_pixel(problem.costs.num_labels)
+    stages = sampler_stages(
+        decoded.invalid, outcome.info.get("fixed_variables"), per_pixel, decoded.labels
+    )
+    info = {k: v for k, v in outcome.info.items() if k != "fixed_variables"}
     return BundleResult(
         row_start=start,
         row_stop=stop,
@@ -155,10 +161,39 @@ def _bundle_result(problem: TileProblem, outcome: SolveResult, codec) -> BundleR
         repaired=decoded.repaired,
         wall_time=outcome.wall_time,
         timing=outcome.timing,
-        info=outcome.info,
+        info=info,
         col_start=first,
         col_stop=last,
+        stages=stages,
     )
+
+
+def sampler_stages(
+    invalid: np.ndarray | None, fixed: list[int] | None, per_pixel: int, labels: np.ndarray
+) -> np.ndarray:
+    """A sampled bundle's provenance codes: :attr:`Stage.SOLVER`, :attr:`Stage.ROOF_DUALITY`
+    where roof duality fixed every variable of the pixel (``fixed``: the bundle's variables it
+    fixed, pixel-major as the codecs number them, ``per_pixel`` a pixel), and
+    :attr:`Stage.REPAIRED` where the bits were no valid code (``invalid``)."""
+    stages = filled(labels.shape, Stage.SOLVER)
+    if fixed:
+        mask = np.zeros(labels.size * per_pixel, dtype=bool)
+        mask[np.asarray(fixed, dtype=np.int64)] = True
+        whole = mask.reshape(labels.size, per_pixel).all(axis=1).reshape(labels.shape)
+        stages[whole] = Stage.ROOF_DUALITY
+    if invalid is not None:
+        stages[invalid] = Stage.REPAIRED
+    return stages
+
+
+def grid_stages(outcome: DualResult) -> np.ndarray:
+    """A host-minimised grid's codes: :attr:`Stage.CERTIFIED` where dual decomposition's row and
+    column copies agree (everywhere when the labelling is proved optimal), else
+    :attr:`Stage.HOST`."""
+    if outcome.unsettled is None:
+        proved = outcome.disagreeing == 0
+        return filled(outcome.labels.shape, Stage.CERTIFIED if proved else Stage.HOST)
+    return np.where(outcome.unsettled, np.uint8(Stage.HOST), np.uint8(Stage.CERTIFIED))
 
 
 def _surroundings(
@@ -200,6 +235,7 @@ def _solve_grids(
             repaired=0,
             wall_time=time.perf_counter() - started,
             info={"dual_iterations": outcome.iterations, "disagreeing": outcome.disagreeing},
+            stages=grid_stages(outcome),
         )
 
     results: list[BundleResult] = []
@@ -316,6 +352,7 @@ def _solve_block(
                 energy=energy,
                 repaired=0,
                 wall_time=share,
+                stages=filled(bundle_labels.shape, Stage.CERTIFIED),  # a row's exact optimum
             )
         )
     return results

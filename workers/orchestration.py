@@ -34,11 +34,12 @@ from shared.bundle_plan import level_bundles, plans_with_solver
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
-from shared.finishing import finish_level, finish_maps
+from shared.finishing import finish_level, finish_maps, level_stages
 from shared.level_inputs import LevelInputs
 from shared.memory import VOLUME_CACHE_MB, check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
 from shared.pipeline import confidence_map, match_views, prepare_level, report
+from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
 from shared.settle import assemble_level, settles, tile_config
 from shared.solve import solve_bundles
@@ -59,6 +60,7 @@ from workers.level_store import LevelInputsMissingError
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, LevelRecord, now
 from workers.store import JobStore
+from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -282,13 +284,13 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     bundles = _solved_bundles(store, job_id, index, inputs, record.config)
     if bundles is None:
         return
-    level_map, level_report = _assemble_level(inputs, bundles, record.config, started)
+    level_map, stages, level_report = _assemble_level(inputs, bundles, record.config, started)
     # None when the job ended, or the same level was assembled twice at once and the other won
     record, added = store.apply(job_id, JobRecord.with_level, index, level_report)
     if record is None or not added:
         return
     store.drop_level(job_id, index)
-    _next_level_or_finish(celery, store, record, index, inputs, level_map)
+    _next_level_or_finish(celery, store, record, index, inputs, level_map, stages)
 
 
 def _running_record(store: JobStore, job_id: str, index: int) -> JobRecord | None:
@@ -341,12 +343,13 @@ def _solved_bundles(
 
 def _assemble_level(
     inputs: LevelInputs, bundles: list[BundleResult], config: MatchConfig, started: float
-) -> tuple[np.ndarray, LevelRecord]:
-    """The level's filtered disparity map (``finish_level``) and its report for the record."""
+) -> tuple[np.ndarray, np.ndarray, LevelRecord]:
+    """The level's filtered disparity map (``finish_level``), its provenance codes
+    (``level_stages``) and its report for the record."""
     solution = assemble_level(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = LevelRecord.of(report(inputs, solution, time.time() - started))
-    return level_map, level_report
+    return level_map, level_stages(inputs, solution, level_map), level_report
 
 
 def _next_level_or_finish(
@@ -356,8 +359,10 @@ def _next_level_or_finish(
     index: int,
     inputs: LevelInputs,
     level_map: np.ndarray,
+    stages: np.ndarray,
 ) -> None:
-    """Launch the next level's chord from this level's map, or finish the job after the last."""
+    """Launch the next level's chord from this level's map, or finish the job after the last
+    (``stages``: the level's provenance codes; the finest level's make the provenance map)."""
     config = record.config
     left, right = job_views(store, record)
     plans = job_plans(record)
@@ -365,7 +370,9 @@ def _next_level_or_finish(
         next_inputs = prepare_level(left, right, config, plans[index + 1], level_map)
         launch_level(celery, store, record, next_inputs)
         return
-    result, validity = finish_maps(level_map, left, right, config, plans[-1], inputs.views)
+    result, validity, provenance = finish_maps(
+        level_map, left, right, config, plans[-1], inputs.views, stages=stages
+    )
     confidence = None
     if (plans[-1].max_disparity + 1) * result.size * 4 <= VOLUME_CACHE_MB * 2**20:
         # within the volume the job's memory estimate allows for (shared.memory): larger
@@ -373,12 +380,19 @@ def _next_level_or_finish(
         confidence = confidence_map(result, validity, left, right, config, plans[-1], None)
     maps = {
         name: array
-        for name, array in (("validity", validity), ("confidence", confidence))
+        for name, array in (
+            ("validity", validity),
+            ("confidence", confidence),
+            ("provenance", provenance),
+        )
         if array is not None
     }
     metrics, warning = _evaluate_result(store, record, result)
     store.save_result(record.id, result, maps)
-    store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps))
+    counts = None if provenance is None else pixel_counts(provenance)
+    done = store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps), counts)
+    if done.changed and counts is not None:
+        Telemetry(store.redis, store.settings.key_prefix).pixels_decided(config.solver, counts)
 
 
 def _evaluate_result(

@@ -132,6 +132,7 @@ class LevelRecord(BaseModel):
     timing: dict[str, float | None] = Field(default_factory=dict)
     info: dict[str, Any] = Field(default_factory=dict)
     residual: dict[str, float | None] | None = None
+    provenance_counts: dict[str, int] | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -193,8 +194,12 @@ class JobRecord(BaseModel):
     cameras: Cameras | None = None
     #: Kept past the retention (``result_ttl_seconds``) until unpinned
     pinned: bool = False
-    #: The maps saved beside the result (``validity``, ``confidence``: those the run has)
+    #: The maps saved beside the result (``validity``, ``confidence``, ``provenance``: those
+    #: the run has)
     maps: list[str] = Field(default_factory=list)
+    #: Pixels of the provenance map per stage (``shared.provenance_map.counts``); None before
+    #: the job succeeded
+    provenance_counts: dict[str, int] | None = None
 
     @field_validator("metrics")
     @classmethod
@@ -283,10 +288,16 @@ class JobRecord(BaseModel):
         metrics: dict[str, float | None] | None,
         warning: str | None = None,
         maps: list[str] | None = None,
+        provenance_counts: dict[str, int] | None = None,
     ) -> JobRecord | None:
         """The running job's end, with its scores, a warning about them (kept as its
-        ``error``) and the names of the maps saved beside the result."""
-        fields: dict[str, Any] = {"metrics": finite_or_null(metrics), "maps": maps or []}
+        ``error``), the names of the maps saved beside the result and the provenance map's
+        pixels per stage."""
+        fields: dict[str, Any] = {
+            "metrics": finite_or_null(metrics),
+            "maps": maps or [],
+            "provenance_counts": provenance_counts,
+        }
         if warning:
             fields["error"] = warning
         return self.moved(JobState.SUCCEEDED, at, **fields)

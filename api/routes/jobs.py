@@ -38,10 +38,12 @@ from api.responses import (
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary
 from api.uploads import GT_SCALE_RANGE, MAX_GT_BORDER, MAX_LABEL, MAX_TAGS, TAG, cameras_of
 from api.users import UserStore
+from shared import provenance_map
 from shared.datasets.calibration import Calibration
 from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
+from workers.arrays import npy
 from workers.quota import LOCAL_USER
 from workers.records import GroundTruth, JobRecord, JobState
 
@@ -80,6 +82,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         disparity_range=record.disparity_range,
         version=record.version,
         cameras=record.cameras,
+        provenance_counts=record.provenance_counts,
         expires_at=(
             record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
             if record.finished_at and not record.pinned
@@ -317,6 +320,18 @@ def get_confidence(
     )
 
 
+@router.get("/{job_id}/provenance", responses=MAP_RESPONSES, response_class=Response)
+def get_provenance(
+    job_id: str, svc: ServicesDep, principal: PrincipalDep, format: Literal["png", "npy"] = "png"
+):
+    """Which stage decided each pixel: a colour PNG, or the uint8 codes as npy (the legend:
+    ``GET /v1/provenance-legend``; the pixels per stage are the status' ``provenance_counts``)."""
+    _, stages = finished_map(job_id, "provenance", svc, principal)
+    data = provenance_map.png(stages) if format == "png" else npy(stages)
+    media = "image/png" if format == "png" else DISPARITY_MEDIA["npy"]
+    return attachment(data, media, f"{job_id}.provenance.{format}")
+
+
 def job_calibration(record: JobRecord) -> Calibration:
     if record.cameras is None:
         raise ServiceError(
@@ -385,7 +400,7 @@ def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Use
 def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
     """The job in one zip: ``job.json`` (its status: config, version, levels, usage, metrics,
     charge) and the files it still has: ``disparity.pfm``, ``validity.png``,
-    ``confidence.pfm``, ``left.png``."""
+    ``confidence.pfm``, ``provenance.png``, ``left.png``."""
     record = find_job(job_id, svc, principal)
     files = {"job.json": status_of(record, svc, users).model_dump_json(indent=2).encode()}
     disparity = svc.store.load_result(job_id) if record.state is JobState.SUCCEEDED else None
@@ -401,6 +416,11 @@ def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Us
             and (confidence := svc.store.load_map(job_id, "confidence")) is not None
         ):
             files["confidence.pfm"] = disparity_bytes(confidence, "pfm")
+        if (
+            "provenance" in record.maps
+            and (stages := svc.store.load_map(job_id, "provenance")) is not None
+        ):
+            files["provenance.png"] = provenance_map.png(stages)
     if (left := svc.store.load_view(job_id, "left.png")) is not None:
         files["left.png"] = left
     stream = io.BytesIO()

@@ -51,12 +51,45 @@ def test_validity_and_confidence_maps_are_linked_and_served(api):
     assert refused.status_code == 404 and "focal and baseline" in refused.json()["detail"]
 
 
+def test_the_provenance_map_is_linked_served_and_counted(api):
+    from shared import provenance_map as pm
+
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    status = api.get(f"/v1/jobs/{job_id}").json()
+    assert status["links"]["provenance"] is None and status["provenance_counts"] is None
+    assert api.get(f"/v1/jobs/{job_id}/provenance").status_code == 409  # not finished
+    stages = np.zeros(SCENE.disparity.shape, np.uint8)
+    stages[:, 4:] = pm.Stage.CERTIFIED
+    stages[2, 5] = pm.Stage.SOLVER
+    store = api.app.state.services.store
+    assert store.transition(job_id, JobState.RUNNING, ACTIVE) is not None
+    store.save_result(job_id, SCENE.disparity.astype(np.float32), {"provenance": stages})
+    counts = pm.counts(stages)
+    assert store.apply(
+        job_id, JobRecord.succeeded, now(), None, None, ["provenance"], counts
+    ).changed
+    status = api.get(f"/v1/jobs/{job_id}").json()
+    assert status["provenance_counts"] == counts and counts["solver"] == 1
+    png = api.get(status["links"]["provenance"])
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(pm.decode(image), stages)
+    codes = api.get(f"/v1/jobs/{job_id}/provenance", params={"format": "npy"})
+    assert np.array_equal(np.load(io.BytesIO(codes.content)), stages)
+    assert api.get(f"/v1/jobs/{job_id}/provenance", params={"format": "tiff"}).status_code == 422
+    legend = api.get("/v1/provenance-legend").json()
+    assert [entry["name"] for entry in legend] == list(counts)
+
+
 def test_a_run_without_a_map_says_so(api):
     job_id = post(api, params={"max_disparity": 6}).json()["id"]
     finish(api, job_id, {})
     assert api.get(f"/v1/jobs/{job_id}").json()["links"]["confidence"] is None
     missing = api.get(f"/v1/jobs/{job_id}/confidence")
     assert missing.status_code == 404 and "no confidence map" in missing.json()["detail"]
+    assert api.get(f"/v1/jobs/{job_id}/provenance").status_code == 404
 
 
 def test_depth_and_point_cloud_from_the_cameras_given_at_submit(api):

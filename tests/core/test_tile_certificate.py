@@ -19,6 +19,7 @@ from shared.config import MatchConfig
 from shared.grid import GridMRF, dual_decomposition
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
+from shared.provenance_map import Stage
 from shared.settle import assemble_level
 from shared.solve import solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
@@ -202,8 +203,16 @@ def test_a_tiles_answer_is_kept_exactly_in_the_parts_that_lower_the_level_energy
     top, left = data.draw(st.integers(0, 2)), data.draw(st.integers(0, 2))
     rows, columns = slice(top, top + 4), slice(left, left + 4)
     labels = host.copy()
-    kept = settle._keep_improving(grid, labels, rows, columns, proposed)
+    stages = np.full(host.shape, int(Stage.HOST), dtype=np.uint8)
+    stages[0, :] = Stage.CERTIFIED  # pinned pixels stay the host's, kept part or not
+    before_stages = stages.copy()
+    kept = settle._keep_improving(grid, labels, rows, columns, proposed, stages, Stage.SOLVER)
     assert kept == np.count_nonzero(labels != host)
+    # provenance: exactly the changed, uncertified pixels are the solver's
+    changed = labels != host
+    assert np.all(stages[changed & (before_stages != Stage.CERTIFIED)] == Stage.SOLVER)
+    assert np.array_equal(stages[~changed], before_stages[~changed])
+    assert np.all(stages[before_stages == Stage.CERTIFIED] == Stage.CERTIFIED)
     outside = np.ones_like(host, dtype=bool)
     outside[rows, columns] = False
     assert np.array_equal(labels[outside], host[outside])  # only the tile's pixels change

@@ -109,6 +109,19 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
         served = api.get(status["links"]["validity"]).content
     assert Path(download.value.path()).read_bytes() == served
     expect(page.get_by_role("button", name="confidence PFM")).to_be_visible()
+    # who decided each pixel: the map, its legend (from the API's one) with the status' counts
+    expect(page.get_by_alt_text("Provenance map", exact=True)).to_be_visible()
+    legend = page.get_by_label("provenance legend")
+    counts = status["provenance_counts"]
+    expect(legend.locator("li")).to_have_count(len(counts))
+    expect(legend.locator('li[data-stage="certified"]')).to_contain_text(
+        f"certified: {counts['certified']} px"
+    )
+    with page.expect_download() as download:
+        page.get_by_role("button", name="provenance PNG").click()
+    with server.client() as api:
+        served = api.get(status["links"]["provenance"]).content
+    assert Path(download.value.path()).read_bytes() == served
     expect(page.get_by_role("button", name="depth PFM")).to_have_count(0)  # no cameras given
     page.get_by_role("button", name="Pin", exact=True).click()  # kept past the retention
     expect(page.get_by_role("button", name="Unpin")).to_be_visible()
