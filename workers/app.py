@@ -32,6 +32,18 @@ FAN_OUT_LEVEL = "qhsm.fan_out_level"
 #: unacknowledged) by an older version still find their task after an upgrade.
 SOLVE_BUNDLES = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
+#: On the pricing queue (``workers.pricing_tasks``): a metered job's price and admission, and
+#: an estimate of ``POST /v1/estimate``.
+PRICE_JOB = "qhsm.price_job"
+PRICE_ESTIMATE = "qhsm.price_estimate"
+#: What the pricing tasks' time limits are looked up as (``task_time_limits``; per deployment
+#: ``QHSM_SOLVER_TIME_LIMITS={"pricing": ...}``).
+PRICING = "pricing"
+
+
+def pricing_task_id(job_id: str) -> str:
+    """The id of a job's pricing task (a cancel revokes it by this id)."""
+    return f"{job_id}-pricing"
 
 
 def celery_config(settings: Settings) -> dict:
@@ -95,7 +107,7 @@ class QhsmCelery(Celery):
 def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> QhsmCelery:
     """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
     settings = settings or get_settings()
-    include = ["workers.tasks"] if with_tasks else []
+    include = ["workers.tasks", "workers.pricing_tasks"] if with_tasks else []
     celery = QhsmCelery("qhsm", include=include, settings=settings)
     celery.conf.update(celery_config(settings))
     if with_tasks:  # a worker: heartbeats with the messages it holds (workers/liveness.py)

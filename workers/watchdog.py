@@ -16,7 +16,9 @@ row (``JobStore.save_bundles``), and the level's fan-in assembles from them and 
 What cannot be resumed (a level that was never launched, or whose inputs are gone) restarts the
 job from its uploads; bundle seeds are per bundle, so the result is the undisturbed run's. After
 ``watchdog_max_resends`` attempts without progress the job fails with a reason. A job whose
-solver queue still holds messages and has a consumer is waiting its turn, not stalled.
+solver queue still holds messages and has a consumer is waiting its turn, not stalled. Each round
+also cancels and stops the estimates nobody polled for ``estimate_abandon_seconds``
+(``workers.estimates.sweep_abandoned``); a job being priced is the pricing worker's (acks late).
 
 It runs as a thread of every worker that consumes the control queue; a Redis lock makes one of
 them act at a time. Re-sent chunks are counted by ``workers.telemetry`` (``/metrics``:
@@ -36,7 +38,7 @@ from celery import Celery
 
 from shared.bundles import bundle_key
 from shared.solvers.registry import queue_names, queue_of
-from workers import fair, liveness, orchestration
+from workers import estimates, fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB
 from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
@@ -364,9 +366,14 @@ class Watchdog:
             return f"no worker consumes the {solver!r} queue."
         return ""
 
+    @property
+    def estimates(self) -> estimates.EstimateStore:
+        return estimates.EstimateStore(self.store.redis, self.store.settings)
+
     def run(self, stop: threading.Event) -> None:
-        """Every :attr:`period` until ``stop``: put back what dead workers held, then look at
-        the jobs; errors (Redis down) are logged and the next round tries again."""
+        """Every :attr:`period` until ``stop``: put back what dead workers held, look at the
+        jobs, and stop the estimates their clients abandoned; errors (Redis down) are logged
+        and the next round tries again."""
         while not stop.wait(self.period):
             try:
                 if self.leader():
@@ -376,6 +383,7 @@ class Watchdog:
                     if restored:
                         self.telemetry.resent(restored)
                     self.tick()
+                    estimates.sweep_abandoned(self.celery, self.estimates)
             except redis.RedisError as error:
                 log.warning("watchdog: Redis unavailable (%s); trying again", error)
             except Exception:
