@@ -51,14 +51,8 @@ from shared.pyramid import plan
 from shared.solvers import Availability, check_params
 from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
-from workers.app import (
-    PRICE_JOB,
-    PRICING,
-    START_JOB,
-    pricing_task_id,
-    task_time_limits,
-    terminate_tasks,
-)
+from workers.app import pricing_task_id, terminate_tasks
+from workers.app import send_first_task as first_task
 from workers.estimates import revoke
 from workers.records import ACTIVE, Cameras, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCapError
@@ -282,20 +276,8 @@ def started(record: JobRecord, svc: Services) -> None:
 
 
 def send_first_task(record: JobRecord, svc: Services) -> None:
-    """Send a written job's first task: a pricing job's ``qhsm.price_job`` to the pricing
-    queue (with the pricing's time limits, and an id a cancel revokes), any other's
-    ``qhsm.start_job`` to the control queue."""
-    settings = svc.settings
-    if record.state is JobState.PRICING:
-        svc.celery.send_task(
-            PRICE_JOB,
-            args=(record.id,),
-            queue=settings.pricing_queue,
-            task_id=pricing_task_id(record.id),
-            **task_time_limits(settings, PRICING),
-        )
-    else:
-        svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+    """Send a written job's first task (:func:`workers.app.send_first_task`)."""
+    first_task(svc.celery, svc.settings, record.id, pricing=record.state is JobState.PRICING)
 
 
 # --- lookups --------------------------------------------------------------------------------

@@ -83,6 +83,23 @@ def task_time_limits(settings: Settings, solver: str) -> dict[str, float]:
     return {"soft_time_limit": soft, "time_limit": soft + settings.task_time_limit_grace}
 
 
+def send_first_task(celery: Celery, settings: Settings, job_id: str, *, pricing: bool) -> None:
+    """Send a written job's first task: a pricing job's ``qhsm.price_job`` to the pricing queue
+    (with the pricing's time limits, and an id a cancel revokes), any other's ``qhsm.start_job``
+    to the control queue. The API sends it at submit; the watchdog again when it was lost
+    (both tasks are idempotent)."""
+    if pricing:
+        celery.send_task(
+            PRICE_JOB,
+            args=(job_id,),
+            queue=settings.pricing_queue,
+            task_id=pricing_task_id(job_id),
+            **task_time_limits(settings, PRICING),
+        )
+    else:
+        celery.send_task(START_JOB, args=(job_id,), queue=settings.control_queue)
+
+
 def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
     """Revoke tasks and kill the pool processes running them, so a cancelled or failed job
     frees its workers at once. SIGKILL: a solver in native code ignores anything softer;

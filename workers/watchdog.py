@@ -39,7 +39,7 @@ from celery import Celery
 from shared.bundles import bundle_key
 from shared.solvers.registry import queue_names, queue_of
 from workers import estimates, fair, liveness, orchestration
-from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB
+from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB, send_first_task
 from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
 from workers.records import now as utc_now
@@ -94,7 +94,7 @@ class Watchdog:
         return self.store.settings.watchdog_lost_seconds
 
     def active(self) -> Iterator[JobRecord]:
-        """Every queued or running job (records that fail to load are skipped)."""
+        """Every pricing, queued or running job (records that fail to load are skipped)."""
         index = self.store.key("jobs", "active")
         ids = sorted(text(raw) for raw in self.store.redis.hkeys(index))
         for start in range(0, len(ids), PAGE):
@@ -107,7 +107,7 @@ class Watchdog:
                     record = JobRecord.model_validate_json(raw)
                 except ValueError:
                     continue
-                if record.state in (JobState.QUEUED, JobState.RUNNING):
+                if record.state in (JobState.PRICING, JobState.QUEUED, JobState.RUNNING):
                     yield record
 
     def signature(self, record: JobRecord) -> tuple:
@@ -153,7 +153,7 @@ class Watchdog:
                 continue
             idle = now - seen.since
             action = None
-            if record.state is JobState.QUEUED:
+            if record.state in (JobState.PRICING, JobState.QUEUED):  # its first task, only
                 if idle >= self.lost_after and now - seen.checked >= self.lost_after:
                     seen.checked = now
                     messages = self.messages() if messages is None else messages
@@ -205,7 +205,8 @@ class Watchdog:
     def queue_names(self) -> list[str]:
         """The control queue and every solver queue, with its users' queues."""
         solvers = fair.with_user_queues(self.store.redis, self.store.prefix, queue_names())
-        return [self.store.settings.control_queue, *solvers]
+        settings = self.store.settings
+        return [settings.control_queue, settings.pricing_queue, *solvers]
 
     def abandon(self, record: JobRecord) -> str:
         """A queued job whose start the API never sent (its submit failed after the record
@@ -220,12 +221,16 @@ class Watchdog:
         return "abandoned"
 
     def start_again(self, record: JobRecord) -> str:
-        """A queued job whose start task is nowhere (the API died before it was sent, or it
-        was lost with Redis): send it again (starting is idempotent)."""
-        log.warning("job %s: queued but its start task is nowhere; sending it again", record.id)
-        self.celery.send_task(START_JOB, args=(record.id,), queue=self.store.settings.control_queue)
+        """A queued (or pricing) job whose start (or pricing) task is nowhere (the API died
+        before it was sent, or it was lost with Redis): send it again (both are idempotent)."""
+        pricing = record.state is JobState.PRICING
+        log.warning(
+            "job %s: %s but its first task is nowhere; sending it again", record.id,
+            record.state.value,
+        )  # fmt: skip
+        send_first_task(self.celery, self.store.settings, record.id, pricing=pricing)
         self.telemetry.resent(1)
-        return "started"
+        return "priced again" if pricing else "started"
 
     def recover(self, record: JobRecord, attempt: int, lost: bool = False) -> str:
         settings = self.store.settings

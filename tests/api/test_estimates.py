@@ -233,3 +233,27 @@ def test_a_metered_job_over_budget_fails_at_pricing_and_a_cancelled_one_is_not_p
     assert api.delete(f"/v1/jobs/{cancelled}").json()["state"] == "cancelled"
     assert price_job(api_settings, cancelled) is None
     assert api.get(f"/v1/jobs/{cancelled}").json()["state"] == "cancelled"
+
+
+def test_a_pricing_job_whose_pricing_task_was_lost_is_priced_again(api, api_settings):
+    """Redis lost the pricing task's message (no queue holds it, no worker has it): the
+    watchdog sends it again, once, to the pricing queue under the id a cancel revokes."""
+    from workers.app import pricing_task_id
+    from workers.watchdog import Watchdog
+
+    job = post(api, params=METERED).json()["id"]
+    store = JobStore.from_settings(api_settings)
+    watchdog = Watchdog(make_celery(api_settings, with_tasks=False), store, "test")
+    assert job.encode() in watchdog.messages()  # sent at submit
+    for key in watchdog.queue_keys(api_settings.pricing_queue):
+        store.redis.delete(key)  # lost with a Redis restart
+    assert job.encode() not in watchdog.messages()
+    clock = iter(range(0, 10_000, int(api_settings.watchdog_lost_seconds) + 1))
+    watchdog.clock = lambda: next(clock)
+    actions = [action for _ in range(3) for found, action in watchdog.tick() if found == job]
+    assert actions == ["priced again"]
+    queued = store.redis.lrange(store.key(api_settings.pricing_queue), 0, -1)
+    [message] = [message for message in queued if job.encode() in message]
+    assert pricing_task_id(job).encode() in message
+    assert price_job(api_settings, job).state == "queued"  # the resent task prices it
+    assert api.delete(f"/v1/jobs/{job}").status_code == 200
