@@ -30,7 +30,7 @@ from celery import Celery, chain, chord
 from shared import pyramid, settle
 from shared.activity import reporting
 from shared.assembly import BundleResult
-from shared.bundle_plan import level_bundles, plans_with_solver
+from shared.bundle_plan import level_bundles
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
@@ -41,11 +41,11 @@ from shared.metrics import evaluate
 from shared.pipeline import confidence_map, match_views, prepare_level, report
 from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
-from shared.settle import assemble_level, settles, tile_config
+from shared.settle import assemble_level, tile_config
 from shared.solve import solve_bundles
 from shared.solvers.meters import is_metered
 from shared.solvers.problems import sent_problems, task_label
-from shared.solvers.registry import queue_of
+from shared.solvers.registry import resolve
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
 from workers.chunks import (
@@ -149,9 +149,10 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     :func:`fan_out_level` here."""
     config = record.config
     started = time.time()
-    remote = plans_with_solver(config)
+    solver = resolve(config)
+    remote = solver.plans_with_solver
     phase = partial(store.set_phase, record.id, inputs.index)
-    if settles(config):  # the host settles the level here; its labels go with the inputs
+    if solver.certifies_tiles:  # the host settles the level here; its labels go with the inputs
         phase("settling the level on the host (dual decomposition of each view)")
         counts = settle.prepare(inputs, config)
         log.info(
@@ -210,7 +211,7 @@ def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solve
         celery.signature(
             PLAN_LEVEL,
             args=(job_id, index),
-            queue=queue_of(solver),
+            queue=resolve(solver).queue,
             **task_time_limits(settings, solver),
         ),
         celery.signature(
@@ -259,7 +260,7 @@ def fan_out(
     users are served in turn), with the solver's time limits, then the level's fan-in on the
     control queue."""
     settings, solver = store.settings, record.config.solver
-    queue = fair.route(store.redis, store.prefix, queue_of(solver), record.owner)
+    queue = fair.route(store.redis, store.prefix, resolve(solver).queue, record.owner)
     limits = task_time_limits(settings, solver)
     header = [
         celery.signature(SOLVE_BUNDLES, args=(record.id, index, chunk), queue=queue, **limits)

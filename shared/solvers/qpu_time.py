@@ -56,7 +56,7 @@ from shared.solvers.meters.qpu import (
 )
 from shared.solvers.packing import packed_copies
 from shared.solvers.qpu_settings import reverse_anneal
-from shared.solvers.registry import uses_warm_start
+from shared.solvers.registry import resolve
 
 __all__ = [
     "ADVANTAGE_TIMING_DATA",
@@ -235,7 +235,7 @@ def level_estimate(
         segments = len(segment_columns(width, columns, config.bundle_margin))
         bundles = views * len(rows) * segments
     variables = tallest * columns * get_codec(config.encoding).variables_per_pixel(candidates)
-    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    params = sampler_params(config.solver_params, warm=resolve(config).warm_start)
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
@@ -321,7 +321,8 @@ def _call_basis(inputs, config: MatchConfig) -> tuple[Meter, int, int, dict[str,
         return None
     labels = inputs.candidates.shape[2]
     per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
-    return meter, labels, per_pixel, sampler_params(config.solver_params, uses_warm_start(config))
+    warm = resolve(config).warm_start
+    return meter, labels, per_pixel, sampler_params(config.solver_params, warm)
 
 
 def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None = None) -> float:

@@ -130,13 +130,12 @@ def solve_metered(
         budget cannot cover the next bundle.
     """
     from shared.solve import solve_bundles
-    from shared.solvers import get_solver
-    from shared.solvers.base import BatchSolver
     from shared.solvers.meters import meter_for
+    from shared.solvers.registry import resolve
 
     kind = meter_for(config.solver)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
-    if isinstance(get_solver(config.solver), BatchSolver):  # one slot, one reservation
+    if resolve(config).kind == "batch":  # one slot, one reservation
         if not still_running():
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]
