@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
@@ -37,7 +37,7 @@ def mock_qpu():
 
 
 def sim_solver(mock_qpu, cache: EmbeddingCache) -> SimulatedQPUSolver:
-    solver = SimulatedQPUSolver(cache=cache)
+    solver = with_record(SimulatedQPUSolver(cache=cache), "qpu-sim")
     solver._sampler, solver._target = mock_qpu, "pegasus16-test"
     return solver
 
@@ -108,7 +108,7 @@ def test_embedding_is_found_once_per_structure_and_persisted(mock_qpu, tmp_path)
 def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
     """The default cache keeps embeddings under QHSM_DATA_DIR/embeddings across processes."""
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 5))
-    first = SimulatedQPUSolver().solve(bqm, seed=0, num_reads=10, **WHOLE)
+    first = with_record(SimulatedQPUSolver(), "qpu-sim").solve(bqm, seed=0, num_reads=10, **WHOLE)
     assert first.info["embedding_cache"] == "computed"
     assert default_cache().store.directory == tmp_path / "data" / "embeddings"
     script = (

@@ -20,7 +20,7 @@ from dwave.cloud import exceptions as cloud
 from dwave.cloud.api import exceptions as api
 from dwave.cloud.solver import BQMSolver, StructuredSolver
 from dwave.cloud.testing import mocks
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
@@ -134,11 +134,13 @@ def leap(monkeypatch, pegasus_data) -> FakeLeap:
 
 
 def qpu_solver(tmp_path) -> QPUSolver:
-    return QPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path / "embeddings")))
+    return with_record(
+        QPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path / "embeddings"))), "qpu"
+    )
 
 
 def hybrid_solver(leap: FakeLeap) -> LeapHybridSolver:
-    return LeapHybridSolver()
+    return with_record(LeapHybridSolver(), "hybrid")
 
 
 def assert_no_token(error: BaseException, caplog) -> None:

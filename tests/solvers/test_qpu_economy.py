@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
@@ -101,7 +101,7 @@ class _FakeLeap:
 def test_hybrid_sends_a_batch_as_one_bqm_and_splits_its_samples(monkeypatch):
     from shared.solvers.hybrid import LeapHybridSolver
 
-    solver = LeapHybridSolver()
+    solver = with_record(LeapHybridSolver(), "hybrid")
     fake = _FakeLeap()
     solver._sampler = fake
     bqms = [frustrated(8, s) for s in range(3)]
@@ -152,7 +152,9 @@ def test_qpu_sim_packs_rests_into_one_call_on_disjoint_copies(tmp_path):
     from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
     from shared.solvers.packing import MAX_COPIES
 
-    solver = SimulatedQPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path)))
+    solver = with_record(
+        SimulatedQPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path))), "qpu-sim"
+    )
     bqms = [frustrated(8, s) for s in range(MAX_COPIES + 2)]
     results = solver.solve_batch([(bqm, s, None) for s, bqm in enumerate(bqms)], num_reads=5)
     per_call = [r.info["bundles_per_call"] for r in results]
