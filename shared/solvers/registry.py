@@ -286,8 +286,13 @@ def resolve(config: MatchConfig | str) -> ResolvedSolver:
         For a name that is neither registered nor an allowed ``dimod:`` class.
     """
     if isinstance(config, str):
-        return ResolvedSolver(spec(config), None, partial(get_solver, config))
-    return ResolvedSolver(spec(config.solver), config, partial(get_solver, config.solver))
+        return ResolvedSolver(spec(config), None, partial(_sampler, config))
+    return ResolvedSolver(spec(config.solver), config, partial(_sampler, config.solver))
+
+
+def _sampler(name: str) -> Any:
+    """:func:`get_solver`, looked up when called (a test may stand in for it)."""
+    return get_solver(name)
 
 
 def params_schema(name: str) -> type[schemas.SolverParams]:
