@@ -48,7 +48,7 @@ from shared.memory import MemoryBudgetError, check_fits, job_memory_mb, worker_b
 from shared.provenance import qhsm_version
 from shared.pyramid import plan
 from shared.solvers import Availability
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.meters.qpu_time import is_metered
 from shared.solvers.resolved import ResolvedSolver
 from workers.app import pricing_task_id, terminate_tasks
 from workers.app import send_first_task as first_task

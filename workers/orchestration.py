@@ -44,7 +44,7 @@ from shared.pyramid import LevelPlan
 from shared.settle import assemble_level, tile_config
 from shared.solve import solve_bundles
 from shared.solvers.meters import is_metered
-from shared.solvers.problems import sent_problems, task_label
+from shared.solvers.qpu.problems import sent_problems, task_label
 from shared.solvers.registry import resolve
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
@@ -456,7 +456,7 @@ def solve_chunk(
     config = record.config
     if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
         config = tile_config(config)
-    # every D-Wave problem labelled with the task, its id kept (shared.solvers.problems)
+    # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
         if is_metered(config.solver) and meter is not None:
             results = solve_metered(

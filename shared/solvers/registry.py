@@ -88,7 +88,7 @@ _BUILTIN = [
     ),
     _spec(
         "qpu",
-        "dwave:QPUSolver",
+        "qpu.dwave:QPUSolver",
         "D-Wave QPU (Leap) with a cached fixed embedding",
         schemas.QPUParams,
         meter="qpu",
@@ -97,7 +97,7 @@ _BUILTIN = [
     ),
     _spec(
         "qpu-sim",
-        "dwave:SimulatedQPUSolver",
+        "qpu.dwave:SimulatedQPUSolver",
         "Offline simulator of the qpu path (MockDWaveSampler, Pegasus P16)",
         schemas.SimulatedQPUParams,
         meter="qpu",

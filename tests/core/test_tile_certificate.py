@@ -24,7 +24,7 @@ from shared.settle import assemble_level
 from shared.solve import solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.base import SolveResult
-from shared.solvers.qpu_time import charged_seconds
+from shared.solvers.meters.qpu_time import charged_seconds
 from shared.synthetic import make_scene
 
 SMALL = {"height": 16, "width": 40, "max_disparity": 6}

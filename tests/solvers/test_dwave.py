@@ -15,15 +15,11 @@ from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import (
-    SolverError,
-    SolverUnavailableError,
-    get_solver,
-    qpu_time,
-)
-from shared.solvers.dwave import SimulatedQPUSolver
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
+from shared.solvers import SolverError, SolverUnavailableError, get_solver
 from shared.solvers.exact import solve_chains
+from shared.solvers.meters import qpu_time
+from shared.solvers.qpu.dwave import SimulatedQPUSolver
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
 
 #: These tests are about the QPU path itself: roof duality would solve their tiny rows on the host.
 WHOLE = {"preprocess": "none"}
@@ -259,8 +255,8 @@ def test_the_stand_in_is_a_pegasus_p16_mock_sampling_by_steepest_descent(mock_qp
 
 
 def test_qpu_sim_takes_qpus_read_budget_and_is_charged_the_reads_it_took(mock_qpu, tmp_path):
-    from shared.solvers.embedding_cache import EmbeddingSize
     from shared.solvers.params import DEFAULT_NUM_READS, SimulatedQPUParams
+    from shared.solvers.qpu.embedding_cache import EmbeddingSize
 
     # the stand-in reads what qpu reads (20, measured: docs/benchmarks.md), charged the same
     assert SimulatedQPUParams.model_fields["num_reads"].default == DEFAULT_NUM_READS == 20

@@ -24,11 +24,12 @@ from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import SolverError, SolverUnavailableError, TransientSolverError, qpu_time
-from shared.solvers.dwave import QPUSolver
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers import SolverError, SolverUnavailableError, TransientSolverError
 from shared.solvers.hybrid import LeapHybridSolver
-from shared.solvers.qpu_settings import chain_strength
+from shared.solvers.meters import qpu_time
+from shared.solvers.qpu.dwave import QPUSolver
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.qpu.qpu_settings import chain_strength
 
 SENTINEL = "DEV-sentinel-7f3c9a1e-never-print-me"
 

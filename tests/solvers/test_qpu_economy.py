@@ -14,9 +14,10 @@ from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import get_solver, qpu_time
+from shared.solvers import get_solver
 from shared.solvers.hybrid import blocks
-from shared.solvers.packing import joined
+from shared.solvers.meters import qpu_time
+from shared.solvers.qpu.packing import joined
 
 QUICK_HYBRID = {"max_iter": 2, "sa_sweeps": 100, "qpu_reads": 10}
 
@@ -148,9 +149,9 @@ def test_hybrid_sim_estimate_is_its_charge_within_10_percent(tmp_path, capsys):
 
 
 def test_qpu_sim_packs_rests_into_one_call_on_disjoint_copies(tmp_path):
-    from shared.solvers.dwave import SimulatedQPUSolver
-    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
-    from shared.solvers.packing import MAX_COPIES
+    from shared.solvers.qpu.dwave import SimulatedQPUSolver
+    from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+    from shared.solvers.qpu.packing import MAX_COPIES
 
     solver = with_record(
         SimulatedQPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path))), "qpu-sim"

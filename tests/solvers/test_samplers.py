@@ -22,8 +22,8 @@ from shared.solvers.composites import (
     RoofDualityComposite,
     SolverComposite,
 )
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
-from shared.solvers.qpu_time import is_metered, meter_of
+from shared.solvers.meters.qpu_time import is_metered, meter_of
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
 from shared.synthetic import make_scene
 
 SD = "dimod:dwave.samplers.SteepestDescentSolver"

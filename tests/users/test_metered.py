@@ -11,7 +11,8 @@ import pytest
 
 from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
-from shared.solvers import SolveResult, qpu_time, registry
+from shared.solvers import SolveResult, registry
+from shared.solvers.meters import qpu_time
 from shared.synthetic import make_scene
 from workers.quota import (
     QpuMeter,
@@ -128,8 +129,8 @@ def test_bundles_wait_for_a_free_lab_wide_slot(fake, level, meter, redis_client,
 
 
 def test_a_bundle_estimate_uses_the_embedding_once_a_worker_found_it(level, tmp_path, monkeypatch):
-    from shared.solvers import embedding_cache
-    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, EmbeddingSize
+    from shared.solvers.qpu import embedding_cache
+    from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache, EmbeddingSize
 
     inputs, config = level
     cache = EmbeddingCache(DirectoryStore(tmp_path))
@@ -156,7 +157,7 @@ from shared.solvers.params import SimulatedQPUParams
 
 SPEC = SolverSpec(
     "named-by-the-entry-point",
-    "shared.solvers.dwave:SimulatedQPUSolver",
+    "shared.solvers.qpu.dwave:SimulatedQPUSolver",
     params=SimulatedQPUParams,
     meter="qpu",
     offline=True,
@@ -168,7 +169,7 @@ def register_by_call(folder, monkeypatch) -> None:
     from shared.solvers.params import SimulatedQPUParams
 
     registry.register(
-        PLUGIN, "shared.solvers.dwave:SimulatedQPUSolver", SimulatedQPUParams, meter="qpu"
+        PLUGIN, "shared.solvers.qpu.dwave:SimulatedQPUSolver", SimulatedQPUParams, meter="qpu"
     )
 
 
@@ -198,7 +199,7 @@ class ReservationWatcher(FakeQPU):
 @pytest.fixture(params=[register_by_call, register_by_entry_point], ids=["register", "entry-point"])
 def plugin_config(request, tmp_path, monkeypatch, level) -> MatchConfig:
     """The level's job on a QPU-metered solver registered only now, long after
-    ``shared.solvers.qpu_time`` was imported (the registry is restored afterwards)."""
+    ``shared.solvers.meters.qpu_time`` was imported (the registry is restored afterwards)."""
     monkeypatch.setattr(registry, "_SPECS", dict(registry._SPECS))
     request.param(tmp_path, monkeypatch)
     assert registry.spec(PLUGIN).meter == "qpu"
@@ -245,7 +246,7 @@ class FakeLeapBatch:
         self.reserved: list[float] = []
 
     def solve_batch(self, problems: list[tuple], **params) -> list[SolveResult]:
-        from shared.solvers.problems import current
+        from shared.solvers.qpu.problems import current
 
         self.reserved.append(self.ledger.status("ada").reserved)
         log = current()
@@ -269,7 +270,7 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     """The issue's case: the estimate said 3.0 s, the worker reserved 3.3 s (every variable of
     the level, as if nothing were solved on the host), and a user with 3.1 s left failed at
     once. Now a level reserves its share of the accepted estimate."""
-    from shared.solvers.problems import sent_problems
+    from shared.solvers.qpu.problems import sent_problems
 
     inputs, paper = level
     config = MatchConfig.model_validate({**paper.model_dump(), "solver": "hybrid-sim"})

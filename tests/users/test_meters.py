@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from shared.config import MatchConfig
-from shared.solvers import meters, qpu_time, registry
-from shared.solvers.meters import LevelLoad, Meter
+from shared.solvers import meters, registry
+from shared.solvers.meters import LevelLoad, Meter, qpu_time
 
 
 class FlatMeter(Meter):

@@ -1,6 +1,6 @@
 """Metering of a job's bundles: each metered problem runs inside a lab-wide slot and a
-reservation of its estimate (:mod:`shared.solvers.qpu_time`), and is charged the time its sample
-set reports (read by the solver's meter, :mod:`shared.solvers.meters`)."""
+reservation of its estimate (:mod:`shared.solvers.meters.qpu_time`), and is charged the time
+its sample set reports (read by the solver's meter, :mod:`shared.solvers.meters`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import redis
 
 from shared.config import Settings
-from shared.solvers.problems import current
-from shared.solvers.qpu_time import batch_estimate, bundle_estimate
+from shared.solvers.meters.qpu_time import batch_estimate, bundle_estimate
+from shared.solvers.qpu.problems import current
 from workers.quota.ledger import QuotaLedger
 from workers.quota.semaphore import QpuSemaphore
 
@@ -75,7 +75,7 @@ class QpuMeter:
             One :class:`Charge`, for the ``with`` body to :meth:`Charge.report` on.
         """
         ttl = self.slot_ttl + estimate
-        log = current()  # the task's D-Wave problems (shared.solvers.problems)
+        log = current()  # the task's D-Wave problems (shared.solvers.qpu.problems)
         before = len(log.ids) if log is not None else 0
         with self.semaphore.slot(user, ttl, self.slot_wait):
             reservation = self.ledger.reserve(user, job_id, estimate, ttl)

@@ -10,13 +10,13 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from shared.solvers.embedding_cache import EmbeddingSize
+    from shared.solvers.qpu.embedding_cache import EmbeddingSize
 
 
 @dataclass(frozen=True)
 class LevelLoad:
     """What of a level (or of one task's batch) reaches the metered solver, as the estimates
-    plan it (:mod:`shared.solvers.qpu_time`)."""
+    plan it (:mod:`shared.solvers.meters.qpu_time`)."""
 
     #: Bundles of the level (the batch).
     bundles: int

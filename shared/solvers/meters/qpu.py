@@ -12,7 +12,7 @@ solver its ``problem_timing_data`` property is used, offline the Advantage_syste
 August 2022 below (as published by D-Wave and recorded in dwave-cloud-client's test data).
 
 The model needs the number of *qubits*, known only after embedding
-(:mod:`shared.solvers.bundle_shapes` looks actual embeddings up). Once a bundle structure
+(:mod:`shared.solvers.qpu.bundle_shapes` looks actual embeddings up). Once a bundle structure
 has been embedded (by any worker: the embedding cache records each embedding's size per solver),
 estimates use that embedding's qubit count. Before, we assume :data:`QUBITS_PER_VARIABLE` qubits
 per binary variable: on Pegasus a full-resolution domain-wall Tsukuba row (1152 variables)
@@ -23,7 +23,7 @@ factor makes is small.
 ``qpu`` is charged what D-Wave reports; the offline ``qpu-sim`` has no real timing, so it reports
 (and is charged) :func:`qpu_access_seconds` of its actual embedding and parameters, so that its
 estimates and charges agree as the real ones do. A level's bundles reach the QPU packed: the
-rests of up to a shape's disjoint embeddings in one call (:mod:`shared.solvers.packing`).
+rests of up to a shape's disjoint embeddings in one call (:mod:`shared.solvers.qpu.packing`).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ the estimate only has to be a sensible upper-ish bound; the charge is always the
 
 The cost of one call and how a level's bundles become calls are the solver's meter's
 (:mod:`shared.solvers.meters`), the shapes the levels' bundles take and their known embeddings
-:mod:`shared.solvers.bundle_shapes`'; this module walks the planned levels and asks them. The
+:mod:`shared.solvers.qpu.bundle_shapes`'; this module walks the planned levels and asks them. The
 meters' names are re-exported here, where the service and the tests have always imported the
 model from.
 """
@@ -23,15 +23,6 @@ from shared.encodings import get_codec
 from shared.pyramid import level_shape, plan
 from shared.residual import LevelResidual
 from shared.settle import TILE, settles, tiles_of
-from shared.solvers.bundle_shapes import (
-    AUTO_VARIABLES_GUESS,
-    auto_width_key,
-    bundle_digest,
-    known_embedding,
-    segment_width,
-    shape_bqm,
-)
-from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.meters import (
     LevelLoad,
     Meter,
@@ -54,8 +45,17 @@ from shared.solvers.meters.qpu import (
     assumed_qubits,
     qpu_access_seconds,
 )
-from shared.solvers.packing import packed_copies
-from shared.solvers.qpu_settings import reverse_anneal
+from shared.solvers.qpu.bundle_shapes import (
+    AUTO_VARIABLES_GUESS,
+    auto_width_key,
+    bundle_digest,
+    known_embedding,
+    segment_width,
+    shape_bqm,
+)
+from shared.solvers.qpu.embedding_cache import EmbeddingCache
+from shared.solvers.qpu.packing import packed_copies
+from shared.solvers.qpu.qpu_settings import reverse_anneal
 from shared.solvers.registry import resolve
 
 __all__ = [
@@ -346,7 +346,7 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     float
         Seconds to reserve for the bundle.
     """
-    from shared.solvers.embedding_cache import default_cache
+    from shared.solvers.qpu.embedding_cache import default_cache
 
     basis = _call_basis(inputs, config)
     if basis is None:
@@ -390,7 +390,7 @@ def batch_estimate(inputs, config, bundles: list) -> float:
         pixels = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
         load = LevelLoad(bundles=1, sent=1, variables=pixels * per_pixel)
         return meter.level_seconds(config.solver, params, load)[0]
-    from shared.solvers.embedding_cache import default_cache
+    from shared.solvers.qpu.embedding_cache import default_cache
 
     cache = default_cache()
     live = meter.timing_source(config.solver)
