@@ -43,7 +43,6 @@ from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
 from shared.settle import assemble_level, tile_config
 from shared.solve import solve_bundles
-from shared.solvers.meters import is_metered
 from shared.solvers.qpu.problems import sent_problems, task_label
 from shared.solvers.registry import resolve
 from workers import fair
@@ -457,14 +456,15 @@ def solve_chunk(
     if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
         config = tile_config(config)
     # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
+    solver = resolve(config)
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
-        if is_metered(config.solver) and meter is not None:
+        if solver.metered and meter is not None:
             results = solve_metered(
                 meter(),
                 record.owner or LOCAL_USER,
                 job_id,
                 inputs,
-                config,
+                solver,
                 [inputs.as_bundle(tuple(spec)) for spec in row_ranges],
                 still_running=lambda: store.state(job_id) is JobState.RUNNING,
                 level_estimate=record.level_estimate(index),

@@ -250,7 +250,7 @@ def test_worker_estimates_use_the_live_solvers_timing_data(leap, tmp_path, monke
     from shared.solvers.meters import meter_for
 
     monkeypatch.setattr(registry, "_INSTANCES", {})  # a fresh qpu adapter, not kept after
-    live = meter_for("qpu").timing_source("qpu")
+    live = meter_for("qpu").timing_source(registry.resolve("qpu"))
     assert live is not None
     expected = live.estimate_qpu_access_time(200, num_reads=100) * 1e-6
     assert qpu_time.bundle_seconds(

@@ -81,7 +81,7 @@ def test_each_bundle_is_charged_what_its_sample_set_reports(fake, level, meter):
     inputs, config = level
     meter.ledger.set_limit("ada", 10.0)
     rows = [(0, 1), (1, 2), (2, 3), (3, 4)]
-    results = solve_metered(meter, "ada", "job", inputs, config, rows)
+    results = solve_metered(meter, "ada", "job", inputs, registry.resolve(config), rows)
     assert [r.row_start for r in results] == [0, 1, 2, 3]
     reported = sum(qpu_time.charged_seconds(r.timing) for r in results)
     usage = meter.ledger.job_usage("ada", "job")
@@ -103,7 +103,9 @@ def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
     fake.seconds = lambda call: estimate  # every bundle uses exactly its estimate
     meter.ledger.set_limit("ada", 2.5 * estimate)
     with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
-        solve_metered(meter, "ada", "job", inputs, config, [(r, r + 1) for r in range(8)])
+        solve_metered(
+            meter, "ada", "job", inputs, registry.resolve(config), [(r, r + 1) for r in range(8)]
+        )
     assert fake.calls == 2  # the third bundle was refused before it was sent
     usage = meter.ledger.job_usage("ada", "job")
     assert usage.problems == 2 and usage.seconds == pytest.approx(2 * estimate)
@@ -112,7 +114,8 @@ def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
 def test_a_stopped_job_sends_no_more_bundles(fake, level, meter):
     inputs, config = level
     states = iter([True, True, False])
-    assert solve_metered(meter, "ada", "job", inputs, config, [(0, 1), (1, 2), (2, 3)],
+    solver = registry.resolve(config)
+    assert solve_metered(meter, "ada", "job", inputs, solver, [(0, 1), (1, 2), (2, 3)],
                          still_running=lambda: next(states)) is None  # fmt: skip
     assert fake.calls == 2
     assert meter.semaphore.in_flight() == 0
@@ -123,7 +126,7 @@ def test_bundles_wait_for_a_free_lab_wide_slot(fake, level, meter, redis_client,
     other = QpuSemaphore(redis_client, prefix, limit=1).try_acquire("bob", ttl=0.3)
     assert other is not None  # bob's bundle holds the only slot; it expires after 0.3 s
     started = time.monotonic()
-    solve_metered(meter, "ada", "job", inputs, config, [(0, 1)])
+    solve_metered(meter, "ada", "job", inputs, registry.resolve(config), [(0, 1)])
     assert time.monotonic() - started >= 0.25
     assert fake.calls == 1
 
@@ -223,12 +226,12 @@ def test_a_metered_solver_registered_later_is_estimated_and_reserved(
 
     meter.ledger.set_limit("ada", 0.5 * estimate)
     with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
-        solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1)])
+        solve_metered(meter, "ada", "job", inputs, registry.resolve(plugin_config), [(0, 1)])
     assert watcher.calls == 0  # refused before it was sent: the bundle needs its estimate
 
     meter.ledger.set_limit("ada", 10 * estimate)
     watcher.seconds = lambda call: 0.25 * estimate
-    solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1), (1, 2)])
+    solve_metered(meter, "ada", "job", inputs, registry.resolve(plugin_config), [(0, 1), (1, 2)])
     assert watcher.reserved == [pytest.approx(estimate)] * 2  # each held its estimate meanwhile
     usage = meter.ledger.job_usage("ada", "job")
     assert usage.problems == 2 and usage.seconds == pytest.approx(0.5 * estimate)
@@ -282,9 +285,11 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     assert upper > accepted + 0.1
     meter.ledger.set_limit("ada", accepted + 0.1)
     with pytest.raises(QuotaExceededError):  # without the accepted estimate: the upper bound
-        solve_metered(meter, "ada", "job", inputs, config, bundles)
+        solve_metered(meter, "ada", "job", inputs, registry.resolve(config), bundles)
     with sent_problems("qhsm job job level 3 bundle 0") as log:
-        solve_metered(meter, "ada", "job", inputs, config, bundles, level_estimate=accepted)
+        solve_metered(
+            meter, "ada", "job", inputs, registry.resolve(config), bundles, level_estimate=accepted
+        )
     assert fake.reserved == [pytest.approx(accepted)]
     usage = meter.ledger.job_usage("ada", "job")
     assert usage.problem_ids == ("sapi-1", "sapi-2") == tuple(log.ids)
@@ -292,5 +297,7 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     [job] = meter.ledger.usage("ada").as_dict()["jobs"]
     assert job["problem_ids"] == ["sapi-1", "sapi-2"]
     half = bundles[: len(bundles) // 2]  # a task with half the level's bundles: half of it
-    solve_metered(meter, "ada", "job", inputs, config, half, level_estimate=accepted)
+    solve_metered(
+        meter, "ada", "job", inputs, registry.resolve(config), half, level_estimate=accepted
+    )
     assert fake.reserved[-1] == pytest.approx(accepted * len(half) / len(bundles))

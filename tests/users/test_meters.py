@@ -19,7 +19,7 @@ class FlatMeter(Meter):
     def bundle_seconds(self, call) -> float:
         return 0.5
 
-    def level_seconds(self, solver_name, params, load: LevelLoad, solver=None):
+    def level_seconds(self, solver, params, load: LevelLoad, live=None):
         return load.sent * 0.5, None
 
 

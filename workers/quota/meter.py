@@ -13,6 +13,7 @@ import redis
 from shared.config import Settings
 from shared.solvers.meters.qpu_time import batch_estimate, bundle_estimate
 from shared.solvers.qpu.problems import current
+from shared.solvers.resolved import ResolvedSolver
 from workers.quota.ledger import QuotaLedger
 from workers.quota.semaphore import QpuSemaphore
 
@@ -95,7 +96,7 @@ def solve_metered(
     owner: str,
     job_id: str,
     inputs,
-    config,
+    solver: ResolvedSolver,
     bundles: list,
     still_running=lambda: True,
     level_estimate: float | None = None,
@@ -111,8 +112,10 @@ def solve_metered(
         Slots and the ledger.
     owner, job_id : str
         Whose budget, and the job charged.
-    inputs, config
-        The level's inputs and the job's ``MatchConfig``, as for ``shared.solve.solve_bundles``.
+    inputs : LevelInputs
+        The level's inputs, as for ``shared.solve.solve_bundles``.
+    solver : ResolvedSolver
+        The job's solver, resolved with its ``MatchConfig`` (``solver.config``).
     bundles : list
         The bundle specs to solve, in order.
     still_running : callable
@@ -131,11 +134,12 @@ def solve_metered(
     """
     from shared.solve import solve_bundles
     from shared.solvers.meters import meter_for
-    from shared.solvers.registry import resolve
 
-    kind = meter_for(config.solver)
+    config = solver.config
+    assert config is not None, "solve_metered needs the solver resolved with the job's config"
+    kind = meter_for(solver.name)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
-    if resolve(config).kind == "batch":  # one slot, one reservation
+    if solver.kind == "batch":  # one slot, one reservation
         if not still_running():
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from shared.solvers.meters import hybrid, qpu
 from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
+from shared.solvers.params import schema_defaults
 from shared.solvers.registry import UnknownSolverError, spec
 
 if TYPE_CHECKING:
@@ -123,8 +124,10 @@ def bundle_seconds(
     meter = meter_for(solver_name)
     if meter is None:
         return 0.0
+    # what the solver runs with when a parameter is not given (qpu-sim reads fewer than qpu)
+    defaults = schema_defaults(spec(solver_name).params)
     return meter.bundle_seconds(
-        BundleCall(solver_name, num_variables, params, num_qubits, embedding, solver)
+        BundleCall(solver_name, num_variables, params, num_qubits, embedding, solver, defaults)
     )
 
 

@@ -235,7 +235,8 @@ def level_estimate(
         segments = len(segment_columns(width, columns, config.bundle_margin))
         bundles = views * len(rows) * segments
     variables = tallest * columns * get_codec(config.encoding).variables_per_pixel(candidates)
-    params = sampler_params(config.solver_params, warm=resolve(config).warm_start)
+    resolved = resolve(config)
+    params = sampler_params(config.solver_params, warm=resolved.warm_start)
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
@@ -258,7 +259,7 @@ def level_estimate(
                 else 1
             ),
         )
-        seconds, qubits = meter.level_seconds(config.solver, params, load)
+        seconds, qubits = meter.level_seconds(resolved, params, load)
     return LevelEstimate(
         index=index,
         shape=(height, width),
@@ -359,7 +360,7 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     embedding = known_embedding(
         default_cache(), config.solver, config.encoding, (stop - start, width), labels
     )
-    live = meter.timing_source(config.solver)
+    live = meter.timing_source(resolve(config))
     return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
 
 
@@ -389,11 +390,12 @@ def batch_estimate(inputs, config, bundles: list) -> float:
     if not meter.embeds:  # one load: every bundle's variables
         pixels = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
         load = LevelLoad(bundles=1, sent=1, variables=pixels * per_pixel)
-        return meter.level_seconds(config.solver, params, load)[0]
+        return meter.level_seconds(resolve(config), params, load)[0]
     from shared.solvers.qpu.embedding_cache import default_cache
 
     cache = default_cache()
-    live = meter.timing_source(config.solver)
+    resolved = resolve(config)
+    live = meter.timing_source(resolved)
     groups: dict[tuple[int, int], list] = {}
     for bundle in bundles:
         groups.setdefault(bundle.shape, []).append(bundle)
@@ -407,5 +409,5 @@ def batch_estimate(inputs, config, bundles: list) -> float:
             qubits=size.qubits if size else None,
             together=packed_copies(cache, config, shape, labels),
         )
-        seconds += meter.level_seconds(config.solver, params, load, solver=live)[0]
+        seconds += meter.level_seconds(resolved, params, load, live=live)[0]
     return seconds
