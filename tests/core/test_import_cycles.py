@@ -10,8 +10,8 @@ ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("api", "workers", "shared")
 
 #: Cycles through imports inside functions that are known and not fixed yet (none left: the
-#: sampler base class reads its record through the lookup the registry installs). A change may
-#: shrink this list, never add to it.
+#: registry hands a sampler its record when it builds it). A change may shrink this list, never
+#: add to it.
 KNOWN_LAZY_CYCLES: list[set[str]] = []
 
 
