@@ -290,6 +290,17 @@ def resolve(config: MatchConfig | str) -> ResolvedSolver:
     return ResolvedSolver(spec(config.solver), config, partial(_sampler, config.solver))
 
 
+def is_row_solver(name: str) -> bool:
+    """``resolve(name).row_solver``: whether the solver works on the MRF costs of whole rows
+    (``exact``), read from its record without building the sampler."""
+    return resolve(name).row_solver
+
+
+def uses_warm_start(config: MatchConfig) -> bool:
+    """``resolve(config).warm_start``: whether the run's bundles are warm-started."""
+    return resolve(config).warm_start
+
+
 def _sampler(name: str) -> Any:
     """:func:`get_solver`, looked up when called (a test may stand in for it)."""
     return get_solver(name)
