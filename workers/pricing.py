@@ -1,8 +1,8 @@
 """Pricing on a worker: what a job would be charged (the exact pyramid's survey of what the
 classical steps leave, :mod:`shared.residual`, and the meters' walk,
-:func:`shared.solvers.meters.qpu_time.job_seconds`), for ``POST /v1/estimate`` (:func:`price_estimate`)
-and for a metered job before it is queued (:func:`price_job`: its budget checked, its levels'
-estimate kept for the reservations, then started). The API only writes the request and polls:
+:func:`shared.solvers.meters.qpu_time.job_seconds`), for ``POST /v1/estimate``
+(:func:`price_estimate`) and for a metered job before it is queued (:func:`price_job`: its
+budget checked, its levels' estimate kept for the reservations, then started). The API only writes the request and polls:
 this module runs in the pricing worker (``workers.pricing_tasks``), under its memory budget and
 time limit, never in the API process.
 """
