@@ -2,9 +2,9 @@
 classical steps leave, :mod:`shared.residual`, and the meters' walk,
 :func:`shared.solvers.meters.qpu_time.job_seconds`), for ``POST /v1/estimate``
 (:func:`price_estimate`) and for a metered job before it is queued (:func:`price_job`: its
-budget checked, its levels' estimate kept for the reservations, then started). The API only writes the request and polls:
-this module runs in the pricing worker (``workers.pricing_tasks``), under its memory budget and
-time limit, never in the API process.
+budget checked, its levels' estimate kept for the reservations, then started). The API only
+writes the request and polls: this module runs in the pricing worker
+(``workers.pricing_tasks``), under its memory budget and time limit, never in the API process.
 """
 
 from __future__ import annotations
