@@ -10,61 +10,13 @@ from typing import Any
 
 from shared import settle
 from shared.bundles import Bundle
-from shared.config import AUTO, Inference, MatchConfig
+from shared.config import AUTO, MatchConfig
 from shared.level_inputs import LevelInputs
 from shared.settle import settles
-from shared.solvers import get_solver
 from shared.solvers.base import ShapePlanner
-from shared.solvers.registry import is_row_solver
+from shared.solvers.registry import resolve
 
 log = logging.getLogger(__name__)
-
-
-def bundle_width_setting(config: MatchConfig) -> int | str | None:
-    """The run's ``bundle_width`` with the solver's default filled in, or a ``ValueError`` that
-    says what to change (also for a bundle height the solver cannot use).
-
-    Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
-    whole rows (None) otherwise; the row DP always solves whole rows.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    int, str or None
-        Pixels, ``"auto"``, or ``None`` for whole rows.
-
-    Raises
-    ------
-    ValueError
-        If the width cannot apply to the solver (a row solver, or ``auto`` without an embedding).
-    """
-    width = config.bundle_width
-    if is_row_solver(config.solver):
-        if width is not None:
-            raise ValueError(
-                f"{config.solver} solves whole rows exactly; leave bundle_width unset "
-                "(or pick a QUBO solver such as sa to solve row segments)"
-            )
-        if config.inference is Inference.ROWS and config.bundle_height != 1:
-            raise ValueError(
-                f"{config.solver} solves single-row bundles (rows inference) or each view's "
-                f"whole grid (grid inference); bundle_height {config.bundle_height} sets the "
-                "tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
-            )
-        return None
-    solver = get_solver(config.solver)
-    if width is None:
-        return AUTO if isinstance(solver, ShapePlanner) else None
-    if width == AUTO and not isinstance(solver, ShapePlanner):
-        raise ValueError(
-            f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
-            f"{config.solver} has none: give a width in pixels or leave it unset"
-        )
-    return width
 
 
 def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
@@ -83,9 +35,10 @@ def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
     int or None
         Segment width in pixels; ``None`` for whole rows.
     """
-    width = bundle_width_setting(config)
+    resolved = resolve(config)
+    width = resolved.bundle_width_setting()
     if width == AUTO:
-        return get_solver(config.solver).widest_bundle(
+        return resolved.sampler.widest_bundle(
             encoding=config.encoding,
             candidates=inputs.candidates.shape[2],
             height=config.bundle_height,
@@ -98,23 +51,10 @@ def level_bundle_width(inputs: LevelInputs, config: MatchConfig) -> int | None:
     return None if pixels >= inputs.shape[1] else pixels
 
 
-def plans_with_solver(config: MatchConfig) -> bool:
-    """Whether :func:`level_bundles` asks the solver itself: solvers that embed on a QPU graph
-    (the widest segment that embeds, each shape's embedding) need their sampler, and so their
-    credentials, to plan a level; a service runs it where the solver runs."""
-    return not is_row_solver(config.solver) and isinstance(get_solver(config.solver), ShapePlanner)
-
-
-def solves_grids(config: MatchConfig) -> bool:
-    """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
-    inference with a row solver (``exact``)."""
-    return config.inference is Inference.GRID and is_row_solver(config.solver)
-
-
 def bundle_height(inputs: LevelInputs, config: MatchConfig) -> int:
-    """Rows per bundle of the level: a whole view for :func:`solves_grids`, else
-    ``config.bundle_height``."""
-    return inputs.view_height if solves_grids(config) else config.bundle_height
+    """Rows per bundle of the level: a whole view when the solver solves grids (``exact``'s
+    ``grid`` inference), else ``config.bundle_height``."""
+    return inputs.view_height if resolve(config).solves_grids else config.bundle_height
 
 
 def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
@@ -134,7 +74,8 @@ def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     -------
     list of Bundle
     """
-    solver = None if is_row_solver(config.solver) else get_solver(config.solver)
+    resolved = resolve(config)
+    solver = None if resolved.row_solver else resolved.sampler
     started = time.perf_counter()
     cache = solver.cache if isinstance(solver, ShapePlanner) else None
     before = cache.computed if cache is not None else 0

@@ -19,9 +19,7 @@ from shared.config import MatchConfig
 from shared.level_inputs import LevelInputs
 from shared.settle import assemble_level
 from shared.solve import BundleProgress, solve_bundles, solve_level_in_process
-from shared.solvers import get_solver
-from shared.solvers.base import BatchSolver
-from shared.solvers.registry import is_row_solver
+from shared.solvers.registry import resolve
 from shared.threads import limit_threads, thread_budget
 
 
@@ -68,8 +66,7 @@ class ProcessPoolLevelSolver:
     ) -> LevelSolution:
         if (
             self.processes <= 1
-            or is_row_solver(config.solver)
-            or isinstance(get_solver(config.solver), BatchSolver)
+            or resolve(config).kind != "qubo"
         ):
             # a batch solver sends the level as one problem (split, it would be billed per part)
             return solve_level_in_process(inputs, config, progress)

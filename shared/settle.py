@@ -35,7 +35,7 @@ import numpy as np
 
 from shared.assembly import BundleResult, LevelSolution, assemble, embedding_summary
 from shared.bundles import Bundle
-from shared.config import Inference, MatchConfig
+from shared.config import MatchConfig
 from shared.energy import Costs
 from shared.grid import GridMRF, boundary_unary, dual_decomposition
 from shared.grid_inference import minimiser
@@ -78,13 +78,9 @@ class Residual:
 def settles(config: MatchConfig) -> bool:
     """Whether a level runs the residual design: ``grid`` inference with a QUBO solver (not a
     row solver, which solves whole views itself) and ``certify_tiles`` (the default)."""
-    from shared.solvers.registry import is_row_solver
+    from shared.solvers.registry import resolve
 
-    return (
-        config.certify_tiles
-        and config.inference is Inference.GRID
-        and not is_row_solver(config.solver)
-    )
+    return resolve(config).certifies_tiles
 
 
 def tile_config(config: MatchConfig) -> MatchConfig:

@@ -35,9 +35,8 @@ from shared.grid_inference import minimiser
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.settle import assemble_level, pinned, tile_config
-from shared.solvers import get_solver
 from shared.solvers.base import BatchSolver, RowSolver, SolveResult
-from shared.solvers.registry import is_row_solver, uses_warm_start
+from shared.solvers.registry import resolve
 
 if TYPE_CHECKING:
     import dimod
@@ -100,17 +99,16 @@ def solve_bundles(
     if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
         config = tile_config(config)
     items = [inputs.as_bundle(spec) for spec in bundles]
-    if is_row_solver(config.solver):  # no sampler built for exact's grids (no dimod import)
+    resolved = resolve(config)
+    if resolved.row_solver:  # no sampler built for exact's grids (no dimod import)
         width = inputs.shape[1]
         if any(b.col_start != 0 or b.col_stop != width for b in items):
             raise ValueError(f"{config.solver} solves whole rows only, not row segments")
         row_ranges = [(b.row_start, b.row_stop) for b in items]
-        if config.inference is Inference.GRID:
+        if resolved.solves_grids:
             return _solve_grids(inputs, config, row_ranges, progress)
-        solver = get_solver(config.solver)
-        assert isinstance(solver, RowSolver)
-        return _solve_on_costs(solver, inputs, config, row_ranges, progress)
-    solver = get_solver(config.solver)
+        return _solve_on_costs(resolved.rows(), inputs, config, row_ranges, progress)
+    solver = resolved.sampler
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
     problems: Iterable[TileProblem] = encoded_bundles(inputs, config, items)
@@ -278,7 +276,8 @@ def encoded_bundles(
     TileProblem
     """
     codec = get_codec(config.encoding)
-    warm = uses_warm_start(config)
+    resolved = resolve(config)
+    warm = resolved.warm_start
     grid_tiles = config.inference is Inference.GRID
     rows: tuple[int, int] | None = None
     for bundle in items:

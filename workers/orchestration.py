@@ -30,7 +30,7 @@ from celery import Celery, chain, chord
 from shared import pyramid, settle
 from shared.activity import reporting
 from shared.assembly import BundleResult
-from shared.bundle_plan import level_bundles, plans_with_solver
+from shared.bundle_plan import level_bundles
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
@@ -41,11 +41,10 @@ from shared.metrics import evaluate
 from shared.pipeline import confidence_map, match_views, prepare_level, report
 from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
-from shared.settle import assemble_level, settles, tile_config
+from shared.settle import assemble_level, tile_config
 from shared.solve import solve_bundles
-from shared.solvers.meters import is_metered
-from shared.solvers.problems import sent_problems, task_label
-from shared.solvers.registry import queue_of
+from shared.solvers.qpu.problems import sent_problems, task_label
+from shared.solvers.registry import resolve
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
 from workers.chunks import (
@@ -149,9 +148,10 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     :func:`fan_out_level` here."""
     config = record.config
     started = time.time()
-    remote = plans_with_solver(config)
+    solver = resolve(config)
+    remote = solver.plans_with_solver
     phase = partial(store.set_phase, record.id, inputs.index)
-    if settles(config):  # the host settles the level here; its labels go with the inputs
+    if solver.certifies_tiles:  # the host settles the level here; its labels go with the inputs
         phase("settling the level on the host (dual decomposition of each view)")
         counts = settle.prepare(inputs, config)
         log.info(
@@ -210,7 +210,7 @@ def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solve
         celery.signature(
             PLAN_LEVEL,
             args=(job_id, index),
-            queue=queue_of(solver),
+            queue=resolve(solver).queue,
             **task_time_limits(settings, solver),
         ),
         celery.signature(
@@ -259,7 +259,7 @@ def fan_out(
     users are served in turn), with the solver's time limits, then the level's fan-in on the
     control queue."""
     settings, solver = store.settings, record.config.solver
-    queue = fair.route(store.redis, store.prefix, queue_of(solver), record.owner)
+    queue = fair.route(store.redis, store.prefix, resolve(solver).queue, record.owner)
     limits = task_time_limits(settings, solver)
     header = [
         celery.signature(SOLVE_BUNDLES, args=(record.id, index, chunk), queue=queue, **limits)
@@ -455,15 +455,16 @@ def solve_chunk(
     config = record.config
     if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
         config = tile_config(config)
-    # every D-Wave problem labelled with the task, its id kept (shared.solvers.problems)
+    # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
+    solver = resolve(config)
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
-        if is_metered(config.solver) and meter is not None:
+        if solver.metered and meter is not None:
             results = solve_metered(
                 meter(),
                 record.owner or LOCAL_USER,
                 job_id,
                 inputs,
-                config,
+                solver,
                 [inputs.as_bundle(tuple(spec)) for spec in row_ranges],
                 still_running=lambda: store.state(job_id) is JobState.RUNNING,
                 level_estimate=record.level_estimate(index),

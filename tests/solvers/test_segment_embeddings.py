@@ -11,9 +11,9 @@ from shared.bundle_plan import level_bundles
 from shared.config import LevelConfig, MatchConfig
 from shared.pipeline import match_views, plan_run, prepare_level
 from shared.solve import solve_bundles
-from shared.solvers import embedding_cache
-from shared.solvers.embedding_cache import EmbeddingCache
-from shared.solvers.qpu_time import shape_bqm
+from shared.solvers.meters.qpu_time import shape_bqm
+from shared.solvers.qpu import embedding_cache
+from shared.solvers.qpu.embedding_cache import EmbeddingCache
 from shared.synthetic import make_scene
 
 
