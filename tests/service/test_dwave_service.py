@@ -224,11 +224,11 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
         max_active_jobs_per_user=None,
     )
     split = compose_workers()
-    assert {queues[0] for queues, _ in split.values()} >= {"control", "qpu", "hybrid"}
+    assert {queues[0] for queues, _ in split.values()} >= {"control", "pricing", "qpu", "hybrid"}
     assert [name for name, (_, token) in split.items() if token] == ["worker-qpu", "worker-hybrid"]
     started = []
     try:
-        needed = {"control", "qpu", "hybrid"}
+        needed = {"control", "pricing", "qpu", "hybrid"}  # a metered job is priced first
         for name, (queues, token) in split.items():
             if not needed & set(queues):
                 continue

@@ -33,7 +33,7 @@ def value(samples, name: str, **labels) -> float:
     return samples.get((name, tuple(sorted(labels.items()))), 0.0)
 
 
-def quiet_scrape(client, seconds: float = 1.0, limit: float = 15.0) -> dict:
+def quiet_scrape(client, seconds: float = 3.0, limit: float = 30.0) -> dict:
     """A scrape once no ``exact`` bundle has been solved for ``seconds``: the session's workers
     may still be finishing an earlier test's (e.g. cancelled) job, whose bundles would count."""
     deadline = time.monotonic() + limit
