@@ -41,10 +41,10 @@ from api.uploads import (
     read_upload,
 )
 from api.users import UserStore
-from shared.bundle_plan import bundle_width_setting
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
+from shared.inference import bundle_width_setting
 from shared.memory import MemoryBudgetError, check_fits, job_memory_mb, worker_budget_mb
 from shared.pipeline import match_views
 from shared.provenance import qhsm_version

@@ -119,8 +119,7 @@ class UserStore:
             qpu_seconds = self.default_qpu_seconds
         if qpu_seconds is not None and not 0 <= float(qpu_seconds) < math.inf:
             raise UserError(
-                "--qpu-seconds must be a finite number >= 0 (or unlimited), "
-                f"not {qpu_seconds!r}"
+                f"--qpu-seconds must be a finite number >= 0 (or unlimited), not {qpu_seconds!r}"
             )
         if not self.redis.sadd(self.key("users"), name):
             raise UserError(f"user {name!r} exists already (rotate-key gives them a new key)")

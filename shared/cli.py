@@ -20,7 +20,6 @@ from shared.exit_codes import EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
 # pydantic or numpy load is one line too), and `qhsm --help` starts fast.
 
 
-
 DESCRIPTION = (
     "Quantum-hybrid stereo matching: disparity maps from rectified stereo pairs, in this process "
     "(match, eval, bench) or through the job service (serve, submit, admin). "
@@ -37,10 +36,10 @@ def cmd_match(args: argparse.Namespace) -> int:
     the disparity map to ``output`` (.pfm, .png or .npy), with the ``MatchConfig`` options,
     ``preview``, ``json`` and ``processes``; 0 on success. A solver not available here or an
     unsupported output suffix is a ``CommandError``."""
-    from shared.bundle_plan import bundle_width_setting
     from shared.cli_options import CommandError, config_from_args
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
     from shared.images import load_pair, preview_png, save_maps
+    from shared.inference import bundle_width_setting
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar

@@ -31,15 +31,15 @@ from shared.data_terms import cost_volume
 from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
 from shared.finishing import finish_level, finish_maps
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
+from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solve import solve_level_in_process
 
 SolveLevel = Callable[..., LevelSolution]
-"""``(inputs, config[, progress=shared.solve.BundleProgress]) -> LevelSolution``: one level."""
+"""``(inputs, config[, progress=shared.inference.BundleProgress]) -> LevelSolution``: one level."""
 Progress = Callable[[int, int, int, int], None]
 """``(level, levels, units done, units total)``: the 1-based level being solved, the run's
-levels, and the level's :data:`shared.solve.BundleProgress`."""
+levels, and the level's :data:`shared.inference.BundleProgress`."""
 
 #: In process, the views' aggregated cost volumes are computed once for all levels when together
 #: they are at most this large; larger volumes are kept binned at the finest level width that
@@ -309,7 +309,7 @@ def run_pipeline(
     solve_level : callable, optional
         ``(LevelInputs, MatchConfig) -> LevelSolution``; default: in process. With
         ``progress`` it is also given ``progress=``, the level's
-        :data:`shared.solve.BundleProgress`.
+        :data:`shared.inference.BundleProgress`.
     progress : callable, optional
         A :data:`Progress`: called as bundles of a level are solved (as often as
         ``solve_level`` reports) and once more when the level is done.

@@ -35,6 +35,7 @@ import redis
 from celery import Celery
 
 from shared.bundles import bundle_key
+from shared.inference import inference_for
 from shared.solvers.registry import queue_names, queue_of
 from workers import fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB
@@ -262,7 +263,7 @@ class Watchdog:
             self.telemetry.resent(1)
             return "resent"
         solved = self.store.solved_rows(record.id, index)
-        expected = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
+        expected = [bundle.as_list() for bundle in inference_for(config).planned(inputs, config)]
         missing = [b for b in expected if bundle_key(b) not in solved]
         busy = self.in_flight(record.id, index)
         if busy is not None and missing and all(bundle_key(b) in busy for b in missing):

@@ -1,7 +1,7 @@
 """The host settles a QUBO solver's level (``certify_tiles``, :mod:`shared.settle`): only the
 4x4 tiles around the pixels whose row and column copies disagree are sent, and a tile's answer
 replaces the host's labels only where it lowers the energy. A tile's own dual decomposition
-(``encoded_bundles``) certifies its exact optimum."""
+(``QuboTiles.problems`` with ``certify_tiles``) certifies its exact optimum."""
 
 from __future__ import annotations
 
@@ -14,14 +14,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared import settle
-from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.energy import Costs, mrf_energy
 from shared.grid import dual_decomposition
+from shared.inference import inference_for, level_bundles, solve_bundles, solve_level_in_process
+from shared.inference.qubo_tiles import QuboTiles
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
-from shared.settle import assemble_level
-from shared.solve import encoded_bundles, solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.base import SolveResult
 from shared.solvers.qpu_time import charged_seconds
@@ -74,7 +73,9 @@ def test_a_certified_tile_is_the_tiles_exact_optimum():
     cfg = config(encoding="domain-wall")
     certified = uncertified = 0
     for inputs in level_inputs(cfg):
-        for problem in encoded_bundles(inputs, cfg, level_bundles(inputs, cfg)):
+        # a tile's own certificate: the tiles of a settled level, each with certify_tiles
+        tiles = QuboTiles(lambda: get_solver(cfg.solver), warm=False)
+        for problem in tiles.problems(inputs, cfg, level_bundles(inputs, cfg)):
             assert problem.dual is not None
             optimum = tile_optimum(problem.costs)
             found = mrf_energy(problem.costs, problem.dual.labels)
@@ -120,11 +121,11 @@ def test_only_tiles_around_unsettled_pixels_are_sent_and_charged(monkeypatch):
         covered[tile] = True
     assert covered[unsettled].all()  # every unsettled pixel is in a sent tile
     counting = CountingSolver()
-    monkeypatch.setattr("shared.solve.get_solver", lambda name: counting)
+    monkeypatch.setattr("shared.inference.table.get_solver", lambda name: counting)
     results = solve_bundles(inputs, cfg, bundles)
     assert counting.calls == len(bundles)
     assert all(charged_seconds(r.timing) == 0.0 for r in results)  # (unmetered here)
-    solution = assemble_level(inputs, results, cfg)
+    solution = inference_for(cfg).assemble(inputs, results, cfg)
     assert solution.residual["tiles"] == len(bundles)
     assert solution.residual["pixels_sent"] == 16 * len(bundles)
 
@@ -147,8 +148,8 @@ def test_a_tiles_answer_replaces_the_hosts_only_where_it_lowers_the_energy(monke
     grids = [inputs.grid(cfg, v * height, (v + 1) * height) for v in range(inputs.views)]
     host_energy = sum(g.energy(host[v * height : (v + 1) * height]) for v, g in enumerate(grids))
     if solver == "worst":
-        monkeypatch.setattr("shared.solve.get_solver", lambda name: WorstSolver())
-    solution = assemble_level(inputs, solve_bundles(inputs, cfg, bundles), cfg)
+        monkeypatch.setattr("shared.inference.table.get_solver", lambda name: WorstSolver())
+    solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     energy = sum(
         g.energy(solution.labels[v * height : (v + 1) * height]) for v, g in enumerate(grids)
     )
@@ -207,7 +208,7 @@ def test_turning_it_off_gives_the_tiles_of_before(solver, options, before):
 
 
 def test_rows_inference_and_row_solvers_are_not_certified():
-    from shared.solve import certifies_tiles
+    from shared.inference import certifies_tiles
 
     assert certifies_tiles(config())
     assert not certifies_tiles(config(certify_tiles=False))

@@ -100,10 +100,10 @@ def solve_metered(
     still_running=lambda: True,
     level_estimate: float | None = None,
 ):
-    """``solve_bundles`` for a metered solver: one bundle at a time, each inside a lab-wide
-    slot and a reservation of its estimate, charged what its sample set reports; a solver that
-    joins bundles into one problem (``solve_batch``: the hybrid solvers) takes all of them in one
-    slot and one reservation, charged what their results report together.
+    """The level inference's ``solve`` for a metered solver: one bundle at a time, each inside
+    a lab-wide slot and a reservation of its estimate, charged what its sample set reports; a
+    solver that joins bundles into one problem (``solve_batch``: the hybrid solvers) takes all
+    of them in one slot and one reservation, charged what their results report together.
 
     Parameters
     ----------
@@ -112,7 +112,8 @@ def solve_metered(
     owner, job_id : str
         Whose budget, and the job charged.
     inputs, config
-        The level's inputs and the job's ``MatchConfig``, as for ``shared.solve.solve_bundles``.
+        The level's inputs and the job's ``MatchConfig``, as for
+        ``shared.inference.solve_bundles``.
     bundles : list
         The bundle specs to solve, in order.
     still_running : callable
@@ -129,11 +130,13 @@ def solve_metered(
         then not sent. Raises :class:`~workers.quota.ledger.QuotaExceededError` when the owner's
         budget cannot cover the next bundle.
     """
-    from shared.solve import solve_bundles
+    from shared.inference import inference_for
     from shared.solvers import get_solver
     from shared.solvers.base import BatchSolver
     from shared.solvers.meters import meter_for
 
+    inference = inference_for(config)
+    sent = inference.bundle_config(inputs, config)  # as the bundles are solved (tiles: 4 rows)
     kind = meter_for(config.solver)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
     if isinstance(get_solver(config.solver), BatchSolver):  # one slot, one reservation
@@ -141,12 +144,12 @@ def solve_metered(
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]
         if level_estimate is None:
-            reserve = batch_estimate(inputs, config, given)
+            reserve = batch_estimate(inputs, sent, given)
         else:
-            share = len(given) / max(len(inputs.planned_bundles(config)), len(given), 1)
+            share = len(given) / max(len(inference.planned(inputs, config)), len(given), 1)
             reserve = level_estimate * share
         with meter.problem(owner, job_id, reserve) as charge:
-            results = solve_bundles(inputs, config, given)
+            results = inference.solve(inputs, config, given)
             charge.report(sum(charged_seconds(result.timing) for result in results))
         return results
     results = []
@@ -155,9 +158,9 @@ def solve_metered(
             return None
         bundle = inputs.as_bundle(spec)
         start, stop, first, last = bundle.as_list()
-        estimate = bundle_estimate(inputs, config, start, stop, last - first)
+        estimate = bundle_estimate(inputs, sent, start, stop, last - first)
         with meter.problem(owner, job_id, estimate) as charge:
-            [result] = solve_bundles(inputs, config, [bundle])
+            [result] = inference.solve(inputs, config, [bundle])
             charge.report(charged_seconds(result.timing))
         results.append(result)
     return results
