@@ -208,9 +208,9 @@ def test_turning_it_off_gives_the_tiles_of_before(solver, options, before):
 
 
 def test_rows_inference_and_row_solvers_are_not_certified():
-    from shared.inference import certifies_tiles
+    from shared.inference import settles
 
-    assert certifies_tiles(config())
-    assert not certifies_tiles(config(certify_tiles=False))
-    assert not certifies_tiles(config(inference="rows"))
-    assert not certifies_tiles(MatchConfig(solver="exact", max_disparity=6))
+    assert settles(config())
+    assert not settles(config(certify_tiles=False))
+    assert not settles(config(inference="rows"))
+    assert not settles(MatchConfig(solver="exact", max_disparity=6))
