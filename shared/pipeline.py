@@ -76,6 +76,8 @@ class LevelReport:
     #: A QUBO solver's residual design (:class:`shared.settle.Residual`): pixels the host
     #: certified, tiles and pixels sent, tiles and pixels the solver improved; None otherwise.
     residual: dict | None = None
+    #: Why the level's minimisation stopped (:class:`shared.inference.Termination`).
+    termination: str | None = None
 
 
 @dataclass
@@ -286,6 +288,7 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         timing=solution.timing,
         info=solution.info,
         residual=solution.residual,
+        termination=solution.termination,
     )
 
 
