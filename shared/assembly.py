@@ -157,7 +157,7 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
     results : list of BundleResult
         The level's bundle results.
     prepared : dict, optional
-        What :func:`level_bundles` recorded (``LevelInputs.prepared``).
+        What the level inference's ``plan`` recorded (``LevelInputs.prepared``).
 
     Returns
     -------

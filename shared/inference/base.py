@@ -2,9 +2,9 @@
 solves them and puts the level back together (its labels, energy, bound and why it stopped).
 
 Each strategy is one module of :mod:`shared.inference`, chosen by the one table of
-:mod:`shared.inference.table` from the run's configuration and the solver's facts. The in-process
-loop (:mod:`shared.solve`), the process pool and the service's tasks (plan on the control or the
-solver's queue, bundles as Celery jobs, the fan-in) all go through it.
+:mod:`shared.inference.table` from the run's configuration and the solver's facts. The
+in-process loop (:mod:`shared.inference.level`), the process pool and the service's tasks (plan
+on the control or the solver's queue, bundles as Celery jobs, the fan-in) all go through it.
 """
 
 from __future__ import annotations
