@@ -191,31 +191,41 @@ def sample(
     total: int,
     progress: BundleProgress | None = None,
 ) -> list[BundleResult]:
-    """Each of the ``total`` problems' result: sent one at a time as they are built, or all in
-    one call to a batch solver (one problem for many bundles: hybrid's level); a problem the
-    host certified is not sent."""
+    """Each of the ``total`` problems' result, decoded (:func:`bundle_result`) as the solver
+    answers (:func:`answers`)."""
     codec = get_codec(config.encoding)
     params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
-    outcomes: Iterator[SolveResult] | None = None
-    if isinstance(solver, BatchSolver):
-        problems = list(problems)
-        sent = [(p.bqm, p.seed, p.initial) for p in problems if p.bqm is not None]
-        outcomes = iter(solver.solve_batch(sent, **params) if sent else [])
     results = []
-    for problem in problems:
-        outcome: SolveResult | None = None
-        if problem.bqm is not None:
-            outcome = (
-                next(outcomes)
-                if outcomes is not None
-                else solver.solve(
-                    problem.bqm, seed=problem.seed, initial_state=problem.initial, **params
-                )
-            )
+    for problem, outcome in answers(solver, problems, params):
         results.append(bundle_result(problem, outcome, codec))
         if progress is not None:
             progress(len(results), total)
     return results
+
+
+def answers(
+    solver: Any, problems: Iterable[TileProblem], params: dict[str, Any]
+) -> Iterator[tuple[TileProblem, SolveResult | None]]:
+    """Each problem with the solver's answer (None: the host certified it, nothing sent): sent
+    one at a time as they are built, or all in one call to a batch solver (one problem for many
+    bundles: hybrid's level)."""
+    if isinstance(solver, BatchSolver):
+        given = list(problems)
+        sent = [(p.bqm, p.seed, p.initial) for p in given if p.bqm is not None]
+        outcomes = iter(solver.solve_batch(sent, **params) if sent else [])
+        for problem in given:
+            yield problem, None if problem.bqm is None else next(outcomes)
+        return
+    for problem in problems:
+        if problem.bqm is None:
+            yield problem, None
+        else:
+            yield (
+                problem,
+                solver.solve(
+                    problem.bqm, seed=problem.seed, initial_state=problem.initial, **params
+                ),
+            )
 
 
 def bundle_result(problem: TileProblem, outcome: SolveResult | None, codec: Any) -> BundleResult:
