@@ -6,7 +6,7 @@ not by the image)."""
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
@@ -32,13 +32,13 @@ COST_BLOCK_BYTES = 32 * 2**20
 
 
 class RowChains(Strategy):
-    """Blocks of rows solved by ``solver`` (a :class:`RowSolver`), in threads (numpy releases
-    the GIL inside its loops: the blocks of both views overlap)."""
+    """Blocks of rows solved by ``solver()`` (a :class:`RowSolver`, built on first use), in
+    threads (numpy releases the GIL inside its loops: the blocks of both views overlap)."""
 
     name = "row-chains"
     termination = Termination.OPTIMAL
 
-    def __init__(self, solver: RowSolver) -> None:
+    def __init__(self, solver: Callable[[], RowSolver]) -> None:
         self.solver = solver
 
     def width_setting(self, config: MatchConfig) -> int | str | None:
@@ -72,42 +72,43 @@ class RowChains(Strategy):
         inputs.binned_volumes()
         results: list[BundleResult] = []
         with ThreadPoolExecutor(min(len(blocks), threads())) as pool:
-            for block_results in pool.map(partial(self._solve_block, inputs, config), blocks):
+            solve = partial(_solve_block, self.solver(), inputs, config)
+            for block_results in pool.map(solve, blocks):
                 results.extend(block_results)
                 if progress is not None:
                     progress(len(results), len(row_ranges))
         return results
 
-    def _solve_block(
-        self, inputs: LevelInputs, config: MatchConfig, block: list[tuple[int, int]]
-    ) -> list[BundleResult]:
-        """One block of consecutive bundles' rows: costs, the row solver, each bundle's
-        energy."""
-        started = time.perf_counter()
-        first, last = block[0][0], block[-1][1]
-        costs = inputs.costs(config, first, last)
-        labels = self.solver.solve_rows(costs, config.bundle_height)
-        chains = row_energies(costs, labels) if config.bundle_height == 1 else None
-        share = (time.perf_counter() - started) / len(block)
-        results = []
-        for start, stop in block:
-            bundle_labels = labels[start - first : stop - first]
-            energy = (
-                float(chains[start - first])
-                if chains is not None
-                else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+
+def _solve_block(
+    solver: RowSolver, inputs: LevelInputs, config: MatchConfig, block: list[tuple[int, int]]
+) -> list[BundleResult]:
+    """One block of consecutive bundles' rows: costs, the row solver, each bundle's energy."""
+    started = time.perf_counter()
+    first, last = block[0][0], block[-1][1]
+    costs = inputs.costs(config, first, last)
+    labels = solver.solve_rows(costs, config.bundle_height)
+    chains = row_energies(costs, labels) if config.bundle_height == 1 else None
+    share = (time.perf_counter() - started) / len(block)
+    results = []
+    for start, stop in block:
+        bundle_labels = labels[start - first : stop - first]
+        energy = (
+            float(chains[start - first])
+            if chains is not None
+            else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+        )
+        results.append(
+            BundleResult(
+                row_start=start,
+                row_stop=stop,
+                labels=bundle_labels,
+                energy=energy,
+                repaired=0,
+                wall_time=share,
             )
-            results.append(
-                BundleResult(
-                    row_start=start,
-                    row_stop=stop,
-                    labels=bundle_labels,
-                    energy=energy,
-                    repaired=0,
-                    wall_time=share,
-                )
-            )
-        return results
+        )
+    return results
 
 
 def _blocks(

@@ -43,7 +43,7 @@ def _grid_views(config: MatchConfig) -> LevelInference:
 
 
 def _row_chains(config: MatchConfig) -> LevelInference:
-    return RowChains(get_solver(config.solver))
+    return RowChains(lambda: get_solver(config.solver))
 
 
 def _qubo(kind: type[QuboRows | QuboTiles]) -> Callable[[MatchConfig], LevelInference]:
