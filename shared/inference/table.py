@@ -1,16 +1,16 @@
 """The one table that chooses a level's inference from the run's configuration and the solver's
 facts; the only module of :mod:`shared.inference` that asks the solver registry.
 
-=========  ===========  ===============  ================================================
-inference  row solver   ``certify_tiles``  strategy
-=========  ===========  ===============  ================================================
-grid       yes          (any)            :class:`~.grid_views.GridViews` (``grid_inference``:
-                                         dual decomposition or TRW-S)
-rows       yes          (any)            :class:`~.row_chains.RowChains`
-grid       no           yes              :class:`~.qubo_residual.ResidualTiles`
-grid       no           no               :class:`~.qubo_tiles.QuboTiles`
-rows       no           (any)            :class:`~.qubo_rows.QuboRows`
-=========  ===========  ===============  ================================================
+=========  ==========  =================  ==============================================
+inference  row solver  ``certify_tiles``  strategy
+=========  ==========  =================  ==============================================
+grid       yes         (any)              :class:`~.grid_views.GridViews`
+                                          (``grid_inference``: dual decomposition, TRW-S)
+rows       yes         (any)              :class:`~.row_chains.RowChains`
+grid       no          yes                :class:`~.qubo_residual.ResidualTiles`
+grid       no          no                 :class:`~.qubo_tiles.QuboTiles`
+rows       no          (any)              :class:`~.qubo_rows.QuboRows`
+=========  ==========  =================  ==============================================
 
 A new inference is one module with a :class:`~.base.LevelInference` and one row of
 :data:`TABLE` (and its name in ``shared.config.Inference`` when it is a new way to cut a level).
