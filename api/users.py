@@ -119,7 +119,8 @@ class UserStore:
             qpu_seconds = self.default_qpu_seconds
         if qpu_seconds is not None and not 0 <= float(qpu_seconds) < math.inf:
             raise UserError(
-                f"--qpu-seconds must be a finite number >= 0 (or unlimited), not {qpu_seconds!r}"
+                "--qpu-seconds must be a finite number >= 0 (or unlimited), "
+                f"not {qpu_seconds!r}"
             )
         if not self.redis.sadd(self.key("users"), name):
             raise UserError(f"user {name!r} exists already (rotate-key gives them a new key)")

@@ -225,7 +225,9 @@ class MatchConfig(BaseModel):
         "host's labels, and a tile's answer replaces the host's only where it lowers the "
         "level's energy (off: every bundle_height-row tile is sent)",
     )
-    data_term: DataTerm = Field(description="squared, ad-census or census-gradient (from preset)")
+    data_term: DataTerm = Field(
+        description="squared, ad-census or census-gradient (from preset)"
+    )
     max_disparity: int | Literal["auto"] = Field(
         AUTO,
         description="Largest disparity in full-resolution pixels, or auto: estimated from "

@@ -169,7 +169,9 @@ def qhsm_serve(folder: Path, stub: SapiStub):
             yield client, log, folder / "data"
 
 
-def test_qpu_and_hybrid_jobs_run_through_qhsm_serve_with_the_token(sapi, tmp_path, monkeypatch):
+def test_qpu_and_hybrid_jobs_run_through_qhsm_serve_with_the_token(
+    sapi, tmp_path, monkeypatch
+):
     """Under `qhsm serve` only the D-Wave worker has the token; a qpu job's level planning
     (the QPU graph, the widest segment that embeds, the embeddings) runs there too."""
     from workers.embedding_store import RedisEmbeddingStore

@@ -210,7 +210,9 @@ class QuotaLedger:
 
     def status(self, user: str) -> QuotaStatus:
         """The user's budget now, after charging any lapsed reservations."""
-        limit, used, reserved = (text(value) for value in self._status(keys=self._keys(user)))
+        limit, used, reserved = (
+            text(value) for value in self._status(keys=self._keys(user))
+        )
         return QuotaStatus(
             user=user,
             limit=float(limit) if limit else None,
