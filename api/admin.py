@@ -24,6 +24,7 @@ import sys
 from collections.abc import Iterator
 
 from shared.cli_options import CommandError, setting_option
+from shared.settings import BudgetPeriod
 
 
 @contextlib.contextmanager
@@ -188,10 +189,34 @@ def cmd_set_quota(args: argparse.Namespace) -> int:
     with _store(args) as store:
         _call(lambda: store.require(args.name))
         store.ledger.set_limit(args.name, args.seconds)
+        if args.period is not None:
+            store.ledger.set_period(args.name, None if args.period == "default" else args.period)
         status = store.ledger.status(args.name)
         limit = "unlimited" if status.limit is None else f"{status.limit:g} s"
-        print(f"{args.name}: QPU budget {limit}, used {status.used:.3f} s")
+        print(
+            f"{args.name}: QPU budget {limit}, used {status.used:.3f} s {status.period.this} "
+            f"({status.period.describe()})"
+        )
         return 0
+
+
+def usage_line(entry: dict) -> str:
+    """One user's budget as ``qhsm admin usage`` and ``qhsm usage`` print it: used and left in
+    the period, and when it resets."""
+    limit = entry["limit_seconds"]
+    line = (
+        f"{entry['user']}: used {entry['used_seconds']:.3f} s of "
+        f"{'unlimited' if limit is None else f'{limit:g} s'}"
+        f" ({entry['reserved_seconds']:.3f} s reserved"
+    )
+    if entry["remaining_seconds"] is not None:
+        line += f", {entry['remaining_seconds']:.3f} s left"
+    if not entry.get("resets_at"):
+        return f"{line})"
+    return (
+        f"{line}; {entry['period']} since {entry['period_start']}, resets at "
+        f"{entry['resets_at']}; {entry['total_used_seconds']:.3f} s in total)"
+    )
 
 
 def cmd_usage(args: argparse.Namespace) -> int:
@@ -211,21 +236,19 @@ def cmd_usage(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(usage, indent=2))
             return 0
-        for entry in usage:
-            limit = entry["limit_seconds"]
-            print(
-                f"{entry['user']}: used {entry['used_seconds']:.3f} s of "
-                f"{'unlimited' if limit is None else f'{limit:g} s'}"
-                f" ({entry['reserved_seconds']:.3f} s reserved)"
-            )
-            if entry["warning"]:
-                print(f"  warning: {entry['warning']}")
-            for job in entry["jobs"]:
-                when = job["last_charged_at"] or "-"
-                print(
-                    f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems  {when}"
-                )
+        print_usage(usage)
         return 0
+
+
+def print_usage(usage: list[dict]) -> None:
+    """Each user's budget line (:func:`usage_line`), its warning and its jobs' charges."""
+    for entry in usage:
+        print(usage_line(entry))
+        if entry["warning"]:
+            print(f"  warning: {entry['warning']}")
+        for job in entry["jobs"]:
+            when = job["last_charged_at"] or "-"
+            print(f"  {job['id']}  {job['qpu_seconds']:.6f} s  {job['problems']} problems  {when}")
 
 
 def register(subparsers) -> None:
@@ -263,9 +286,14 @@ def register(subparsers) -> None:
         keyed.add_argument("name", help=f"user whose key is {whose}")
         keyed.set_defaults(handler=handler)
 
-    quota = commands.add_parser("set-quota", help="set a user's total QPU budget")
+    quota = commands.add_parser("set-quota", help="set a user's QPU budget (per period)")
     quota.add_argument("name", help="user whose budget is set")
-    quota.add_argument("seconds", type=_seconds, help="seconds, or 'unlimited'")
+    quota.add_argument("seconds", type=_seconds, help="seconds per period, or 'unlimited'")
+    quota.add_argument(
+        "--period",
+        choices=[*(period.value for period in BudgetPeriod), "default"],
+        help="the user's own budget period ('default': QHSM_BUDGET_PERIOD's; not given: unchanged)",
+    )
     quota.set_defaults(handler=cmd_set_quota)
 
     usage = commands.add_parser("usage", help="QPU time used, per user and job")

@@ -4,10 +4,13 @@ qhsm serve    API + workers for every solver that runs here (+ an embedded Redis
 qhsm demo     the same, then one job end to end on a sample scene, then stop
 qhsm api      the API alone
 qhsm worker   one worker of a running service, on any host (``workers/cli.py``)
+qhsm embeddings warm   the QPU tile shapes embedded ahead of time (``workers/embeddings_cli.py``)
 qhsm submit   the client: upload a pair, show progress, download the disparity map
 qhsm wait     follow a submitted job (again) and download its result
 qhsm cancel   cancel a submitted job
 qhsm estimate a job's estimated QPU (or hybrid) seconds, without running it
+qhsm submit-batch  a folder of pairs as one batch (``api/batch_cli.py``)
+qhsm usage    your QPU budget in its period, and what your jobs were charged
 
 One function per command and its parser; they share the settings options and the client. The
 commands that start the service (serve, demo, api) are in :mod:`api.serve_cli`, the worker in
@@ -19,11 +22,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from api import batch_cli
+from api.cli_client import KEY_OPTION, api_client
 from api.serve_cli import cmd_api, cmd_demo, cmd_serve
 from shared.cli_options import (
     CommandError,
@@ -38,12 +41,10 @@ from shared.cli_options import (
 from shared.config import MatchConfig
 from shared.exit_codes import EXIT_INTERRUPTED
 from workers import cli as worker_cli
+from workers import embeddings_cli
 
 if TYPE_CHECKING:
-    from api.client import Client
-
-#: Where the commands' API key comes from, as their messages name it.
-KEY_OPTION = "the --key option"
+    pass
 
 
 def register(commands: argparse._SubParsersAction) -> None:
@@ -101,21 +102,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     _client_options(submit)
     submit.set_defaults(handler=cmd_submit)
 
-    batch = commands.add_parser(
-        "submit-batch",
-        help="send every stereo pair below a folder (scene folders or KITTI's layout) as one "
-        "tagged batch",
-    )
-    batch.add_argument("folder", help="what `qhsm batch` reads: scene folders or KITTI's layout")
-    add_match_options(batch)
-    batch.add_argument(
-        "--tag",
-        action="append",
-        help="the batch's tag (default: batch-<UTC time>); more --tag add tags to every job",
-    )
-    add_json_option(batch, "the batch's tag and its jobs")
-    _client_options(batch, json=False)
-    batch.set_defaults(handler=cmd_submit_batch)
+    batch_cli.register(commands, _client_options)
 
     wait = commands.add_parser(
         "wait", help="follow a submitted job (progress on stderr) and download its result"
@@ -149,6 +136,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     estimate.set_defaults(handler=cmd_estimate)
 
     worker_cli.register(commands)
+    embeddings_cli.register(commands)
 
 
 def _result_options(parser: argparse.ArgumentParser, output_default: str) -> None:
@@ -194,21 +182,6 @@ def _stack_options(parser: argparse.ArgumentParser, port_help: str | None = None
 # --- submit ----------------------------------------------------------------------------------
 
 
-@contextmanager
-def _api_client(args: argparse.Namespace, hint: str = "", **options: Any) -> Iterator[Client]:
-    """A client of the API the settings options name, closed at the end; what it raises
-    (``ClientError``) ends the command with its message and ``hint``."""
-    from api.client import Client, ClientError
-
-    client = Client(settings_from_args(args).api_url, key=args.key, **options)
-    try:
-        yield client
-    except ClientError as error:
-        raise CommandError(f"{error}{hint}") from None
-    finally:
-        client.close()
-
-
 def _existing(paths: list[str]) -> list[Path]:
     """The command's input files, refused with a message when one is missing."""
     files = [Path(path) for path in paths]
@@ -224,7 +197,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     url = settings_from_args(args).api_url
     files = _existing([args.left, args.right] + ([args.ground_truth] if args.ground_truth else []))
     calib = _existing([args.calib])[0].read_bytes() if args.calib else None
-    with _api_client(args, key_source=KEY_OPTION) as client:
+    with api_client(args, key_source=KEY_OPTION) as client:
         job = client.submit(
             files[0].read_bytes(),
             files[1].read_bytes(),
@@ -252,51 +225,9 @@ def cmd_submit(args: argparse.Namespace) -> int:
         return _follow(client, job["id"], args, shown)
 
 
-def cmd_submit_batch(args: argparse.Namespace) -> int:
-    """``qhsm submit-batch FOLDER``: every pair below the folder as one job each, with its
-    ground truth, its calibration file and its stated range (else the given one, else
-    ``auto``), all under one tag."""
-    from datetime import UTC, datetime
-
-    from shared.batch import find_pairs
-
-    config_from_args(args)  # refuse bad options before uploading anything
-    params = match_params(args)
-    try:
-        pairs = find_pairs(args.folder)
-    except FileNotFoundError as error:
-        raise CommandError(str(error)) from None
-    tags = args.tag or [f"batch-{datetime.now(UTC):%Y%m%d-%H%M%S}"]
-    jobs = []
-    with _api_client(args, key_source=KEY_OPTION) as client:
-        for pair in pairs:
-            top = params.get("max_disparity", pair.max_disparity or "auto")
-            job = client.submit(
-                pair.left.read_bytes(),
-                pair.right.read_bytes(),
-                {**params, "max_disparity": top},
-                ground_truth=pair.gt.read_bytes() if pair.gt else None,
-                gt_scale=pair.scale if pair.gt else None,
-                gt_border=pair.border if pair.gt else None,
-                names=(pair.left.name, pair.right.name),
-                label=pair.name,
-                tags=tags,
-                calib=pair.calib.read_bytes() if pair.calib else None,
-            )
-            jobs.append({"name": pair.name, "id": job["id"], "max_disparity": top})
-            if not args.json:
-                print(f"{job['id']}  {pair.name}  (max disparity {top})")
-    listing = f"{settings_from_args(args).api_url.rstrip('/')}/v1/jobs?tag={tags[0]}"
-    if args.json:
-        print(json.dumps({"tag": tags[0], "jobs": jobs, "url": listing}))
-    else:
-        print(f"{len(jobs)} jobs tagged {tags[0]}: {listing}", file=sys.stderr)
-    return 0
-
-
 def cmd_wait(args: argparse.Namespace) -> int:
     """``qhsm wait JOB``: the progress of a job submitted earlier, then its result."""
-    with _api_client(args, key_source=KEY_OPTION) as client:
+    with api_client(args, key_source=KEY_OPTION) as client:
         shown: set[str] = set()
         _print_warnings(client.status(args.job), shown)
         return _follow(client, args.job, args, shown)
@@ -304,7 +235,7 @@ def cmd_wait(args: argparse.Namespace) -> int:
 
 def cmd_cancel(args: argparse.Namespace) -> int:
     """``qhsm cancel JOB``: stop a queued or running job (its running tasks are killed)."""
-    with _api_client(args, key_source=KEY_OPTION) as client:
+    with api_client(args, key_source=KEY_OPTION) as client:
         status = client.cancel(args.job)
     if args.json:
         print(json.dumps(status, indent=2))
@@ -389,7 +320,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         result = _local_estimate(config, files)
     else:
         params = match_params(args)
-        with _api_client(args, hint=" (or use --local)") as client:
+        with api_client(args, hint=" (or use --local)") as client:
             result = client.estimate(
                 files[0].read_bytes(),
                 files[1].read_bytes(),
@@ -434,7 +365,7 @@ def format_estimate(result: dict) -> str:
         f"({result['bundles']} bundles, {len(result['levels'])} levels, "
         f"max disparity {result['max_disparity']}); "
         f"{1 - sent / max(result['bundles'], 1):.0%} of the bundles solved classically "
-        "(tile certificates, roof duality), the rest sent"
+        "(the host's settling, roof duality), the rest sent"
     ]
     for level in result["levels"]:
         qubits = ""

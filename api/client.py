@@ -38,6 +38,21 @@ def default_key() -> tuple[str | None, str]:
     return read_local_key(settings.data_dir), f"the file {path} (QHSM_DATA_DIR's local admin key)"
 
 
+@dataclass(frozen=True)
+class BatchPair:
+    """One pair of :meth:`Client.submit_batch`: the views' bytes and what is its own."""
+
+    left: bytes
+    right: bytes
+    names: tuple[str, str] = ("left.png", "right.png")
+    name: str | None = None  # the job's label (default: the left file's name)
+    ground_truth: bytes | None = None
+    gt_scale: float | None = None
+    gt_border: int | None = None
+    calib: bytes | None = None
+    max_disparity: int | str | None = None  # over the shared params'
+
+
 @dataclass
 class Client:
     """``key``: the API key sent as ``Authorization: Bearer``; default :func:`default_key`.
@@ -125,6 +140,46 @@ class Client:
             data.update({name: str(value) for name, value in given.items() if value is not None})
         return self._request("POST", "/v1/jobs", files=files, data=data).json()
 
+    def submit_batch(
+        self,
+        pairs: list[BatchPair],
+        params: dict[str, Any] | None = None,
+        tags: list[str] | None = None,
+    ) -> dict:
+        """POST /v1/batches: one job per pair with shared ``params`` and ``tags``, all or none
+        (a refused pair is named in the error); returns ``{id, jobs, links}``, the jobs in the
+        order of ``pairs``."""
+        files: list[tuple[str, tuple[str, bytes]]] = []
+        specs: list[dict[str, Any]] = []
+        truths = calibs = 0
+        for pair in pairs:
+            files += [("left", (pair.names[0], pair.left)), ("right", (pair.names[1], pair.right))]
+            spec: dict[str, Any] = {"name": pair.name} if pair.name else {}
+            if pair.max_disparity is not None:
+                spec["max_disparity"] = pair.max_disparity
+            if pair.ground_truth is not None:
+                files.append(("ground_truth", (f"gt{truths}", pair.ground_truth)))
+                spec["ground_truth"], truths = truths, truths + 1
+                given = {"gt_scale": pair.gt_scale, "gt_border": pair.gt_border}
+                spec.update({k: value for k, value in given.items() if value is not None})
+            if pair.calib is not None:
+                files.append(("calib", (f"calib{calibs}.txt", pair.calib)))
+                spec["calib"], calibs = calibs, calibs + 1
+            specs.append(spec)
+        data = {"params": json.dumps(params or {}), "pairs": json.dumps(specs)}
+        if tags:
+            data["tags"] = ",".join(tags)
+        return self._request("POST", "/v1/batches", files=files, data=data).json()
+
+    def batch(self, batch_id: str) -> dict:
+        """GET /v1/batches/{id}: the batch's jobs with their states, and its progress."""
+        return self._request("GET", f"/v1/batches/{batch_id}").json()
+
+    def usage(self) -> dict:
+        """GET /v1/usage: your QPU budget in its period (admins: everyone's) and your jobs'
+        charges."""
+        return self._request("GET", "/v1/usage").json()
+
     def estimate(
         self,
         left: bytes,
@@ -204,7 +259,9 @@ class JobBar:
         progress = Progress.model_validate(status["progress"])
         state = status["state"]
         done = progress.bundles_total if state == "succeeded" else progress.bundles_done
-        self._bar.update(progress.level, progress.levels, done, progress.bundles_total, state)
+        self._bar.update(
+            progress.level, progress.levels, done, progress.bundles_total, state, progress.phase
+        )
         if state in TERMINAL:
             self.close()
 

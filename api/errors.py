@@ -89,6 +89,22 @@ class ExpiredError(ServiceError):
         super().__init__(Refusal.EXPIRED, f"the {what} of job {job_id} has expired")
 
 
+class BatchPairError(ServiceError):
+    """One pair of a batch refused (``POST /v1/batches``): its index, name and why, with the
+    status the same refusal of a single job has; nothing of the batch was created."""
+
+
+class BatchNotFoundError(ServiceError):
+    """No such batch for the caller: it never existed, expired, or is someone else's."""
+
+    def __init__(self, batch_id: str, ttl_seconds: int):
+        super().__init__(
+            Refusal.NOT_FOUND,
+            f"no batch {batch_id!r}: it never existed, is someone else's, or expired with its "
+            f"jobs (kept {ttl_seconds} s after it was made or last read)",
+        )
+
+
 def too_many_jobs(error: ActiveJobsCapError) -> str:
     """What a user at the per-user cap of jobs in flight is told."""
     return (

@@ -245,8 +245,18 @@ def check_memory(config: MatchConfig, shape: tuple[int, ...], top: int, svc: Ser
 
 def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRecord:
     """Admit a job and queue it: the record as written (``state`` queued)."""
-    settings = svc.settings
     check_active_jobs(owner, svc)
+    record, arrays = admit(form, owner, svc, users)
+    dispatch(record, arrays, svc)
+    return record
+
+
+def admit(
+    form: JobForm, owner: str, svc: Services, users: UserStore, batch: str | None = None
+) -> tuple[JobRecord, dict[str, np.ndarray]]:
+    """Every admission check of one job but the active-job cap: its record (of ``batch``, when
+    one) and decoded arrays, not written yet."""
+    settings = svc.settings
     config = parse_config(form.params)
     tags = parse_tags(form.tags)
     check_solver(config, svc)
@@ -299,9 +309,9 @@ def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRec
         estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
         dispatched=False,
         memory_mb=memory,
+        batch=batch,
     )
-    dispatch(record, arrays, svc)
-    return record
+    return record, arrays
 
 
 def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> None:
@@ -319,15 +329,30 @@ def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) ->
     and the job runs once); before, the error is answered (507 on a full disk) and the job never
     runs, even when its removal fails too: its record says its start was not sent
     (``dispatched`` False) and the watchdog fails it instead of starting it."""
-    settings = svc.settings
-    svc.store.create(record, arrays, cap=settings.max_active_jobs_per_user)
+    write(record, arrays, svc)
     try:
-        keep_views(svc, record.id, arrays)
-        svc.celery.send_task(START_JOB, args=(record.id,), queue=settings.control_queue)
+        svc.celery.send_task(START_JOB, args=(record.id,), queue=svc.settings.control_queue)
     except BaseException:  # a full disk or Redis gone: the job was never queued
         with contextlib.suppress(Exception):
             svc.store.discard(record.id)
         raise
+    started(record, svc)
+
+
+def write(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) -> None:
+    """Write the job and its views (under its owner's active-job cap: ``ActiveJobsCapError``),
+    not started yet; removed again when that fails."""
+    svc.store.create(record, arrays, cap=svc.settings.max_active_jobs_per_user)
+    try:
+        keep_views(svc, record.id, arrays)
+    except BaseException:
+        with contextlib.suppress(Exception):
+            svc.store.discard(record.id)
+        raise
+
+
+def started(record: JobRecord, svc: Services) -> None:
+    """Say in the record that the job's start was sent (its worker runs it regardless)."""
     try:
         svc.store.mark_dispatched(record.id)
     except Exception as error:  # the start is sent: its worker runs the job regardless

@@ -1,5 +1,6 @@
-"""What several routes answer alike: the OpenAPI error responses they share and the colour scale
-of the images they draw. Routes import this module, never each other."""
+"""What several routes answer alike: the OpenAPI error responses they share, the colour scale
+of the images they draw and a job's summary with its links (job lists, batches). Routes import
+this module, never each other."""
 
 from __future__ import annotations
 
@@ -7,7 +8,11 @@ import numpy as np
 from fastapi import status as http
 
 from api.deps import Responses
-from workers.records import JobRecord
+from api.schemas import JobSummary, Links
+from api.users import UserStore
+from shared.solvers.qpu_time import is_metered
+from workers.quota import LOCAL_USER
+from workers.records import JobRecord, JobState
 
 NOT_FOUND: Responses = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
 #: Errors of the upload form (POST /v1/jobs and /v1/estimate) for the OpenAPI docs.
@@ -28,3 +33,32 @@ def display_max(record: JobRecord, disparity: np.ndarray) -> float:
     if isinstance(top, int | float) and top > 0:
         return float(top)
     return max(float(np.max(disparity)), 1.0)
+
+
+def links(record: JobRecord) -> Links:
+    """Where the job and its results are; the maps and depth only where the job has them."""
+    base = f"/v1/jobs/{record.id}"
+    extra = {}
+    if "validity" in record.maps:
+        extra["validity"] = f"{base}/validity.png"
+    if "confidence" in record.maps:
+        extra["confidence"] = f"{base}/confidence?format=pfm"
+    if "provenance" in record.maps:
+        extra["provenance"] = f"{base}/provenance?format=png"
+    if record.cameras is not None and record.state is JobState.SUCCEEDED:
+        extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
+    return Links(
+        self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png", **extra
+    )
+
+
+def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
+    """QPU (hybrid: charge) seconds the job's owner was charged for it; None when the job's
+    solver is not metered."""
+    if not is_metered(record.config.solver):
+        return None
+    return users.ledger.job_usage(record.owner or LOCAL_USER, record.id).seconds
+
+
+def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
+    return JobSummary(**JobSummary.fields_of(record, links(record), charged_seconds(record, users)))

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
+from shared.settings import BudgetPeriod
 from workers.records import Cameras, GroundTruth, JobState, Progress
 
 if TYPE_CHECKING:
@@ -27,10 +28,24 @@ class Links(BaseModel):
         None, description="Left-right check's validity map (8-bit PNG, 255 = confirmed)"
     )
     confidence: str | None = Field(None, description="Confidence map in [0, 1] (PFM or npy)")
+    provenance: str | None = Field(
+        None,
+        description="Provenance map: which stage decided each pixel (colour PNG, or npy of the "
+        "codes; legend: GET /v1/provenance-legend, README)",
+    )
     depth: str | None = Field(
         None, description="Depth map in the baseline's unit (jobs submitted with cameras)"
     )
     points: str | None = Field(None, description="Coloured point cloud (binary PLY)")
+
+
+class LegendEntry(BaseModel):
+    """One code of the provenance map (``shared.provenance_map.legend``)."""
+
+    code: int
+    name: str
+    colour: str = Field(description="Its colour in the PNG, RGB hex")
+    meaning: str
 
 
 class JobCreated(BaseModel):
@@ -98,6 +113,12 @@ class LevelTiming(BaseModel):
         "sampled (the QUBO solver's answers), settled (the host settled every pixel, nothing "
         "sent); null from an older worker",
     )
+    provenance_counts: dict[str, int] | None = Field(
+        None,
+        description="The level's pixels (every view) per stage that decided them as solved "
+        "(certified, host, roof_duality, solver, repaired; the job's provenance_counts are the "
+        "final map's)",
+    )
 
 
 def nullable(model: type[BaseModel], name: str, doc: str) -> type[BaseModel]:
@@ -134,6 +155,7 @@ class JobSummary(BaseModel):
     files: list[str] = Field(
         default_factory=list, description="File names of the uploaded views: left, right"
     )
+    batch: str | None = Field(None, description="The batch it was submitted in (/v1/batches)")
     state: JobState
     solver: str
     width: int
@@ -166,6 +188,7 @@ class JobSummary(BaseModel):
             "label": record.label,
             "tags": record.tags,
             "files": record.files,
+            "batch": record.batch,
             "state": record.state,
             "solver": record.config.solver,
             "width": record.width,
@@ -215,6 +238,11 @@ class JobStatus(JobSummary):
         None,
         description="When the job's record, uploads and result are deleted (finished_at + "
         "QHSM_RESULT_TTL_SECONDS); null while it runs or while pinned",
+    )
+    provenance_counts: dict[str, int] | None = Field(
+        None,
+        description="Pixels of the provenance map per stage that decided them (filled, "
+        "certified, host, roof_duality, solver, repaired, filtered); null until it succeeded",
     )
 
 
@@ -272,7 +300,7 @@ class LevelEstimate(BaseModel):
     bundles: int
     bundles_sent: int = Field(
         description="Bundles expected to reach the metered solver; the host solves the others "
-        "exactly (tile certificates, roof duality), charged nothing"
+        "exactly (the host's settling, roof duality), charged nothing"
     )
     classical_share: float = Field(description="Share of the bundles solved classically")
     variables_share: float = Field(description="Share of the variables sent to the solver")
@@ -310,7 +338,7 @@ class Estimate(BaseModel):
     bundles: int
     bundles_sent: int = Field(description="Bundles expected to reach the metered solver")
     classical_share: float = Field(
-        description="Share of the bundles solved classically (tile certificates, roof duality), "
+        description="Share of the bundles solved classically (the host's settling, roof duality), "
         "charged nothing"
     )
     levels: list[LevelEstimate]
@@ -371,12 +399,20 @@ class UserUsage(BaseModel):
     ``{what}_seconds`` fields beside the jobs; built by ``of``."""
 
     user: str
-    limit_seconds: float | None = Field(description="Total budget; null: unlimited")
-    used_seconds: float
+    limit_seconds: float | None = Field(description="Budget per period; null: unlimited")
+    used_seconds: float = Field(description="Charged in the current period")
     reserved_seconds: float = Field(description="Held by bundles being solved right now")
-    remaining_seconds: float | None
+    remaining_seconds: float | None = Field(description="Left in the current period")
+    total_used_seconds: float = Field(description="Everything ever charged, in any period")
+    period: BudgetPeriod = Field(
+        description="What the budget covers (QHSM_BUDGET_PERIOD or the user's own)"
+    )
+    period_start: datetime | None = Field(description="Start of the current period (UTC)")
+    resets_at: datetime | None = Field(
+        description="When the period ends and the whole budget is available again; null: never"
+    )
     warning: str | None = Field(
-        None, description="Set when less than 10 % of the budget is left: what to do"
+        None, description="Set when less than 10 % of the period's budget is left: what to do"
     )
     jobs: list[JobUsage]
 
@@ -391,3 +427,40 @@ class Usage(BaseModel):
     users: list[UserUsage] = Field(description="Your own entry; admins: everyone's")
     total_used_seconds: float
     qpu_in_flight: int | None = Field(None, description="Lab-wide problems in flight (admins)")
+
+
+class BatchCreated(BaseModel):
+    """``POST /v1/batches``: the batch and its jobs, one per pair, in the order sent."""
+
+    id: str
+    jobs: list[JobCreated]
+    links: dict[str, str] = Field(description="self: the batch's status")
+
+
+class BatchProgress(BaseModel):
+    """How far a batch is: its jobs by state (``expired``: a job whose record is gone)."""
+
+    total: int
+    by_state: dict[str, int] = Field(description="Jobs per state (queued, running, ...)")
+    finished: int = Field(description="Jobs that ended (succeeded, failed, cancelled, expired)")
+    fraction: float = Field(description="Finished jobs' share, 0-1")
+
+
+class BatchJob(BaseModel):
+    """One pair of a batch: its name and its job (null once the job's record expired)."""
+
+    pair: int = Field(description="The pair's index in the request, from 0")
+    name: str
+    id: str
+    job: JobSummary | None
+
+
+class Batch(BaseModel):
+    """``GET /v1/batches/{id}``: the batch's jobs with their states and its progress."""
+
+    id: str
+    owner: str
+    created_at: datetime
+    tags: list[str]
+    jobs: list[BatchJob]
+    progress: BatchProgress

@@ -17,9 +17,11 @@ import numpy as np
 from numpy.lib import format as npy_format
 from pydantic import ValidationError
 
-from api.errors import AdmissionError, Refusal
+from api.errors import AdmissionError, Refusal, ServiceError
 from shared.config import MatchConfig, Settings
+from shared.datasets.calibration import CalibrationError, calibration_text
 from shared.images import PFM_HEADER, ImageError, check_pair, decode_image, is_pfm, read_pfm
+from workers.records import Cameras
 
 NPY_MAGIC = b"\x93NUMPY"
 #: Largest .npy header read (numpy's own default); anything longer is not a disparity map.
@@ -321,3 +323,51 @@ def parse_config(params: str | None) -> MatchConfig:
             for e in error.errors()
         )
         raise UploadError(Refusal.INVALID, f"params: {problems}") from None
+
+
+#: A ground truth's scale: stored value per disparity pixel. Outside this range the scaled
+#: errors lose all precision or overflow (an infinite RMSE).
+GT_SCALE_RANGE = (1e-3, 1e6)
+#: Widest ignored frame, pixels (above any image side the pixel limit allows evaluating).
+MAX_GT_BORDER = 10_000
+
+
+#: Largest calibration file read at submit (a Middlebury calib.txt is ~200 bytes, KITTI's ~1 KB).
+MAX_CALIB_BYTES = 64 * 1024
+
+
+def cameras_of(
+    focal: float | None,
+    baseline: float | None,
+    doffs: float | None,
+    calib: Upload | None = None,
+) -> Cameras | None:
+    """The cameras given at submit: a calibration file (Middlebury's calib.txt or KITTI's), or
+    focal and baseline together (doffs optional), or none of them."""
+    if calib is not None:
+        if focal is not None or baseline is not None or doffs is not None:
+            raise ServiceError(
+                Refusal.INVALID, "give either calib or focal/baseline/doffs, not both"
+            )
+        data = calib.file.read(MAX_CALIB_BYTES + 1)
+        if len(data) > MAX_CALIB_BYTES:
+            raise ServiceError(
+                Refusal.TOO_LARGE, f"calib: above {MAX_CALIB_BYTES} bytes; not a calibration file"
+            )
+        try:
+            calibration = calibration_text(data.decode("utf-8"), "calib")
+            return Cameras.of(calibration)
+        except (UnicodeDecodeError, CalibrationError, ValidationError) as error:
+            reason = "not UTF-8 text" if isinstance(error, UnicodeDecodeError) else str(error)
+            if isinstance(error, ValidationError):
+                reason = "calib: its focal length and baseline must be > 0"
+            raise ServiceError(Refusal.INVALID, reason) from None
+    if focal is None and baseline is None:
+        if doffs is not None:
+            raise ServiceError(Refusal.INVALID, "doffs needs focal and baseline")
+        return None
+    if focal is None or baseline is None:
+        raise ServiceError(
+            Refusal.INVALID, "depth needs both focal (px) and baseline; one of them is missing"
+        )
+    return Cameras(focal=focal, baseline=baseline, doffs=doffs or 0.0)

@@ -32,6 +32,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel
 
 from shared.config import Settings
+from shared.settings import BudgetPeriod
 from workers.quota import LOCAL_USER, QuotaLedger
 from workers.redis_client import client_for, text
 
@@ -85,12 +86,13 @@ class UserStore:
         *,
         auth_enabled: bool = True,
         default_qpu_seconds: float = Settings.model_fields["default_qpu_seconds"].default,
+        budget_period: BudgetPeriod = Settings.model_fields["budget_period"].default,
     ):
         self.redis = client
         self.prefix = key_prefix
         self.auth_enabled = auth_enabled
         self.default_qpu_seconds = default_qpu_seconds
-        self.ledger = QuotaLedger(client, key_prefix)
+        self.ledger = QuotaLedger(client, key_prefix, budget_period)
 
     @classmethod
     def from_settings(cls, settings: Settings, client: redis.Redis | None = None) -> UserStore:
@@ -99,6 +101,7 @@ class UserStore:
             settings.key_prefix,
             auth_enabled=settings.auth_enabled,
             default_qpu_seconds=settings.default_qpu_seconds,
+            budget_period=settings.budget_period,
         )
 
     def key(self, *parts: object) -> str:
@@ -119,8 +122,7 @@ class UserStore:
             qpu_seconds = self.default_qpu_seconds
         if qpu_seconds is not None and not 0 <= float(qpu_seconds) < math.inf:
             raise UserError(
-                "--qpu-seconds must be a finite number >= 0 (or unlimited), "
-                f"not {qpu_seconds!r}"
+                f"--qpu-seconds must be a finite number >= 0 (or unlimited), not {qpu_seconds!r}"
             )
         if not self.redis.sadd(self.key("users"), name):
             raise UserError(f"user {name!r} exists already (rotate-key gives them a new key)")

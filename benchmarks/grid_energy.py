@@ -84,8 +84,13 @@ def run(scene: Scene, solver: str, processes: int, certify: bool = True) -> list
     lines = [f"{scene.name} {solver}: {summary}"]
     for level, bound in zip(result.levels, bounds, strict=True):
         gap = (level.energy - bound) / abs(level.energy)
-        certified = level.info.get("bundles_certified")
-        tiles = "" if certified is None else f", {certified} of {level.bundles} tiles certified"
+        settled = level.residual  # the host's settling (shared.settle)
+        tiles = (
+            ""
+            if settled is None
+            else f", {settled['certified']} of {settled['pixels']} pixels certified, "
+            f"{settled['tiles']} tiles sent"
+        )
         lines.append(
             f"  level {level.index} (bin {level.bin_width}): energy {level.energy:.1f} "
             f"bound {bound:.1f} gap {100 * gap:.3f} %{tiles}"

@@ -36,8 +36,9 @@ PathOrArray = str | Path | np.ndarray
 @dataclass
 class Result(MatchResult):
     """A :class:`shared.pipeline.MatchResult` (``disparity``, ``levels``, ``seconds``,
-    ``disparity_range``) with what produced it (``provenance``: version, preset, solver, full
-    config)."""
+    ``disparity_range``, the maps ``validity``, ``confidence`` and ``provenance_map``: which
+    stage decided each pixel, :mod:`shared.provenance_map`) with what produced the run
+    (``provenance``: version, preset, solver, full config)."""
 
     provenance: dict[str, Any] = field(default_factory=dict)
 

@@ -14,6 +14,7 @@ from shared.bundles import owned_columns
 from shared.config import MatchConfig
 from shared.energy import mrf_energy
 from shared.level_inputs import LevelInputs
+from shared.provenance_map import Stage
 
 
 @dataclass
@@ -33,6 +34,9 @@ class BundleResult:
     col_stop: int | None = None
     #: A lower bound on the bundle's least energy (dual decomposition), when the solver has one.
     lower_bound: float | None = None
+    #: What decided each pixel (:class:`shared.provenance_map.Stage` codes, uint8, the labels'
+    #: shape); None: not recorded (taken as :attr:`Stage.HOST`).
+    stages: np.ndarray | None = None
 
     @property
     def columns(self) -> tuple[int, int]:
@@ -57,6 +61,8 @@ class LevelSolution:
     residual: dict | None = None
     #: Why the level's minimisation stopped (:class:`shared.inference.base.Termination`).
     termination: str | None = None
+    #: What decided each pixel of the level (:class:`shared.provenance_map.Stage`, uint8).
+    stages: np.ndarray | None = None
 
 
 def assemble(
@@ -90,6 +96,7 @@ def assemble(
     """
     height, width = inputs.shape
     labels = np.full((height, width), -1, dtype=np.int32)
+    stages = np.full((height, width), int(Stage.HOST), dtype=np.uint8)
     covered = np.zeros((height, width), dtype=np.int32)
     timing: dict[str, float] = {}
     # sums independent of arrival order
@@ -107,6 +114,10 @@ def assemble(
             labels[start:stop, own_first:own_last] = result.labels[
                 :, own_first - first : own_last - first
             ]
+            if result.stages is not None:
+                stages[start:stop, own_first:own_last] = result.stages[
+                    :, own_first - first : own_last - first
+                ]
             covered[start:stop, own_first:own_last] += 1
         if len(group) == 1:
             energy += group[0].energy
@@ -131,6 +142,7 @@ def assemble(
         solver_seconds=float(sum(r.wall_time for r in results)),
         timing=timing,
         info=embedding_summary(results, inputs.prepared),
+        stages=stages,
     )
 
 
@@ -148,9 +160,7 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
     ``auto`` tried, and by the bundles) vs reused by bundles (from memory or the shared store),
     and the qubits and longest chain of the embeddings used; for the metered solvers, the
     bundles and variables that roof duality left for the solver (``bundles_sent``,
-    ``variables_sent`` of ``variables``); with ``certify_tiles`` the tiles dual decomposition
-    solved exactly on the host (``bundles_certified``, counted as not sent). Empty for solvers
-    that do none of these.
+    ``variables_sent`` of ``variables``). Empty for solvers that do neither.
 
     Parameters
     ----------
@@ -172,9 +182,6 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
             variables=sum(int(info["variables"]) for info in reduced),
             variables_sent=sum(int(info["residual_variables"]) for info in reduced),
         )
-    certifying = [r.info for r in results if "certified" in r.info]
-    if certifying:  # grid tiles that dual decomposition solved exactly on the host
-        prepared["bundles_certified"] = sum(1 for info in certifying if info["certified"])
     embedded = [r.info for r in results if "embedding_cache" in r.info]
     if not embedded:
         return prepared

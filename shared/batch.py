@@ -6,8 +6,9 @@ truth in ``disp_occ_0`` or ``disp_noc_0``, objects in ``obj_map``). Each pair's 
 given, else its stated one (protocol.json, Middlebury's calib.txt ndisp, a known scene), else
 estimated (``auto``); the table says which for every pair. The ground truth's own maximum is
 never used as the range (that would tell the matcher the answer). Each pair's map and its
-validity and confidence maps go to ``OUT/<dataset>/<scene>.pfm``, ``.valid.png`` and
-``.confidence.pfm``.
+validity, confidence and provenance maps go to ``OUT/<dataset>/<scene>.pfm``, ``.valid.png``,
+``.confidence.pfm`` and ``.provenance.png``; the table counts the provenance map's pixels per
+stage (``decided_<stage>`` columns).
 """
 
 from __future__ import annotations
@@ -162,13 +163,19 @@ def run_batch(
                     warnings.simplefilter("always")
                     result = run_pipeline(left, right, run, solve_level, force=force)
                 output = save_disparity(result.disparity, out / f"{pair.name}.pfm")
-                maps = save_maps(result.validity, result.confidence, output)
+                maps = save_maps(
+                    result.validity, result.confidence, output, result.provenance_map
+                )
                 row |= {
                     "status": "ok",
                     "max_disparity": result.disparity_range.max_disparity,
                     "seconds": round(result.seconds, 3),
                     "output": str(output),
                     **{f"{name}_map": path for name, path in maps.items()},
+                    **{
+                        f"decided_{stage}": pixels
+                        for stage, pixels in (result.summary()["provenance_counts"] or {}).items()
+                    },
                     "warnings": "; ".join(str(w.message) for w in seen),
                     **score_row(pair, result.disparity),
                 }

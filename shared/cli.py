@@ -36,6 +36,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     the disparity map to ``output`` (.pfm, .png or .npy), with the ``MatchConfig`` options,
     ``preview``, ``json`` and ``processes``; 0 on success. A solver not available here or an
     unsupported output suffix is a ``CommandError``."""
+    from shared.activity import reporting
     from shared.cli_options import CommandError, config_from_args
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
     from shared.images import load_pair, preview_png, save_maps
@@ -71,7 +72,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     left, right = load_pair(args.left, args.right)
     bar = LevelBar(leave=False)  # stderr, in every mode: with --json stdout is JSON alone
     try:
-        with ProcessPoolLevelSolver(args.processes) as solve_level:
+        with ProcessPoolLevelSolver(args.processes) as solve_level, reporting(bar.show_phase):
             result = run_pipeline(
                 left, right, config, solve_level, progress=bar.update, force=args.force
             )
@@ -82,7 +83,9 @@ def cmd_match(args: argparse.Namespace) -> int:
         top = result.disparity_range.max_disparity
         Path(args.preview).write_bytes(preview_png(result.disparity, top))
     summary = {"output": str(args.output), "solver": config.solver, **result.summary()}
-    summary["maps"] = save_maps(result.validity, result.confidence, args.output)
+    summary["maps"] = save_maps(
+        result.validity, result.confidence, args.output, result.provenance_map
+    )
     if args.ply:
         from shared.datasets.calibration import read_calibration
         from shared.depth import ply_bytes, point_cloud

@@ -1,12 +1,14 @@
 """A level's map and the run's final maps from solved labels: the per-level median, then at full
 resolution the sub-pixel fit, the left-right check (the validity map) with its background fill,
-and the final edge-preserving filter."""
+and the final edge-preserving filter; the provenance map (:mod:`shared.provenance_map`) follows
+each step."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from shared import filters, pyramid
+from shared import provenance_map as pm
 from shared.assembly import LevelSolution
 from shared.config import MatchConfig
 from shared.data_terms import cost_volume
@@ -42,6 +44,32 @@ def finish_level(inputs: LevelInputs, solution: LevelSolution, config: MatchConf
     return level_map
 
 
+def level_stages(inputs: LevelInputs, solution: LevelSolution, level_map: np.ndarray) -> np.ndarray:
+    """The level's provenance codes (:class:`shared.provenance_map.Stage`) after
+    :func:`finish_level`: the solution's, :attr:`~shared.provenance_map.Stage.FILTERED` where
+    the median moved the label's value.
+
+    Parameters
+    ----------
+    inputs : LevelInputs
+        The level's inputs.
+    solution : LevelSolution
+        Its solution (``stages`` None: every pixel the host's).
+    level_map : numpy.ndarray
+        Its :func:`finish_level` map.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 (views * h, w).
+    """
+    picked = np.take_along_axis(inputs.candidates, solution.labels[:, :, None], axis=2)[:, :, 0]
+    stages = (
+        pm.filled(level_map.shape, pm.Stage.HOST) if solution.stages is None else solution.stages
+    )
+    return pm.moved(stages, picked.astype(np.float32), level_map)
+
+
 def finish_maps(
     level_map: np.ndarray,
     left: np.ndarray,
@@ -50,10 +78,18 @@ def finish_maps(
     last: LevelPlan,
     views: int,
     left_volume: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray | None]:
+    stages: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The full-resolution left disparity from the finest level's map (both views stacked when
     ``views`` is 2) and the pair's :func:`shared.pipeline.match_views`; ``left_volume`` is the
     left view's cost volume when already at hand (the sub-pixel fit reads it).
+
+    The provenance map follows the finest level's codes (``stages``, :func:`level_stages`; the
+    finest level decides, coarser levels' codes are not carried): upsampled nearest, the
+    left-right check's filled pixels :attr:`~shared.provenance_map.Stage.FILLED`, the pixels a
+    final filter moved by more than :data:`shared.provenance_map.MOVED` px
+    :attr:`~shared.provenance_map.Stage.FILTERED`. The sub-pixel fit refines a label within
+    its step and is not counted.
 
     Parameters
     ----------
@@ -69,6 +105,8 @@ def finish_maps(
         Views stacked in ``level_map`` (1 or 2).
     left_volume : numpy.ndarray, optional
         The left view's cost volume (D + 1, h, w), if already computed.
+    stages : numpy.ndarray, optional
+        The finest level's :func:`level_stages` (both views stacked, as ``level_map``).
 
     Returns
     -------
@@ -77,10 +115,13 @@ def finish_maps(
     validity : numpy.ndarray or None
         Where the left-right check confirmed the pixel before it was filled (None with one
         view).
+    provenance : numpy.ndarray or None
+        The provenance map (h, w) uint8 (None without ``stages``).
     """
     height = level_map.shape[0] // views
     valid = None
     disparity = level_map[:height]
+    provenance = None if stages is None else pm.upsample(stages[:height], left.shape[:2])
     if config.subpixel:  # the cost of every disparity around the label
         if left_volume is None:
             left_volume = cost_volume(config.data_term, left, right, last.max_disparity, 0, height)
@@ -91,15 +132,21 @@ def finish_maps(
         right_disparity = pyramid.upsample_disparity(level_map[height:, ::-1], left.shape[:2])
         valid = filters.left_right_check(disparity, right_disparity, config.lr_tolerance)
         disparity = filters.fill_from_background(disparity, valid)
+        if provenance is not None:
+            provenance = np.where(valid, provenance, np.uint8(pm.Stage.FILLED))
     if config.weighted_median:
+        before = disparity
         disparity = filters.weighted_median(
             disparity, left, config.weighted_median_radius, config.weighted_median_sigma
         )
+        provenance = None if provenance is None else pm.moved(provenance, before, disparity)
     if config.bilateral:
+        before = disparity
         disparity = filters.bilateral(
             disparity,
             config.bilateral_diameter,
             config.bilateral_sigma_color,
             config.bilateral_sigma_space,
         )
-    return disparity.astype(np.float32), valid
+        provenance = None if provenance is None else pm.moved(provenance, before, disparity)
+    return disparity.astype(np.float32), valid, provenance

@@ -376,13 +376,23 @@ def save_disparity(disparity: np.ndarray, path: str | Path) -> Path:
 
 
 def save_maps(
-    validity: np.ndarray | None, confidence: np.ndarray | None, output: str | Path
+    validity: np.ndarray | None,
+    confidence: np.ndarray | None,
+    output: str | Path,
+    provenance: np.ndarray | None = None,
 ) -> dict[str, str]:
     """Write a run's maps beside its disparity ``output`` (``d.pfm`` -> ``d.valid.png``: 255
     where the left-right check confirmed the pixel, 0 where it was filled from the background;
-    ``d.confidence.pfm``: float in [0, 1]); the files written, by name (those the run has)."""
+    ``d.confidence.pfm``: float in [0, 1]; ``d.provenance.png``: which stage decided each
+    pixel, colour-coded, :mod:`shared.provenance_map`); the files written, by name (those the
+    run has)."""
     stem = Path(output).with_suffix("")
     written: dict[str, str] = {}
+    if provenance is not None:
+        from shared.provenance_map import png
+
+        written["provenance"] = f"{stem}.provenance.png"
+        Path(written["provenance"]).write_bytes(png(provenance))
     if validity is not None:
         written["validity"] = f"{stem}.valid.png"
         cv2.imwrite(written["validity"], np.where(validity, 255, 0).astype(np.uint8))

@@ -7,8 +7,10 @@
                              from level k-1, warm-start labels
         solve_level          injected: in process (CLI, tests) or a Celery fan-out (service)
         finish_level         labels -> level map, median filter per view
+        level_stages         which stage decided each pixel (the finest level's are kept)
     finish                   full-resolution left disparity: left-right check and background
-                             fill, sub-pixel fit, weighted median, bilateral (as configured)
+                             fill, sub-pixel fit, weighted median, bilateral (as configured);
+                             the validity, confidence and provenance maps
 
 ``run_pipeline`` runs the loop synchronously. The service calls the same functions from its
 fan-in callbacks, so the level logic lives only here.
@@ -24,12 +26,12 @@ from functools import partial
 
 import numpy as np
 
-from shared import filters, pyramid
+from shared import filters, provenance_map, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, MatchConfig, PyramidKind
 from shared.data_terms import cost_volume
 from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
-from shared.finishing import finish_level, finish_maps
+from shared.finishing import finish_level, finish_maps, level_stages
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
@@ -78,6 +80,9 @@ class LevelReport:
     residual: dict | None = None
     #: Why the level's minimisation stopped (:class:`shared.inference.Termination`).
     termination: str | None = None
+    #: Pixels of the level (every view) per stage that decided them as solved
+    #: (:func:`shared.provenance_map.counts`; the final map's are the finest level's).
+    provenance_counts: dict[str, int] | None = None
 
 
 @dataclass
@@ -92,6 +97,8 @@ class MatchResult:
     validity: np.ndarray | None = None
     #: :func:`shared.filters.cost_confidence` of the final map, times the validity.
     confidence: np.ndarray | None = None
+    #: What decided each pixel: :class:`shared.provenance_map.Stage` codes (uint8, h x w).
+    provenance_map: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The run without its map, JSON-friendly (the CLI's ``--json``, job results).
@@ -100,12 +107,16 @@ class MatchResult:
         -------
         dict
             ``seconds``, ``disparity_range`` (:meth:`RangeEstimate.as_dict`, named as in the job
-            status) and one dict per level.
+            status), one dict per level and ``provenance_counts`` (pixels per stage of the
+            provenance map, :func:`shared.provenance_map.counts`; None without the map).
         """
         return {
             "seconds": self.seconds,
             "disparity_range": self.disparity_range.as_dict(),
             "levels": [asdict(level) for level in self.levels],
+            "provenance_counts": None
+            if self.provenance_map is None
+            else provenance_map.counts(self.provenance_map),
         }
 
 
@@ -289,6 +300,9 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         info=solution.info,
         residual=solution.residual,
         termination=solution.termination,
+        provenance_counts=None
+        if solution.stages is None
+        else provenance_map.counts(solution.stages),
     )
 
 
@@ -332,6 +346,7 @@ def run_pipeline(
         raise ViewsRefusedError(estimate.warning)
     reports: list[LevelReport] = []
     level_map: np.ndarray | None = None
+    stages: np.ndarray | None = None
     volumes: list[np.ndarray] | None = None
     volume_bin_width = 1
     inputs: LevelInputs | None = None
@@ -350,13 +365,14 @@ def run_pipeline(
                 inputs, config, progress=partial(progress, plan.index + 1, len(plans))
             )
         level_map = finish_level(inputs, solution, config)
+        stages = level_stages(inputs, solution, level_map)  # the finest level's are kept
         reports.append(report(inputs, solution, time.perf_counter() - level_started))
         if progress is not None:
             progress(plan.index + 1, len(plans), solution.bundles, solution.bundles)
     assert level_map is not None and inputs is not None  # plan() gives at least one level
     left_volume = volumes[0] if volumes and volume_bin_width == 1 else None
-    disparity, validity = finish_maps(
-        level_map, left, right, config, plans[-1], inputs.views, left_volume
+    disparity, validity, provenance = finish_maps(
+        level_map, left, right, config, plans[-1], inputs.views, left_volume, stages
     )
     return MatchResult(
         disparity=disparity,
@@ -365,6 +381,7 @@ def run_pipeline(
         disparity_range=estimate,
         validity=validity,
         confidence=confidence_map(disparity, validity, left, right, config, plans[-1], left_volume),
+        provenance_map=provenance,
     )
 
 

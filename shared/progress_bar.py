@@ -43,9 +43,11 @@ def clock(seconds: float) -> str:
     return tqdm.format_interval(seconds)
 
 
-def describe(level: int, levels: int, total: int, state: str = "running") -> str:
-    """What the run is doing, in words: ``level 2/3``, ``level 1/3: preparing``, ``queued:
-    waiting for a worker``, ``succeeded: level 3/3``.
+def describe(
+    level: int, levels: int, total: int, state: str = "running", phase: str | None = None
+) -> str:
+    """What the run is doing, in words: ``level 2/3``, ``level 1/3: preparing``, ``level 1/3:
+    embedding ... : cached``, ``queued: waiting for a worker``, ``succeeded: level 3/3``.
 
     Parameters
     ----------
@@ -55,6 +57,8 @@ def describe(level: int, levels: int, total: int, state: str = "running") -> str
         The level's bundles; 0 while it is prepared.
     state : str, default "running"
         A job's state.
+    phase : str, optional
+        What preparing the level is doing (a job status's ``phase``), shown for "preparing".
 
     Returns
     -------
@@ -63,7 +67,7 @@ def describe(level: int, levels: int, total: int, state: str = "running") -> str
     if state == "queued":
         return "queued: waiting for a worker"
     # levels 0: not known yet (a job's range is estimated when it starts)
-    text = f"level {max(level, 1)}/{levels or '?'}" + ("" if total else ": preparing")
+    text = f"level {max(level, 1)}/{levels or '?'}" + ("" if total else f": {phase or 'preparing'}")
     return text if state in LIVE else f"{state}: {text}"
 
 
@@ -90,9 +94,16 @@ class LevelBar:
         self._shown: tuple[int, int] | None = None  # the level and its bundles drawn
         self._line = ""  # the last line written (not a terminal)
         self._drawn = 0.0
+        self._level = (0, 0)  # the level in hand and the run's levels, as last updated
 
     def update(
-        self, level: int, levels: int, done: int, total: int, state: str = "running"
+        self,
+        level: int,
+        levels: int,
+        done: int,
+        total: int,
+        state: str = "running",
+        phase: str | None = None,
     ) -> None:
         """Show that ``done`` of the ``total`` bundles of level ``level`` (1-based) of
         ``levels`` are solved; ``total`` 0: the level is being prepared (not fanned out yet).
@@ -104,9 +115,12 @@ class LevelBar:
         state : str, default "running"
             A job's state (``queued``, ``running``, ``succeeded``, ...); any but a live one is
             shown in front.
+        phase : str, optional
+            What preparing the level is doing (shown while ``total`` is 0).
         """
         total = 0 if state == "queued" else total
-        text = describe(level, levels, total, state)
+        self._level = (level, levels)
+        text = describe(level, levels, total, state, phase)
         now = time.monotonic()
         in_all = f"{clock(now - self.started)} in all"
         if not self.interactive:
@@ -149,6 +163,16 @@ class LevelBar:
         if line != self._line:
             self._line = line
             print(line, file=self.stream, flush=True)
+
+    def show_phase(self, phase: str) -> None:
+        """Say what preparing the level in hand is doing (a :func:`shared.activity.reporting`
+        callback: e.g. its embedding search).
+
+        Parameters
+        ----------
+        phase : str
+        """
+        self.update(*self._level, 0, 0, phase=phase)
 
     def write(self, line: str) -> None:
         """Print a line above the bar (a warning, a note).

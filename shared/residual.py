@@ -1,14 +1,14 @@
 """What the exact classical steps leave of a job's bundles, measured before the job runs, so that
 its estimate is what the metered solvers will charge.
 
-A metered solver solves on the host the grid tiles whose dual decomposition certifies their
-optimum (``certify_tiles``) and fixes what roof duality proves of the others
-(:func:`shared.solvers.composites.reduce`), sending only the rest; how much is left depends on
-the bundles' costs, so no formula in the image size gives it. :func:`survey` runs the pyramid
-with the ``exact`` solver (a stand-in for the coarser levels' maps, which decide a level's
-candidates and the tiles' boundaries; milliseconds per level) and applies both steps to an evenly
-spread sample of each level's bundles, cut as the metered solver will cut them. Classical work
-only: nothing is sent anywhere.
+A metered solver's level is settled on the host first (``certify_tiles``, :mod:`shared.settle`:
+only 4x4 tiles around the pixels its dual decomposition leaves unsettled are sent) and roof
+duality fixes what it proves of those tiles (:func:`shared.solvers.composites.reduce`), sending
+only the rest; how much is left depends on the bundles' costs, so no formula in the image size
+gives it. :func:`survey` runs the pyramid with the ``exact`` solver (a stand-in for the coarser
+levels' maps, which decide a level's candidates and the tiles' boundaries; milliseconds per level)
+and applies both steps to an evenly spread sample of each level's bundles, cut as the metered
+solver will cut them. Classical work only: nothing is sent anywhere.
 """
 
 from __future__ import annotations
@@ -57,8 +57,8 @@ class LevelResidual:
 
 def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelResidual:
     """The exact classical steps on an evenly spread sample of at most ``limit`` of the level's
-    bundles: a tile dual decomposition certifies is not sent (``certify_tiles``), roof duality
-    fixes what it proves of the others."""
+    bundles: with ``certify_tiles`` only the tiles the host leaves unsettled (:mod:`shared.settle`),
+    roof duality fixing what it proves of them."""
     from shared import settle
     from shared.inference import inference_for, settles
     from shared.inference.qubo import QuboStrategy
@@ -103,7 +103,7 @@ def _reduced(inputs, inference, config: MatchConfig, bundles: list, limit: int) 
     for problem in inference.problems(inputs, config, [bundles[i] for i in picked]):
         height, columns, labels = problem.costs.unary.shape
         n = height * columns * codec.variables_per_pixel(labels)
-        m = 0 if problem.bqm is None else int(reduce(problem.bqm, preprocess).free.size)
+        m = int(reduce(problem.bqm, preprocess).free.size)
         variables, left = variables + n, left + m
         if m:
             sent, sent_variables, sent_left = sent + 1, sent_variables + n, sent_left + m
@@ -188,7 +188,7 @@ def level_widths(
 def job_residual(
     config: MatchConfig, left, right, max_disparity: int, cache=None
 ) -> list[LevelResidual] | None:
-    """What the exact classical steps (tile certificates, roof duality) leave of a metered job's
+    """What the exact classical steps (the host's settling, roof duality) leave of a metered job's
     bundles, per level (None for an unmetered solver, or with neither step):
     :func:`shared.residual.survey` on the pair.
 

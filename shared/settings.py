@@ -5,11 +5,21 @@ for the service's addresses, limits, timeouts, folders and credentials. Re-expor
 
 from __future__ import annotations
 
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from pydantic import AliasChoices, Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class BudgetPeriod(StrEnum):
+    """Over what QPU budgets are counted: every charge ever (``lifetime``), or the current UTC
+    calendar month (``monthly``) or ISO week, Monday 00:00 UTC on (``weekly``)."""
+
+    LIFETIME = "lifetime"
+    MONTHLY = "monthly"
+    WEEKLY = "weekly"
 
 
 def seconds_field(default: float, description: str) -> Any:
@@ -113,6 +123,16 @@ class Settings(BaseSettings):
         "stalls Redis for the others",
     )
     max_upload_bytes: int = Field(64 * 2**20, ge=1, description="Largest accepted upload file")
+    max_batch_pairs: int = Field(
+        100, ge=1, description="Most stereo pairs one POST /v1/batches may send"
+    )
+    max_batch_pixels: int = Field(
+        40_000_000,
+        ge=1,
+        description="Most left-view pixels of all the pairs of one POST /v1/batches together "
+        "(the API holds them decoded until every pair is admitted); more is a 413 naming the "
+        "pair",
+    )
     max_json_body_bytes: int = Field(
         64 * 2**10,
         ge=1024,
@@ -209,6 +229,12 @@ class Settings(BaseSettings):
         ge=0,
         allow_inf_nan=False,
         description="QPU/hybrid budget of a new user without --qpu-seconds, seconds",
+    )
+    budget_period: BudgetPeriod = Field(
+        BudgetPeriod.LIFETIME,
+        description="What a QPU budget covers: lifetime (every charge ever), monthly (the UTC "
+        "calendar month) or weekly (the ISO week, from Monday 00:00 UTC); a user's own period "
+        "(qhsm admin set-quota --period) overrides it",
     )
     qpu_max_in_flight: int = Field(
         2, ge=1, description="Lab-wide limit on QPU/hybrid problems being solved at once"

@@ -40,6 +40,7 @@ from shared.energy import Costs
 from shared.grid import GridMRF, boundary_unary, dual_decomposition
 from shared.grid_inference import minimiser
 from shared.level_inputs import LevelInputs
+from shared.provenance_map import Stage
 
 #: Rows and columns of a sent tile (one shape: embedded once, copied across the chip).
 TILE = 4
@@ -243,7 +244,8 @@ def pin(costs: Costs) -> float:
 
 def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig) -> LevelSolution:
     """The level from the host's labels and the solved tiles: each tile's answer is kept only
-    where it lowers the energy, priced against its neighbours' labels as they are when it is
+    where it lowers the energy (each connected part of its changes on its own,
+    :func:`_keep_improving`), priced against its neighbours' labels as they are when it is
     considered (tiles in row-major order), so the level's energy is at most the host's.
 
     Parameters
@@ -263,6 +265,7 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
     recorded = inputs.prepared["settle"]
     assert inputs.initial_labels is not None
     labels = inputs.initial_labels.copy()
+    stages = host_stages(inputs)
     height = inputs.view_height
     grids = [inputs.grid(config, v * height, (v + 1) * height) for v in range(inputs.views)]
     improved = changed = 0
@@ -271,12 +274,13 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         top = result.row_start - view * height
         rows = slice(top, top + result.labels.shape[0])
         columns = slice(result.col_start, result.col_start + result.labels.shape[1])
-        view_labels = labels[view * height : (view + 1) * height]
-        before, after = _tile_energies(grids[view], view_labels, rows, columns, result.labels)
-        if after < before - 1e-9 * max(1.0, abs(before)):
-            improved += 1
-            changed += int(np.count_nonzero(view_labels[rows, columns] != result.labels))
-            view_labels[rows, columns] = result.labels
+        view_labels = labels[view * height : (view + 1) * height]  # a view: written in place
+        view_stages = stages[view * height : (view + 1) * height]
+        proposed_stages = Stage.SOLVER if result.stages is None else result.stages
+        kept = _keep_improving(
+            grids[view], view_labels, rows, columns, result.labels, view_stages, proposed_stages
+        )
+        improved, changed = improved + (kept > 0), changed + kept
     energy = sum(
         grids[v].energy(labels[v * height : (v + 1) * height]) for v in range(inputs.views)
     )
@@ -299,7 +303,57 @@ def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig)
         info=embedding_summary(results, prepared),
         lower_bound=float(recorded["lower_bound"]),
         residual=residual.as_dict(),
+        stages=stages,
     )
+
+
+def _keep_improving(
+    grid: GridMRF,
+    labels: np.ndarray,
+    rows: slice,
+    columns: slice,
+    proposed: np.ndarray,
+    stages: np.ndarray,
+    proposed_stages: np.ndarray | int,
+) -> int:
+    """Write into ``labels`` each connected part of a tile's answer that lowers the level's
+    energy, given the labels around it as they are; return the pixels changed. The kept
+    parts' provenance codes go into ``stages`` (a pinned, certified pixel stays certified).
+
+    A part is a 4-connected set of pixels where ``proposed`` differs from ``labels``: two parts
+    share no edge, so their energy changes add up and keeping exactly the parts that lower the
+    energy is the best of the answer's subsets. A part that leaves the energy as it is (within
+    float rounding) keeps the host's labels: the annealer's answer wins only where it is
+    strictly better, never on a tie, and a pixel changed without lowering the energy (e.g. one
+    the tile's own problem left free beside an improving part) stays the host's.
+    """
+    from scipy import ndimage  # slow to import: only where tiles are merged
+
+    current = labels[rows, columns]
+    parts, count = ndimage.label(current != proposed)
+    tile_stages = stages[rows, columns]  # a view: written in place
+    codes = np.broadcast_to(np.asarray(proposed_stages, dtype=stages.dtype), proposed.shape)
+    kept = 0
+    for part in range(1, count + 1):
+        where = parts == part
+        candidate = np.where(where, proposed, labels[rows, columns])
+        before, after = _tile_energies(grid, labels, rows, columns, candidate)
+        if after < before - 1e-9 * max(1.0, abs(before)):
+            labels[rows, columns] = candidate
+            settled = where & (tile_stages != Stage.CERTIFIED)
+            tile_stages[settled] = codes[settled]
+            kept += int(where.sum())
+    return kept
+
+
+def host_stages(inputs: LevelInputs) -> np.ndarray:
+    """A settled level's provenance codes before its tiles: :attr:`Stage.CERTIFIED`, and
+    :attr:`Stage.HOST` at the pixels the host left unsettled."""
+    stages = np.full(inputs.shape, int(Stage.CERTIFIED), dtype=np.uint8)
+    loose = np.asarray(inputs.prepared["settle"]["unsettled_pixels"], dtype=np.int64)
+    if loose.size:
+        stages[loose[:, 0], loose[:, 1]] = Stage.HOST
+    return stages
 
 
 def _tile_energies(

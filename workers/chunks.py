@@ -4,6 +4,7 @@ the job store, for the level's fan-in): ``workers.orchestration`` and the watchd
 from __future__ import annotations
 
 import base64
+import zlib
 
 import numpy as np
 
@@ -66,8 +67,13 @@ def rows_per_task(settings: Settings, solver: str) -> int:
 
 
 def encode_bundle(result: BundleResult) -> dict:
-    """A bundle result as JSON: labels travel as base64 uint8 (candidate indices are < 256)."""
+    """A bundle result as JSON: labels travel as base64 uint8 (candidate indices are < 256),
+    the provenance codes as base64 zlib-compressed uint8 (a whole view's are nearly uniform)."""
     first, last = result.columns
+    stages = None
+    if result.stages is not None:
+        packed = zlib.compress(result.stages.astype(np.uint8).tobytes())
+        stages = base64.b64encode(packed).decode("ascii")
     return {
         "rows": [result.row_start, result.row_stop],
         "columns": [first, last],
@@ -78,6 +84,7 @@ def encode_bundle(result: BundleResult) -> dict:
         "timing": {key: float(value) for key, value in result.timing.items()},
         "info": {key: result.info[key] for key in BUNDLE_INFO if key in result.info},
         "lower_bound": result.lower_bound,
+        "stages": stages,
     }
 
 
@@ -86,6 +93,10 @@ def decode_bundle(data: dict, width: int) -> BundleResult:
     start, stop = data["rows"]
     first, last = data.get("columns", [0, width])
     labels = np.frombuffer(base64.b64decode(data["labels"]), dtype=np.uint8)
+    stages = None
+    if data.get("stages"):  # absent from bundles solved by an earlier version
+        raw = zlib.decompress(base64.b64decode(data["stages"]))
+        stages = np.frombuffer(raw, dtype=np.uint8).reshape(stop - start, last - first).copy()
     return BundleResult(
         row_start=start,
         row_stop=stop,
@@ -98,4 +109,5 @@ def decode_bundle(data: dict, width: int) -> BundleResult:
         col_start=first,
         col_stop=last,
         lower_bound=data.get("lower_bound"),
+        stages=stages,
     )

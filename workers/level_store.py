@@ -6,6 +6,7 @@ Keys (under ``{key_prefix}:``; see :mod:`workers.store` for the rest):
     job:{id}:level:{k}         hash of .npy arrays: the ``LevelInputs`` a worker needs
     job:{id}:level:views:{s}   hash of .npy arrays: the images of the levels downsampled by s
     job:{id}:level:{k}:solved  hash "{first row}" -> JSON bundle result (labels, energy, timing)
+    job:{id}:level:{k}:phase   what preparing the level is doing, in words (the job status's)
 
 A level's images are read from Redis once per process and job (an LRU of :data:`IMAGES_KEPT`
 jobs), since every level of a job and downsampling shares them.
@@ -133,7 +134,18 @@ class LevelStorage:
 
     def drop_level(self, job_id: str, index: int) -> None:
         level = self.key("job", job_id, "level", index)
-        self.redis.delete(level, f"{level}:solved", f"{level}:solved:labels")
+        self.redis.delete(level, f"{level}:solved", f"{level}:solved:labels", f"{level}:phase")
+
+    def set_phase(self, job_id: str, index: int, phase: str) -> None:
+        """What preparing level ``index`` is doing now (:mod:`shared.activity`), e.g. its
+        embedding search: shown in the job's status until the level's bundles fan out."""
+        ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
+        self.redis.set(self.key("job", job_id, "level", index, "phase"), phase, ex=ttl)
+
+    def phase(self, job_id: str, index: int) -> str | None:
+        """The last :meth:`set_phase` of the level (None: none, or the level is gone)."""
+        found = self.redis.get(self.key("job", job_id, "level", index, "phase"))
+        return None if found is None else text(found)
 
     def save_bundles(self, job_id: str, index: int, bundles: list[dict]) -> None:
         """Solved bundles (JSON, keyed by first row): the fan-in assembles the level from these,

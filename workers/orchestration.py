@@ -23,21 +23,24 @@ import logging
 import time
 from collections import OrderedDict
 from collections.abc import Callable
+from functools import partial
 
 import numpy as np
 from celery import Celery, chain, chord
 
 from shared import pyramid
+from shared.activity import reporting
 from shared.assembly import BundleResult
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
-from shared.finishing import finish_level, finish_maps
+from shared.finishing import finish_level, finish_maps, level_stages
 from shared.inference import inference_for
 from shared.level_inputs import LevelInputs
 from shared.memory import VOLUME_CACHE_MB, check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
 from shared.pipeline import confidence_map, match_views, prepare_level, report
+from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
 from shared.solvers.meters import is_metered
 from shared.solvers.problems import sent_problems, task_label
@@ -56,6 +59,7 @@ from workers.level_store import LevelInputsMissingError
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, LevelRecord, now
 from workers.store import JobStore
+from workers.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -146,12 +150,14 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     inference = inference_for(config)
     started = time.time()
     remote = inference.plans_with_solver
-    # the host's step (the residual design settles the level): its labels go with the inputs
-    done = inference.prepare(inputs, config)
-    if done is not None:
-        log.info("job %s: level %d %s", record.id, inputs.index + 1, done)
-    if not remote:
-        inference.plan(inputs, config)  # sets inputs.prepared: the bundles' width
+    # the host's step (the residual design settles the level): its labels go with the inputs;
+    # the strategy reports what it does as the level's phase (shared.activity)
+    with reporting(partial(store.set_phase, record.id, inputs.index)):
+        done = inference.prepare(inputs, config)
+        if done is not None:
+            log.info("job %s: level %d %s", record.id, inputs.index + 1, done)
+        if not remote:
+            inference.plan(inputs, config)  # sets inputs.prepared: the bundles' width
     store.save_level(record.id, inputs, started=started)
     if remote:
         if _advance(store, record.id, inputs.index):
@@ -221,7 +227,8 @@ def plan_level(store: JobStore, job_id: str, index: int) -> dict | None:
         raise JobGoneError(job_id)
     inputs, _ = store.load_level(job_id, index)
     if not is_planned(inputs):
-        inference_for(record.config).plan(inputs, record.config)
+        with reporting(partial(store.set_phase, job_id, index)):  # e.g. the embedding search
+            inference_for(record.config).plan(inputs, record.config)
         store.save_prepared(job_id, index, inputs.prepared)
     return inputs.prepared
 
@@ -272,13 +279,13 @@ def level_done(celery: Celery, store: JobStore, results: list[dict], job_id: str
     bundles = _solved_bundles(store, job_id, index, inputs, record.config)
     if bundles is None:
         return
-    level_map, level_report = _assemble_level(inputs, bundles, record.config, started)
+    level_map, stages, level_report = _assemble_level(inputs, bundles, record.config, started)
     # None when the job ended, or the same level was assembled twice at once and the other won
     record, added = store.apply(job_id, JobRecord.with_level, index, level_report)
     if record is None or not added:
         return
     store.drop_level(job_id, index)
-    _next_level_or_finish(celery, store, record, index, inputs, level_map)
+    _next_level_or_finish(celery, store, record, index, inputs, level_map, stages)
 
 
 def _running_record(store: JobStore, job_id: str, index: int) -> JobRecord | None:
@@ -331,12 +338,13 @@ def _solved_bundles(
 
 def _assemble_level(
     inputs: LevelInputs, bundles: list[BundleResult], config: MatchConfig, started: float
-) -> tuple[np.ndarray, LevelRecord]:
-    """The level's filtered disparity map (``finish_level``) and its report for the record."""
+) -> tuple[np.ndarray, np.ndarray, LevelRecord]:
+    """The level's filtered disparity map (``finish_level``), its provenance codes
+    (``level_stages``) and its report for the record."""
     solution = inference_for(config).assemble(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = LevelRecord.of(report(inputs, solution, time.time() - started))
-    return level_map, level_report
+    return level_map, level_stages(inputs, solution, level_map), level_report
 
 
 def _next_level_or_finish(
@@ -346,8 +354,10 @@ def _next_level_or_finish(
     index: int,
     inputs: LevelInputs,
     level_map: np.ndarray,
+    stages: np.ndarray,
 ) -> None:
-    """Launch the next level's chord from this level's map, or finish the job after the last."""
+    """Launch the next level's chord from this level's map, or finish the job after the last
+    (``stages``: the level's provenance codes; the finest level's make the provenance map)."""
     config = record.config
     left, right = job_views(store, record)
     plans = job_plans(record)
@@ -355,7 +365,9 @@ def _next_level_or_finish(
         next_inputs = prepare_level(left, right, config, plans[index + 1], level_map)
         launch_level(celery, store, record, next_inputs)
         return
-    result, validity = finish_maps(level_map, left, right, config, plans[-1], inputs.views)
+    result, validity, provenance = finish_maps(
+        level_map, left, right, config, plans[-1], inputs.views, stages=stages
+    )
     confidence = None
     if (plans[-1].max_disparity + 1) * result.size * 4 <= VOLUME_CACHE_MB * 2**20:
         # within the volume the job's memory estimate allows for (shared.memory): larger
@@ -363,12 +375,19 @@ def _next_level_or_finish(
         confidence = confidence_map(result, validity, left, right, config, plans[-1], None)
     maps = {
         name: array
-        for name, array in (("validity", validity), ("confidence", confidence))
+        for name, array in (
+            ("validity", validity),
+            ("confidence", confidence),
+            ("provenance", provenance),
+        )
         if array is not None
     }
     metrics, warning = _evaluate_result(store, record, result)
     store.save_result(record.id, result, maps)
-    store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps))
+    counts = None if provenance is None else pixel_counts(provenance)
+    done = store.apply(record.id, JobRecord.succeeded, now(), metrics, warning, list(maps), counts)
+    if done.changed and counts is not None:
+        Telemetry(store.redis, store.settings.key_prefix).pixels_decided(config.solver, counts)
 
 
 def _evaluate_result(

@@ -133,6 +133,7 @@ class LevelRecord(BaseModel):
     info: dict[str, Any] = Field(default_factory=dict)
     residual: dict[str, float | None] | None = None
     termination: str | None = None
+    provenance_counts: dict[str, int] | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -162,6 +163,7 @@ class JobRecord(BaseModel):
     height: int
     label: str | None = None  # the submitter's name for the job
     tags: list[str] = Field(default_factory=list)  # the submitter's tags (list filter)
+    batch: str | None = None  # the batch it was submitted in (POST /v1/batches)
     files: list[str] = Field(default_factory=list)  # the uploads' file names: left, right
     #: What the submitter should know: views that look swapped, a scale that was inferred, ...
     warnings: list[str] = Field(default_factory=list)
@@ -193,8 +195,12 @@ class JobRecord(BaseModel):
     cameras: Cameras | None = None
     #: Kept past the retention (``result_ttl_seconds``) until unpinned
     pinned: bool = False
-    #: The maps saved beside the result (``validity``, ``confidence``: those the run has)
+    #: The maps saved beside the result (``validity``, ``confidence``, ``provenance``: those
+    #: the run has)
     maps: list[str] = Field(default_factory=list)
+    #: Pixels of the provenance map per stage (``shared.provenance_map.counts``); None before
+    #: the job succeeded
+    provenance_counts: dict[str, int] | None = None
 
     @field_validator("metrics")
     @classmethod
@@ -283,10 +289,16 @@ class JobRecord(BaseModel):
         metrics: dict[str, float | None] | None,
         warning: str | None = None,
         maps: list[str] | None = None,
+        provenance_counts: dict[str, int] | None = None,
     ) -> JobRecord | None:
         """The running job's end, with its scores, a warning about them (kept as its
-        ``error``) and the names of the maps saved beside the result."""
-        fields: dict[str, Any] = {"metrics": finite_or_null(metrics), "maps": maps or []}
+        ``error``), the names of the maps saved beside the result and the provenance map's
+        pixels per stage."""
+        fields: dict[str, Any] = {
+            "metrics": finite_or_null(metrics),
+            "maps": maps or [],
+            "provenance_counts": provenance_counts,
+        }
         if warning:
             fields["error"] = warning
         return self.moved(JobState.SUCCEEDED, at, **fields)
@@ -373,6 +385,11 @@ class Progress(BaseModel):
     levels: int
     bundles_done: int = Field(description="Bundles of the current level solved so far")
     bundles_total: int
+    phase: str | None = Field(
+        None,
+        description="While the level is prepared (bundles_total 0): what it is doing, e.g. "
+        "'embedding a 64-variable tile shape into Pegasus P16: sublattice m=4 (1/4), 10 tries'",
+    )
 
 
 def now() -> datetime:

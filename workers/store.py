@@ -414,11 +414,13 @@ class JobStore(LevelStorage):
         done = sum(chunk.bundles for chunk in chunks if chunk.level == current)
         if record.state is JobState.SUCCEEDED:
             done = record.bundles_total
+        preparing = record.state is JobState.RUNNING and not record.bundles_total
         return Progress(
             level=record.level,
             levels=record.levels_total,
             bundles_done=min(done, record.bundles_total),
             bundles_total=record.bundles_total,
+            phase=self.phase(record.id, max(current, 0)) if preparing else None,
         )
 
     @staticmethod

@@ -10,6 +10,8 @@ collector reads them, with the job records, the queues and the QPU ledger, at sc
     qhsm_queue_depth{queue}               messages waiting in each Celery queue
     qhsm_qpu_seconds_used_total{user}     metered D-Wave seconds charged to each user
     qhsm_watchdog_resends_total           chunks re-sent by the watchdog (:meth:`Telemetry.resent`)
+    qhsm_pixels_decided_total{solver,stage}  pixels of succeeded jobs' final maps by the stage
+                                          that decided them (``shared.provenance_map``)
 """
 
 from __future__ import annotations
@@ -70,6 +72,14 @@ class Telemetry:
             pipe.sadd(self.key("task_seconds", "solvers"), solver)
             pipe.execute()
 
+    def pixels_decided(self, solver: str, counts: dict[str, int]) -> None:
+        """A job of ``solver`` succeeded with these pixels per stage (its provenance map's)."""
+        with self.redis.pipeline(transaction=False) as pipe:
+            for stage, pixels in counts.items():
+                pipe.hincrby(self.key("pixels", solver), stage, pixels)
+            pipe.sadd(self.key("pixels", "solvers"), solver)
+            pipe.execute()
+
     def resent(self, chunks: int = 1) -> None:
         """The watchdog re-sent ``chunks`` unsolved chunks of a stalled job."""
         self.redis.incrby(self.key("watchdog_resends"), chunks)
@@ -93,6 +103,7 @@ class ServiceCollector(Collector):
         yield self._task_seconds()
         yield self._queue_depth()
         yield self._qpu_seconds()
+        yield self._pixels()
         resends = CounterMetricFamily(
             "qhsm_watchdog_resends", "Chunks of stalled jobs re-sent by the watchdog"
         )
@@ -121,6 +132,19 @@ class ServiceCollector(Collector):
         )
         for solver, count in sorted(self.redis.hgetall(self.telemetry.key("bundles")).items()):
             family.add_metric([text(solver)], float(count))
+        return family
+
+    def _pixels(self) -> Metric:
+        family = CounterMetricFamily(
+            "qhsm_pixels_decided",
+            "Pixels of succeeded jobs' maps by the stage that decided them (provenance map)",
+            labels=["solver", "stage"],
+        )
+        solvers = self.redis.smembers(self.telemetry.key("pixels", "solvers"))
+        for solver in sorted(text(raw) for raw in solvers):
+            stages = self.redis.hgetall(self.telemetry.key("pixels", solver))
+            for stage, count in sorted(stages.items()):
+                family.add_metric([solver, text(stage)], float(count))
         return family
 
     def _task_seconds(self) -> Metric:
@@ -168,7 +192,7 @@ class ServiceCollector(Collector):
             "qhsm_qpu_seconds_used", "Metered D-Wave seconds charged, by user", labels=["user"]
         )
         for user in ledger.users():
-            family.add_metric([user], ledger.status(user).used)
+            family.add_metric([user], ledger.status(user).total_used)  # every period: a counter
         return family
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends
 
 from api.auth import current_user
-from api.routes import estimate, jobs, solvers, usage, users, views
+from api.routes import batches, estimate, jobs, solvers, usage, users, views
 
 #: Where :func:`v1`'s routes are.
 V1 = "/v1"
@@ -17,6 +17,7 @@ def v1_parts() -> list[tuple[APIRouter, bool]]:
     users' routes check theirs); ``api.middleware.RequestGuard`` reads their policies too."""
     return [
         (jobs.router, True),
+        (batches.router, True),
         (estimate.router, True),
         (views.router, True),
         (views.thumbnails, True),

@@ -12,7 +12,6 @@ import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
 from fastapi import status as http
 from fastapi.responses import JSONResponse, Response
-from pydantic import ValidationError
 
 from api import job_service
 from api.auth import can_see
@@ -27,16 +26,26 @@ from api.deps import (
 )
 from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
-from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
-from api.schemas import JobCreated, JobPage, JobStatus, JobSummary, Links
-from api.uploads import MAX_LABEL, MAX_TAGS, TAG
+from api.responses import (
+    NOT_FOUND,
+    SCALE_HEADER,
+    UPLOAD_ERRORS,
+    charged_seconds,
+    display_max,
+    links,
+    summary_of,
+)
+from api.schemas import JobCreated, JobPage, JobStatus, JobSummary
+from api.uploads import GT_SCALE_RANGE, MAX_GT_BORDER, MAX_LABEL, MAX_TAGS, TAG, cameras_of
 from api.users import UserStore
-from shared.datasets.calibration import Calibration, CalibrationError, calibration_text
+from shared import provenance_map
+from shared.datasets.calibration import Calibration
 from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.qpu_time import is_metered
+from workers.arrays import npy
 from workers.quota import LOCAL_USER
-from workers.records import Cameras, GroundTruth, JobRecord, JobState
+from workers.records import GroundTruth, JobRecord, JobState
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -45,77 +54,8 @@ DISPARITY_MEDIA = {
     "png": "image/png",
     "npy": "application/x-npy",
 }
-#: A ground truth's scale: stored value per disparity pixel. Outside this range the scaled
-#: errors lose all precision or overflow (an infinite RMSE).
-GT_SCALE_RANGE = (1e-3, 1e6)
-#: Widest ignored frame, pixels (above any image side the pixel limit allows evaluating).
-MAX_GT_BORDER = 10_000
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
-
-
-def links(record: JobRecord) -> Links:
-    """Where the job and its results are; the maps and depth only where the job has them."""
-    base = f"/v1/jobs/{record.id}"
-    extra = {}
-    if "validity" in record.maps:
-        extra["validity"] = f"{base}/validity.png"
-    if "confidence" in record.maps:
-        extra["confidence"] = f"{base}/confidence?format=pfm"
-    if record.cameras is not None and record.state is JobState.SUCCEEDED:
-        extra |= {"depth": f"{base}/depth?format=pfm", "points": f"{base}/points.ply"}
-    return Links(
-        self=base, disparity=f"{base}/disparity?format=pfm", preview=f"{base}/preview.png", **extra
-    )
-
-
-#: Largest calibration file read at submit (a Middlebury calib.txt is ~200 bytes, KITTI's ~1 KB).
-MAX_CALIB_BYTES = 64 * 1024
-
-
-def cameras_of(
-    focal: float | None,
-    baseline: float | None,
-    doffs: float | None,
-    calib: UploadFile | None = None,
-) -> Cameras | None:
-    """The cameras given at submit: a calibration file (Middlebury's calib.txt or KITTI's), or
-    focal and baseline together (doffs optional), or none of them."""
-    if calib is not None:
-        if focal is not None or baseline is not None or doffs is not None:
-            raise ServiceError(
-                Refusal.INVALID, "give either calib or focal/baseline/doffs, not both"
-            )
-        data = calib.file.read(MAX_CALIB_BYTES + 1)
-        if len(data) > MAX_CALIB_BYTES:
-            raise ServiceError(
-                Refusal.TOO_LARGE, f"calib: above {MAX_CALIB_BYTES} bytes; not a calibration file"
-            )
-        try:
-            calibration = calibration_text(data.decode("utf-8"), "calib")
-            return Cameras.of(calibration)
-        except (UnicodeDecodeError, CalibrationError, ValidationError) as error:
-            reason = "not UTF-8 text" if isinstance(error, UnicodeDecodeError) else str(error)
-            if isinstance(error, ValidationError):
-                reason = "calib: its focal length and baseline must be > 0"
-            raise ServiceError(Refusal.INVALID, reason) from None
-    if focal is None and baseline is None:
-        if doffs is not None:
-            raise ServiceError(Refusal.INVALID, "doffs needs focal and baseline")
-        return None
-    if focal is None or baseline is None:
-        raise ServiceError(
-            Refusal.INVALID, "depth needs both focal (px) and baseline; one of them is missing"
-        )
-    return Cameras(focal=focal, baseline=baseline, doffs=doffs or 0.0)
-
-
-def charged_seconds(record: JobRecord, users: UserStore) -> float | None:
-    """QPU (hybrid: charge) seconds the job's owner was charged for it; None when the job's
-    solver is not metered."""
-    if not is_metered(record.config.solver):
-        return None
-    return users.ledger.job_usage(record.owner or LOCAL_USER, record.id).seconds
 
 
 def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
@@ -124,10 +64,6 @@ def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
         return []
     warning = users.ledger.status(record.owner or LOCAL_USER).warning
     return [warning] if warning else []
-
-
-def summary_of(record: JobRecord, users: UserStore) -> JobSummary:
-    return JobSummary(**JobSummary.fields_of(record, links(record), charged_seconds(record, users)))
 
 
 def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
@@ -146,6 +82,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
         disparity_range=record.disparity_range,
         version=record.version,
         cameras=record.cameras,
+        provenance_counts=record.provenance_counts,
         expires_at=(
             record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
             if record.finished_at and not record.pinned
@@ -383,6 +320,18 @@ def get_confidence(
     )
 
 
+@router.get("/{job_id}/provenance", responses=MAP_RESPONSES, response_class=Response)
+def get_provenance(
+    job_id: str, svc: ServicesDep, principal: PrincipalDep, format: Literal["png", "npy"] = "png"
+):
+    """Which stage decided each pixel: a colour PNG, or the uint8 codes as npy (the legend:
+    ``GET /v1/provenance-legend``; the pixels per stage are the status' ``provenance_counts``)."""
+    _, stages = finished_map(job_id, "provenance", svc, principal)
+    data = provenance_map.png(stages) if format == "png" else npy(stages)
+    media = "image/png" if format == "png" else DISPARITY_MEDIA["npy"]
+    return attachment(data, media, f"{job_id}.provenance.{format}")
+
+
 def job_calibration(record: JobRecord) -> Calibration:
     if record.cameras is None:
         raise ServiceError(
@@ -451,7 +400,7 @@ def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Use
 def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
     """The job in one zip: ``job.json`` (its status: config, version, levels, usage, metrics,
     charge) and the files it still has: ``disparity.pfm``, ``validity.png``,
-    ``confidence.pfm``, ``left.png``."""
+    ``confidence.pfm``, ``provenance.png``, ``left.png``."""
     record = find_job(job_id, svc, principal)
     files = {"job.json": status_of(record, svc, users).model_dump_json(indent=2).encode()}
     disparity = svc.store.load_result(job_id) if record.state is JobState.SUCCEEDED else None
@@ -467,6 +416,11 @@ def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Us
             and (confidence := svc.store.load_map(job_id, "confidence")) is not None
         ):
             files["confidence.pfm"] = disparity_bytes(confidence, "pfm")
+        if (
+            "provenance" in record.maps
+            and (stages := svc.store.load_map(job_id, "provenance")) is not None
+        ):
+            files["provenance.png"] = provenance_map.png(stages)
     if (left := svc.store.load_view(job_id, "left.png")) is not None:
         files["left.png"] = left
     stream = io.BytesIO()

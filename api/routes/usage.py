@@ -57,6 +57,6 @@ def usage(
         in_flight = QpuSemaphore(store.redis, store.prefix, limit=1).in_flight()
     return Usage(
         users=entries,
-        total_used_seconds=sum(entry.used_seconds for entry in entries),
+        total_used_seconds=sum(entry.total_used_seconds for entry in entries),
         qpu_in_flight=in_flight,
     )

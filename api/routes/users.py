@@ -5,21 +5,29 @@ Keys are returned once, in the answer of the request that made them; only their 
 
 from __future__ import annotations
 
+from datetime import datetime
+
 from fastapi import APIRouter, Depends, HTTPException
 from fastapi import status as http
 from pydantic import BaseModel, Field
 
 from api.deps import AdminDep, PrincipalDep, UsersDep
 from api.users import DEFAULT_BUDGET, User, UserError, UserStore, admin_user
+from shared.settings import BudgetPeriod
 
 router = APIRouter(prefix="/users", tags=["users"], dependencies=[Depends(admin_user)])
 me_router = APIRouter(tags=["users"])
 
 
 class UserInfo(User):
-    limit_seconds: float | None = Field(description="QPU budget; null: unlimited")
-    used_seconds: float
+    limit_seconds: float | None = Field(description="QPU budget per period; null: unlimited")
+    used_seconds: float = Field(description="Charged in the current period")
     reserved_seconds: float
+    period: BudgetPeriod = Field(description="What the budget covers now")
+    own_period: BudgetPeriod | None = Field(
+        None, description="The user's own period; null: the deployment's (QHSM_BUDGET_PERIOD)"
+    )
+    resets_at: datetime | None = Field(None, description="End of the current period; null: never")
 
 
 class NewUser(BaseModel):
@@ -37,6 +45,11 @@ class Quota(BaseModel):
     qpu_seconds: float | None = Field(
         ge=0, allow_inf_nan=False, description="QPU budget, seconds (finite); null: unlimited"
     )
+    period: BudgetPeriod | None = Field(
+        None,
+        description="The user's own budget period (lifetime, monthly, weekly); null: the "
+        "deployment's (QHSM_BUDGET_PERIOD); omitted: unchanged",
+    )
 
 
 class IssuedKey(BaseModel):
@@ -51,6 +64,9 @@ def info(store: UserStore, user: User) -> UserInfo:
         limit_seconds=budget["limit_seconds"],
         used_seconds=budget["used_seconds"],
         reserved_seconds=budget["reserved_seconds"],
+        period=budget["period"],
+        own_period=store.ledger.own_period(user.name),
+        resets_at=budget["resets_at"],
     )
 
 
@@ -110,7 +126,10 @@ def revoke_key(name: str, store: UsersDep, caller: AdminDep):
 
 @router.put("/{name}/quota", response_model=UserInfo)
 def set_quota(name: str, body: Quota, store: UsersDep):
-    """Set the user's total QPU budget in seconds (null: unlimited)."""
+    """Set the user's QPU budget per period in seconds (null: unlimited) and, when given, their
+    own budget period (null: the deployment's)."""
     user = existing(store, name)
     store.ledger.set_limit(name, body.qpu_seconds)
+    if "period" in body.model_fields_set:
+        store.ledger.set_period(name, body.period)
     return info(store, user)

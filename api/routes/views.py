@@ -17,7 +17,9 @@ from api.deps import PrincipalDep, Responses, Services, ServicesDep
 from api.errors import ExpiredError, Refusal, ServiceError
 from api.job_service import find_job, finished_result
 from api.responses import NOT_FOUND, SCALE_HEADER, UPLOAD_ERRORS, display_max
+from api.schemas import LegendEntry
 from api.uploads import decode_view, read_upload
+from shared import provenance_map
 from shared.images import colorize
 from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
 
@@ -34,6 +36,12 @@ THUMBNAIL_SIDE = 320
 #: Response header of the difference map: share of the pixels (%) that differ by more than the
 #: bad-pixel threshold.
 DIFFERING_HEADER = "X-Differing-Percent"
+
+
+@thumbnails.get("/provenance-legend", response_model=list[LegendEntry])
+def get_provenance_legend():
+    """The provenance map's codes: each one's name, colour and what decided its pixels."""
+    return provenance_map.legend()
 
 
 def png(image: np.ndarray, top: float | None = None) -> Response:

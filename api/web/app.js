@@ -35,7 +35,7 @@ async function route() {
     else if (view === "compare" && args[1]) { releaseImages(); await showCompare(args[0], args[1]); }
     else if (view === "usage") await showUsage();
     else if (view === "users" && session.me.admin) await showUsers();
-    else await showJobs();
+    else await showJobs(view === "jobs" ? args : []);
   } catch (error) {
     if (error.status !== 401) toast(error.message);
   }

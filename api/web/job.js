@@ -138,11 +138,37 @@ async function togglePin(job) {
   await showJob(job.id);
 }
 
+/** The provenance map (which stage decided each pixel) with its legend, from the API's one
+ * legend, each stage's pixels and share; null when the job has no such map. */
+async function provenanceFigure(job) {
+  if (!job.links?.provenance) return null;
+  const [map, legend] = await Promise.all([
+    authImage(job.links.provenance, "Provenance map").catch(() => null),
+    json("/v1/provenance-legend").catch(() => []),
+  ]);
+  if (!map) return null;
+  const counts = job.provenance_counts || {};
+  const total = Object.values(counts).reduce((sum, n) => sum + n, 0) || 1;
+  const swatch = (colour) => {  // CSSOM, not a style attribute: the page's CSP allows no inline style
+    const span = el("span", { class: "swatch" });
+    span.style.backgroundColor = colour;
+    return span;
+  };
+  const rows = legend.map((entry) => el("li", { title: entry.meaning, "data-stage": entry.name },
+    swatch(entry.colour),
+    `${entry.code} ${entry.name.replaceAll("_", " ")}: ${fmt(counts[entry.name] ?? 0)} px ` +
+    `(${(100 * (counts[entry.name] ?? 0) / total).toFixed(2)} %)`));
+  return el("figure", { class: "shot provenance" }, map.img,
+    el("figcaption", {}, "Provenance: which stage decided each pixel (hover a stage for what it means)"),
+    el("ul", { class: "legend", "aria-label": "provenance legend" }, rows));
+}
+
 /** Buttons for the maps beside the disparity and, with cameras, its depth and point cloud:
  * those the job's links name. */
 function extraDownloads(job) {
   const files = [["validity", "validity PNG", `${job.id}.valid.png`],
     ["confidence", "confidence PFM", `${job.id}.confidence.pfm`],
+    ["provenance", "provenance PNG", `${job.id}.provenance.png`],
     ["depth", "depth PFM", `${job.id}.depth.pfm`], ["points", "point cloud PLY", `${job.id}.ply`]];
   return files.filter(([link]) => job.links?.[link]).map(([link, label, name]) =>
     el("button", { type: "button", class: "small", "data-download": link, onclick: () => download(job.links[link], name) }, label));
@@ -184,7 +210,10 @@ export async function showJob(id) {
   if (job.error) parts.push(el("p", { class: "field-error", role: "alert" }, job.error));
   if (job.state === "succeeded") {
     parts.push(metricsBlock(job));
-    parts.push(await resultImages(job));
+    const images = await resultImages(job);
+    const provenance = await provenanceFigure(job);
+    if (provenance) images.append(provenance);
+    parts.push(images);
     parts.push(el("div", { class: "downloads" }, el("span", {}, "Download:"),
       [["pfm", "PFM"], ["png", "16-bit PNG"], ["npy", "NPY"]].map(([format, label]) =>
         el("button", { type: "button", class: "small", onclick: () => download(`/v1/jobs/${job.id}/disparity?format=${format}`, `${job.id}.${format}`) }, label)),

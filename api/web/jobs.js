@@ -13,6 +13,55 @@ export const MAX_PAGE_SIZE = 100;
 
 /** How many jobs the list shows: "Show more" adds a page. */
 let jobsLimit = PAGE_SIZE;
+/** The list's filter (`#/jobs/tag/T/batch/B`): a tag (GET /v1/jobs?tag=), a batch (its jobs,
+ * GET /v1/batches/{id}), or both (the batch's jobs with the tag). */
+let filter = { tag: "", batch: "" };
+
+/** The filter an address's arguments after `#/jobs` name. */
+export function filterOf(args) {
+  const found = { tag: "", batch: "" };
+  for (let i = 0; i + 1 < args.length; i += 2) {
+    if (args[i] in found) found[args[i]] = decodeURIComponent(args[i + 1]);
+  }
+  return found;
+}
+
+function filterHash(tag, batch) {
+  const parts = ["#/jobs"];
+  if (tag) parts.push("tag", encodeURIComponent(tag));
+  if (batch) parts.push("batch", encodeURIComponent(batch));
+  return parts.join("/");
+}
+
+/** A job's tags and batch as links that filter the list by them. */
+function chips(job) {
+  const links = (job.tags || []).map((tag) =>
+    el("a", { class: "chip", href: filterHash(tag, ""), title: `jobs tagged ${tag}` }, tag));
+  if (job.batch) {
+    links.push(el("a", { class: "chip batch", href: filterHash("", job.batch), title: `batch ${job.batch}` },
+      `batch ${job.batch.slice(0, 8)}`));
+  }
+  return links.length ? el("span", { class: "chips" }, links) : null;
+}
+
+/** The page of jobs the filter selects: `{items, total, next, batch}`. */
+async function jobsPage() {
+  if (filter.batch) {
+    const batch = await json(`/v1/batches/${encodeURIComponent(filter.batch)}`);
+    const items = batch.jobs.map((entry) => entry.job).filter(Boolean)
+      .filter((job) => !filter.tag || job.tags.includes(filter.tag));
+    return { items, total: items.length, next: null, batch };
+  }
+  const tag = filter.tag ? `&tag=${encodeURIComponent(filter.tag)}` : "";
+  return json(`/v1/jobs?limit=${jobsLimit}${tag}`);
+}
+
+function batchSummary(batch) {
+  if (!batch) return "";
+  const states = Object.entries(batch.progress.by_state).map(([state, n]) => `${n} ${state}`).join(", ");
+  return `Batch ${batch.id.slice(0, 8)} (${batch.tags.join(", ") || "no tags"}): ` +
+    `${batch.progress.finished}/${batch.progress.total} finished · ${states}`;
+}
 
 function progressOf(job) {
   if (job.state === "succeeded") return { fraction: 1, text: "done" };
@@ -22,7 +71,7 @@ function progressOf(job) {
   if (!p.level || !p.bundles_total) {
     // the level is being prepared (a QPU solver's embedding search can take minutes)
     return { fraction: Math.max(0, p.level - 1) / Math.max(p.levels, 1),
-      text: `preparing level ${Math.max(p.level, 1)}/${p.levels || "?"}` };
+      text: `level ${Math.max(p.level, 1)}/${p.levels || "?"}: ${p.phase || "preparing"}` };
   }
   return {
     fraction: Math.min(1, (p.level - 1 + p.bundles_done / p.bundles_total) / Math.max(p.levels, 1)),
@@ -54,13 +103,13 @@ export async function cancelJob(id) {
 }
 
 async function refreshJobs() {
-  const page = await json(`/v1/jobs?limit=${jobsLimit}`);
+  const page = await jobsPage();
   const details = await Promise.all(page.items.map((job) =>
     ACTIVE.has(job.state) ? json(`/v1/jobs/${job.id}`).catch(() => job) : job));
   const rows = details.map((job) => el("tr", { "data-job": job.id },
     el("td", { "data-label": "Job", class: "job-name" },
       el("a", { href: `#/job/${job.id}`, title: job.id }, jobName(job)),
-      el("span", { class: "job-id" }, job.id.slice(0, 8))),
+      el("span", { class: "job-id" }, job.id.slice(0, 8)), chips(job)),
     el("td", { class: "owner-col", "data-label": "User" }, job.owner ?? "—"),
     el("td", { "data-label": "State" }, stateBadge(job.state)),
     el("td", { "data-label": "Progress" }, progressBar(job)),
@@ -75,19 +124,32 @@ async function refreshJobs() {
       : null)));
   $("#jobs-table tbody").replaceChildren(...rows);
   $("#jobs-table").hidden = !rows.length;
-  $("#jobs-empty").hidden = Boolean(rows.length);
+  const filtered = Boolean(filter.tag || filter.batch);
+  $("#jobs-empty").hidden = Boolean(rows.length) || filtered;
+  $("#jobs-none").hidden = Boolean(rows.length) || !filtered;
+  $("#batch-summary").textContent = batchSummary(page.batch);
+  $("#batch-summary").hidden = !page.batch;
   $("#jobs-count").textContent = page.total ? `${page.total} job${page.total === 1 ? "" : "s"}` +
     (session.me.admin ? " (everyone's)" : "") : "";
   $("#jobs-more").hidden = !page.next;
   if (!$("#view-jobs").hidden) poll(refreshJobs);
 }
 
-export async function showJobs() {
+export async function showJobs(args = []) {
   showView("jobs");
+  filter = filterOf(args);
+  $("#filter-tag").value = filter.tag;
+  $("#filter-batch").value = filter.batch;
+  $("#filter-clear").hidden = !(filter.tag || filter.batch);
   await refreshJobs();
 }
 
 export function setUpJobList() {
+  $("#jobs-filter").addEventListener("submit", (event) => {
+    event.preventDefault();
+    location.hash = filterHash($("#filter-tag").value.trim(), $("#filter-batch").value.trim());
+  });
+  $("#filter-clear").addEventListener("click", () => { location.hash = "#/jobs"; });
   $("#jobs-more").addEventListener("click", () => {
     jobsLimit = Math.min(MAX_PAGE_SIZE, jobsLimit + PAGE_SIZE);
     refreshJobs();

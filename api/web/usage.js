@@ -1,4 +1,5 @@
-// QPU budgets: used, reserved and left, and the QPU time of each job (admins see every user).
+// QPU budgets: used, reserved and left in the budget's period (when it resets), and the QPU time
+// of each job (admins see every user).
 
 import { download, json, session } from "./api.js";
 import { $, el, keyValues } from "./dom.js";
@@ -26,7 +27,10 @@ export async function showUsage() {
     budgetBar(entry),
     keyValues([["used", seconds(entry.used_seconds)], ["reserved", seconds(entry.reserved_seconds)],
       ["left", entry.remaining_seconds === null ? "unlimited" : seconds(entry.remaining_seconds)],
-      ["budget", entry.limit_seconds === null ? "unlimited" : seconds(entry.limit_seconds)]]),
+      ["budget", entry.limit_seconds === null ? "unlimited" : seconds(entry.limit_seconds)],
+      ["period", entry.period + (entry.period_start ? ` since ${entry.period_start.slice(0, 10)}` : "")],
+      ["resets", entry.resets_at ? new Date(entry.resets_at).toISOString().replace(".000Z", " UTC").replace("T", " ") : "never"],
+      ["used in total", seconds(entry.total_used_seconds)]]),
     entry.jobs.length
       ? el("table", { class: "small-table" }, el("thead", {}, el("tr", {}, el("th", {}, "Job"), el("th", {}, "QPU time"), el("th", {}, "Problems"))),
         el("tbody", {}, entry.jobs.map((job) => el("tr", {},

@@ -1,4 +1,5 @@
-// The admins' view of users: create one (its key shown once), set budgets, rotate and revoke keys.
+// The admins' view of users: create one (its key shown once), set budgets and their periods,
+// rotate and revoke keys.
 
 import { json, send, session } from "./api.js";
 import { $, clearErrors, el, showFieldError, stateBadge } from "./dom.js";
@@ -27,16 +28,21 @@ async function refreshUsers() {
     const quota = el("input", { type: "number", min: "0", step: "any", class: "quota",
       "aria-label": `QPU budget of ${user.name}`, placeholder: "unlimited",
       value: user.limit_seconds === null ? "" : String(user.limit_seconds) });
+    const period = el("select", { class: "period", "aria-label": `Budget period of ${user.name}` },
+      ["", "lifetime", "monthly", "weekly"].map((value) => el("option", { value,
+        selected: (user.own_period ?? "") === value },
+      value || `default (${user.own_period ? "QHSM_BUDGET_PERIOD" : user.period})`)));
     return el("tr", { "data-user": user.name },
       el("td", { "data-label": "User" }, user.name),
       el("td", { "data-label": "Role" }, user.admin ? "admin" : "member"),
       el("td", { "data-label": "Key" }, user.revoked ? stateBadge("revoked") : el("code", {}, user.key_id ?? "—")),
       el("td", { "data-label": "Used s" }, fmt(user.used_seconds)),
       el("td", { "data-label": "Budget s" }, user.limit_seconds === null ? "unlimited" : fmt(user.limit_seconds)),
-      el("td", { "data-label": "Set budget" }, el("div", { class: "inline" }, quota,
+      el("td", { "data-label": "Set budget" }, el("div", { class: "inline" }, quota, period,
         el("button", { type: "button", class: "small", onclick: () => userAction(() =>
           send(`${path}/quota`, "PUT",
-            { qpu_seconds: quota.value.trim() === "" ? null : Number(quota.value) })) }, "Set"))),
+            { qpu_seconds: quota.value.trim() === "" ? null : Number(quota.value),
+              period: period.value || null })) }, "Set"))),
       el("td", { class: "actions" },
         el("button", { type: "button", class: "small", onclick: () => userAction(async () => {
           const issued = await send(`${path}/key`, "POST");

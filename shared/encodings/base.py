@@ -38,10 +38,12 @@ def with_margin(bound: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Decoded:
-    """Labels (h, w) of candidate indices and how many pixels had to be repaired."""
+    """Labels (h, w) of candidate indices and how many pixels had to be repaired (``invalid``:
+    which, None when none was)."""
 
     labels: np.ndarray
     repaired: int
+    invalid: np.ndarray | None = None
 
 
 def conditional_costs(costs: Costs, labels: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -101,7 +103,9 @@ def repair(costs: Costs, labels: np.ndarray, valid: np.ndarray) -> Decoded:
     if count == 0:
         return Decoded(labels=labels, repaired=0)
     best = conditional_costs(costs, labels, valid).argmin(axis=2)
-    return Decoded(labels=np.where(invalid, best, labels).astype(np.int32), repaired=count)
+    return Decoded(
+        labels=np.where(invalid, best, labels).astype(np.int32), repaired=count, invalid=invalid
+    )
 
 
 def pixel_index(shape: tuple[int, int]) -> np.ndarray:

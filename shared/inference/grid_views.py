@@ -9,9 +9,12 @@ import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
+
 from shared.assembly import BundleResult
 from shared.bundles import Bundle
 from shared.config import MatchConfig
+from shared.grid import DualResult
 from shared.grid_inference import Minimiser
 from shared.inference.base import (
     BundleProgress,
@@ -21,6 +24,7 @@ from shared.inference.base import (
     whole_rows_setting,
 )
 from shared.level_inputs import BundleSpec, LevelInputs
+from shared.provenance_map import Stage, filled
 from shared.threads import threads
 
 #: Grids (whole views) minimised at the same time hold at most about this much dual
@@ -77,6 +81,7 @@ class GridViews(Strategy):
                 repaired=0,
                 wall_time=time.perf_counter() - started,
                 info={"dual_iterations": outcome.iterations, "disagreeing": outcome.disagreeing},
+                stages=grid_stages(outcome),
             )
 
         results: list[BundleResult] = []
@@ -112,3 +117,13 @@ def grids_at_once(inputs: LevelInputs, row_ranges: Sequence[tuple[int, int]]) ->
     rows = max(stop - start for start, stop in row_ranges)
     grid_bytes = 4 * GRID_STATE_ARRAYS * rows * inputs.candidates[0].size
     return max(1, min(len(row_ranges), threads(), GRID_STATE_BYTES // max(grid_bytes, 1)))
+
+
+def grid_stages(outcome: DualResult) -> np.ndarray:
+    """A host-minimised grid's codes: :attr:`Stage.CERTIFIED` where dual decomposition's row and
+    column copies agree (everywhere when the labelling is proved optimal), else
+    :attr:`Stage.HOST`."""
+    if outcome.unsettled is None:
+        proved = outcome.disagreeing == 0
+        return filled(outcome.labels.shape, Stage.CERTIFIED if proved else Stage.HOST)
+    return np.where(outcome.unsettled, np.uint8(Stage.HOST), np.uint8(Stage.CERTIFIED))

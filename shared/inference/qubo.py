@@ -18,9 +18,9 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.grid import DualResult
 from shared.inference.base import BundleProgress, Strategy, Termination
 from shared.level_inputs import BundleSpec, LevelInputs
+from shared.provenance_map import Stage, filled
 from shared.solvers.base import BatchSolver, ShapePlanner, SolveResult
 
 if TYPE_CHECKING:
@@ -33,17 +33,13 @@ PIPELINE_PARAMS = {"warm_start"}
 @dataclass
 class TileProblem:
     """One QUBO bundle as the solver gets it: its costs (with a grid tile's boundary unaries),
-    QUBO, seed and warm start; with ``certify_tiles`` on a tile the host's dual decomposition of
-    it too, and then ``bqm`` is None when that certified the optimum (nothing to send)."""
+    QUBO, seed and warm start."""
 
     bundle: Bundle
     costs: Costs
-    bqm: dimod.BinaryQuadraticModel | None
+    bqm: dimod.BinaryQuadraticModel
     seed: int
     initial: np.ndarray | None
-    dual: DualResult | None = None
-    #: Host seconds the dual decomposition took.
-    dual_seconds: float = 0.0
 
 
 class QuboStrategy(Strategy):
@@ -152,14 +148,12 @@ class QuboStrategy(Strategy):
         return sample(self.sampler, problems, config, len(items), progress)
 
     def warm_start(
-        self, inputs: LevelInputs, row_costs: Costs, bundle: Bundle, dual: DualResult | None
+        self, inputs: LevelInputs, row_costs: Costs, bundle: Bundle
     ) -> np.ndarray | None:
-        """A bundle's starting labels when the run warm-starts: the host's dual decomposition's
-        labels, else the coarser estimate (:meth:`LevelInputs.starting_labels`)."""
+        """A bundle's starting labels when the run warm-starts: the coarser estimate
+        (:meth:`LevelInputs.starting_labels`)."""
         if not self.warm:
             return None
-        if dual is not None:
-            return dual.labels
         start, stop, first, last = bundle.as_list()
         return inputs.starting_labels(row_costs, start, stop)[:, first:last]
 
@@ -170,18 +164,13 @@ def encoded(
     bundle: Bundle,
     costs: Costs,
     start: np.ndarray | None,
-    dual: DualResult | None = None,
-    dual_seconds: float = 0.0,
 ) -> TileProblem:
-    """A bundle's :class:`TileProblem` from its costs and starting labels (None: no warm start):
-    no QUBO when the host's ``dual`` certified its optimum."""
+    """A bundle's :class:`TileProblem` from its costs and starting labels (None: no warm start)."""
     seed = bundle_seed(config.seed, inputs.index, bundle.row_start, bundle.col_start)
-    if dual is not None and dual.disagreeing == 0:
-        return TileProblem(bundle, costs, None, seed, None, dual, dual_seconds)
     codec = get_codec(config.encoding)
     initial = None if start is None else codec.encode_labels(start, costs.num_labels)
     bqm = codec.encode(costs, config.rectifier)
-    return TileProblem(bundle, costs, bqm, seed, initial, dual, dual_seconds)
+    return TileProblem(bundle, costs, bqm, seed, initial)
 
 
 def sample(
@@ -205,64 +194,59 @@ def sample(
 
 def answers(
     solver: Any, problems: Iterable[TileProblem], params: dict[str, Any]
-) -> Iterator[tuple[TileProblem, SolveResult | None]]:
-    """Each problem with the solver's answer (None: the host certified it, nothing sent): sent
-    one at a time as they are built, or all in one call to a batch solver (one problem for many
-    bundles: hybrid's level)."""
+) -> Iterator[tuple[TileProblem, SolveResult]]:
+    """Each problem with the solver's answer: sent one at a time as they are built, or all in
+    one call to a batch solver (one problem for many bundles: hybrid's level)."""
     if isinstance(solver, BatchSolver):
         given = list(problems)
-        sent = [(p.bqm, p.seed, p.initial) for p in given if p.bqm is not None]
-        outcomes = iter(solver.solve_batch(sent, **params) if sent else [])
-        for problem in given:
-            yield problem, None if problem.bqm is None else next(outcomes)
+        outcomes = solver.solve_batch([(p.bqm, p.seed, p.initial) for p in given], **params)
+        yield from zip(given, outcomes, strict=True)
         return
     for problem in problems:
-        if problem.bqm is None:
-            yield problem, None
-        else:
-            yield (
-                problem,
-                solver.solve(
-                    problem.bqm, seed=problem.seed, initial_state=problem.initial, **params
-                ),
-            )
+        outcome = solver.solve(
+            problem.bqm, seed=problem.seed, initial_state=problem.initial, **params
+        )
+        yield problem, outcome
 
 
-def bundle_result(problem: TileProblem, outcome: SolveResult | None, codec: Any) -> BundleResult:
-    """A bundle's result from the solver's ``outcome`` (None: certified on the host). With a
-    host labelling the better of the two by MRF energy is kept, and ``info`` counts the bundle
-    as roof duality's reports do (``variables``, ``residual_variables``: what reached the
-    solver) plus ``certified``."""
+def bundle_result(problem: TileProblem, outcome: SolveResult, codec: Any) -> BundleResult:
+    """A bundle's result from the solver's ``outcome``: its decoded labels, their energy and
+    their provenance codes (:func:`sampler_stages`)."""
     start, stop, first, last = problem.bundle.as_list()
-    dual, costs = problem.dual, problem.costs
-    if outcome is None:
-        assert dual is not None
-        labels, repaired, wall, timing, info = dual.labels, 0, 0.0, {}, {}
-    else:
-        decoded = codec.decode(costs, outcome.sample)
-        labels, repaired, wall = decoded.labels, decoded.repaired, outcome.wall_time
-        timing, info = outcome.timing, outcome.info
-    energy = mrf_energy(costs, labels)
-    if dual is not None:
-        variables = costs.shape[0] * costs.shape[1] * codec.variables_per_pixel(costs.num_labels)
-        info = {"variables": variables, "residual_variables": variables, **info}
-        info["certified"] = outcome is None
-        if outcome is None:
-            info.update(fixed_fraction=1.0, residual_variables=0)
-        else:
-            host = mrf_energy(costs, dual.labels)
-            info["kept"] = "host" if host < energy else "solver"
-            if host < energy:
-                labels, energy, repaired = dual.labels, host, 0
+    decoded = codec.decode(problem.costs, outcome.sample)
+    per_pixel = codec.variables_per_pixel(problem.costs.num_labels)
+    stages = sampler_stages(
+        decoded.invalid, outcome.info.get("fixed_variables"), per_pixel, decoded.labels
+    )
+    info = {k: v for k, v in outcome.info.items() if k != "fixed_variables"}
     return BundleResult(
         row_start=start,
         row_stop=stop,
-        labels=labels,
-        energy=energy,
-        repaired=repaired,
-        wall_time=wall + problem.dual_seconds,
-        timing=timing,
+        labels=decoded.labels,
+        energy=mrf_energy(problem.costs, decoded.labels),
+        repaired=decoded.repaired,
+        wall_time=outcome.wall_time,
+        timing=outcome.timing,
         info=info,
         col_start=first,
         col_stop=last,
+        stages=stages,
     )
+
+
+def sampler_stages(
+    invalid: np.ndarray | None, fixed: list[int] | None, per_pixel: int, labels: np.ndarray
+) -> np.ndarray:
+    """A sampled bundle's provenance codes: :attr:`Stage.SOLVER`, :attr:`Stage.ROOF_DUALITY`
+    where roof duality fixed every variable of the pixel (``fixed``: the bundle's variables it
+    fixed, pixel-major as the codecs number them, ``per_pixel`` a pixel), and
+    :attr:`Stage.REPAIRED` where the bits were no valid code (``invalid``)."""
+    stages = filled(labels.shape, Stage.SOLVER)
+    if fixed:
+        mask = np.zeros(labels.size * per_pixel, dtype=bool)
+        mask[np.asarray(fixed, dtype=np.int64)] = True
+        whole = mask.reshape(labels.size, per_pixel).all(axis=1).reshape(labels.shape)
+        stages[whole] = Stage.ROOF_DUALITY
+    if invalid is not None:
+        stages[invalid] = Stage.REPAIRED
+    return stages

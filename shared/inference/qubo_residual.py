@@ -13,6 +13,7 @@ import time
 from collections.abc import Iterator, Sequence
 
 from shared import settle
+from shared.activity import report
 from shared.assembly import BundleResult, LevelSolution
 from shared.bundles import Bundle
 from shared.config import MatchConfig
@@ -31,6 +32,7 @@ class ResidualTiles(QuboTiles):
     name = "qubo-residual"
 
     def prepare(self, inputs: LevelInputs, config: MatchConfig) -> str | None:
+        report("settling the level on the host (dual decomposition of each view)")
         counts = settle.prepare(inputs, config)
         return (
             f"settled on the host in {counts.host_seconds:.1f} s: {counts.unsettled} of "

@@ -28,5 +28,5 @@ class QuboRows(QuboStrategy):
             start, stop, first, last = bundle.as_list()
             if row_costs is None or rows != (start, stop):
                 row_costs, rows = inputs.costs(config, start, stop), (start, stop)
-            start_labels = self.warm_start(inputs, row_costs, bundle, None)
+            start_labels = self.warm_start(inputs, row_costs, bundle)
             yield encoded(inputs, config, bundle, row_costs.columns(first, last), start_labels)

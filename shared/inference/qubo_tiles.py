@@ -1,14 +1,12 @@
 """Grid inference with a QUBO solver, tile by tile: each bundle is a tile of ``bundle_height``
 rows (a segment of them with ``bundle_width``) whose edges to the pixels around it become
 unaries given those pixels' starting labels (the coarser level's estimate;
-:func:`shared.grid.boundary_unary`). With ``certify_tiles`` each tile is first minimised by
-dual decomposition on the host: a tile whose row and column chains agree is exact and never
-reaches the solver (no QPU time); the others keep the better of the solver's and the host's
-labels. The level's energy is that of the assembled labels on the whole grid."""
+:func:`shared.grid.boundary_unary`). The level's energy is that of the assembled labels on the
+whole grid. (With ``certify_tiles``, the default, the host settles the level first and only the
+tiles around what it leaves are solved: :mod:`shared.inference.qubo_residual`.)"""
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterator, Sequence
 from dataclasses import replace
 
@@ -18,7 +16,7 @@ from shared import settle
 from shared.assembly import BundleResult, LevelSolution
 from shared.bundles import Bundle
 from shared.config import MatchConfig
-from shared.grid import GridMRF, boundary_unary, dual_decomposition
+from shared.grid import GridMRF, boundary_unary
 from shared.inference.qubo import QuboStrategy, TileProblem, encoded
 from shared.level_inputs import LevelInputs
 
@@ -45,13 +43,8 @@ class QuboTiles(QuboStrategy):
             costs = replace(costs, unary=costs.unary + extra)
             if pin:  # the certified pixels pinned (shared.settle)
                 costs = replace(costs, unary=settle.pinned(inputs, bundle, costs))
-            dual, dual_seconds = None, 0.0
-            if config.certify_tiles:
-                started = time.perf_counter()
-                dual = dual_decomposition(grid.tile(*tile, extra), config.dual_iterations)
-                dual_seconds = time.perf_counter() - started
-            start_labels = self.warm_start(inputs, row_costs, bundle, dual)
-            yield encoded(inputs, config, bundle, costs, start_labels, dual, dual_seconds)
+            start_labels = self.warm_start(inputs, row_costs, bundle)
+            yield encoded(inputs, config, bundle, costs, start_labels)
 
     def assemble(
         self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig

@@ -198,13 +198,16 @@ class Reduction:
 
     @property
     def info(self) -> dict[str, Any]:
-        """What a sample set reports about the reduction (per-level counts add these up)."""
+        """What a sample set reports about the reduction (per-level counts add these up;
+        ``fixed_variables``, the bundle's variables roof duality fixed, give the pipeline's
+        provenance map its :attr:`shared.provenance_map.Stage.ROOF_DUALITY` pixels)."""
         n = self.bqm.num_variables
         return {
             "preprocess": self.preprocess,
             "fixed_fraction": len(self.fixed) / max(n, 1),
             "variables": n,
             "residual_variables": int(self.free.size),
+            "fixed_variables": sorted(int(v) for v in self.fixed),
         }
 
     def states(self, initial_states: Any) -> Any:

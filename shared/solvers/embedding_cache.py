@@ -33,6 +33,7 @@ from typing import Protocol
 
 import dimod
 
+from shared.activity import report
 from shared.config import get_settings
 from shared.solvers.embedding_search import Embedding, find_embedding, is_valid_on
 from shared.solvers.errors import SolverError
@@ -424,6 +425,7 @@ class EmbeddingCache:
             verdict = f"nofit-{structure_key(bqm, target)}-{timeout:g}"
             if self.store.get(verdict) is not None:
                 return False
+            report(f"finding the widest row segment that embeds: {width} of {row_width} px")
             try:
                 self.lookup(
                     bqm, target_edges, target, timeout, solver=solver, remember_failure=False

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import dimod
 import numpy as np
 
+from shared.activity import report
 from shared.config import get_settings
 from shared.solvers.base import SolverError, SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
@@ -101,7 +102,9 @@ def copies(
 
     digest = structure_digest(bqm)
     key = copies_key(target, digest)
+    cached = f"embedding a {bqm.num_variables}-variable tile shape: cached"
     if key in cache.copies:
+        report(cached)
         return cache.copies[key][:limit], "memory"
     stored = cache.store.get(key)
     if stored is not None:
@@ -111,11 +114,17 @@ def copies(
         if found and is_valid_on(found[0], bqm, sampler.edgelist):
             cache.remember(bqm, target, found[0], solver)
             cache.copies[key] = found
+            report(cached)
             return found[:limit], "store"
+
+    def searching(text: str) -> None:  # logged, and shown in the job's status
+        (progress or (lambda text: log.info("%s: %s", key, text)))(text)
+        report(text)
+
     found = translated_copies(
         bqm, sampler.properties, list(sampler.nodelist), list(sampler.edgelist),
-        tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES),
-        progress=progress or (lambda text: log.info("%s: %s", key, text)),
+        tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES), progress=searching,
+        store=cache.store,
     )  # fmt: skip
     if found:
         cache.remember(bqm, target, found[0], solver, computed=True)
@@ -125,6 +134,7 @@ def copies(
             "%d tries; one bundle per QPU call (raise QHSM_EMBEDDING_TRIES, or use "
             "--encoding domain-wall for fewer variables)", key, get_settings().embedding_tries,
         )  # fmt: skip
+        searching(f"embedding a {bqm.num_variables}-variable shape on the whole QPU graph")
         found = [first()]
     log.info("%d disjoint embeddings of %s", len(found), key)
     cache.copies[key] = found

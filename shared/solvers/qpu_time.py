@@ -216,7 +216,7 @@ def level_estimate(
     cache : EmbeddingCache, optional
         Where known embedding sizes and ``auto`` widths are looked up.
     residual : LevelResidual, optional
-        What tile certificates and roof duality leave of the level's bundles
+        What the host's settling and roof duality leave of the level's bundles
         (:func:`shared.residual.survey`); None: every bundle is assumed sent whole (an upper
         bound).
 

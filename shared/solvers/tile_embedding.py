@@ -9,10 +9,16 @@ embedding to every offset of the chip's unit-cell lattice where its qubits and c
 are still free. The result depends on the seed, the tries and the graph only, never on how busy
 the machine is; the smallest sublattice that embeds gives the most copies (4x4 tile, 5 labels,
 Pegasus P16: 20 copies on ``m = 4``, 15 on 5, 12 on 6; docs/benchmarks.md).
+
+The sublattice's embedding (the search that costs the tries) depends on the shape and the
+defect-free sublattice only, so it is kept in the embedding store under :func:`tile_key` and
+every chip of the family reuses it, whatever its broken qubits: :func:`warm` computes them ahead
+of time for the known chips (``qhsm embeddings warm``), and a worker then only translates.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Callable
@@ -21,7 +27,7 @@ from typing import Any
 import dimod
 
 from shared.solvers.embedding_search import Embedding
-from shared.solvers.structure_keys import structure_edges
+from shared.solvers.structure_keys import structure_digest, structure_edges
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +38,16 @@ SEED = 0
 #: Sublattice sizes tried above minorminer's lower bound before giving up (each failure costs
 #: ``tries`` minorminer tries; a larger tile gives fewer copies than one embedding on the chip).
 EXTRA_SIZES = 3
+
+#: The chips whose tile embeddings :func:`warm` computes ahead of time: Advantage (Pegasus P16)
+#: and Advantage2 (Zephyr Z12, Z15), as (family, m, t).
+KNOWN_CHIPS = {"P16": ("pegasus", 16, 12), "Z12": ("zephyr", 12, 4), "Z15": ("zephyr", 15, 4)}
+
+
+def tile_key(family: str, size: int, t: int, digest: str, tries: int) -> str:
+    """Store key of a shape's embedding into the defect-free ``family`` sublattice ``m = size``
+    (the same on every chip of the family: no graph fingerprint in it)."""
+    return f"sublattice-{family}{size}t{t}-{digest}-seed{SEED}-tries{tries}"
 
 
 def lattice(properties: dict[str, Any]) -> tuple[str, int, int] | None:
@@ -56,6 +72,11 @@ def lattice(properties: dict[str, Any]) -> tuple[str, int, int] | None:
     return None
 
 
+def chip_name(family: str, m: int) -> str:
+    """``Pegasus P16``, ``Zephyr Z12``: a chip graph as D-Wave names it."""
+    return f"{family.capitalize()} {family[0].upper()}{m}"
+
+
 def _graph(family: str, m: int, t: int, nodes=None, edges=None) -> Any:
     import dwave.graphs as graphs
 
@@ -72,6 +93,7 @@ def translated_copies(
     tries: int,
     limit: int,
     progress: Callable[[str], None] | None = None,
+    store: Any = None,
 ) -> list[Embedding]:
     """Up to ``limit`` pairwise disjoint embeddings of ``bqm``'s graph on the chip, all
     translations of one embedding into the smallest sublattice that takes it; ``[]`` when the
@@ -92,6 +114,9 @@ def translated_copies(
         Copies at most.
     progress : callable, optional
         Told what is being tried, in words.
+    store : EmbeddingStore, optional
+        Where the sublattice embeddings are kept (:func:`tile_key`; a failure too: the search
+        is deterministic).
 
     Returns
     -------
@@ -114,12 +139,23 @@ def translated_copies(
     source.add_edges_from(structure_edges(bqm).tolist())
     chip = _graph(family, m, t, nodes, edges)
     lowest = max(2, int(lattice_size_lower_bound(source, T=chip) or 2))
-    for size in range(lowest, min(lowest + EXTRA_SIZES, (m + 1) // 2) + 1):
+    sizes = range(lowest, min(lowest + EXTRA_SIZES, (m + 1) // 2) + 1)
+    for number, size in enumerate(sizes, 1):
         if progress is not None:
-            progress(f"embedding the tile shape on a {family} m={size} sublattice ({tries} tries)")
+            progress(
+                f"embedding a {bqm.num_variables}-variable tile shape into {chip_name(family, m)}: "
+                f"sublattice m={size} ({number}/{len(sizes)}), {tries} tries"
+            )
         tile = _graph(family, size, t)
         started = time.perf_counter()
-        first = minorminer.find_embedding(source, tile, random_seed=SEED, tries=tries)
+        key = tile_key(family, size, t, structure_digest(bqm), tries)
+        kept = None if store is None else store.get(key)
+        if kept is not None:
+            first = {int(v): chain for v, chain in json.loads(kept).items()}
+        else:
+            first = minorminer.find_embedding(source, tile, random_seed=SEED, tries=tries)
+            if store is not None:
+                store.set(key, json.dumps(first))
         if len(first) != bqm.num_variables:
             log.info("no embedding on %s m=%d in %d tries", family, size, tries)
             continue
@@ -134,3 +170,52 @@ def translated_copies(
         if found:
             return [{int(v): [int(q) for q in chain] for v, chain in e.items()} for e in found]
     return []
+
+
+def warm(
+    store: Any,
+    shapes: list[dimod.BinaryQuadraticModel],
+    tries: int,
+    chips: dict[str, tuple[str, int, int]] = KNOWN_CHIPS,
+    progress: Callable[[str], None] | None = None,
+    limit: int = 64,
+) -> list[tuple[str, int, int]]:
+    """Compute each shape's sublattice embedding on each chip's family into ``store`` ahead of
+    time (``qhsm embeddings warm``): a worker meeting the shape on any chip of the family then
+    only translates it (:func:`translated_copies` finds it under :func:`tile_key`).
+
+    Parameters
+    ----------
+    store : EmbeddingStore
+        The embedding store workers read (``get`` / ``set``).
+    shapes : list of dimod.BinaryQuadraticModel
+        A bundle of each shape, on the variables 0..n-1.
+    tries : int
+        minorminer's tries per sublattice size, as the workers use (``embedding_tries``).
+    chips : dict, optional
+        Name -> (family, m, t); default :data:`KNOWN_CHIPS`.
+    progress : callable, optional
+        Told what is being done, in words.
+    limit : int, optional
+        Copies counted at most.
+
+    Returns
+    -------
+    list of (str, int, int)
+        Per chip and shape: the chip's name, the shape's variables and the copies found on the
+        defect-free chip (0: no sublattice takes it within the tries).
+    """
+    import dwave.graphs as graphs
+
+    found = []
+    for name, (family, m, t) in chips.items():
+        chip = graphs.pegasus_graph(m) if family == "pegasus" else graphs.zephyr_graph(m, t)
+        shape = [m] if family == "pegasus" else [m, t]
+        properties = {"topology": {"type": family, "shape": shape}}
+        for bqm in shapes:
+            copies = translated_copies(
+                bqm, properties, list(chip.nodes), list(chip.edges), tries=tries, limit=limit,
+                progress=progress, store=store,
+            )  # fmt: skip
+            found.append((name, bqm.num_variables, len(copies)))
+    return found

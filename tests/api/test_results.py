@@ -8,6 +8,7 @@ import io
 import uuid
 
 import numpy as np
+import pytest
 from api_helpers import LEFT, RIGHT, SCENE, post
 
 from api.users import UserStore
@@ -50,12 +51,45 @@ def test_validity_and_confidence_maps_are_linked_and_served(api):
     assert refused.status_code == 404 and "focal and baseline" in refused.json()["detail"]
 
 
+def test_the_provenance_map_is_linked_served_and_counted(api):
+    from shared import provenance_map as pm
+
+    job_id = post(api, params={"max_disparity": 6}).json()["id"]
+    status = api.get(f"/v1/jobs/{job_id}").json()
+    assert status["links"]["provenance"] is None and status["provenance_counts"] is None
+    assert api.get(f"/v1/jobs/{job_id}/provenance").status_code == 409  # not finished
+    stages = np.zeros(SCENE.disparity.shape, np.uint8)
+    stages[:, 4:] = pm.Stage.CERTIFIED
+    stages[2, 5] = pm.Stage.SOLVER
+    store = api.app.state.services.store
+    assert store.transition(job_id, JobState.RUNNING, ACTIVE) is not None
+    store.save_result(job_id, SCENE.disparity.astype(np.float32), {"provenance": stages})
+    counts = pm.counts(stages)
+    assert store.apply(
+        job_id, JobRecord.succeeded, now(), None, None, ["provenance"], counts
+    ).changed
+    status = api.get(f"/v1/jobs/{job_id}").json()
+    assert status["provenance_counts"] == counts and counts["solver"] == 1
+    png = api.get(status["links"]["provenance"])
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_COLOR)
+    assert np.array_equal(pm.decode(image), stages)
+    codes = api.get(f"/v1/jobs/{job_id}/provenance", params={"format": "npy"})
+    assert np.array_equal(np.load(io.BytesIO(codes.content)), stages)
+    assert api.get(f"/v1/jobs/{job_id}/provenance", params={"format": "tiff"}).status_code == 422
+    legend = api.get("/v1/provenance-legend").json()
+    assert [entry["name"] for entry in legend] == list(counts)
+
+
 def test_a_run_without_a_map_says_so(api):
     job_id = post(api, params={"max_disparity": 6}).json()["id"]
     finish(api, job_id, {})
     assert api.get(f"/v1/jobs/{job_id}").json()["links"]["confidence"] is None
     missing = api.get(f"/v1/jobs/{job_id}/confidence")
     assert missing.status_code == 404 and "no confidence map" in missing.json()["detail"]
+    assert api.get(f"/v1/jobs/{job_id}/provenance").status_code == 404
 
 
 def test_depth_and_point_cloud_from_the_cameras_given_at_submit(api):
@@ -184,7 +218,10 @@ def test_jobs_are_listed_by_tag(api, api_settings):
     assert api.get("/v1/jobs", params={"tag": "no spaces"}).status_code == 422
 
 
-def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings, tmp_path, capsys):
+@pytest.mark.parametrize("per_job", [False, True], ids=["one-request", "per-job"])
+def test_submit_batch_sends_every_pair_under_one_tag(
+    live_api, api, api_settings, tmp_path, capsys, per_job
+):
     import json
 
     import cv2
@@ -205,8 +242,14 @@ def test_submit_batch_sends_every_pair_under_one_tag(live_api, api, api_settings
     tag = f"batch-{uuid.uuid4().hex[:6]}"
     key = harness.admin_key(api_settings)
     argv = ["submit-batch", str(tmp_path), "--url", live_api.url, "--key", key, "--json"]
-    assert main([*argv, "--tag", tag, "--solver", "exact"]) == 0
+    assert main([*argv, "--tag", tag, "--solver", "exact", *["--per-job"] * per_job]) == 0
     batch = json.loads(capsys.readouterr().out)
+    if per_job:
+        assert batch["batch"] is None
+    else:  # one POST /v1/batches: its jobs listed under its id, in the order of the pairs
+        listing = api.get(f"/v1/batches/{batch['batch']}").json()
+        assert [job["id"] for job in listing["jobs"]] == [job["id"] for job in batch["jobs"]]
+        assert listing["tags"] == [tag] and listing["progress"]["total"] == 2
     assert batch["tag"] == tag and batch["url"].endswith(f"/v1/jobs?tag={tag}")
     assert [(job["name"], job["max_disparity"]) for job in batch["jobs"]] == [
         ("lab/a", 7),

@@ -24,8 +24,8 @@ from shared.solvers import get_solver
 from shared.synthetic import make_scene
 
 #: Each strategy's run on a tiny pair, and its digest (disparity, each level's energy, bound,
-#: bundles, repairs) as the dispatch of shared/solve.py, bundle_plan.py, assembly.py and
-#: settle.py gave it before the strategies (main at e0e56e6).
+#: bundles, repairs) as the if/isinstance dispatch (since folded into the strategies) gave it
+#: before them (main at e0e56e6).
 CASES = {
     "grid-dd": ({"solver": "exact", "inference": "grid"}, GridViews, "c0a9fd5eea5c87d7"),
     "grid-trws": (

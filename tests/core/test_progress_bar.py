@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import re
 
+from shared.activity import report, reporting
 from shared.progress_bar import LevelBar, describe
 
 
@@ -59,3 +60,20 @@ def test_the_words_for_each_state():
     assert describe(0, 0, 0) == "level 1/?: preparing"  # a job's range is not estimated yet
     assert describe(1, 3, 0, "queued") == "queued: waiting for a worker"
     assert describe(2, 3, 576, "cancelled") == "cancelled: level 2/3"
+
+
+def test_a_level_being_prepared_says_what_it_is_doing():
+    phase = "embedding a 64-variable tile shape into Pegasus P16: sublattice m=4 (2/4), 10 tries"
+    assert describe(1, 3, 0, phase=phase) == f"level 1/3: {phase}"
+    assert describe(1, 3, 576, phase=phase) == "level 1/3"  # bundles known: the bar says it
+    log = io.StringIO()
+    bar = LevelBar(log)
+    bar.update(2, 3, 0, 0)
+    with reporting(bar.show_phase):  # what qhsm match does around the pipeline
+        report("embedding a 64-variable tile shape: cached")
+    report("outside any block: nowhere")
+    bar.close()
+    assert log.getvalue().splitlines() == [
+        "level 2/3: preparing",
+        "level 2/3: embedding a 64-variable tile shape: cached",
+    ]

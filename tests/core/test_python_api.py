@@ -102,7 +102,11 @@ def test_validity_and_confidence_maps_are_written_beside_the_disparity(scene_fol
     command = ["match", "left.png", "right.png", "-o", "d.png", "--max-disparity", "16", "--json"]
     assert main(command) == 0
     maps = json.loads(capsys.readouterr().out)["maps"]
-    assert maps == {"validity": "d.valid.png", "confidence": "d.confidence.pfm"}
+    assert maps == {
+        "validity": "d.valid.png",
+        "confidence": "d.confidence.pfm",
+        "provenance": "d.provenance.png",
+    }
     valid, confidence = load_mask(maps["validity"]), load_disparity(maps["confidence"])
     assert 0.5 < valid.mean() < 1  # occlusions fail the left-right check
     assert confidence.min() >= 0 and confidence.max() <= 1 and (confidence[~valid] == 0).all()

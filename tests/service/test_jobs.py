@@ -64,7 +64,13 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
     )
     status = harness.wait_for(client, job_id)
     assert status["state"] == "succeeded", status["error"]
-    assert np.array_equal(harness.download(client, job_id), reference(pair, params))
+    _, _, left_view, right_view, _ = pair
+    local = run_pipeline(left_view, right_view, MatchConfig.model_validate(params))
+    assert np.array_equal(harness.download(client, job_id), local.disparity)
+    # the provenance map: the bundles' codes travel through the store (a whole view's too)
+    stages = client.get(status["links"]["provenance"].replace("png", "npy"))
+    assert np.array_equal(np.load(io.BytesIO(stages.content)), local.provenance_map)
+    assert status["provenance_counts"] == local.summary()["provenance_counts"]
 
     # max 8 px: bins of 2 then 1 px; both views are bundles of each level's chord: exact takes
     # each view's whole grid (with a lower bound); a QUBO solver gets the 4x4 tiles around the
@@ -76,6 +82,7 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
         "levels": 2,
         "bundles_done": bundles,
         "bundles_total": bundles,
+        "phase": None,  # said only while a level is prepared
     }
     bounds = [level["lower_bound"] for level in status["levels"]]
     assert all(b <= level["energy"] for b, level in zip(bounds, status["levels"], strict=True))
@@ -100,8 +107,6 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
     preview = client.get(f"/v1/jobs/{job_id}/preview.png")
     assert preview.status_code == 200 and preview.headers["content-type"] == "image/png"
     if params["solver"] == "exact":  # the maps beside the result, as `qhsm match` writes them
-        _, _, left_view, right_view, _ = pair
-        local = run_pipeline(left_view, right_view, MatchConfig.model_validate(params))
         links = status["links"]
         valid = decode_image(client.get(links["validity"]).content, "validity")
         assert np.array_equal(valid > 0.5, local.validity)

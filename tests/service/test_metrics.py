@@ -94,6 +94,14 @@ def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
         before, "qhsm_watchdog_resends_total"
     )
     assert resends == 3
+    # the succeeded job's pixels by the stage that decided them: the paper preset's exact rows
+    decided = {
+        stage: value(after, "qhsm_pixels_decided_total", solver="exact", stage=stage)
+        - value(before, "qhsm_pixels_decided_total", solver="exact", stage=stage)
+        for stage in ("certified", "host", "solver", "filtered")
+    }
+    assert decided["certified"] > 0 and decided["host"] == decided["solver"] == 0
+    assert decided["certified"] + decided["filtered"] == 16 * 24
     client.delete(f"/v1/jobs/{waiting}")
 
 

@@ -80,7 +80,7 @@ def test_a_level_embeds_its_shape_once_across_workers(redis_store):
     assert solution.info["embeddings_reused"] == len(bundles)
     assert solution.info["bundle_shapes"] == ["1x24"]
     assert solution.info["qubits"] >= 24 * 2 and solution.info["longest_chain"] >= 1
-    kinds = ("size-", "nofit-", "copies-")
+    kinds = ("size-", "nofit-", "copies-", "sublattice-")
     embeddings = [key for key in client.keys("*") if not any(k in key for k in kinds)]
     assert len(embeddings) == 1
     # and its disjoint copies, found while planning, for packing bundles into QPU calls

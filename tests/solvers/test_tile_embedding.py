@@ -95,3 +95,52 @@ def test_a_graph_without_a_lattice_gets_one_embedding_per_call(tmp_path):
     cache = EmbeddingCache(DirectoryStore(tmp_path))
     fallback = cache.lookup(BQM, qpu.edgelist, "c4")[0]
     assert copies(cache, BQM, qpu, "c4", lambda: fallback) == ([fallback], "computed")
+
+
+def test_warmed_sublattice_embeddings_serve_any_chip_of_the_family_without_a_search(
+    tmp_path, monkeypatch
+):
+    """``qhsm embeddings warm`` on defect-free chips; a chip of the same family with broken
+    qubits then only translates (minorminer is never called) and gets the copies it would have
+    found by searching."""
+    import minorminer
+
+    store = DirectoryStore(tmp_path)
+    small = {"P4": ("pegasus", 4, 12), "Z3": ("zephyr", 3, 2)}
+    warmed = tile_embedding.warm(store, [BQM], tries=2, chips=small)
+    assert [(chip, variables) for chip, variables, _ in warmed] == [("P4", 8), ("Z3", 8)]
+    assert all(found >= 2 for _, _, found in warmed)
+    for family, shape in (("pegasus", [4]), ("zephyr", [3, 2])):
+        qpu = MockDWaveSampler(topology_type=family, topology_shape=shape, parameter_warnings=False)
+        broken = sorted(qpu.nodelist)[::37]  # a few dead qubits: another graph fingerprint
+        nodes = [q for q in qpu.nodelist if q not in set(broken)]
+        edges = [(u, v) for u, v in qpu.edgelist if u in set(nodes) and v in set(nodes)]
+        searched = tile_embedding.translated_copies(
+            BQM, qpu.properties, nodes, edges, tries=2, limit=64
+        )
+        with monkeypatch.context() as patch:
+            patch.setattr(minorminer, "find_embedding", _no_search)
+            served = tile_embedding.translated_copies(
+                BQM, qpu.properties, nodes, edges, tries=2, limit=64, store=store
+            )
+        assert served == searched and len(served) >= 2
+        source = structure_edges(BQM).tolist()
+        assert all(is_valid_embedding(e, source, edges) for e in served)
+
+
+def _no_search(*args, **kwargs):
+    raise AssertionError("minorminer searched although the sublattice embedding was warmed")
+
+
+def test_qhsm_embeddings_warm_fills_the_directory_store(tmp_path, monkeypatch, capsys):
+    from shared.cli import main
+
+    monkeypatch.setenv("QHSM_DATA_DIR", str(tmp_path))
+    monkeypatch.delenv("QHSM_REDIS_URL", raising=False)
+    monkeypatch.setattr(tile_embedding, "KNOWN_CHIPS", {"P6": ("pegasus", 6, 12)})
+    assert main(["embeddings", "warm", "--chips", "Z99"]) == 1
+    assert "--chips: unknown Z99; choose from P6" in capsys.readouterr().err
+    assert main(["embeddings", "warm", "--candidates", "2"]) == 0  # 4x4 x 1 domain-wall bit
+    printed = capsys.readouterr().out
+    assert "P6: 16-variable tile shape," in printed and "directory embedding store" in printed
+    assert any(p.name.startswith("sublattice-pegasus") for p in (tmp_path / "embeddings").iterdir())

@@ -143,6 +143,12 @@ def test_admin_cli_round_trip(redis_url, redis_client, prefix, monkeypatch, caps
     assert usage["warning"] is None  # 6.5 of 7 s left
     assert main(["admin", "usage"]) == 0
     assert "ada: used 0.500 s of 7 s" in capsys.readouterr().out
+    assert main(["admin", "set-quota", "ada", "7", "--period", "weekly"]) == 0
+    assert "used 0.500 s this week (weekly budget, resets at" in capsys.readouterr().out
+    assert main(["admin", "usage", "ada"]) == 0
+    assert "weekly since" in capsys.readouterr().out
+    assert main(["admin", "set-quota", "ada", "7", "--period", "default"]) == 0
+    assert "lifetime budget, never resets" in capsys.readouterr().out
     assert main(["admin", "set-quota", "bob", "1"]) == 1
     for infinite in ("1e400", "nan"):  # "unlimited" says it; an overflow does not
         with pytest.raises(SystemExit):

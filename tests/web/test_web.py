@@ -109,6 +109,19 @@ def test_submit_exact_shows_the_disparity_its_metrics_and_downloads(
         served = api.get(status["links"]["validity"]).content
     assert Path(download.value.path()).read_bytes() == served
     expect(page.get_by_role("button", name="confidence PFM")).to_be_visible()
+    # who decided each pixel: the map, its legend (from the API's one) with the status' counts
+    expect(page.get_by_alt_text("Provenance map", exact=True)).to_be_visible()
+    legend = page.get_by_label("provenance legend")
+    counts = status["provenance_counts"]
+    expect(legend.locator("li")).to_have_count(len(counts))
+    expect(legend.locator('li[data-stage="certified"]')).to_contain_text(
+        f"certified: {counts['certified']} px"
+    )
+    with page.expect_download() as download:
+        page.get_by_role("button", name="provenance PNG").click()
+    with server.client() as api:
+        served = api.get(status["links"]["provenance"]).content
+    assert Path(download.value.path()).read_bytes() == served
     expect(page.get_by_role("button", name="depth PFM")).to_have_count(0)  # no cameras given
     page.get_by_role("button", name="Pin", exact=True).click()  # kept past the retention
     expect(page.get_by_role("button", name="Unpin")).to_be_visible()
@@ -283,6 +296,9 @@ def test_admin_creates_a_user_sets_a_quota_and_sees_usage(page: Page, server, sc
     row.get_by_label("QPU budget of web-carol").fill("12.5")
     row.get_by_role("button", name="Set").click()
     expect(row.locator('td[data-label="Budget s"]')).to_have_text("12.5")
+    row.get_by_label("Budget period of web-carol").select_option("monthly")
+    row.get_by_role("button", name="Set").click()
+    expect(row.get_by_label("Budget period of web-carol")).to_have_value("monthly")
     with server.client() as api:
         usage = api.get("/v1/usage", params={"user": "web-carol"}).json()["users"][0]
     assert usage["limit_seconds"] == 12.5
@@ -294,7 +310,10 @@ def test_admin_creates_a_user_sets_a_quota_and_sees_usage(page: Page, server, sc
     ledger.settle(ledger.reserve("web-carol", "c" * 32, 2.0, ttl=60), 1.5, problems=3)
     page.get_by_role("link", name="Usage", exact=True).click()
     card = page.locator('.usage-card[data-user="web-carol"]')
-    expect(card.locator("dd")).to_have_text(["1.5 s", "0 ms", "11 s", "12.5 s"])
+    expect(card.locator("dd")).to_have_text(
+        ["1.5 s", "0 ms", "11 s", "12.5 s", re.compile(r"^monthly since \d{4}-\d\d-01$"),
+         re.compile(r"^\d{4}-\d\d-01 00:00:00 UTC$"), "1.5 s"]
+    )  # fmt: skip
     expect(card.locator("tbody td")).to_have_text(["cccccccc", "1.5 s", "3"])
     screenshots(page, "usage")
     page.get_by_role("link", name="Users", exact=True).click()
@@ -441,3 +460,49 @@ def test_a_job_lists_the_ids_of_its_d_wave_problems(page: Page, server, pair_fil
     expect(summary).to_be_visible()
     summary.click()
     expect(page.get_by_label("D-Wave problem ids")).to_have_text("\n".join(ids))
+
+
+def test_the_job_list_filters_by_tag_and_by_batch(page: Page, server, pair_files, screenshots):
+    """A batch (POST /v1/batches) and a lone job, tagged apart: the list shows one tag's jobs,
+    a batch's jobs with its progress (from a job's batch link), then all again."""
+    views = {name: pair_files[name].read_bytes() for name in ("left", "right")}
+    files = [(side, (f"{side}{i}.png", views[side])) for i in range(2) for side in views]
+    params = {"params": '{"solver": "exact", "max_disparity": 8}'}
+    with server.client() as api:
+        batch = api.post("/v1/batches", files=files, data={**params, "tags": "web-batch"})
+        assert batch.status_code == 202, batch.text
+        lone = api.post(
+            "/v1/jobs",
+            files={side: (f"{side}.png", data) for side, data in views.items()},
+            data={**params, "tags": "web-lone"},
+        )
+        assert lone.status_code == 202, lone.text
+    batch_id, lone_id = batch.json()["id"], lone.json()["id"]
+    batch_jobs = [job["id"] for job in batch.json()["jobs"]]
+    sign_in(page, server)
+    rows = page.locator("#jobs-table tbody tr")
+    page.get_by_label("Tag", exact=True).fill("web-lone")
+    page.get_by_role("button", name="Filter").click()
+    expect(rows).to_have_count(1)
+    expect(page.locator(f'tr[data-job="{lone_id}"]')).to_be_visible()
+    assert page.url.endswith("#/jobs/tag/web-lone")
+
+    page.get_by_role("button", name="Show all").click()
+    first = page.locator(f'tr[data-job="{batch_jobs[0]}"]')
+    first.get_by_role("link", name=f"batch {batch_id[:8]}").click()
+    expect(rows).to_have_count(2)
+    for job in batch_jobs:
+        expect(page.locator(f'tr[data-job="{job}"]')).to_be_visible()
+    summary = page.locator("#batch-summary")
+    expect(summary).to_contain_text(f"Batch {batch_id[:8]} (web-batch)")
+    expect(summary).to_contain_text("2/2 finished · 2 succeeded", timeout=RESULT_TIMEOUT)
+    expect(page.get_by_label("Batch", exact=True)).to_have_value(batch_id)
+    screenshots(page, "jobs-batch")
+
+    page.get_by_label("Tag", exact=True).fill("web-lone")  # the batch's jobs with that tag: none
+    page.get_by_role("button", name="Filter").click()
+    expect(rows).to_have_count(0)
+    expect(page.get_by_text("No job matches the filter.")).to_be_visible()
+    page.get_by_role("button", name="Show all").click()
+    expect(page.locator(f'tr[data-job="{lone_id}"]')).to_be_visible()
+    assert page.url.endswith("#/jobs")

@@ -1,6 +1,7 @@
--- expire(quota, held, deadline, lapsed, seconds, now): charge the reservations whose deadline has
--- passed at their estimate (the problem may have run), record them as lapsed, then drop them.
-local function expire(quota, held, deadline, lapsed, seconds, now)
+-- expire(quota, held, deadline, lapsed, seconds, days, now): charge the reservations whose
+-- deadline has passed at their estimate (the problem may have run), on today's date, record them
+-- as lapsed, then drop them (after period.lua).
+local function expire(quota, held, deadline, lapsed, seconds, days, now)
   for _, rid in ipairs(redis.call('ZRANGEBYSCORE', deadline, '-inf', now)) do
     local amount = redis.call('HGET', held, rid)
     if amount then
@@ -8,6 +9,7 @@ local function expire(quota, held, deadline, lapsed, seconds, now)
       redis.call('HINCRBYFLOAT', quota, 'used', amount)
       redis.call('HINCRBYFLOAT', quota, 'expired', amount)
       redis.call('HINCRBYFLOAT', seconds, job, amount)
+      book(days, amount, now)
       redis.call('HSET', lapsed, rid, amount)
       redis.call('HDEL', held, rid)
     end

@@ -2,13 +2,17 @@
 
 A reservation is refused when ``limit - used - reserved < estimate``; settling replaces it with
 the time the sample set reports. The steps run as Lua scripts (``reserve.lua``, ``settle.lua``,
-``status.lua``, sharing ``now.lua`` and ``expire.lua``), so concurrent workers see consistent
-budgets. An expired reservation (its worker died) is charged at its estimate, because the problem
-may well have run; a late settlement corrects the charge to the reported time.
+``status.lua``, sharing ``now.lua``, ``period.lua`` and ``expire.lua``), so concurrent
+workers see consistent budgets. A budget covers a period (``Settings.budget_period`` or the
+user's own): lifetime, the UTC calendar month or the ISO week; what is charged is booked on its
+day, and the total is kept too, so no history is lost when the period changes. An expired
+reservation (its worker died) is charged at its estimate, because the problem may well have
+run; a late settlement corrects the charge to the reported time.
 
 Keys (under ``{key_prefix}:``):
 
-    quota:{user}             hash  limit (absent: unlimited), used, expired (seconds)
+    quota:{user}             hash  limit (absent: unlimited), used, expired (seconds, in
+                                   total), period (absent: Settings.budget_period), dated
     quota:{user}:held        hash  reservation id -> reserved seconds
     quota:{user}:deadline    zset  reservation id -> expiry (Redis server time)
     quota:{user}:lapsed      hash  reservation id -> seconds charged when it expired
@@ -17,6 +21,8 @@ Keys (under ``{key_prefix}:``):
     usage:{user}:problems    hash  job id -> problems sent
     usage:{user}:first       hash  job id -> first charge (Redis server time, epoch seconds)
     usage:{user}:last        hash  job id -> last charge
+    usage:{user}:days        hash  epoch day (UTC) -> seconds charged that day: what a monthly
+                                   or weekly budget counts (:mod:`workers.quota.periods`)
     usage:{user}:ids:{job}   list  the ids SAPI gave the job's problems (to find them on Leap)
 """
 
@@ -26,19 +32,22 @@ import csv
 import io
 import math
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 
 import redis
 
 from shared.config import Settings
+from shared.settings import BudgetPeriod
 from shared.solvers import SolverError
+from workers.quota.periods import PeriodWindow, window
 from workers.quota.scripts import load_script
 from workers.redis_client import text
 
-_RESERVE = load_script("now", "expire", "reserve")
-_SETTLE = load_script("now", "settle")
-_STATUS = load_script("now", "expire", "status")
+_RESERVE = load_script("now", "period", "expire", "reserve")
+_SETTLE = load_script("now", "period", "settle")
+_STATUS = load_script("now", "period", "expire", "status")
 
 #: Share of a budget below which what is left is warned about (``QuotaStatus.warning``).
 LOW_BUDGET_SHARE = 0.10
@@ -52,23 +61,36 @@ LOCAL_USER = "local"
 class QuotaExceededError(SolverError):
     """The owner's remaining QPU budget is below what the next problem needs (not retried)."""
 
-    def __init__(self, user: str, remaining: float, needed: float, what: str = "the next bundle"):
+    def __init__(
+        self,
+        user: str,
+        remaining: float,
+        needed: float,
+        what: str = "the next bundle",
+        period: PeriodWindow | None = None,
+    ):
         self.user, self.remaining, self.needed = user, remaining, needed
+        self.period = period or PeriodWindow(BudgetPeriod.LIFETIME)
+        wait = "" if self.period.end is None else "wait for the reset, "
         super().__init__(
-            f"not enough QPU budget left for user {user!r}: {max(remaining, 0.0):.3f} s remaining, "
-            f"{needed:.3f} s estimated for {what}; ask an admin to raise it "
-            "(qhsm admin set-quota) or use an unmetered solver"
+            f"not enough QPU budget left for user {user!r}: {max(remaining, 0.0):.3f} s remaining "
+            f"{self.period.this} ({self.period.describe()}), {needed:.3f} s estimated for "
+            f"{what}; {wait}ask an admin to raise it (qhsm admin set-quota) or use an "
+            "unmetered solver"
         )
 
 
 @dataclass(frozen=True)
 class QuotaStatus:
-    """A user's budget in seconds; ``limit`` None means unlimited."""
+    """A user's budget in seconds over its period; ``limit`` None means unlimited. ``used`` is
+    what was charged in the period (lifetime: in total), ``total`` everything ever charged."""
 
     user: str
     limit: float | None
     used: float
     reserved: float
+    period: PeriodWindow = field(default_factory=lambda: PeriodWindow(BudgetPeriod.LIFETIME))
+    total: float | None = None
 
     @property
     def remaining(self) -> float:
@@ -77,14 +99,24 @@ class QuotaStatus:
         return self.limit - self.used - self.reserved
 
     @property
+    def total_used(self) -> float:
+        """Seconds ever charged, in any period (a lifetime budget's ``used``)."""
+        return self.used if self.total is None else self.total
+
+    @property
     def warning(self) -> str | None:
         """What to say when less than :data:`LOW_BUDGET_SHARE` of a (non-zero) budget is left."""
         if not self.limit or self.remaining >= LOW_BUDGET_SHARE * self.limit:
             return None
         left = max(self.remaining, 0.0)
+        share = f"{100 * left / self.limit:.1f} %"
+        if self.period.end is not None:
+            share = f"{self.period.this} ({share}; {self.period.describe()})"
+        else:
+            share = f"({share})"
         return (
             f"QPU budget of user {self.user!r} runs low: {left:.3f} s of {self.limit:g} s left "
-            f"({100 * left / self.limit:.1f} %); ask an admin to raise it (qhsm admin set-quota)"
+            f"{share}; ask an admin to raise it (qhsm admin set-quota)"
         )
 
     def as_dict(self) -> dict:
@@ -95,6 +127,10 @@ class QuotaStatus:
             "user": self.user,
             **{f"{what}_seconds": value for what, value in seconds.items()},
             "remaining_seconds": remaining,
+            "total_used_seconds": self.total_used,
+            "period": self.period.period.value,
+            "period_start": iso(self.period.start),
+            "resets_at": iso(self.period.end),
             "warning": self.warning,
         }
 
@@ -166,9 +202,20 @@ def _moment(raw: bytes | str | None) -> datetime | None:
 class QuotaLedger:
     """Budgets, reservations and usage records of every user."""
 
-    def __init__(self, client: redis.Redis, key_prefix: str):
+    def __init__(
+        self,
+        client: redis.Redis,
+        key_prefix: str,
+        period: BudgetPeriod | str = BudgetPeriod.LIFETIME,
+        clock: Callable[[], datetime] | None = None,
+    ):
+        """``period``: the deployment's budget period (a user's own overrides it); ``clock``:
+        what time it is (default: the Redis server's ``TIME``, the clock every worker shares;
+        tests freeze it)."""
         self.redis = client
         self.prefix = key_prefix
+        self.period = BudgetPeriod(period)
+        self.clock = clock
         self._reserve = client.register_script(_RESERVE)
         self._settle = client.register_script(_SETTLE)
         self._status = client.register_script(_STATUS)
@@ -177,7 +224,7 @@ class QuotaLedger:
     def from_settings(cls, settings: Settings) -> QuotaLedger:
         from workers.redis_client import client_for
 
-        return cls(client_for(settings), settings.key_prefix)
+        return cls(client_for(settings), settings.key_prefix, settings.budget_period)
 
     def key(self, *parts: object) -> str:
         return ":".join([self.prefix, *map(str, parts)])
@@ -190,10 +237,39 @@ class QuotaLedger:
             quota + ":deadline",
             quota + ":lapsed",
             self.key("usage", user, "seconds"),
+            self.key("usage", user, "days"),
+            self.key("usage", user, "last"),
         ]
 
+    def window(self, user: str) -> tuple[PeriodWindow, list[str]]:
+        """The user's budget period now, and the scripts' arguments that say it (the window's
+        first and stop epoch days, ``''`` for lifetime; the time as ``@seconds``)."""
+        with self.redis.pipeline(transaction=False) as pipe:  # one round trip
+            pipe.time()
+            pipe.hget(self.key("quota", user), "period")
+            (seconds, micros), own = pipe.execute()
+        moment = self.clock() if self.clock else datetime.fromtimestamp(seconds + micros / 1e6, UTC)
+        current = window(text(own) if own else self.period, moment)
+        days = current.days
+        first, stop = ("", "") if days is None else (str(days[0]), str(days[1]))
+        return current, [first, stop, f"@{moment.timestamp()!r}"]
+
+    def set_period(self, user: str, period: BudgetPeriod | str | None) -> None:
+        """Give a user their own budget period (None: the deployment's, ``Settings.budget_period``).
+        The charges keep their dates, so any period can be counted afterwards."""
+        if period is None:
+            self.redis.hdel(self.key("quota", user), "period")
+        else:
+            self.redis.hset(self.key("quota", user), "period", BudgetPeriod(period).value)
+        self.redis.sadd(self.key("quota", "users"), user)
+
+    def own_period(self, user: str) -> BudgetPeriod | None:
+        """The user's own budget period, None when it is the deployment's."""
+        own = self.redis.hget(self.key("quota", user), "period")
+        return BudgetPeriod(text(own)) if own else None
+
     def set_limit(self, user: str, seconds: float | None) -> None:
-        """Set (or with None: remove, i.e. unlimited) a user's total budget in seconds
+        """Set (or with None: remove, i.e. unlimited) a user's budget per period in seconds
         (ValueError unless finite and >= 0: unlimited is None, never infinity)."""
         with self.redis.pipeline() as pipe:
             if seconds is None:
@@ -209,15 +285,18 @@ class QuotaLedger:
             pipe.execute()
 
     def status(self, user: str) -> QuotaStatus:
-        """The user's budget now, after charging any lapsed reservations."""
-        limit, used, reserved = (
-            text(value) for value in self._status(keys=self._keys(user))
+        """The user's budget in its current period, after charging any lapsed reservations."""
+        period, args = self.window(user)
+        limit, used, reserved, total = (
+            text(value) for value in self._status(keys=self._keys(user), args=args)
         )
         return QuotaStatus(
             user=user,
             limit=float(limit) if limit else None,
             used=float(used),
             reserved=float(reserved),
+            period=period,
+            total=float(total),
         )
 
     def check(self, user: str, needed: float, what: str = "this job") -> QuotaStatus:
@@ -237,7 +316,7 @@ class QuotaLedger:
         """
         status = self.status(user)
         if needed > 0 and status.remaining < needed:
-            raise QuotaExceededError(user, status.remaining, needed, what)
+            raise QuotaExceededError(user, status.remaining, needed, what, status.period)
         return status
 
     def reserve(self, user: str, job_id: str, seconds: float, ttl: float) -> Reservation:
@@ -258,12 +337,13 @@ class QuotaLedger:
             To hand to :meth:`settle` or :meth:`release`.
         """
         rid = f"{job_id}#{uuid.uuid4().hex}"
+        period, args = self.window(user)
         ok, remaining = self._reserve(
             keys=[*self._keys(user), self.key("quota", "users")],
-            args=[rid, repr(float(seconds)), repr(float(ttl)), user],
+            args=[rid, repr(float(seconds)), repr(float(ttl)), user, *args],
         )
         if not int(ok):
-            raise QuotaExceededError(user, float(remaining), seconds)
+            raise QuotaExceededError(user, float(remaining), seconds, period=period)
         return Reservation(user=user, job_id=job_id, id=rid, seconds=float(seconds))
 
     def settle(
@@ -293,11 +373,18 @@ class QuotaLedger:
         """
         keys = [
             *self._keys(reservation.user),
-            *(self.key("usage", reservation.user, what) for what in ("problems", "first", "last")),
+            *(self.key("usage", reservation.user, what) for what in ("problems", "first")),
         ]
+        moment = "" if self.clock is None else f"@{self.clock().timestamp()!r}"
         charged = self._settle(
             keys=keys,
-            args=[reservation.id, repr(max(0.0, float(actual))), reservation.job_id, problems],
+            args=[
+                reservation.id,
+                repr(max(0.0, float(actual))),
+                reservation.job_id,
+                problems,
+                *([moment] if moment else []),
+            ],
         )
         if problem_ids:
             self.redis.rpush(self.ids_key(reservation.user, reservation.job_id), *problem_ids)

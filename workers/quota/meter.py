@@ -47,7 +47,7 @@ class QpuMeter:
 
         client = client or client_for(settings)
         return cls(
-            QuotaLedger(client, settings.key_prefix),
+            QuotaLedger(client, settings.key_prefix, settings.budget_period),
             QpuSemaphore.from_settings(settings, client),
             settings.qpu_slot_ttl,
             settings.qpu_slot_wait,
