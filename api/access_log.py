@@ -54,8 +54,9 @@ def redact_secrets() -> None:
     logging.setLogRecordFactory(factory)
 
 
-#: GETs that clients and orchestrators repeat: a job's status, liveness and readiness.
-POLL_PATH = re.compile(r"^/(v1/jobs/[^/?]+|healthz|readyz)(\?.*)?$")
+#: GETs that clients and orchestrators repeat: a job's or an estimate's status, liveness and
+#: readiness.
+POLL_PATH = re.compile(r"^/(v1/jobs/[^/?]+|v1/estimates/[^/?]+|healthz|readyz)(\?.*)?$")
 
 
 class PollsAtDebug(logging.Filter):

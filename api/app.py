@@ -5,7 +5,6 @@ the package (fastapi-offline), never from a CDN."""
 from __future__ import annotations
 
 import logging
-import threading
 
 import redis
 from fastapi import FastAPI, Request
@@ -46,7 +45,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store=JobStore.from_settings(settings),
         celery=celery,
         queues=QueueInspector(celery, settings.inspect_timeout),
-        pricing=threading.BoundedSemaphore(settings.max_concurrent_pricing),
     )
     app.include_router(routes.v1())  # every /v1 route needs an API key
     app.include_router(health.router)

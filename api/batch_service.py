@@ -3,7 +3,7 @@ under one batch id, all or nothing, and the batch's jobs and progress (``GET /v1
 
 Admission: the active-job cap for the whole batch (before any upload is read), then every pair
 through the job service's checks (:func:`api.job_service.admit`: params, solver, views, memory,
-QPU budget, ground truth), the QPU budget for the pairs so far together; the first refusal is
+ground truth; a metered pair is written `pricing` and priced by its job); the first refusal is
 answered with its status, naming the pair (``pair 3 (name): ...``) and nothing is created.
 Then every job is written, the batch saved and the jobs started.
 """
@@ -42,7 +42,6 @@ from api.uploads import (
     parse_tags,
 )
 from api.users import UserStore
-from workers.app import START_JOB
 from workers.batches import BatchEntry, BatchRecord, BatchStore, new_batch_id
 from workers.records import ACTIVE, GroundTruth, JobRecord, now
 from workers.store import ActiveJobsCapError
@@ -188,7 +187,7 @@ def submit_batch(
     check_room(owner, names, svc)
     batch_id = new_batch_id()
     admitted: list[tuple[JobRecord, Any]] = []
-    seconds, pixels = 0.0, 0
+    pixels = 0
     for index, spec in enumerate(specs):
         try:
             job = JobForm(
@@ -211,10 +210,8 @@ def submit_batch(
                     f"QHSM_MAX_BATCH_PIXELS={svc.settings.max_batch_pixels} (the views are held "
                     "until every pair is admitted); send fewer pairs per batch",
                 )
-            if record.estimate_seconds:  # metered: the batch's pairs so far must fit together
-                seconds += sum(record.estimate_seconds)
-                what = f"this pair and the {index} before it" if index else "this pair"
-                users.ledger.check(owner, seconds, what)
+            # a metered pair's estimate is its pricing worker's (it is written `pricing`, then
+            # queued or failed against the budget): none is known here (issue 29)
         except DOMAIN_ERRORS as error:
             raise refused(index, names[index], error) from None
         admitted.append((record, arrays))
@@ -253,7 +250,7 @@ def start(records: list[JobRecord], svc: Services) -> None:
     is answered; the ones sent run)."""
     for index, record in enumerate(records):
         try:
-            svc.celery.send_task(START_JOB, args=(record.id,), queue=svc.settings.control_queue)
+            job_service.send_first_task(record, svc)  # a metered pair's: its pricing
         except BaseException:
             for unsent in records[index:]:
                 with contextlib.suppress(Exception):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from collections.abc import Callable
@@ -16,6 +17,8 @@ if TYPE_CHECKING:
     from shared.progress_bar import LevelBar
 
 TERMINAL = {"succeeded", "failed", "cancelled"}
+#: An estimate's states before it ends (``workers.estimates.EstimateState``).
+ESTIMATE_OPEN = {"pending", "running"}
 #: ``Client.wait`` polls every this share of the time waited so far (bounded both ways).
 POLL_SHARE = 0.1
 
@@ -187,10 +190,28 @@ class Client:
         params: dict[str, Any] | None = None,
         names: tuple[str, str] = ("left.png", "right.png"),
     ) -> dict:
-        """POST /v1/estimate: the job's metered seconds per level and whether they fit."""
+        """POST /v1/estimate: the job's metered seconds per level and whether they fit.
+
+        The service computes it on a worker: this polls ``GET /v1/estimates/{id}`` (as
+        :meth:`wait` polls a job) and returns the result; a failed or cancelled estimate is a
+        :class:`ClientError` with the reason. Leaving early (Ctrl-C) cancels it."""
         files = {"left": (names[0], left), "right": (names[1], right)}
         data = {"params": json.dumps(params or {})}
-        return self._request("POST", "/v1/estimate", files=files, data=data).json()
+        status = self._request("POST", "/v1/estimate", files=files, data=data).json()
+        path = status["links"]["self"]
+        started = time.monotonic()
+        try:
+            while status["state"] in ESTIMATE_OPEN:
+                waited = time.monotonic() - started
+                time.sleep(min(max(0.05, POLL_SHARE * waited), 1.0))
+                status = self._request("GET", path).json()
+        except BaseException:  # the caller leaves: nobody waits for the estimate any more
+            with contextlib.suppress(Exception):
+                self._request("DELETE", path)
+            raise
+        if status["state"] != "done":
+            raise ClientError(f"estimate {status['id']} {status['state']}: {status['error']}")
+        return status["result"]
 
     def status(self, job_id: str) -> dict:
         return self._request("GET", f"/v1/jobs/{job_id}").json()

@@ -69,9 +69,6 @@ class Services:
     store: JobStore
     celery: Celery
     queues: QueueInspector
-    #: Estimates this process may compute at once (``max_concurrent_pricing``); set by
-    #: ``create_app`` (``api.job_service.pricing_slot`` takes one)
-    pricing: threading.BoundedSemaphore = field(default_factory=threading.BoundedSemaphore)
 
 
 def services(request: Request) -> Services:

@@ -32,7 +32,7 @@ class Refusal(Enum):
     TOO_LARGE = 413  # a file or image above the limits
     UNSUPPORTED = 415  # not an image format the service reads
     INVALID = 422  # parameters, sizes or solver the service cannot use
-    TOO_MANY = 429  # the owner's active-job cap, or every pricing slot taken
+    TOO_MANY = 429  # the owner's active-job cap, or too many of their estimates open
 
 
 class ServiceError(Exception):
@@ -53,13 +53,25 @@ class AdmissionError(ServiceError):
 
 
 class PricingBusyError(ServiceError):
-    """Every pricing slot of this API process is taken (``max_concurrent_pricing``)."""
+    """The user already has ``max_estimates_per_user`` estimates waiting or computing."""
 
     def __init__(self, limit: int):
         super().__init__(
             Refusal.TOO_MANY,
-            f"the service is already computing {limit} estimates, its limit "
-            "(QHSM_MAX_CONCURRENT_PRICING); try again in a minute",
+            f"you already have {limit} estimates waiting or computing, the limit per user "
+            "(QHSM_MAX_ESTIMATES_PER_USER); wait for one (GET /v1/estimates/{id}) or cancel "
+            "one (DELETE /v1/estimates/{id}), then ask again",
+        )
+
+
+class EstimateNotFoundError(ServiceError):
+    """No such estimate for the caller: it never existed, expired, or is someone else's."""
+
+    def __init__(self, estimate_id: str, ttl_seconds: int):
+        super().__init__(
+            Refusal.NOT_FOUND,
+            f"no estimate {estimate_id!r}: it never existed or expired (estimates are kept "
+            f"{ttl_seconds} s); ask again with POST /v1/estimate",
         )
 
 

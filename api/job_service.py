@@ -1,10 +1,13 @@
-"""The job service: what admits a job (``POST /v1/jobs``) or prices one (``POST /v1/estimate``)
-and the job lookups the routes share, as plain functions of the app's :class:`Services`.
+"""The job service: what admits a job (``POST /v1/jobs``), and the job lookups the routes
+share, as plain functions of the app's :class:`Services` (estimates: :mod:`api.estimate_service`).
 
 Admission, in this order (a request with several problems is told the first): the owner's
 active-job cap (before the uploads are read), the ``params`` (a ``MatchConfig``), the solver and
-its parameters, the views, the disparity range when the budget needs it, the QPU budget of a
-metered solver, the ground truth; then the record is written and ``qhsm.start_job`` sent.
+its parameters, the views, the job's memory when its range is given, the ground truth; then the
+record is written and ``qhsm.start_job`` sent. A metered solver's job is written ``pricing`` and
+``qhsm.price_job`` sent to the pricing queue instead: the worker estimates its QPU time, checks
+it against the owner's budget and queues it or fails it with the reason (``workers.pricing``);
+the API never runs the matcher.
 
 Nothing here speaks HTTP: a refusal is a domain error (:mod:`api.errors`), which ``create_app``
 answers with its status and message.
@@ -14,7 +17,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -27,7 +29,6 @@ from api.errors import (
     ExpiredError,
     JobNotFoundError,
     JobStateError,
-    PricingBusyError,
     Refusal,
 )
 from api.uploads import (
@@ -42,20 +43,17 @@ from api.uploads import (
 )
 from api.users import UserStore
 from shared.config import MatchConfig
-from shared.disparity_range import RangeEstimate, resolve_max_disparity
 from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
 from shared.inference import bundle_width_setting
 from shared.memory import MemoryBudgetError, check_fits, job_memory_mb, worker_budget_mb
-from shared.pipeline import match_views
 from shared.provenance import qhsm_version
 from shared.pyramid import plan
-from shared.residual import job_residual
 from shared.solvers import Availability, check_params
-from shared.solvers.embedding_cache import EmbeddingCache
-from shared.solvers.qpu_time import JobEstimate, is_metered, job_seconds
+from shared.solvers.qpu_time import is_metered
 from shared.solvers.registry import queue_of
-from workers import embedding_store
-from workers.app import START_JOB, terminate_tasks
+from workers.app import pricing_task_id, terminate_tasks
+from workers.app import send_first_task as first_task
+from workers.estimates import revoke
 from workers.records import ACTIVE, Cameras, GroundTruth, JobRecord, JobState, new_job_id, now
 from workers.store import ActiveJobsCapError
 
@@ -75,18 +73,6 @@ class JobForm:
     label: str | None = None
     cameras: Cameras | None = None
     tags: str | None = None  # comma-separated
-
-
-@dataclass(frozen=True)
-class Quote:
-    """What a job would be charged (``POST /v1/estimate``): the estimate at the resolved range,
-    and the owner's budget left (infinite: unlimited, or nothing to charge)."""
-
-    estimate: JobEstimate
-    max_disparity: int
-    remaining_seconds: float
-    memory_mb: int | None = None
-    memory_budget_mb: int | None = None
 
 
 # --- admission checks -----------------------------------------------------------------------
@@ -139,24 +125,6 @@ def bounded_params(config: MatchConfig) -> MatchConfig:
     return config.model_copy(update={"solver_params": params})
 
 
-def disparity_range_of(left_image, right_image, config: MatchConfig) -> RangeEstimate:
-    """The job's disparity range: it decides the levels, hence the job's size."""
-    return resolve_max_disparity(
-        *match_views(left_image, right_image, config), config.max_disparity, warn=False
-    )
-
-
-def range_at_submit(left_image, right_image, config: MatchConfig) -> RangeEstimate | None:
-    """The range, resolved in the request only when the QPU budget check needs it: a metered
-    solver with ``max_disparity: auto`` (the estimate of its QPU time depends on it, and the
-    job is refused before it is queued when it does not fit). Every other job's range estimate
-    and views check run in its first control task (``workers.orchestration.start_job``), off
-    the HTTP request; their result appears in the job's status once it has started."""
-    if is_metered(config.solver) and not isinstance(config.max_disparity, int):
-        return disparity_range_of(left_image, right_image, config)
-    return None
-
-
 def ground_truth_protocol(
     left_image: np.ndarray,
     right_image: np.ndarray,
@@ -179,55 +147,6 @@ def ground_truth_protocol(
     return GroundTruth(scale=estimate.scale, border=border, inferred=True), estimate.note
 
 
-@contextlib.contextmanager
-def pricing_slot(svc: Services) -> Iterator[None]:
-    """One of the process's ``max_concurrent_pricing`` slots for an estimate, taken at once or
-    refused (:class:`PricingBusyError`, a 429): an estimate runs the exact pyramid here, and
-    without a bound a few large ones took the API's memory and time for an hour (issue 29)."""
-    if not svc.pricing.acquire(blocking=False):
-        raise PricingBusyError(svc.settings.max_concurrent_pricing)
-    try:
-        yield
-    finally:
-        svc.pricing.release()
-
-
-def estimate_job(
-    config: MatchConfig, left_image, right_image, max_disparity: int, svc: Services
-) -> JobEstimate:
-    """The job's metered time, with the actual embeddings the workers have already found
-    (shared through Redis) for bundle shapes they have met and what roof duality leaves of the
-    bundles (surveyed on the pair); refused for unusable solver_params."""
-    cache = EmbeddingCache(embedding_store.for_settings(svc.settings, svc.store.redis))
-    try:
-        with pricing_slot(svc):
-            residual = job_residual(config, left_image, right_image, max_disparity, cache)
-            return job_seconds(config, left_image.shape[:2], max_disparity, cache, residual)
-    except (TypeError, ValueError, KeyError) as error:
-        raise AdmissionError(
-            Refusal.INVALID,
-            f"params: cannot estimate the job's QPU time from solver_params ({error})",
-        ) from None
-
-
-def check_budget(
-    config: MatchConfig,
-    left_image,
-    right_image,
-    max_disparity: int,
-    owner: str,
-    users: UserStore,
-    svc: Services,
-) -> JobEstimate | None:
-    """``QuotaExceededError`` when a metered job's estimate exceeds what is left of its owner's QPU
-    budget; else the estimate (None: not metered), whose levels the workers reserve."""
-    if not is_metered(config.solver):
-        return None
-    estimate = estimate_job(config, left_image, right_image, max_disparity, svc)
-    users.ledger.check(owner, estimate.seconds, f"this job ({estimate.bundles} bundles)")
-    return estimate
-
-
 def check_memory(config: MatchConfig, shape: tuple[int, ...], top: int, svc: Services) -> int:
     """The job's estimated peak memory (MiB, :func:`shared.memory.job_memory_mb`), refused
     (413) when it is above a worker process's budget on this host (a worker elsewhere checks
@@ -244,7 +163,8 @@ def check_memory(config: MatchConfig, shape: tuple[int, ...], top: int, svc: Ser
 
 
 def submit(form: JobForm, owner: str, svc: Services, users: UserStore) -> JobRecord:
-    """Admit a job and queue it: the record as written (``state`` queued)."""
+    """Admit a job and queue it: the record as written (``state`` queued; a metered solver's
+    ``pricing``, queued by its pricing task within its owner's budget)."""
     check_active_jobs(owner, svc)
     record, arrays = admit(form, owner, svc, users)
     dispatch(record, arrays, svc)
@@ -266,17 +186,13 @@ def admit(
         read_upload(form.right, "right", settings),
         settings,
     )
-    # the range decides the levels, hence the job's size: given, resolved here for a metered
-    # solver's budget, or else resolved once by the job's first control task
-    disparity_range = range_at_submit(left_image, right_image, config)
-    top = disparity_range.max_disparity if disparity_range else config.max_disparity
-    estimate = None
-    # a range given or resolved here prices the memory now; "auto" at the job's start
+    # the range decides the levels, hence the job's size: given, or resolved by the job's
+    # first task (a metered job's by its pricing task, which checks its budget against the
+    # estimate before it is queued: workers.pricing)
+    top = config.max_disparity
     memory = check_memory(config, left_image.shape, top, svc) if isinstance(top, int) else None
-    if isinstance(top, int):
-        estimate = check_budget(config, left_image, right_image, top, owner, users, svc)
     arrays = {"left": left_image, "right": right_image}
-    warnings = [disparity_range.warning] if disparity_range and disparity_range.warning else []
+    warnings: list[str] = []
     truth = None
     if form.ground_truth is not None:
         stored = read_upload(form.ground_truth, "ground_truth", settings)
@@ -292,6 +208,7 @@ def admit(
         warnings += [note] if note else []
     record = JobRecord(
         id=new_job_id(),
+        state=JobState.PRICING if is_metered(config.solver) else JobState.QUEUED,
         owner=owner,
         config=config,
         width=left_image.shape[1],
@@ -302,11 +219,9 @@ def admit(
         warnings=warnings,
         ground_truth=truth,
         created_at=now(),
-        disparity_range=disparity_range.as_dict() if disparity_range else None,
         levels_total=len(plan(config, top)) if isinstance(top, int) else 0,
         version=qhsm_version(),
         cameras=form.cameras,
-        estimate_seconds=[level.seconds for level in estimate.levels] if estimate else None,
         dispatched=False,
         memory_mb=memory,
         batch=batch,
@@ -323,15 +238,16 @@ def keep_views(svc: Services, job_id: str, arrays: dict[str, np.ndarray]) -> Non
 
 def dispatch(record: JobRecord, arrays: dict[str, np.ndarray], svc: Services) -> None:
     """Write the job (under its owner's active-job cap: ``ActiveJobsCapError``) and send its
-    first control task; a job that could not be queued is removed again.
+    first task: ``qhsm.start_job`` to the control queue, or a pricing job's ``qhsm.price_job``
+    to the pricing queue; a job that could not be queued is removed again.
 
-    Idempotent for the client: once the start is sent nothing raises (the submit answers 202
+    Idempotent for the client: once the task is sent nothing raises (the submit answers 202
     and the job runs once); before, the error is answered (507 on a full disk) and the job never
     runs, even when its removal fails too: its record says its start was not sent
     (``dispatched`` False) and the watchdog fails it instead of starting it."""
     write(record, arrays, svc)
     try:
-        svc.celery.send_task(START_JOB, args=(record.id,), queue=svc.settings.control_queue)
+        send_first_task(record, svc)
     except BaseException:  # a full disk or Redis gone: the job was never queued
         with contextlib.suppress(Exception):
             svc.store.discard(record.id)
@@ -359,28 +275,9 @@ def started(record: JobRecord, svc: Services) -> None:
         log.warning("job %s: started, but its record could not say so: %s", record.id, error)
 
 
-def quote(
-    params: str | None, left: Upload, right: Upload, owner: str, svc: Services, users: UserStore
-) -> Quote:
-    """What a job with these uploads and params would be charged; nothing is stored. The same
-    checks as :func:`submit` up to the budget, with the range always resolved."""
-    settings = svc.settings
-    config = parse_config(params)
-    check_solver_name(config)
-    left_image, right_image = decode_pair(
-        read_upload(left, "left", settings), read_upload(right, "right", settings), settings
-    )
-    top = disparity_range_of(left_image, right_image, config).max_disparity
-    job = estimate_job(config, left_image, right_image, top, svc)
-    remaining = users.ledger.status(owner).remaining if job.seconds > 0 else float("inf")
-    memory = job_memory_mb(config, left_image.shape[0], left_image.shape[1], top)
-    return Quote(
-        estimate=job,
-        max_disparity=top,
-        remaining_seconds=remaining,
-        memory_mb=memory,
-        memory_budget_mb=worker_budget_mb(settings),
-    )
+def send_first_task(record: JobRecord, svc: Services) -> None:
+    """Send a written job's first task (:func:`workers.app.send_first_task`)."""
+    first_task(svc.celery, svc.settings, record.id, pricing=record.state is JobState.PRICING)
 
 
 # --- lookups --------------------------------------------------------------------------------
@@ -415,9 +312,9 @@ def finished_result(
 
 
 def cancel(job_id: str, svc: Services, principal: Principal) -> JobRecord:
-    """Cancel a queued or running job and stop its running solver tasks; a job cancelled
+    """Cancel a pricing, queued or running job and stop its running tasks; a job cancelled
     already is returned as it is, a finished one refused (``JobStateError``)."""
-    find_job(job_id, svc, principal)
+    before = find_job(job_id, svc, principal)
     applied = svc.store.apply(job_id, JobRecord.cancelled, now())
     record = applied.record
     if record is None or not applied.changed:
@@ -426,6 +323,8 @@ def cancel(job_id: str, svc: Services, principal: Principal) -> JobRecord:
             raise JobStateError(
                 f"job {job_id} already {record.state.value}; there is nothing to cancel"
             )
+    if before.state is JobState.PRICING:  # its pricing task, queued or running
+        revoke(svc.celery, [pricing_task_id(job_id)])
     stop_tasks(record, svc)
     return record
 

@@ -13,10 +13,10 @@ from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
 from shared.settings import BudgetPeriod
+from workers.estimates import EstimateRecord, EstimateState
 from workers.records import Cameras, GroundTruth, JobState, Progress
 
 if TYPE_CHECKING:
-    from shared.solvers.qpu_time import JobEstimate
     from workers.quota.ledger import UserUsage as LedgerUsage
 
 
@@ -357,22 +357,47 @@ class Estimate(BaseModel):
 
     @classmethod
     def of(
-        cls,
-        job: JobEstimate,
-        max_disparity: int,
-        remaining_seconds: float,
-        memory: tuple[int | None, int | None] | None = None,
+        cls, priced: dict[str, Any], remaining_seconds: float, memory_budget_mb: int | None = None
     ) -> Estimate:
-        """The estimate of ``job`` at the resolved range, against the budget left (infinite:
-        unlimited, or nothing to charge); ``memory``: its peak and a worker's budget, MiB."""
-        memory_mb, budget = memory or (None, None)
+        """The estimate a pricing worker computed (``workers.pricing.Priced.result``: the core
+        ``JobEstimate``'s ``as_dict`` with the resolved range and the job's peak memory)
+        against the owner's budget left (infinite: unlimited, or nothing to charge) and the
+        memory budget the API admits jobs with."""
         return cls(
-            **job.as_dict(),
-            max_disparity=max_disparity,
+            **priced,
             remaining_seconds=None if math.isinf(remaining_seconds) else remaining_seconds,
-            fits=job.seconds <= remaining_seconds,
-            memory_mb=memory_mb,
-            memory_budget_mb=budget,
+            fits=priced["seconds"] <= remaining_seconds,
+            memory_budget_mb=memory_budget_mb,
+        )
+
+
+class EstimateStatus(BaseModel):
+    """An estimate being computed on a pricing worker (``POST /v1/estimate`` answers it, 202;
+    poll ``GET /v1/estimates/{id}`` until ``state`` is ``done``, ``failed`` or ``cancelled``).
+    The wire form of ``workers.estimates.EstimateRecord``; built by ``of``."""
+
+    id: str
+    state: EstimateState
+    cached: bool = Field(
+        False, description="true: answered from an identical request's estimate (the cache)"
+    )
+    created_at: datetime
+    finished_at: datetime | None = None
+    result: Estimate | None = Field(None, description="Once done: the estimate")
+    error: str | None = Field(None, description="Once failed or cancelled: why")
+    links: dict[str, str] = Field(description="self: where to poll (and DELETE to cancel)")
+
+    @classmethod
+    def of(cls, record: EstimateRecord, result: Estimate | None) -> EstimateStatus:
+        return cls(
+            id=record.id,
+            state=record.state,
+            cached=record.cached,
+            created_at=record.created_at,
+            finished_at=record.finished_at,
+            result=result,
+            error=record.error,
+            links={"self": f"/v1/estimates/{record.id}"},
         )
 
 

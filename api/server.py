@@ -56,7 +56,7 @@ def stoppable_server(
 ) -> uvicorn.Server:
     """uvicorn serving the API, stopped within seconds of SIGTERM or Ctrl-C whatever is in
     flight: uvicorn waits ``api_shutdown_seconds`` for requests to finish and then cancels
-    them, but a sync route's thread (an estimate running the pyramid) cannot be cancelled and
+    them, but a sync route's thread (a large upload being decoded) cannot be cancelled and
     held the process (the loop waits for it, the interpreter joins it). So the signal also arms
     :func:`stop_after`: ``STOP_MARGIN`` s later ``cleanup`` runs and the process exits."""
     import uvicorn

@@ -25,7 +25,9 @@ WAIT_FORMAT = "{desc} [{elapsed}{postfix}]"
 #: Redraw at most this often for the clocks alone (bundles done redraw as tqdm sees fit).
 REDRAW_SECONDS = 0.5
 #: Job states during which the bar is live; any other is shown in front of the last level.
-LIVE = ("queued", "running")
+LIVE = ("pricing", "queued", "running")
+#: Live states before the job's levels run (no bundles to count yet).
+WAITING = ("pricing", "queued")
 
 
 def clock(seconds: float) -> str:
@@ -66,6 +68,8 @@ def describe(
     """
     if state == "queued":
         return "queued: waiting for a worker"
+    if state == "pricing":
+        return "pricing: a worker estimates its QPU time for the budget check"
     # levels 0: not known yet (a job's range is estimated when it starts)
     text = f"level {max(level, 1)}/{levels or '?'}" + ("" if total else f": {phase or 'preparing'}")
     return text if state in LIVE else f"{state}: {text}"
@@ -118,7 +122,7 @@ class LevelBar:
         phase : str, optional
             What preparing the level is doing (shown while ``total`` is 0).
         """
-        total = 0 if state == "queued" else total
+        total = 0 if state in WAITING else total
         self._level = (level, levels)
         text = describe(level, levels, total, state, phase)
         now = time.monotonic()

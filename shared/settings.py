@@ -153,16 +153,37 @@ class Settings(BaseSettings):
     inspect_timeout: float = seconds_field(
         1.0, "Seconds to wait for workers to report their queues"
     )
+    pricing_queue: str = Field(
+        "pricing",
+        description="Celery queue of the pricing tasks (POST /v1/estimate, a metered job's "
+        "budget check): the API never computes an estimate itself",
+    )
     max_concurrent_pricing: int = Field(
         2,
         ge=1,
-        description="Estimates (POST /v1/estimate, a metered job's budget check) an API "
-        "process computes at once; more is a 429 with Retry-After",
+        description="Processes of `qhsm serve`'s pricing worker: estimates computed at once "
+        "(more wait in the pricing queue)",
+    )
+    max_estimates_per_user: int = Field(
+        4,
+        ge=1,
+        description="Estimates one user may have waiting or computing at once; more is a 429",
+    )
+    estimate_abandon_seconds: float = seconds_field(
+        60.0,
+        "An estimate nobody polls (GET /v1/estimates/{id}) for this long is cancelled and its "
+        "task stopped (seconds)",
+    )
+    estimate_ttl_seconds: int = Field(
+        3600,
+        ge=60,
+        description="How long an estimate's answer is kept, and a finished estimate serves an "
+        "identical request (same views, config and solver) from the cache (seconds)",
     )
     api_shutdown_seconds: float = seconds_field(
         5.0,
         "Seconds the API waits for requests in flight after SIGTERM or Ctrl-C before it stops "
-        "regardless (an estimate still computing included)",
+        "regardless",
     )
     max_active_jobs_per_user: int | None = Field(
         8,

@@ -32,6 +32,18 @@ FAN_OUT_LEVEL = "qhsm.fan_out_level"
 #: unacknowledged) by an older version still find their task after an upgrade.
 SOLVE_BUNDLES = "qhsm.solve_rows"
 LEVEL_DONE = "qhsm.level_done"
+#: On the pricing queue (``workers.pricing_tasks``): a metered job's price and admission, and
+#: an estimate of ``POST /v1/estimate``.
+PRICE_JOB = "qhsm.price_job"
+PRICE_ESTIMATE = "qhsm.price_estimate"
+#: What the pricing tasks' time limits are looked up as (``task_time_limits``; per deployment
+#: ``QHSM_SOLVER_TIME_LIMITS={"pricing": ...}``).
+PRICING = "pricing"
+
+
+def pricing_task_id(job_id: str) -> str:
+    """The id of a job's pricing task (a cancel revokes it by this id)."""
+    return f"{job_id}-pricing"
 
 
 def celery_config(settings: Settings) -> dict:
@@ -71,6 +83,23 @@ def task_time_limits(settings: Settings, solver: str) -> dict[str, float]:
     return {"soft_time_limit": soft, "time_limit": soft + settings.task_time_limit_grace}
 
 
+def send_first_task(celery: Celery, settings: Settings, job_id: str, *, pricing: bool) -> None:
+    """Send a written job's first task: a pricing job's ``qhsm.price_job`` to the pricing queue
+    (with the pricing's time limits, and an id a cancel revokes), any other's ``qhsm.start_job``
+    to the control queue. The API sends it at submit; the watchdog again when it was lost
+    (both tasks are idempotent)."""
+    if pricing:
+        celery.send_task(
+            PRICE_JOB,
+            args=(job_id,),
+            queue=settings.pricing_queue,
+            task_id=pricing_task_id(job_id),
+            **task_time_limits(settings, PRICING),
+        )
+    else:
+        celery.send_task(START_JOB, args=(job_id,), queue=settings.control_queue)
+
+
 def terminate_tasks(celery: Celery, task_ids: list[str], solver: str) -> None:
     """Revoke tasks and kill the pool processes running them, so a cancelled or failed job
     frees its workers at once. SIGKILL: a solver in native code ignores anything softer;
@@ -95,7 +124,7 @@ class QhsmCelery(Celery):
 def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> QhsmCelery:
     """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
     settings = settings or get_settings()
-    include = ["workers.tasks"] if with_tasks else []
+    include = ["workers.tasks", "workers.pricing_tasks"] if with_tasks else []
     celery = QhsmCelery("qhsm", include=include, settings=settings)
     celery.conf.update(celery_config(settings))
     if with_tasks:  # a worker: heartbeats with the messages it holds (workers/liveness.py)

@@ -1,6 +1,6 @@
--- Write a new job's record and indexes, unless its owner already has ARGV[5] jobs queued or
--- running (0: no cap): the cap is checked and taken in this one script, so simultaneous submits
--- cannot overshoot it. Index entries whose record is gone or final are dropped on the way.
+-- Write a new job's record and indexes, unless its owner already has ARGV[5] jobs pricing,
+-- queued or running (0: no cap): the cap is checked and taken in this one script, so
+-- simultaneous submits cannot overshoot it. Index entries whose record is gone or final are dropped on the way.
 -- KEYS job, jobs, active, owner's jobs; ARGV id, owner, record JSON, created (score), cap,
 -- job key prefix ("{prefix}:job:") -> the owner's active jobs before this one, or -1 - that
 -- count when refused.
@@ -13,7 +13,7 @@ if cap > 0 then
       local raw = redis.call('GET', ARGV[6] .. entries[i])
       -- a record starts {"id":"...","state":"..." (JobRecord's first two fields)
       local state = raw and string.match(raw, '^{"id":"%x+","state":"(%a+)"')
-      if state == 'queued' or state == 'running' then
+      if state == 'pricing' or state == 'queued' or state == 'running' then
         active = active + 1
       else
         redis.call('HDEL', KEYS[3], entries[i])

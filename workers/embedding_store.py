@@ -15,6 +15,8 @@ from shared.solvers.embedding_cache import set_default_store
 from workers.redis_client import client_for, connect, text
 
 KEY_PREFIX = "qhsm:embedding:"
+#: The count of embeddings stored, beside them (a structure key is a digest, never this).
+GENERATION = "#generation"
 
 
 class RedisEmbeddingStore:
@@ -33,7 +35,16 @@ class RedisEmbeddingStore:
         return None if value is None else text(value)
 
     def set(self, key: str, value: str) -> None:
-        self.client.set(self.prefix + key, value)
+        with self.client.pipeline() as pipe:
+            pipe.set(self.prefix + key, value)
+            pipe.incr(self.prefix + GENERATION)
+            pipe.execute()
+
+    def generation(self) -> int:
+        """How many embeddings were stored so far: an estimate made before the last one may
+        be priced with fewer known embeddings (``workers.estimates`` keys its cache by it)."""
+        value = self.client.get(self.prefix + GENERATION)
+        return 0 if value is None else int(text(value))
 
 
 def for_settings(settings: Settings, client: redis.Redis | None = None) -> RedisEmbeddingStore:

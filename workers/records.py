@@ -35,6 +35,9 @@ JOB_ID = re.compile(r"^[0-9a-f]{32}$")
 
 
 class JobState(StrEnum):
+    #: A metered job being priced on a worker (``workers.pricing``): its estimate is checked
+    #: against its owner's budget before it is queued
+    PRICING = "pricing"
     QUEUED = "queued"
     RUNNING = "running"
     SUCCEEDED = "succeeded"
@@ -46,13 +49,14 @@ class JobState(StrEnum):
         return self in (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED)
 
 
-ACTIVE = frozenset({JobState.QUEUED, JobState.RUNNING})
+ACTIVE = frozenset({JobState.PRICING, JobState.QUEUED, JobState.RUNNING})
 
 #: Every change of a job's state, from -> to: the one table a record's writes are checked against
 #: (:meth:`workers.store.JobStore.apply`). A record may also change without changing its state
-#: (a level's progress while running). Running -> queued is the watchdog's restart; a final
-#: state is never left.
+#: (a level's progress while running). Pricing -> queued is a metered job admitted within its
+#: owner's budget; running -> queued is the watchdog's restart; a final state is never left.
 TRANSITIONS: dict[JobState, frozenset[JobState]] = {
+    JobState.PRICING: frozenset({JobState.QUEUED, JobState.FAILED, JobState.CANCELLED}),
     JobState.QUEUED: frozenset({JobState.RUNNING, JobState.FAILED, JobState.CANCELLED}),
     JobState.RUNNING: frozenset(
         {JobState.QUEUED, JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED}
@@ -201,6 +205,8 @@ class JobRecord(BaseModel):
     #: Pixels of the provenance map per stage (``shared.provenance_map.counts``); None before
     #: the job succeeded
     provenance_counts: dict[str, int] | None = None
+    #: While pricing: what the pricing worker is doing (``workers.pricing.STAGES``)
+    pricing_stage: str | None = None
 
     @field_validator("metrics")
     @classmethod
@@ -244,6 +250,39 @@ class JobRecord(BaseModel):
         if to.terminal:
             updates.setdefault("finished_at", at)
         return self.model_copy(update=updates)
+
+    def pricing_at(self, stage: str) -> JobRecord | None:
+        """The pricing job's current stage; None once it is no longer pricing."""
+        if self.state is not JobState.PRICING or self.pricing_stage == stage:
+            return None
+        return self.model_copy(update={"pricing_stage": stage})
+
+    def priced(
+        self,
+        at: datetime,
+        estimate_seconds: list[float],
+        disparity_range: RangeEstimate | None,
+        levels_total: int,
+        memory_mb: int | None,
+    ) -> JobRecord | None:
+        """The priced job admitted within its owner's budget: queued with its levels'
+        estimate (what its workers reserve), its range and memory when the pricing resolved
+        them (the range's warning first among the warnings), its start not yet sent."""
+        warnings = self.warnings
+        if disparity_range is not None and disparity_range.warning:
+            warnings = [disparity_range.warning, *warnings]
+        return self.moved(
+            JobState.QUEUED,
+            at,
+            allowed_from=(JobState.PRICING,),
+            estimate_seconds=estimate_seconds,
+            disparity_range=disparity_range or self.disparity_range,
+            levels_total=levels_total,
+            memory_mb=memory_mb,
+            warnings=warnings,
+            pricing_stage=None,
+            dispatched=False,
+        )
 
     def started(self, at: datetime) -> JobRecord | None:
         """A queued job begins."""
@@ -389,6 +428,9 @@ class Progress(BaseModel):
         None,
         description="While the level is prepared (bundles_total 0): what it is doing, e.g. "
         "'embedding a 64-variable tile shape into Pegasus P16: sublattice m=4 (1/4), 10 tries'",
+    )
+    stage: str | None = Field(
+        None, description="While pricing: what the pricing worker is doing (range, survey, ...)"
     )
 
 

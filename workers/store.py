@@ -412,8 +412,7 @@ class JobStore(LevelStorage):
         chunks = self.chunks(record.id) if chunks is None else chunks
         current = record.level - 1
         done = sum(chunk.bundles for chunk in chunks if chunk.level == current)
-        if record.state is JobState.SUCCEEDED:
-            done = record.bundles_total
+        done = record.bundles_total if record.state is JobState.SUCCEEDED else done
         preparing = record.state is JobState.RUNNING and not record.bundles_total
         return Progress(
             level=record.level,
@@ -421,6 +420,7 @@ class JobStore(LevelStorage):
             bundles_done=min(done, record.bundles_total),
             bundles_total=record.bundles_total,
             phase=self.phase(record.id, max(current, 0)) if preparing else None,
+            stage=record.pricing_stage,  # a pricing job's (workers.pricing)
         )
 
     @staticmethod

@@ -164,6 +164,7 @@ def worker_env(settings: Settings, redis_url: str, *, dwave: bool) -> dict[str, 
     env["QHSM_ROWS_PER_TASK"] = str(settings.rows_per_task)
     env["QHSM_SOLVER_ROWS_PER_TASK"] = json.dumps(settings.solver_rows_per_task)
     env["QHSM_CONTROL_QUEUE"] = settings.control_queue
+    env["QHSM_PRICING_QUEUE"] = settings.pricing_queue
     if not dwave:
         for name in DWAVE_SECRETS:
             env.pop(name, None)
@@ -267,10 +268,12 @@ class Stack:
     """Redis (embedded unless configured) plus workers for every solver that runs here.
 
     A control worker consumes only the control queue (orchestration never waits behind solver
-    work); one CPU worker consumes every locally available solver that does not spend QPU
-    time; QPU/hybrid solvers get their own single-process worker, the only process that keeps
-    the D-Wave token in its environment. With ``supervise`` a :class:`Supervisor` restarts any
-    of them (or the embedded Redis) that dies.
+    work); a pricing worker (``max_concurrent_pricing`` processes) the pricing queue (estimates
+    and metered jobs' pricing: the API never runs the matcher); one CPU worker consumes every
+    locally available solver that does not spend QPU time; QPU/hybrid solvers get their own
+    single-process worker, the only process that keeps the D-Wave token in its environment.
+    With ``supervise`` a :class:`Supervisor` restarts any of them (or the embedded Redis) that
+    dies.
     """
 
     settings: Settings
@@ -300,7 +303,8 @@ class Stack:
         tag = os.getpid()
         cpu_env = worker_env(settings, url, dwave=False)
         # the processes that share this host's memory (shared.memory.worker_budget_mb)
-        processes = settings.control_concurrency + count + (1 if dwave else 0)
+        pricing = settings.max_concurrent_pricing
+        processes = settings.control_concurrency + pricing + count + (1 if dwave else 0)
         cpu_env["QHSM_HOST_WORKER_PROCESSES"] = str(processes)
         self.workers.append(  # orchestration never waits behind solver work
             WorkerProcess(
@@ -311,6 +315,15 @@ class Stack:
                 logs / "worker-control.log",
                 # between the levels it runs alone (the solvers wait for it): every core
                 threads=thread_budget(1, cpu_env),
+            ).start()
+        )
+        self.workers.append(  # estimates and metered jobs' pricing: never in the API process
+            WorkerProcess(
+                f"pricing-{tag}",
+                [settings.pricing_queue],
+                pricing,
+                cpu_env,
+                logs / "worker-pricing.log",
             ).start()
         )
         self.workers.append(

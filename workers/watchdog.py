@@ -16,7 +16,9 @@ row (``JobStore.save_bundles``), and the level's fan-in assembles from them and 
 What cannot be resumed (a level that was never launched, or whose inputs are gone) restarts the
 job from its uploads; bundle seeds are per bundle, so the result is the undisturbed run's. After
 ``watchdog_max_resends`` attempts without progress the job fails with a reason. A job whose
-solver queue still holds messages and has a consumer is waiting its turn, not stalled.
+solver queue still holds messages and has a consumer is waiting its turn, not stalled. Each round
+also cancels and stops the estimates nobody polled for ``estimate_abandon_seconds``
+(``workers.estimates.sweep_abandoned``); a job being priced is the pricing worker's (acks late).
 
 It runs as a thread of every worker that consumes the control queue; a Redis lock makes one of
 them act at a time. Re-sent chunks are counted by ``workers.telemetry`` (``/metrics``:
@@ -37,8 +39,8 @@ from celery import Celery
 from shared.bundles import bundle_key
 from shared.inference import inference_for
 from shared.solvers.registry import queue_names, queue_of
-from workers import fair, liveness, orchestration
-from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB
+from workers import estimates, fair, liveness, orchestration
+from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB, send_first_task
 from workers.chunks import group_bundles, is_planned, rows_per_task
 from workers.records import JobRecord, JobState
 from workers.records import now as utc_now
@@ -93,7 +95,7 @@ class Watchdog:
         return self.store.settings.watchdog_lost_seconds
 
     def active(self) -> Iterator[JobRecord]:
-        """Every queued or running job (records that fail to load are skipped)."""
+        """Every pricing, queued or running job (records that fail to load are skipped)."""
         index = self.store.key("jobs", "active")
         ids = sorted(text(raw) for raw in self.store.redis.hkeys(index))
         for start in range(0, len(ids), PAGE):
@@ -106,7 +108,7 @@ class Watchdog:
                     record = JobRecord.model_validate_json(raw)
                 except ValueError:
                     continue
-                if record.state in (JobState.QUEUED, JobState.RUNNING):
+                if record.state in (JobState.PRICING, JobState.QUEUED, JobState.RUNNING):
                     yield record
 
     def signature(self, record: JobRecord) -> tuple:
@@ -152,7 +154,7 @@ class Watchdog:
                 continue
             idle = now - seen.since
             action = None
-            if record.state is JobState.QUEUED:
+            if record.state in (JobState.PRICING, JobState.QUEUED):  # its first task, only
                 if idle >= self.lost_after and now - seen.checked >= self.lost_after:
                     seen.checked = now
                     messages = self.messages() if messages is None else messages
@@ -204,7 +206,8 @@ class Watchdog:
     def queue_names(self) -> list[str]:
         """The control queue and every solver queue, with its users' queues."""
         solvers = fair.with_user_queues(self.store.redis, self.store.prefix, queue_names())
-        return [self.store.settings.control_queue, *solvers]
+        settings = self.store.settings
+        return [settings.control_queue, settings.pricing_queue, *solvers]
 
     def abandon(self, record: JobRecord) -> str:
         """A queued job whose start the API never sent (its submit failed after the record
@@ -219,12 +222,16 @@ class Watchdog:
         return "abandoned"
 
     def start_again(self, record: JobRecord) -> str:
-        """A queued job whose start task is nowhere (the API died before it was sent, or it
-        was lost with Redis): send it again (starting is idempotent)."""
-        log.warning("job %s: queued but its start task is nowhere; sending it again", record.id)
-        self.celery.send_task(START_JOB, args=(record.id,), queue=self.store.settings.control_queue)
+        """A queued (or pricing) job whose start (or pricing) task is nowhere (the API died
+        before it was sent, or it was lost with Redis): send it again (both are idempotent)."""
+        pricing = record.state is JobState.PRICING
+        log.warning(
+            "job %s: %s but its first task is nowhere; sending it again", record.id,
+            record.state.value,
+        )  # fmt: skip
+        send_first_task(self.celery, self.store.settings, record.id, pricing=pricing)
         self.telemetry.resent(1)
-        return "started"
+        return "priced again" if pricing else "started"
 
     def recover(self, record: JobRecord, attempt: int, lost: bool = False) -> str:
         settings = self.store.settings
@@ -365,9 +372,14 @@ class Watchdog:
             return f"no worker consumes the {solver!r} queue."
         return ""
 
+    @property
+    def estimates(self) -> estimates.EstimateStore:
+        return estimates.EstimateStore(self.store.redis, self.store.settings)
+
     def run(self, stop: threading.Event) -> None:
-        """Every :attr:`period` until ``stop``: put back what dead workers held, then look at
-        the jobs; errors (Redis down) are logged and the next round tries again."""
+        """Every :attr:`period` until ``stop``: put back what dead workers held, look at the
+        jobs, and stop the estimates their clients abandoned; errors (Redis down) are logged
+        and the next round tries again."""
         while not stop.wait(self.period):
             try:
                 if self.leader():
@@ -377,6 +389,7 @@ class Watchdog:
                     if restored:
                         self.telemetry.resent(restored)
                     self.tick()
+                    estimates.sweep_abandoned(self.celery, self.estimates)
             except redis.RedisError as error:
                 log.warning("watchdog: Redis unavailable (%s); trying again", error)
             except Exception:

@@ -1,23 +1,37 @@
-"""/v1/estimate: what a job would be charged, without running it (same form as POST /v1/jobs)."""
+"""/v1/estimate: what a job would be charged, without running it (same form as POST /v1/jobs),
+computed on a pricing worker and polled at /v1/estimates/{id}."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, status
+from fastapi.responses import JSONResponse
 
-from api import job_service
-from api.deps import LeftView, ParamsForm, PrincipalDep, RightView, ServicesDep, UsersDep
+from api import estimate_service
+from api.deps import (
+    LeftView,
+    ParamsForm,
+    PrincipalDep,
+    Responses,
+    RightView,
+    ServicesDep,
+    UsersDep,
+)
 from api.responses import UPLOAD_ERRORS
-from api.schemas import Estimate
+from api.schemas import EstimateStatus
 
 router = APIRouter(tags=["jobs"])
+
+NOT_FOUND: Responses = {404: {"description": "No such estimate (or not yours), or it expired"}}
 
 
 @router.post(
     "/estimate",
-    response_model=Estimate,
+    status_code=status.HTTP_202_ACCEPTED,
+    response_model=EstimateStatus,
     responses={
         **UPLOAD_ERRORS,
         422: {"description": "Invalid parameters, sizes, or solver"},
+        429: {"description": "Too many of your estimates are waiting or computing"},
     },
 )
 def estimate(
@@ -27,10 +41,37 @@ def estimate(
     left: LeftView,
     right: RightView,
     params: ParamsForm = None,
-) -> Estimate:
+) -> JSONResponse:
     """The QPU (or hybrid) seconds a job with these images and params would be charged, per
-    level, and whether it fits your remaining budget. Nothing is stored or queued. Bundle shapes
+    level, and whether it fits your remaining budget. Computed on a worker: the answer (202)
+    is the estimate's status, done at once when an identical request was estimated recently;
+    otherwise poll its ``Location`` (``GET /v1/estimates/{id}``) until it is ``done`` (its
+    ``result``), ``failed`` (its ``error``) or ``cancelled``; an estimate nobody polls for
+    ``QHSM_ESTIMATE_ABANDON_SECONDS`` is cancelled. Nothing is queued as a job. Bundle shapes
     that earlier jobs have embedded are estimated with their actual embedding."""
-    quote = job_service.quote(params, left, right, principal.name, svc, users)
-    memory = (quote.memory_mb, quote.memory_budget_mb)
-    return Estimate.of(quote.estimate, quote.max_disparity, quote.remaining_seconds, memory)
+    record = estimate_service.request_estimate(params, left, right, principal.name, svc)
+    body = estimate_service.status_of(record, svc, users)
+    return JSONResponse(
+        body.model_dump(mode="json"),
+        status_code=status.HTTP_202_ACCEPTED,
+        headers={"Location": body.links["self"]},
+    )
+
+
+@router.get("/estimates/{estimate_id}", response_model=EstimateStatus, responses=NOT_FOUND)
+def get_estimate(
+    estimate_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep
+) -> EstimateStatus:
+    """An estimate's state, and its result once done (or why there is none)."""
+    record = estimate_service.find_estimate(estimate_id, svc, principal)
+    return estimate_service.status_of(record, svc, users)
+
+
+@router.delete("/estimates/{estimate_id}", response_model=EstimateStatus, responses=NOT_FOUND)
+def cancel_estimate(
+    estimate_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep
+) -> EstimateStatus:
+    """Cancel an estimate you no longer wait for (its worker stops); one that has ended is
+    answered as it is."""
+    record = estimate_service.cancel_estimate(estimate_id, svc, principal)
+    return estimate_service.status_of(record, svc, users)

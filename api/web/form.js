@@ -150,7 +150,17 @@ async function estimateJob() {
   for (const name of ["ground_truth", "gt_scale", "gt_border", "label", "tags"]) data.delete(name);
   out.textContent = "Estimating…";
   try {
-    const e = await json("/v1/estimate", { method: "POST", body: data });
+    // computed on a worker: poll the estimate until it ends (GET /v1/estimates/{id})
+    let status = await json("/v1/estimate", { method: "POST", body: data });
+    for (let wait = 100; status.state === "pending" || status.state === "running"; wait = Math.min(1000, wait * 1.5)) {
+      await new Promise((resolve) => setTimeout(resolve, wait));
+      status = await json(status.links.self);
+    }
+    if (status.state !== "done") {
+      out.textContent = `Estimate ${status.state}: ${status.error}`;
+      return;
+    }
+    const e = status.result;
     out.textContent = !e.metered ? `${e.solver} is not metered: no QPU time is charged.`
       : `${seconds(e.seconds)} of ${e.levels[0]?.qubits_per_bundle === null ? "hybrid" : "QPU"} time; ` +
         `${fmt(100 * e.classical_share, 2)} % of ${e.bundles} bundles solved classically (tile certificates, roof duality); ` +

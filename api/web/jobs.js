@@ -6,7 +6,7 @@ import { age, duration, jobDuration, jobName, scoresText, seconds } from "./form
 import { poll, render, showView } from "./views.js";
 
 /** The states of a job that is not done yet (the API's ACTIVE). */
-export const ACTIVE = new Set(["queued", "running"]);
+export const ACTIVE = new Set(["pricing", "queued", "running"]);
 const PAGE_SIZE = 20;
 /** The largest page GET /v1/jobs gives (its `limit`'s bound). */
 export const MAX_PAGE_SIZE = 100;
@@ -67,6 +67,7 @@ function progressOf(job) {
   if (job.state === "succeeded") return { fraction: 1, text: "done" };
   const p = job.progress;
   if (job.state === "queued") return { fraction: 0, text: "waiting for a worker" };
+  if (job.state === "pricing") return { fraction: 0, text: `pricing: ${p?.stage ?? "waiting for a pricing worker"}` };
   if (!p) return { fraction: 0, text: "—" };
   if (!p.level || !p.bundles_total) {
     // the level is being prepared (a QPU solver's embedding search can take minutes)

@@ -3,13 +3,11 @@ queued, listing, solvers, health."""
 
 from __future__ import annotations
 
-import json
-
 import harness
 import numpy as np
 import pytest
 import redis
-from api_helpers import LEFT, RIGHT, SCENE, post
+from api_helpers import LEFT, SCENE, post
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -182,76 +180,6 @@ def test_openapi_docs(api):
     assert "/v1/jobs/{job_id}/disparity" in api.get("/openapi.json").json()["paths"]
 
 
-def estimate(client, left=LEFT, right=RIGHT, params=None, headers=None):
-    files = {"left": ("left.png", left), "right": ("right.png", right)}
-    data = {} if params is None else {"params": json.dumps(params)}
-    return client.post("/v1/estimate", files=files, data=data, headers=headers or {})
-
-
-def test_estimate_reports_the_jobs_qpu_seconds_without_queueing_it(api, api_settings):
-    from shared.config import MatchConfig
-    from shared.solvers import qpu_time
-
-    before = api.get("/v1/jobs", params={"limit": 100}).json()["total"]
-    params = {"solver": "qpu", "encoding": "domain-wall", "solver_params": {"num_reads": 50},
-              "max_disparity": 6}  # fmt: skip
-    response = estimate(api, params=params)
-    assert response.status_code == 200, response.text
-    body = response.json()
-    assert body["max_disparity"] == 6
-    expected = qpu_time.job_seconds(MatchConfig.model_validate(params), (24, 32), 6)
-    # roof duality surveyed on the pair: what it solves on the host is not charged
-    assert 0 < body["seconds"] <= expected.seconds * (1 + 1e-9)
-    assert 0 <= body["bundles_sent"] <= body["bundles"]
-    assert body["classical_share"] == pytest.approx(1 - body["bundles_sent"] / body["bundles"])
-    assert body["metered"] and body["bundles"] == expected.bundles
-    assert [level["bundles"] for level in body["levels"]] == [lv.bundles for lv in expected.levels]
-    assert all(
-        level["qubits_per_bundle"] and not level["embedding_known"] for level in body["levels"]
-    )
-    assert body["fits"] is True  # the local admin's budget is unlimited
-    assert api.get("/v1/jobs", params={"limit": 100}).json()["total"] == before  # nothing queued
-
-
-def test_estimate_of_an_unmetered_solver_is_zero(api):
-    body = estimate(api, params={"solver": "exact"}).json()
-    assert body["metered"] is False and body["seconds"] == 0 and body["fits"] is True
-    assert body["remaining_seconds"] is None
-
-
-def test_estimate_says_when_a_job_would_not_fit_the_budget(api, api_settings):
-    from api.users import UserStore
-
-    users = UserStore.from_settings(api_settings)
-    _, key = users.create_user("estimate-poor", qpu_seconds=0.01)
-    headers = {"Authorization": f"Bearer {key}"}
-    body = estimate(api, params={"solver": "qpu-sim"}, headers=headers).json()
-    assert body["fits"] is False and body["remaining_seconds"] == 0.01 and body["seconds"] > 0.01
-
-
-def test_estimate_refuses_bad_input_like_job_submission(api):
-    assert estimate(api, params={"solver": "quantum-magic"}).status_code == 422
-    assert estimate(api, right=harness.png(SCENE.right[:, :20])).status_code == 422
-    assert estimate(api, left=b"GIF89a no").status_code == 415
-    bad = estimate(api, params={"solver": "qpu", "solver_params": {"num_reads": "many"}})
-    assert bad.status_code == 422 and "cannot estimate" in bad.json()["detail"]
-    assert api.post("/v1/estimate", data={"params": "{"}).status_code == 422  # no images
-
-
-def test_the_range_is_resolved_in_the_request_only_where_the_budget_needs_it(api):
-    """``max_disparity: auto`` costs a dense match of the views: the job's first control task
-    does it (none runs here), except for a metered solver, whose QPU budget is checked against
-    the estimate before the job is accepted."""
-    free = api.get(f"/v1/jobs/{post(api, params={'max_disparity': 'auto'}).json()['id']}").json()
-    assert free["disparity_range"] is None and free["progress"]["levels"] == 0
-    metered = post(api, params={"solver": "qpu-sim", "max_disparity": "auto"}).json()["id"]
-    status = api.get(f"/v1/jobs/{metered}").json()
-    assert status["disparity_range"]["source"] in ("auto", "auto-fallback")
-    assert status["progress"]["levels"] >= 1
-    for job in (free["id"], metered):
-        assert api.delete(f"/v1/jobs/{job}").status_code == 200
-
-
 def test_a_metered_jobs_charge_is_listed_and_shown(api, api_settings):
     """What the ledger charged the job (here settled by hand, as a QPU worker would)."""
     import redis
@@ -269,34 +197,6 @@ def test_a_metered_jobs_charge_is_listed_and_shown(api, api_settings):
     assert api.get(f"/v1/jobs/{exact}").json()["qpu_seconds"] is None
     for cancelled in (job, exact):
         assert api.delete(f"/v1/jobs/{cancelled}").status_code == 200
-
-
-def test_a_metered_job_keeps_its_estimate_and_shows_its_problems_ids(api, api_settings):
-    """The levels' accepted estimate is on the record (the workers reserve it); the ids SAPI gave
-    the job's problems (chunk reports, as a worker records them, and the ledger) are in the
-    job's status and the usage."""
-    import redis
-
-    from workers.quota import QuotaLedger
-    from workers.records import ChunkReport
-    from workers.store import JobStore
-
-    params = {"solver": "hybrid-sim", "max_disparity": 6}
-    job = post(api, params=params).json()["id"]
-    expected = estimate(api, params=params).json()
-    store = JobStore.from_settings(api_settings)
-    assert store.get(job).estimate_seconds == [level["seconds"] for level in expected["levels"]]
-    owner = api.get("/v1/me").json()["name"]
-    ledger = QuotaLedger(redis.Redis.from_url(api_settings.redis_url), api_settings.key_prefix)
-    ids = ["9f1c-level-2", "0a7e-level-1"]
-    ledger.settle(ledger.reserve(owner, job, 2.0, ttl=60), 1.5, problems=2, problem_ids=ids)
-    for level, problem in ((1, ids[0]), (0, ids[1])):
-        report = ChunkReport(level=level, bundles=1, wall_time=0.1, problem_ids=[problem])
-        store.record_chunk(job, str(level), report)
-    assert api.get(f"/v1/jobs/{job}").json()["problem_ids"] == [ids[1], ids[0]]  # by level
-    [mine] = [u for u in api.get("/v1/usage").json()["users"] if u["user"] == owner]
-    assert [j["problem_ids"] for j in mine["jobs"] if j["id"] == job] == [ids]
-    assert api.delete(f"/v1/jobs/{job}").status_code == 200
 
 
 def test_readyz_names_full_storage(api, monkeypatch):
@@ -319,23 +219,3 @@ def test_readyz_names_full_storage(api, monkeypatch):
     monkeypatch.setattr(health, "MIN_FREE_BYTES", 2**62)
     body = api.get("/readyz")
     assert body.status_code == 503 and body.json()["storage"].startswith("full: the disk of")
-
-
-def test_pricing_beyond_its_concurrency_limit_is_429(make_client):
-    """An estimate runs the exact pyramid in the API process: at most
-    QHSM_MAX_CONCURRENT_PRICING at once (issue 29), the next is told to come back."""
-    client = make_client(max_concurrent_pricing=1)
-    slots = client.app.state.services.pricing
-    params = {"solver": "qpu-sim", "max_disparity": 6}
-    assert slots.acquire(blocking=False)  # an estimate in flight
-    try:
-        busy = estimate(client, params=params)
-        assert busy.status_code == 429, busy.text
-        assert "QHSM_MAX_CONCURRENT_PRICING" in busy.json()["detail"]
-        refused = post(client, params=params)  # a metered job's admission prices it too
-        assert refused.status_code == 429, refused.text
-    finally:
-        slots.release()
-    answered = estimate(client, params=params)
-    assert answered.status_code == 200, answered.text
-    assert answered.json()["memory_mb"] > 0

@@ -128,20 +128,27 @@ def test_the_active_job_cap_counts_the_whole_batch(make_client, api_settings):
             client.delete(f"/v1/jobs/{job['id']}", headers=ada)
 
 
-def test_the_qpu_budget_is_checked_for_the_pairs_together(api, api_settings):
+def test_a_metered_batchs_jobs_are_priced_on_a_worker(api, api_settings):
+    """Issue 29: the API never estimates; each metered pair's job is written `pricing` and its
+    pricing worker checks its estimate against the budget (done here as the task does)."""
+    from workers import pricing
+    from workers.app import make_celery
+    from workers.quota import QuotaExceededError, QuotaLedger
+    from workers.store import JobStore
+
     params = {"solver": "qpu-sim", "max_disparity": 6}
-    files = {"left": ("l.png", LEFT), "right": ("r.png", RIGHT)}
-    one = api.post("/v1/estimate", files=files, data={"params": json.dumps(params)}).json()
-    assert one["seconds"] > 0
-    _, ada = user_headers(api_settings, qpu_seconds=1.5 * one["seconds"])
-    refused = post_batch(api, count=2, headers=ada, params=params)
-    assert refused.status_code == 403, refused.text
-    detail = refused.json()["detail"]
-    assert "pair 1 (l1.png)" in detail and "this pair and the 1 before it" in detail
-    assert total_jobs(api, ada) == 0
-    created = post_batch(api, count=1, headers=ada, params=params)
+    _, ada = user_headers(api_settings, qpu_seconds=0.001)
+    created = post_batch(api, count=2, headers=ada, params=params)
     assert created.status_code == 202, created.text
-    api.delete(f"/v1/jobs/{created.json()['jobs'][0]['id']}")
+    jobs = created.json()["jobs"]
+    assert [job["state"] for job in jobs] == ["pricing", "pricing"]
+    store = JobStore.from_settings(api_settings)
+    ledger = QuotaLedger(store.redis, api_settings.key_prefix)
+    celery = make_celery(api_settings, with_tasks=False)
+    with pytest.raises(QuotaExceededError, match="not enough QPU budget left"):
+        pricing.price_job(celery, store, ledger, jobs[0]["id"], None)
+    for job in jobs:
+        api.delete(f"/v1/jobs/{job['id']}", headers=ada)
 
 
 def test_a_batch_above_its_pixel_bound_is_refused_at_the_pair_that_crosses_it(make_client):

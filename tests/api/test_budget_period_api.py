@@ -6,9 +6,22 @@ from __future__ import annotations
 import uuid
 from datetime import UTC, datetime
 
+import pytest
 from api_helpers import LEFT, RIGHT
 
 from api.users import UserStore
+from workers.quota import QuotaExceededError
+
+
+def price_job(api_settings, ledger, job_id: str):
+    """What the pricing worker's ``qhsm.price_job`` does, here, with this ledger."""
+    from workers import pricing
+    from workers.app import make_celery
+    from workers.store import JobStore
+
+    store = JobStore.from_settings(api_settings)
+    celery = make_celery(api_settings, with_tasks=False)
+    return pricing.price_job(celery, store, ledger, job_id, None)
 
 
 def test_admission_counts_the_current_month_and_says_when_it_resets(api, api_settings):
@@ -24,11 +37,15 @@ def test_admission_counts_the_current_month_and_says_when_it_resets(api, api_set
         ledger.settle(ledger.reserve(name, "old-job", 0.999, ttl=60), 0.999)
         form = {"params": '{"solver": "qpu-sim", "max_disparity": 6}'}
         files = {"left": ("l.png", LEFT), "right": ("r.png", RIGHT)}
-        refused = api.post("/v1/jobs", files=files, data=form, headers=headers)
-        assert refused.status_code == 403, refused.text
-        detail = refused.json()["detail"]
+        # priced on a worker (issue 29): accepted `pricing`, refused by its pricing task
+        pricing_job = api.post("/v1/jobs", files=files, data=form, headers=headers)
+        assert pricing_job.status_code == 202 and pricing_job.json()["state"] == "pricing"
+        with pytest.raises(QuotaExceededError) as refused:
+            price_job(api_settings, ledger, pricing_job.json()["id"])
+        detail = str(refused.value)
         assert "remaining this month" in detail
         assert "monthly budget, resets at 2026-12-01T00:00:00+00:00" in detail
+        api.delete(f"/v1/jobs/{pricing_job.json()['id']}")
 
         moment["now"] = datetime(2026, 12, 2, tzinfo=UTC)
         [usage] = api.get("/v1/usage", params={"user": name}).json()["users"]

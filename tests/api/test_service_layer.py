@@ -25,6 +25,7 @@ from shared.ground_truth import ScaleNotInferredError
 from shared.solvers import InvalidSolverParamsError, UnknownSolverError
 from shared.solvers.qpu_time import JobEstimate
 from shared.solvers.qpu_time import LevelEstimate as CoreLevelEstimate
+from workers.pricing import Priced
 from workers.quota import QuotaExceededError
 from workers.quota.ledger import JobUsage as LedgerJobUsage
 from workers.quota.ledger import QuotaStatus
@@ -103,13 +104,15 @@ def test_the_estimate_is_the_core_estimate_on_the_wire():
         "memory_mb",  # issue 29: the job's peak memory and a worker's budget
         "memory_budget_mb",
     }
-    wire = Estimate.of(job, 16, float("inf")).model_dump()
+    # what a pricing worker computed (workers.pricing.Priced.result) against the budget left
+    priced = Priced(job, 16, None, 300).result()
+    wire = Estimate.of(priced, float("inf"), memory_budget_mb=200).model_dump()
     assert wire == {
         **job.as_dict(), "max_disparity": 16, "remaining_seconds": None, "fits": True,
-        "memory_mb": None, "memory_budget_mb": None,
+        "memory_mb": 300, "memory_budget_mb": 200,
     }  # fmt: skip
-    assert not Estimate.of(job, 16, 0.25).fits
-    assert Estimate.of(job, 16, 1.0, (300, 200)).memory_mb == 300
+    assert not Estimate.of(priced, 0.25).fits
+    assert Estimate.of(priced, 1.0).remaining_seconds == 1.0
 
 
 def test_usage_is_the_ledger_usage_on_the_wire():

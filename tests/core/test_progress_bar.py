@@ -59,6 +59,7 @@ def test_the_words_for_each_state():
     assert describe(0, 3, 0) == "level 1/3: preparing"
     assert describe(0, 0, 0) == "level 1/?: preparing"  # a job's range is not estimated yet
     assert describe(1, 3, 0, "queued") == "queued: waiting for a worker"
+    assert describe(0, 0, 0, "pricing").startswith("pricing: ")  # a metered job before queued
     assert describe(2, 3, 576, "cancelled") == "cancelled: level 2/3"
 
 

@@ -91,7 +91,9 @@ def workers(settings, markers, service_dir):
         "control": WorkerProcess(
             f"control-{suffix}", [settings.control_queue], 1, env, logs / "control.log"
         ).start(),
-        "main": WorkerProcess(f"main-{suffix}", MAIN_QUEUES, 2, env, logs / "main.log").start(),
+        "main": WorkerProcess(
+            f"main-{suffix}", [*MAIN_QUEUES, settings.pricing_queue], 2, env, logs / "main.log"
+        ).start(),
         "routed": WorkerProcess(
             f"routed-{suffix}", ROUTED_QUEUES, 1, env, logs / "routed.log"
         ).start(),

@@ -143,10 +143,20 @@ def submit(client, left: bytes, right: bytes, params: dict | None = None, **file
     return response.json()["id"]
 
 
-def wait_for(client, job_id: str, timeout: float = 60.0, states=TERMINAL) -> dict:
+#: An estimate's final states (``workers.estimates.EstimateState``).
+ESTIMATE_ENDS = ("done", "failed", "cancelled")
+
+
+def wait_for(
+    client, job_id: str, timeout: float = 60.0, states=TERMINAL, path: str = "/v1/jobs/{}"
+) -> dict:
+    """Poll a job (or with ``path="/v1/estimates/{}"`` an estimate) until it is in ``states``
+    (an estimate: until it ends)."""
+    if path.startswith("/v1/estimates") and states is TERMINAL:
+        states = ESTIMATE_ENDS
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        status = client.get(f"/v1/jobs/{job_id}").json()
+        status = client.get(path.format(job_id)).json()
         if status["state"] in states:
             return status
         time.sleep(0.05)

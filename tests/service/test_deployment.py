@@ -23,6 +23,7 @@ SERVICES = {
     "redis",
     "api",
     "worker-control",
+    "worker-pricing",
     "worker-cpu",
     "worker-gurobi",
     "worker-qpu",
@@ -62,7 +63,7 @@ def test_services_share_nothing_but_redis(compose):
 
 def test_every_command_is_a_real_entry_point_on_real_queues(compose):
     subcommands = build_parser()._subparsers._group_actions[0].choices
-    queues = set(queue_names()) | {Settings().control_queue}
+    queues = set(queue_names()) | {Settings().control_queue, Settings().pricing_queue}
     consumed = set()
     for name, service in compose["services"].items():
         if name == "redis":
@@ -79,7 +80,7 @@ def test_every_command_is_a_real_entry_point_on_real_queues(compose):
         assert set(service_queues) <= queues, f"{name}: unknown queues"
         consumed |= set(service_queues)
         assert "container_name" not in service and "ports" not in service  # scalable
-    assert Settings().control_queue in consumed
+    assert {Settings().control_queue, Settings().pricing_queue} <= consumed
     assert {"exact", "sa", "gurobi", "qpu", "hybrid", "dimod"} <= consumed
     assert option(compose["services"]["worker-qpu"]["command"], "-c") == "1"
 

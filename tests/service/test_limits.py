@@ -125,7 +125,8 @@ def test_orchestration_runs_while_every_solver_process_is_busy(client, pair, sto
 
 
 def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_path):
-    """What `qhsm serve` starts: the control queue is consumed by one worker, and only that."""
+    """What `qhsm serve` starts: the control queue is consumed by one worker, and only that;
+    the pricing queue likewise."""
     from workers.app import make_celery
     from workers.supervisor import Stack
 
@@ -146,6 +147,9 @@ def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_pa
     assert len(queues) == started >= 2
     control = [worker for worker, names in queues.items() if own.control_queue in names]
     assert len(control) == 1 and queues[control[0]] == {own.control_queue}
+    # estimates and metered jobs' pricing on a worker of their own too (issue 29)
+    pricing = [worker for worker, names in queues.items() if own.pricing_queue in names]
+    assert len(pricing) == 1 and queues[pricing[0]] == {own.pricing_queue}
     assert "sa" in set().union(*queues.values())
 
 

@@ -63,7 +63,7 @@ def test_the_workers_of_a_host_share_80_percent_of_its_memory(settings):
     assert worker_budget_mb(settings.model_copy(update={"task_memory_limit_mb": 0})) is None
 
 
-def test_a_job_above_the_budget_is_413_naming_it_and_the_estimate_is_shown(settings):
+def test_a_job_above_the_budget_is_413_naming_it_and_the_estimate_is_shown(settings, workers):
     low = settings.model_copy(
         update={"task_memory_limit_mb": 200, "max_active_jobs_per_user": None}
     )
@@ -74,7 +74,9 @@ def test_a_job_above_the_budget_is_413_naming_it_and_the_estimate_is_shown(setti
         detail = refused.json()["detail"]
         assert "above the limit of 200 MiB per worker process" in detail
         assert "QHSM_TASK_MEMORY_LIMIT_MB" in detail
-        priced = client.post("/v1/estimate", files=FILES, data=params).json()
+        asked = client.post("/v1/estimate", files=FILES, data=params).json()
+        status = harness.wait_for(client, asked["id"], path="/v1/estimates/{}")
+        priced = status["result"]  # the worker's estimate against the API's budget
         assert priced["memory_budget_mb"] == 200 and priced["memory_mb"] > 200
     roomy = low.model_copy(update={"task_memory_limit_mb": 4000})
     with harness.api_client(roomy) as client:

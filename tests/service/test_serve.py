@@ -268,6 +268,34 @@ def test_embedded_redis_needs_its_password_and_keeps_its_files_private(served):
     assert TOKEN.encode() not in environ and b"DWAVE" not in environ
 
 
+# --- pricing on serve's own pricing worker (issue 29) --------------------------------------------
+
+
+def test_serve_prices_estimates_and_metered_jobs_on_its_pricing_worker(served, pair):
+    """The embedded default: `qhsm serve` starts a worker for the pricing queue, so an estimate
+    (polled by the client, as `qhsm estimate` does) and a metered job's pricing need no other
+    process; the job goes pricing -> queued -> running -> succeeded."""
+    from api.client import Client
+
+    assert "pricing-" in served.log.read_text() or any(
+        f"pricing-{served.process.pid}@" in cmdline(pid) for pid in descendants(served.process.pid)
+    )
+    client = Client(served.url, key=(served.data_dir / "api-key").read_text().strip())
+    params = {"solver": "hybrid-sim", "preset": "paper", "max_disparity": 8, "seed": 3,
+              "solver_params": {"max_iter": 1}}  # fmt: skip
+    try:
+        estimate = client.estimate(pair[0], pair[1], params)
+        assert estimate["metered"] and estimate["seconds"] > 0 and estimate["fits"]
+        job = client.submit(pair[0], pair[1], params)
+        assert job["state"] == "pricing"
+        status = wait_terminal(served, job["id"], timeout=180)
+    finally:
+        client.close()
+    assert status["state"] == "succeeded", status["error"]
+    assert status["qpu_seconds"] and status["disparity_range"]["max_disparity"] == 8
+    assert "GET /v1/estimates/" not in served.log.read_text()  # polls are logged at debug
+
+
 # --- supervision and the watchdog ----------------------------------------------------------------
 
 

@@ -191,24 +191,33 @@ def test_another_users_job_is_404_and_admins_see_every_job(http, users, pair):
     assert http.get(f"/v1/jobs/{job_id}", headers=bearer(ada)).status_code == 401
 
 
-def test_a_job_over_budget_is_refused_with_the_numbers(http, users, pair):
+def test_a_job_over_budget_fails_at_pricing_with_the_numbers(http, users, pair):
+    """Priced on the pricing worker (issue 29): accepted in state pricing, then failed with
+    the refusal a submit used to answer 403 with, before anything is queued or charged."""
     _, key = users.create_user("poor", qpu_seconds=0)
     seconds = service_estimate(http, key, pair, QPU_PARAMS)["seconds"]
     users.ledger.set_limit("poor", seconds / 2)
-    refused = submit(http, key, pair, QPU_PARAMS, expect=403)
-    detail = refused.json()["detail"]
-    assert "QPU budget" in detail and f"{seconds / 2:.3f} s remaining" in detail
-    assert f"{seconds:.3f} s" in detail
-    assert http.get("/v1/jobs", headers=bearer(key)).json()["items"] == []
+    accepted = submit(http, key, pair, QPU_PARAMS)
+    assert accepted.json()["state"] == "pricing"
+    status = wait(http, key, accepted.json()["id"])
+    assert status["state"] == "failed" and status["levels"] == []
+    detail = status["error"]
+    assert detail.startswith("refused: not enough QPU budget left for user 'poor'"), detail
+    assert f"{seconds / 2:.3f} s remaining" in detail and f"{seconds:.3f} s" in detail
+    assert http.get("/v1/usage", headers=bearer(key)).json()["users"][0]["used_seconds"] == 0
     # unmetered solvers need no budget
     submit(http, key, pair, {"solver": "exact", "max_disparity": 6})
 
 
 def test_usage_charged_equals_the_sample_sets_qpu_access_time(http, users, pair):
     _, key = users.create_user("meter", qpu_seconds=100)
-    job_id = submit(http, key, pair, QPU_PARAMS).json()["id"]
+    accepted = submit(http, key, pair, QPU_PARAMS).json()
+    assert accepted["state"] == "pricing"  # then queued, running, succeeded
+    job_id = accepted["id"]
     status = wait(http, key, job_id)
     assert status["state"] == "succeeded", status["error"]
+    levels = [level["seconds"] for level in service_estimate(http, key, pair, QPU_PARAMS)["levels"]]
+    assert len(levels) == len(status["levels"])  # priced at the same levels it ran
     reported = status["usage"]["qpu_access_time"]  # summed from the bundles' sample sets
     assert reported > 0
     usage = http.get("/v1/usage", headers=bearer(key)).json()
@@ -223,7 +232,8 @@ def test_usage_charged_equals_the_sample_sets_qpu_access_time(http, users, pair)
 
 
 def service_estimate(http, key, pair, params) -> dict:
-    """POST /v1/estimate: the number the API's 403 uses (known embeddings included)."""
+    """POST /v1/estimate, polled until its worker is done: the number the pricing of a job
+    checks against the budget (known embeddings included)."""
     import json
 
     response = http.post(
@@ -232,8 +242,14 @@ def service_estimate(http, key, pair, params) -> dict:
         data={"params": json.dumps(params)},
         headers=bearer(key),
     )
-    assert response.status_code == 200, response.text
-    return response.json()
+    assert response.status_code == 202, response.text
+    status = response.json()
+    deadline = time.monotonic() + 60
+    while status["state"] in ("pending", "running") and time.monotonic() < deadline:
+        time.sleep(0.05)
+        status = http.get(response.headers["Location"], headers=bearer(key)).json()
+    assert status["state"] == "done", status
+    return status["result"]
 
 
 def test_estimate_and_charge_agree_and_later_estimates_use_the_embedding(http, users):
@@ -279,15 +295,10 @@ def test_twenty_concurrent_jobs_cannot_overspend_beyond_the_bundles_in_flight(
     estimate = service_estimate(http, key, pair, QPU_PARAMS)
     budget = 1.5 * estimate["seconds"]
     users.ledger.set_limit("greedy", budget)
-    responses = [submit(http, key, pair, QPU_PARAMS, expect=None) for _ in range(20)]
-    # once the first jobs have spent the budget down, a late submission is refused up front
-    # (the submit-time check); every refusal says so, and enough jobs ran concurrently
-    for response in responses:
-        assert response.status_code in (202, 403), response.text
-        if response.status_code == 403:
-            assert "not enough QPU budget left for user 'greedy'" in response.json()["detail"]
-    ids = [r.json()["id"] for r in responses if r.status_code == 202]
-    assert len(ids) >= 2
+    responses = [submit(http, key, pair, QPU_PARAMS) for _ in range(20)]
+    # once the first jobs have spent the budget down, a late one is refused at its pricing
+    # (failed before it is queued); every refusal says so, and enough jobs ran concurrently
+    ids = [r.json()["id"] for r in responses]
     finals = [wait(http, key, job_id, timeout=120) for job_id in ids]
     # a failed job's bundles already sent still finish (and are charged): wait for them
     slots = redis.Redis.from_url(settings.redis_url)
@@ -314,10 +325,14 @@ def test_twenty_concurrent_jobs_cannot_overspend_beyond_the_bundles_in_flight(
 
     states = [f["state"] for f in finals]
     assert "failed" in states
+    admitted = [f for f in finals if not (f["error"] or "").startswith("refused:")]
+    assert len(admitted) >= 2  # enough jobs passed their pricing and ran concurrently
     for final in finals:
         if final["state"] == "failed":
-            assert final["error"].startswith("stopped: not enough QPU budget left for user "
-                                             "'greedy'"), final["error"]  # fmt: skip
+            assert final["error"].startswith(
+                ("stopped: not enough QPU budget left for user 'greedy'",
+                 "refused: not enough QPU budget left for user 'greedy'")
+            ), final["error"]  # fmt: skip
     problems = sum(job["problems"] for job in usage["jobs"])
     assert (
         problems < len(ids) * estimate["bundles"]

