@@ -340,8 +340,8 @@ def _local_estimate(config, files: list[Path]) -> dict:
     from shared.pipeline import match_views
     from shared.residual import job_residual
     from shared.solvers import get_solver
-    from shared.solvers.embedding_cache import default_cache
-    from shared.solvers.qpu_time import job_seconds
+    from shared.solvers.meters.qpu_time import job_seconds
+    from shared.solvers.qpu.embedding_cache import default_cache
 
     get_solver(config.solver)  # UnknownSolverError lists the valid names
     left, right = load_pair(files[0], files[1])

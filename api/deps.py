@@ -1,5 +1,6 @@
-"""FastAPI dependencies: the settings, the job store and the Celery client of this app, and the
-``Annotated`` aliases the routes declare their parameters with (one place, not one per route)."""
+"""FastAPI dependencies: the settings, the job store and the Celery client of this app, the
+solvers (resolved here, the API's one door to the solver registry), and the ``Annotated``
+aliases the routes declare their parameters with (one place, not one per route)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ from fastapi import Depends, File, Form, Request, UploadFile
 
 from api.auth import Principal, current_principal
 from api.users import User, UserStore, admin_user, user_store
-from shared.config import Settings
-from shared.solvers import Availability, Solver, UnknownSolverError, get_solver
+from shared.config import MatchConfig, Settings
+from shared.solvers.base import Availability
+from shared.solvers.errors import UnknownSolverError
+from shared.solvers.registry import ResolvedSolver, queue_names, resolve, solver_names
 from workers.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -89,17 +92,29 @@ ParamsForm = Annotated[
 ]
 
 
-def load_solver(name: str) -> tuple[Solver | None, Availability]:
-    """The adapter and whether it runs here; an adapter that fails to load is unavailable.
+def load_solver(config: MatchConfig | str) -> tuple[ResolvedSolver, Availability]:
+    """The job's solver (or the one named), resolved, and whether its adapter runs here; an
+    adapter that fails to load is unavailable.
 
     Raises ``UnknownSolverError`` for names that are not registered.
     """
+    solver = resolve(config)
     try:
-        solver = get_solver(name)
+        sampler = solver.sampler
     except UnknownSolverError:
         raise
     except Exception as error:  # a broken optional dependency must not take the API down
-        log.exception("solver %s failed to load", name)
+        log.exception("solver %s failed to load", solver.name)
         reason = f"its adapter failed to load here ({type(error).__name__})"
-        return None, Availability(False, reason)
-    return solver, solver.available()
+        return solver, Availability(False, reason)
+    return solver, sampler.available()
+
+
+def solver_catalog() -> list[ResolvedSolver]:
+    """Every registered solver, resolved by name (``dimod:`` names are accepted, not listed)."""
+    return [resolve(name) for name in solver_names()]
+
+
+def solver_queues() -> list[str]:
+    """Every solver queue a worker may consume."""
+    return queue_names()

@@ -16,7 +16,8 @@ from enum import Enum
 import redis
 
 from shared.ground_truth import ScaleNotInferredError
-from shared.solvers import InvalidSolverParamsError, UnknownSolverError
+from shared.solvers.errors import UnknownSolverError
+from shared.solvers.params import InvalidSolverParamsError
 from workers.quota import QuotaExceededError
 from workers.store import ActiveJobsCapError
 

@@ -44,13 +44,12 @@ from api.uploads import (
 from api.users import UserStore
 from shared.config import MatchConfig
 from shared.ground_truth import FormatScale, infer_gt_scale, scale_of_format
-from shared.inference import bundle_width_setting
 from shared.memory import MemoryBudgetError, check_fits, job_memory_mb, worker_budget_mb
 from shared.provenance import qhsm_version
 from shared.pyramid import plan
-from shared.solvers import Availability, check_params
-from shared.solvers.qpu_time import is_metered
-from shared.solvers.registry import queue_of
+from shared.solvers import Availability
+from shared.solvers.meters.qpu_time import is_metered
+from shared.solvers.resolved import ResolvedSolver
 from workers.app import pricing_task_id, terminate_tasks
 from workers.app import send_first_task as first_task
 from workers.estimates import revoke
@@ -90,26 +89,27 @@ def check_active_jobs(owner: str, svc: Services) -> None:
         raise ActiveJobsCapError(owner, active, cap)
 
 
-def check_solver_name(config: MatchConfig) -> Availability:
+def check_solver_name(config: MatchConfig) -> tuple[ResolvedSolver, Availability]:
     """The solver must be registered (``UnknownSolverError`` otherwise) and its bundle width
-    usable; returns whether it runs here."""
-    _, availability = load_solver(config.solver)
+    usable; returns it resolved, and whether it runs here."""
+    solver, availability = load_solver(config)
     try:
-        bundle_width_setting(config)
+        solver.bundle_width_setting()
     except ValueError as error:
         raise AdmissionError(Refusal.INVALID, f"params: {error}") from None
-    return availability
+    return solver, availability
 
 
-def check_solver(config: MatchConfig, svc: Services) -> None:
-    """The solver must exist, and run here or have a worker consuming its queue."""
-    availability = check_solver_name(config)
+def check_solver(config: MatchConfig, svc: Services) -> ResolvedSolver:
+    """The solver must exist, and run here or have a worker consuming its queue; returns it
+    resolved."""
+    solver, availability = check_solver_name(config)
     if availability.ok:
-        return
+        return solver
     consumers = svc.queues.consumers() or {}
-    queue = queue_of(config.solver)
+    queue = solver.queue
     if consumers.get(queue):
-        return
+        return solver
     raise AdmissionError(
         Refusal.INVALID,
         f"solver {config.solver!r} is not available: {availability.reason}; and no worker "
@@ -118,11 +118,10 @@ def check_solver(config: MatchConfig, svc: Services) -> None:
     )
 
 
-def bounded_params(config: MatchConfig) -> MatchConfig:
-    """The config with its solver parameters checked against the solver's schema (the
-    registry's; ``InvalidSolverParamsError`` when one is outside it)."""
-    params = check_params(config.solver, config.solver_params)
-    return config.model_copy(update={"solver_params": params})
+def bounded_params(config: MatchConfig, solver: ResolvedSolver) -> MatchConfig:
+    """The config with its solver parameters checked against the solver's schema
+    (``InvalidSolverParamsError`` when one is outside it)."""
+    return config.model_copy(update={"solver_params": solver.checked_params()})
 
 
 def ground_truth_protocol(
@@ -179,8 +178,7 @@ def admit(
     settings = svc.settings
     config = parse_config(form.params)
     tags = parse_tags(form.tags)
-    check_solver(config, svc)
-    config = bounded_params(config)
+    config = bounded_params(config, check_solver(config, svc))
     left_image, right_image = decode_pair(
         read_upload(form.left, "left", settings),
         read_upload(form.right, "right", settings),

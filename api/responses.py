@@ -10,7 +10,7 @@ from fastapi import status as http
 from api.deps import Responses
 from api.schemas import JobSummary, Links
 from api.users import UserStore
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.meters.qpu_time import is_metered
 from workers.quota import LOCAL_USER
 from workers.records import JobRecord, JobState
 

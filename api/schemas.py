@@ -290,7 +290,7 @@ class Health(BaseModel):
 class LevelEstimate(BaseModel):
     """One pyramid level of an estimate: bundle count x per-bundle metered time.
 
-    The wire form of ``shared.solvers.qpu_time.LevelEstimate`` (its ``as_dict``): height and
+    The wire form of ``shared.solvers.meters.qpu_time.LevelEstimate`` (its ``as_dict``): height and
     width instead of its ``shape`` tuple, and the derived ``bundles_sent`` and
     ``classical_share`` as fields. Built only by ``Estimate.of``."""
 
@@ -327,7 +327,7 @@ class LevelEstimate(BaseModel):
 class Estimate(BaseModel):
     """What a job would be charged, before it is run (``POST /v1/estimate``).
 
-    The wire form of ``shared.solvers.qpu_time.JobEstimate`` (its ``as_dict``: the derived
+    The wire form of ``shared.solvers.meters.qpu_time.JobEstimate`` (its ``as_dict``: the derived
     ``metered``, ``bundles_sent`` and ``classical_share`` as fields) plus what the request
     resolved and the caller's budget; built by ``of``."""
 

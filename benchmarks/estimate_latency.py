@@ -50,7 +50,7 @@ def serve(settings: Settings) -> tuple[uvicorn.Server, str]:
 
 def main(side: int = 2000, rounds: int = 5) -> None:
     from api.users import UserStore
-    from shared.solvers.qpu_time import JobEstimate
+    from shared.solvers.meters.qpu_time import JobEstimate
     from workers.estimates import EstimateStore, request_digest
     from workers.pricing import Priced
 

@@ -22,7 +22,7 @@ from shared.images import load_pair
 from shared.inference import settles
 from shared.pipeline import match_views, plan_run, prepare_level
 from shared.residual import job_residual
-from shared.solvers import qpu_time
+from shared.solvers.meters import qpu_time
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury" / "tsukuba"
 

@@ -25,7 +25,7 @@ from shared.metrics import evaluate
 from shared.pipeline import match_views, run_pipeline
 from shared.process_pool import ProcessPoolLevelSolver
 from shared.residual import job_residual
-from shared.solvers.qpu_time import job_seconds
+from shared.solvers.meters.qpu_time import job_seconds
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 PAIRS = ("tsukuba", "venus", "cones")

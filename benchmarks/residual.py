@@ -9,7 +9,7 @@ charged once the host settles each level, and the QUBO solvers' quality against 
                                                        # exact-all: exact with --dual-gap 0
 
 The estimates are ``qhsm estimate --local``'s (:func:`shared.residual.job_residual`, then
-:func:`shared.solvers.qpu_time.job_seconds`: classical work only, nothing is sent). The
+:func:`shared.solvers.meters.qpu_time.job_seconds`: classical work only, nothing is sent). The
 1280x720 pair is Middlebury 2006 Lampshade1 resized to 1280x720 (no real pair of that size is
 in the data; an upscaled pair is smoother than a camera's, so read it as an indication).
 Quality runs offline (``qpu-sim``: MockDWaveSampler). Prints markdown for docs/benchmarks.md.
@@ -33,7 +33,7 @@ from shared.images import load_disparity_values, load_pair
 from shared.metrics import evaluate
 from shared.pipeline import match_views, run_pipeline
 from shared.residual import job_residual
-from shared.solvers.qpu_time import job_seconds
+from shared.solvers.meters.qpu_time import job_seconds
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 TSUKUBA = DATA / "middlebury" / "tsukuba"

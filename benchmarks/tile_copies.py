@@ -1,7 +1,7 @@
 """Disjoint copies of the residual design's 4x4 tile shape on Advantage-like chips, and the time
-to find them: ``translate`` (shared.solvers.tile_embedding: one embedding into the smallest
+to find them: ``translate`` (shared.solvers.qpu.tile_embedding: one embedding into the smallest
 sublattice within QHSM_EMBEDDING_TRIES tries, translated) against ``greedy`` (what
-shared.solvers.packing did before: one embedding on the whole chip, then further ones on the
+shared.solvers.qpu.packing did before: one embedding on the whole chip, then further ones on the
 qubits left, QHSM_EMBEDDING_SEARCH_TIMEOUT seconds each, up to 8).
 
     PYTHONPATH=$PWD python benchmarks/tile_copies.py --method translate --chips P16 Z12 Z15 \
@@ -16,9 +16,9 @@ import time
 import dwave.graphs as graphs
 
 from shared.config import get_settings
-from shared.solvers.bundle_shapes import shape_bqm
-from shared.solvers.embedding_search import SolverError, find_embedding
-from shared.solvers.tile_embedding import translated_copies
+from shared.solvers.qpu.bundle_shapes import shape_bqm
+from shared.solvers.qpu.embedding_search import SolverError, find_embedding
+from shared.solvers.qpu.tile_embedding import translated_copies
 
 CHIPS = {
     "P16": ("pegasus", [16], lambda: graphs.pegasus_graph(16)),

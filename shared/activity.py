@@ -5,7 +5,7 @@ without saying why.
 
 A worker opens :func:`reporting` around a step with a callback that stores the text with the
 job (``workers.orchestration``); code deep inside the step (the embedding search of
-:mod:`shared.solvers.packing`) calls :func:`report`. Outside such a block (``qhsm match``)
+:mod:`shared.solvers.qpu.packing`) calls :func:`report`. Outside such a block (``qhsm match``)
 :func:`report` does nothing: the step's own log lines remain.
 """
 

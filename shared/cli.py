@@ -40,23 +40,18 @@ def cmd_match(args: argparse.Namespace) -> int:
     from shared.cli_options import CommandError, config_from_args
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
     from shared.images import load_pair, preview_png, save_maps
-    from shared.inference import bundle_width_setting
     from shared.pipeline import run_pipeline
     from shared.process_pool import ProcessPoolLevelSolver
     from shared.progress_bar import LevelBar
     from shared.provenance import provenance
-    from shared.solvers import get_solver
     from shared.solvers.base import Availability
-    from shared.solvers.registry import is_row_solver
+    from shared.solvers.registry import resolve
 
     config = config_from_args(args)
-    bundle_width_setting(config)  # a width the solver cannot use: say so before any work
+    solver = resolve(config)
+    solver.bundle_width_setting()  # a width the solver cannot use: say so before any work
     # a row solver (exact) runs here on the CPU: no sampler built for it (that imports dimod)
-    availability = (
-        Availability(True)
-        if is_row_solver(config.solver)
-        else get_solver(config.solver).available()
-    )
+    availability = Availability(True) if solver.row_solver else solver.sampler.available()
     if not availability.ok:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):

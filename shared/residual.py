@@ -171,7 +171,7 @@ def level_widths(
     first, for images of ``shape`` (height, width); ``cache`` is where ``auto`` widths chosen
     before are looked up."""
     from shared.pyramid import level_shape, plan
-    from shared.solvers.bundle_shapes import segment_width
+    from shared.solvers.qpu.bundle_shapes import segment_width
 
     return [
         segment_width(

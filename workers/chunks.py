@@ -13,7 +13,7 @@ from shared.config import MatchConfig, Settings
 from shared.inference import inference_for
 from shared.level_inputs import LevelInputs
 from shared.solvers.meters import meter_for
-from shared.solvers.packing import MAX_COPIES
+from shared.solvers.qpu.packing import MAX_COPIES
 
 #: Bundles as JSON-friendly lists: [row_start, row_stop] (whole rows, from older tasks) or
 #: [row_start, row_stop, col_start, col_stop].

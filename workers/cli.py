@@ -36,13 +36,12 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def worker_queues(text: str | None, settings: Settings) -> list[str]:
     """The queues asked for (checked against the known ones), or this machine's CPU ones."""
-    from shared.solvers.registry import queue_names
-    from workers.supervisor import local_queues
+    from workers.queues import local_queues, solver_queues
 
     if not text:
         return local_queues()[0]
     queues = [queue.strip() for queue in text.split(",") if queue.strip()]
-    known = [settings.control_queue, *queue_names()]
+    known = [settings.control_queue, *solver_queues()]
     unknown = [queue for queue in queues if queue not in known]
     if unknown or not queues:
         raise CommandError(
@@ -52,16 +51,9 @@ def worker_queues(text: str | None, settings: Settings) -> list[str]:
     return queues
 
 
-def token_queues() -> set[str]:
-    """Queues of solvers that spend real D-Wave time: only their workers get the token."""
-    from shared.solvers import solver_names
-    from shared.solvers.registry import spec
-
-    return {spec(name).queue_name for name in solver_names() if spec(name).uses_qpu_time}
-
-
 def cmd_worker(args: argparse.Namespace) -> int:
     from workers.embedded_redis import safe_url
+    from workers.queues import token_queues
     from workers.supervisor import DWAVE_SECRETS, worker_command
 
     settings = settings_from_args(args)

@@ -1,6 +1,6 @@
 """Minor embeddings shared by every worker through Redis.
 
-Implements the small store protocol of :mod:`shared.solvers.embedding_cache` (``get``/``set`` of
+Implements the small store protocol of :mod:`shared.solvers.qpu.embedding_cache` (``get``/``set`` of
 JSON text by structure key). The first worker that meets a bundle structure computes its
 embedding (up to a minute at full resolution) and every other worker, job and restart reuses it.
 Embeddings depend only on graph structure, so they are kept without expiry.
@@ -11,7 +11,7 @@ from __future__ import annotations
 import redis
 
 from shared.config import Settings
-from shared.solvers.embedding_cache import set_default_store
+from shared.solvers.qpu.embedding_cache import set_default_store
 from workers.redis_client import client_for, connect, text
 
 KEY_PREFIX = "qhsm:embedding:"

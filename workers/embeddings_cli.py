@@ -2,7 +2,7 @@
 
 A QPU level sends 4x4 tiles (:mod:`shared.settle`) of one shape per candidate count; their
 copies across the chip are translations of one embedding into a small defect-free sublattice
-(:mod:`shared.solvers.tile_embedding`), which depends on the shape and the chip's family only.
+(:mod:`shared.solvers.qpu.tile_embedding`), which depends on the shape and the chip's family only.
 This command computes those sublattice embeddings for the known chips (Advantage Pegasus P16,
 Advantage2 Zephyr Z12 and Z15) into the store the workers read, so that a worker meeting the
 shape on any such chip only translates it (seconds) instead of searching (its tries). Offline:
@@ -50,9 +50,9 @@ def register(commands: argparse._SubParsersAction) -> None:
 
 def cmd_warm(args: argparse.Namespace) -> int:
     from shared.settle import TILE
-    from shared.solvers.bundle_shapes import shape_bqm
-    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingStore
-    from shared.solvers.tile_embedding import KNOWN_CHIPS, warm
+    from shared.solvers.qpu.bundle_shapes import shape_bqm
+    from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingStore
+    from shared.solvers.qpu.tile_embedding import KNOWN_CHIPS, warm
 
     settings = settings_from_args(args)
     where = args.store or ("redis" if settings.redis_url else "directory")

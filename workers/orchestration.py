@@ -42,9 +42,8 @@ from shared.metrics import evaluate
 from shared.pipeline import confidence_map, match_views, prepare_level, report
 from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
-from shared.solvers.meters import is_metered
-from shared.solvers.problems import sent_problems, task_label
-from shared.solvers.registry import queue_of
+from shared.solvers.qpu.problems import sent_problems, task_label
+from shared.solvers.registry import resolve
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
 from workers.chunks import (
@@ -205,7 +204,7 @@ def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solve
         celery.signature(
             PLAN_LEVEL,
             args=(job_id, index),
-            queue=queue_of(solver),
+            queue=resolve(solver).queue,
             **task_time_limits(settings, solver),
         ),
         celery.signature(
@@ -254,7 +253,7 @@ def fan_out(
     users are served in turn), with the solver's time limits, then the level's fan-in on the
     control queue."""
     settings, solver = store.settings, record.config.solver
-    queue = fair.route(store.redis, store.prefix, queue_of(solver), record.owner)
+    queue = fair.route(store.redis, store.prefix, resolve(solver).queue, record.owner)
     limits = task_time_limits(settings, solver)
     header = [
         celery.signature(SOLVE_BUNDLES, args=(record.id, index, chunk), queue=queue, **limits)
@@ -448,15 +447,16 @@ def solve_chunk(
         return {"bundles": len(row_ranges), "duplicate": True}
     inputs, record = level_for(store, job_id, index)
     config = record.config
-    # every D-Wave problem labelled with the task, its id kept (shared.solvers.problems)
+    # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
+    solver = resolve(config)
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
-        if is_metered(config.solver) and meter is not None:
+        if solver.metered and meter is not None:
             results = solve_metered(
                 meter(),
                 record.owner or LOCAL_USER,
                 job_id,
                 inputs,
-                config,
+                solver,
                 [inputs.as_bundle(tuple(spec)) for spec in row_ranges],
                 still_running=lambda: store.state(job_id) is JobState.RUNNING,
                 level_estimate=record.level_estimate(index),

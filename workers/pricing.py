@@ -1,10 +1,10 @@
 """Pricing on a worker: what a job would be charged (the exact pyramid's survey of what the
 classical steps leave, :mod:`shared.residual`, and the meters' walk,
-:func:`shared.solvers.qpu_time.job_seconds`), for ``POST /v1/estimate`` (:func:`price_estimate`)
-and for a metered job before it is queued (:func:`price_job`: its budget checked, its levels'
-estimate kept for the reservations, then started). The API only writes the request and polls:
-this module runs in the pricing worker (``workers.pricing_tasks``), under its memory budget and
-time limit, never in the API process.
+:func:`shared.solvers.meters.qpu_time.job_seconds`), for ``POST /v1/estimate``
+(:func:`price_estimate`) and for a metered job before it is queued (:func:`price_job`: its
+budget checked, its levels' estimate kept for the reservations, then started). The API only
+writes the request and polls: this module runs in the pricing worker
+(``workers.pricing_tasks``), under its memory budget and time limit, never in the API process.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from shared.memory import check_fits, job_memory_mb
 from shared.pipeline import match_views
 from shared.pyramid import plan
 from shared.residual import job_residual
-from shared.solvers.embedding_cache import EmbeddingCache
-from shared.solvers.qpu_time import JobEstimate, job_seconds
+from shared.solvers.meters.qpu_time import JobEstimate, job_seconds
+from shared.solvers.qpu.embedding_cache import EmbeddingCache
 from workers import embedding_store
 from workers.app import START_JOB
 from workers.estimates import EstimateRecord, EstimateStore

@@ -1,14 +1,53 @@
-"""The solver queues a group of workers consumes, from the registry (``SolverSpec.workers``):
-``python -m workers.queues cpu`` prints ``exact,sa,...,dimod`` for ``celery worker -Q``, as
-docker-compose.yml's worker services run it; without a group it lists every group. A solver
-added to the registry (or by an installed ``qhsm.solvers`` plugin) is then consumed without
-editing the compose file."""
+"""The solver queues, from the registry: the workers' one door to it (a job's own solver is
+resolved once, by :mod:`workers.orchestration`).
+
+The queues a group of workers consumes (``SolverSpec.workers``): ``python -m workers.queues
+cpu`` prints ``exact,sa,...,dimod`` for ``celery worker -Q``, as docker-compose.yml's worker
+services run it; without a group it lists every group. A solver added to the registry (or by an
+installed ``qhsm.solvers`` plugin) is then consumed without editing the compose file."""
 
 from __future__ import annotations
 
+import logging
 import sys
 
-from shared.solvers.registry import worker_groups
+from shared.solvers.records import DIMOD_QUEUE
+from shared.solvers.registry import queue_names, resolve, solver_names, worker_groups
+
+log = logging.getLogger(__name__)
+
+
+def solver_queue(solver: str) -> str:
+    """The Celery queue of solver ``solver``'s bundles."""
+    return resolve(solver).queue
+
+
+def solver_queues() -> list[str]:
+    """Every solver queue a worker may consume (the registered solvers' and ``dimod``)."""
+    return queue_names()
+
+
+def token_queues() -> set[str]:
+    """Queues of solvers that spend real D-Wave time: only their workers get the token."""
+    solvers = [resolve(name) for name in solver_names()]
+    return {solver.queue for solver in solvers if solver.spec.uses_qpu_time}
+
+
+def local_queues() -> tuple[list[str], list[str]]:
+    """Queues of the solvers that run on this machine: (CPU ones, with the dimod queue; those
+    that spend QPU time and need the D-Wave token)."""
+    cpu: list[str] = [DIMOD_QUEUE]
+    dwave: list[str] = []
+    for name in solver_names():
+        solver = resolve(name)
+        try:
+            runs_here = solver.sampler.available().ok
+        except Exception as error:  # an adapter with a missing dependency
+            log.warning("solver %s cannot load here: %s", name, error)
+            continue
+        if runs_here:
+            (dwave if solver.spec.uses_qpu_time else cpu).append(solver.queue)
+    return cpu, dwave
 
 
 def main(argv: list[str] | None = None) -> int:

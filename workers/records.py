@@ -408,7 +408,7 @@ class ChunkReport(BaseModel):
     wall_time: float
     timing: dict[str, float] = Field(default_factory=dict)
     worker: str = ""
-    #: Ids SAPI gave the D-Wave problems the task sent (``shared.solvers.problems``), in order.
+    #: Ids SAPI gave the D-Wave problems the task sent (``shared.solvers.qpu.problems``), in order.
     problem_ids: list[str] = Field(default_factory=list)
 
     @field_validator("timing")

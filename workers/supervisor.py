@@ -57,26 +57,6 @@ def worker_command(
     ]  # fmt: skip
 
 
-def local_queues() -> tuple[list[str], list[str]]:
-    """Queues of the solvers that run on this machine: (CPU ones, with the dimod queue; those
-    that spend QPU time and need the D-Wave token)."""
-    from shared.solvers import get_solver, solver_names
-    from shared.solvers.registry import DIMOD_QUEUE, queue_of
-
-    cpu: list[str] = [DIMOD_QUEUE]
-    dwave: list[str] = []
-    for name in solver_names():
-        try:
-            solver = get_solver(name)
-            runs_here = solver.available().ok
-        except Exception as error:  # an adapter with a missing dependency
-            log.warning("solver %s cannot load here: %s", name, error)
-            continue
-        if runs_here:
-            (dwave if solver.uses_qpu_time else cpu).append(queue_of(name))
-    return cpu, dwave
-
-
 @dataclass
 class WorkerProcess:
     """``celery -A workers worker -Q <queues>`` as a subprocess (prefork pool)."""
@@ -296,6 +276,8 @@ class Stack:
             settings = self.settings = settings.model_copy(update={"redis_url": self.redis.url})
             # where `qhsm admin` finds the embedded Redis while it runs (with its password)
             write_private(settings.data_dir / EMBEDDED_URL_FILE, self.redis.url + "\n")
+        from workers.queues import local_queues  # the registry: on start, not on import
+
         cpu, dwave = local_queues()
         logs = settings.data_dir / "logs"
         count = self.concurrency or settings.worker_concurrency or os.cpu_count() or 1

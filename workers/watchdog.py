@@ -38,10 +38,10 @@ from celery import Celery
 
 from shared.bundles import bundle_key
 from shared.inference import inference_for
-from shared.solvers.registry import queue_names, queue_of
 from workers import estimates, fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB, send_first_task
 from workers.chunks import group_bundles, is_planned, rows_per_task
+from workers.queues import solver_queue, solver_queues
 from workers.records import JobRecord, JobState
 from workers.records import now as utc_now
 from workers.redis_client import text
@@ -205,7 +205,7 @@ class Watchdog:
 
     def queue_names(self) -> list[str]:
         """The control queue and every solver queue, with its users' queues."""
-        solvers = fair.with_user_queues(self.store.redis, self.store.prefix, queue_names())
+        solvers = fair.with_user_queues(self.store.redis, self.store.prefix, solver_queues())
         settings = self.store.settings
         return [settings.control_queue, settings.pricing_queue, *solvers]
 
@@ -238,7 +238,7 @@ class Watchdog:
         solver = record.config.solver
         if not lost:
             consumed = self.consumed_queues()
-            queue = queue_of(solver)
+            queue = solver_queue(solver)
             if consumed is not None and queue in consumed and self.queue_length(queue) > 0:
                 return "waiting"  # its tasks may be behind others in a busy queue: not stalled
         if attempt > settings.watchdog_max_resends:

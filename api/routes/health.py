@@ -9,10 +9,9 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from api.deps import ServicesDep
+from api.deps import ServicesDep, solver_queues
 from api.errors import full_storage
 from api.schemas import Health
-from shared.solvers.registry import queue_names
 
 router = APIRouter(tags=["health"])
 
@@ -68,7 +67,7 @@ def readyz(svc: ServicesDep):
     if consumers is None:  # the workers could not be asked
         return Health(status="ok", redis="ok", storage=storage)
     control = svc.settings.control_queue
-    idle = [queue for queue in [control, *queue_names()] if not consumers.get(queue)]
+    idle = [queue for queue in [control, *solver_queues()] if not consumers.get(queue)]
     if control in idle:
         body = Health(
             status="unavailable", redis="ok", storage=storage, queues_without_consumer=idle

@@ -42,7 +42,7 @@ from shared import provenance_map
 from shared.datasets.calibration import Calibration
 from shared.depth import ply_bytes, point_cloud
 from shared.images import DisparityFormatError, disparity_bytes, preview_png
-from shared.solvers.qpu_time import is_metered
+from shared.solvers.meters.qpu_time import is_metered
 from workers.arrays import npy
 from workers.quota import LOCAL_USER
 from workers.records import GroundTruth, JobRecord, JobState

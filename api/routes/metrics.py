@@ -11,8 +11,7 @@ from fastapi.responses import Response
 from prometheus_client import CONTENT_TYPE_LATEST
 
 from api.auth import admin_user
-from api.deps import ServicesDep
-from shared.solvers.registry import queue_names
+from api.deps import ServicesDep, solver_queues
 from workers.telemetry import exposition
 
 router = APIRouter(tags=["metrics"])
@@ -27,6 +26,6 @@ router = APIRouter(tags=["metrics"])
 def metrics(svc: ServicesDep) -> Response:
     """Jobs by state, bundles solved and task times per solver, queue depths, QPU seconds per
     user and watchdog re-sends, in Prometheus' text format."""
-    queues = [svc.settings.control_queue, *queue_names()]
+    queues = [svc.settings.control_queue, *solver_queues()]
     body = exposition(svc.settings, svc.store.redis, queues)
     return Response(body, media_type=CONTENT_TYPE_LATEST)

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from api.deps import ServicesDep, load_solver
+from api.deps import ServicesDep, load_solver, solver_catalog
 from api.schemas import SolverInfo
-from shared.solvers import solver_names, spec
 
 router = APIRouter(prefix="/solvers", tags=["solvers"])
 
@@ -17,13 +16,13 @@ def list_solvers(svc: ServicesDep):
     """Every registered solver, whether it can run, and the workers consuming its queue."""
     consumers = svc.queues.consumers()
     infos = []
-    for name in solver_names():
-        _, availability = load_solver(name)
-        record = spec(name)
+    for solver in solver_catalog():
+        _, availability = load_solver(solver.name)
+        record = solver.spec
         workers = None if consumers is None else sorted(consumers.get(record.queue_name, []))
         infos.append(
             SolverInfo(
-                name=name,
+                name=solver.name,
                 description=record.description,
                 available=availability.ok or bool(workers),
                 available_here=availability.ok,

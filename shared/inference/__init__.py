@@ -17,7 +17,6 @@ table of :mod:`shared.inference.table` from the configuration and the solver's f
 
 from shared.inference.base import BundleProgress, LevelInference, Termination
 from shared.inference.level import (
-    bundle_width_setting,
     level_bundles,
     solve_bundles,
     solve_level_in_process,
@@ -28,7 +27,6 @@ __all__ = [
     "BundleProgress",
     "LevelInference",
     "Termination",
-    "bundle_width_setting",
     "inference_for",
     "level_bundles",
     "settles",

@@ -10,12 +10,14 @@ on the control or the solver's queue, bundles as Celery jobs, the fan-in) all go
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Protocol
 
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundles import Bundle
 from shared.config import MatchConfig
 from shared.level_inputs import BundleSpec, LevelInputs
+from shared.solvers.resolved import ResolvedSolver
 
 BundleProgress = Callable[[int, int], None]
 """``(units done, units total)`` within a level: bundles (rows for a row solver)."""
@@ -140,10 +142,10 @@ def whole_rows(inputs: LevelInputs, solver: str, bundles: Sequence[BundleSpec]) 
     return items
 
 
-def whole_rows_setting(config: MatchConfig) -> None:
-    """A row solver's ``bundle_width``: unset (it solves whole rows), else a ``ValueError``."""
-    if config.bundle_width is not None:
-        raise ValueError(
-            f"{config.solver} solves whole rows exactly; leave bundle_width unset "
-            "(or pick a QUBO solver such as sa to solve row segments)"
-        )
+def width_setting(solver: ResolvedSolver, config: MatchConfig) -> int | str | None:
+    """``solver``'s :meth:`~shared.solvers.resolved.ResolvedSolver.bundle_width_setting` for
+    ``config`` (the run's, or a bundle's): the ``bundle_width`` with the solver's default filled
+    in, or a ``ValueError`` saying what to change."""
+    if config is not solver.config:
+        solver = replace(solver, config=config)
+    return solver.bundle_width_setting()

@@ -21,10 +21,11 @@ from shared.inference.base import (
     Strategy,
     Termination,
     whole_rows,
-    whole_rows_setting,
+    width_setting,
 )
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.provenance_map import Stage, filled
+from shared.solvers.resolved import ResolvedSolver
 from shared.threads import threads
 
 #: Grids (whole views) minimised at the same time hold at most about this much dual
@@ -41,13 +42,13 @@ class GridViews(Strategy):
     """Each view's whole grid, minimised by ``minimise`` (the views side by side in threads:
     the compiled chain kernels release the GIL)."""
 
-    def __init__(self, name: str, minimise: Minimiser) -> None:
+    def __init__(self, name: str, minimise: Minimiser, solver: ResolvedSolver) -> None:
         self.name = name
         self.minimise = minimise
+        self.solver = solver
 
     def width_setting(self, config: MatchConfig) -> int | str | None:
-        whole_rows_setting(config)
-        return None
+        return width_setting(self.solver, config)  # whole rows (each view's grid)
 
     def plan(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
         self.width_setting(config)

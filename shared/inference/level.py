@@ -14,31 +14,6 @@ from shared.inference.table import inference_for
 from shared.level_inputs import BundleSpec, LevelInputs
 
 
-def bundle_width_setting(config: MatchConfig) -> int | str | None:
-    """The run's ``bundle_width`` with the solver's default filled in, or a ``ValueError`` that
-    says what to change (also for a bundle height the solver cannot use).
-
-    Unset is ``auto`` for solvers that embed on a QPU graph (they offer ``widest_bundle``) and
-    whole rows (None) otherwise; the row DP always solves whole rows.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration.
-
-    Returns
-    -------
-    int, str or None
-        Pixels, ``"auto"``, or ``None`` for whole rows.
-
-    Raises
-    ------
-    ValueError
-        If the width cannot apply to the solver (a row solver, or ``auto`` without an embedding).
-    """
-    return inference_for(config).width_setting(config)
-
-
 def level_bundles(inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
     """Every bundle of the level, planned by its inference (``inputs.prepared`` records the
     plan: width, height, embeddings computed; the residual design's host settlement).

@@ -7,7 +7,7 @@ graph, each bundle shape's embedding, planned once per level (:meth:`QuboStrateg
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -18,10 +18,11 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.inference.base import BundleProgress, Strategy, Termination
+from shared.inference.base import BundleProgress, Strategy, Termination, width_setting
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.base import BatchSolver, ShapePlanner, SolveResult
+from shared.solvers.resolved import ResolvedSolver
 
 if TYPE_CHECKING:
     import dimod
@@ -47,31 +48,30 @@ class QuboStrategy(Strategy):
 
     Parameters
     ----------
-    sampler : callable
-        The run's sampler, built on first use (planning a level asks it only for solvers that
-        embed on a QPU graph).
-    warm : bool
-        Whether bundles are warm-started (``uses_warm_start``).
+    solver : ResolvedSolver
+        The run's solver, resolved with its configuration: its sampler is built on first use
+        (planning a level asks it only for solvers that embed on a QPU graph); whether bundles
+        are warm-started and the bundles' width are its answers.
     """
 
     termination = Termination.SAMPLED
 
-    def __init__(self, sampler: Callable[[], Any], warm: bool) -> None:
-        self._sampler = sampler
-        self.warm = warm
+    def __init__(self, solver: ResolvedSolver) -> None:
+        self.solver = solver
+        self.warm = solver.warm_start
 
     @property
     def sampler(self) -> Any:
-        return self._sampler()
+        return self.solver.sampler
 
     @property
     def plans_with_solver(self) -> bool:  # type: ignore[override]
-        return isinstance(self.sampler, ShapePlanner)
+        return self.solver.plans_with_solver
 
     @property
     def splits(self) -> bool:  # type: ignore[override]
         # a batch solver sends the level as one problem (split, it would be billed per part)
-        return not isinstance(self.sampler, BatchSolver)
+        return self.solver.kind == "qubo"
 
     def problems(
         self, inputs: LevelInputs, config: MatchConfig, items: Sequence[Bundle]
@@ -80,18 +80,10 @@ class QuboStrategy(Strategy):
         raise NotImplementedError
 
     def width_setting(self, config: MatchConfig) -> int | str | None:
-        """Unset is ``auto`` for solvers that embed on a QPU graph (they offer
+        """The solver's :meth:`~shared.solvers.resolved.ResolvedSolver.bundle_width_setting`
+        for ``config``: unset is ``auto`` for solvers that embed on a QPU graph (they offer
         ``widest_bundle``) and whole rows (None) otherwise."""
-        width = config.bundle_width
-        planner = isinstance(self.sampler, ShapePlanner)
-        if width is None:
-            return AUTO if planner else None
-        if width == AUTO and not planner:
-            raise ValueError(
-                f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
-                f"{config.solver} has none: give a width in pixels or leave it unset"
-            )
-        return width
+        return width_setting(self.solver, config)
 
     def level_width(self, inputs: LevelInputs, config: MatchConfig) -> int | None:
         """The segment width of this level's bundles (None: whole rows); ``auto`` asks the

@@ -6,7 +6,7 @@ not by the image)."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
@@ -19,11 +19,12 @@ from shared.inference.base import (
     Strategy,
     Termination,
     whole_rows,
-    whole_rows_setting,
+    width_setting,
 )
 from shared.level_inputs import BundleSpec, LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.base import RowSolver
+from shared.solvers.resolved import ResolvedSolver
 from shared.threads import threads
 
 #: A row solver takes as many rows at once as keep one block's pairwise cost arrays (float64,
@@ -33,24 +34,17 @@ COST_BLOCK_BYTES = 32 * 2**20
 
 
 class RowChains(Strategy):
-    """Blocks of rows solved by ``solver()`` (a :class:`RowSolver`, built on first use), in
+    """Blocks of rows solved by ``solver``'s :class:`RowSolver` (built on first use), in
     threads (numpy releases the GIL inside its loops: the blocks of both views overlap)."""
 
     name = "row-chains"
     termination = Termination.OPTIMAL
 
-    def __init__(self, solver: Callable[[], RowSolver]) -> None:
+    def __init__(self, solver: ResolvedSolver) -> None:
         self.solver = solver
 
     def width_setting(self, config: MatchConfig) -> int | str | None:
-        whole_rows_setting(config)
-        if config.bundle_height != 1:
-            raise ValueError(
-                f"{config.solver} solves single-row bundles (rows inference) or each view's "
-                f"whole grid (grid inference); bundle_height {config.bundle_height} sets the "
-                "tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
-            )
-        return None
+        return width_setting(self.solver, config)  # whole rows, one a bundle
 
     def plan(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
         self.width_setting(config)
@@ -73,7 +67,7 @@ class RowChains(Strategy):
         inputs.binned_volumes()
         results: list[BundleResult] = []
         with ThreadPoolExecutor(min(len(blocks), threads())) as pool:
-            solve = partial(_solve_block, self.solver(), inputs, config)
+            solve = partial(_solve_block, self.solver.rows(), inputs, config)
             for block_results in pool.map(solve, blocks):
                 results.extend(block_results)
                 if progress is not None:

@@ -29,26 +29,34 @@ from shared.inference.qubo_residual import ResidualTiles
 from shared.inference.qubo_rows import QuboRows
 from shared.inference.qubo_tiles import QuboTiles
 from shared.inference.row_chains import RowChains
-from shared.solvers.registry import get_solver, is_row_solver, uses_warm_start
+from shared.solvers.registry import resolve
+from shared.solvers.resolved import ResolvedSolver
 
 #: Matches any value of a key's field.
 ANY = None
 
-#: A row's key: (inference, the solver is a row solver, ``certify_tiles``); ANY matches all.
+#: A row's key: (inference, the solver is a row solver, it certifies tiles); ANY matches all.
 Key = tuple[Inference, bool, bool | None]
 
 
-def _grid_views(config: MatchConfig) -> LevelInference:
-    return GridViews(f"grid-{config.grid_inference}", minimiser(config))
+def _run_config(solver: ResolvedSolver) -> MatchConfig:
+    if solver.config is None:  # resolved from a name only
+        raise ValueError(f"{solver.name} was resolved without a configuration")
+    return solver.config
 
 
-def _row_chains(config: MatchConfig) -> LevelInference:
-    return RowChains(lambda: get_solver(config.solver))
+def _grid_views(solver: ResolvedSolver) -> LevelInference:
+    config = _run_config(solver)
+    return GridViews(f"grid-{config.grid_inference}", minimiser(config), solver)
 
 
-def _qubo(kind: type[QuboRows | QuboTiles]) -> Callable[[MatchConfig], LevelInference]:
-    def make(config: MatchConfig) -> LevelInference:
-        return kind(lambda: get_solver(config.solver), uses_warm_start(config))
+def _row_chains(solver: ResolvedSolver) -> LevelInference:
+    return RowChains(solver)
+
+
+def _qubo(kind: type[QuboRows | QuboTiles]) -> Callable[[ResolvedSolver], LevelInference]:
+    def make(solver: ResolvedSolver) -> LevelInference:
+        return kind(solver)
 
     return make
 
@@ -58,7 +66,7 @@ class Row(NamedTuple):
 
     key: Key
     strategy: type
-    make: Callable[[MatchConfig], LevelInference]
+    make: Callable[[ResolvedSolver], LevelInference]
 
 
 #: The table: the first row whose key matches the run's is its level inference.
@@ -71,37 +79,40 @@ TABLE: list[Row] = [
 ]
 
 
-def _key(config: MatchConfig) -> Key:
-    """The run's facts the table is keyed on (the solver's from its record: no sampler built,
-    so no dimod import for ``exact``)."""
-    return (config.inference, is_row_solver(config.solver), config.certify_tiles)
+def _key(solver: ResolvedSolver) -> Key:
+    """The run's facts the table is keyed on, from its resolved solver (``row_solver`` from its
+    record: no sampler built, so no dimod import for ``exact``)."""
+    return (_run_config(solver).inference, solver.row_solver, solver.certifies_tiles)
 
 
-def row_of(config: MatchConfig) -> Row:
-    """The row of :data:`TABLE` that ``config`` matches."""
-    key = _key(config)
+def row_of(config: MatchConfig | ResolvedSolver) -> Row:
+    """The row of :data:`TABLE` that ``config`` (or the run's resolved solver) matches."""
+    key = _key(config if isinstance(config, ResolvedSolver) else resolve(config))
     for row in TABLE:
         if all(p is ANY or p == k for p, k in zip(row.key, key, strict=True)):
             return row
     raise LookupError(f"no level inference for {key}")  # the table covers every key
 
 
-def inference_for(config: MatchConfig) -> LevelInference:
+def inference_for(config: MatchConfig | ResolvedSolver) -> LevelInference:
     """The level inference of ``config`` (the sampler is built when first asked).
 
     Parameters
     ----------
-    config : MatchConfig
-        The run's configuration.
+    config : MatchConfig or ResolvedSolver
+        The run's configuration, or its solver resolved with it
+        (:func:`shared.solvers.registry.resolve`).
 
     Returns
     -------
     LevelInference
     """
-    return row_of(config).make(config)
+    solver = config if isinstance(config, ResolvedSolver) else resolve(config)
+    return row_of(solver).make(solver)
 
 
 def settles(config: MatchConfig) -> bool:
     """Whether a level is settled on the host first (the residual design, :mod:`shared.settle`):
-    its bundles are the tiles the host leaves, estimated as such before the job runs."""
+    its bundles are the tiles the host leaves, estimated as such before the job runs. The
+    solver's ``certifies_tiles``, which keys :class:`~.qubo_residual.ResidualTiles`' row."""
     return row_of(config).strategy is ResidualTiles

@@ -10,14 +10,16 @@ from shared.solvers.base import (
     TransientSolverError,
     solve,
 )
+from shared.solvers.errors import UnknownSolverError
 from shared.solvers.params import InvalidSolverParamsError
 from shared.solvers.registry import (
+    ResolvedSolver,
     SolverSpec,
-    UnknownSolverError,
     check_params,
     get_solver,
     params_schema,
     register,
+    resolve,
     solver_names,
     spec,
 )
@@ -42,6 +44,7 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "Availability",
     "InvalidSolverParamsError",
+    "ResolvedSolver",
     "Sampler",
     "SolveResult",
     "Solver",
@@ -54,6 +57,7 @@ __all__ = [
     "get_solver",
     "params_schema",
     "register",
+    "resolve",
     "solve",
     "solver_names",
     "spec",

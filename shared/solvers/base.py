@@ -12,7 +12,7 @@ sample as an int8 array, its energy, wall time, timing, info) and maps errors to
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -25,7 +25,6 @@ from shared.solvers.errors import (  # noqa: F401 (re-exported, as they always w
     TransientSolverError,
     bad_parameters,
 )
-from shared.solvers.records import SolverSpec
 
 if TYPE_CHECKING:
     import dimod
@@ -53,25 +52,6 @@ class SolveResult:
     timing: dict[str, float] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
     sampleset: dimod.SampleSet | None = None
-
-
-#: The registry's lookup of a solver's record by name, installed by
-#: :mod:`shared.solvers.registry` when it loads (which ``import shared.solvers`` always does): the
-#: base class reads a sampler's declared capabilities without importing the registry.
-_record_of: Callable[[str], SolverSpec] | None = None
-
-
-def record_of(name: str) -> SolverSpec:
-    """The registry's record of a solver (``KeyError`` when the registry is not loaded)."""
-    if _record_of is None:
-        raise KeyError(f"{name}: the solver registry is not loaded")
-    return _record_of(name)
-
-
-def use_registry(record_of: Callable[[str], SolverSpec]) -> None:
-    """Install the registry's lookup (:func:`shared.solvers.registry.spec`)."""
-    global _record_of
-    _record_of = record_of
 
 
 def seconds(timing: dict[str, Any]) -> dict[str, float]:

@@ -8,7 +8,7 @@
   proves to take the same value in every optimum, samples only the rest, and completes every
   sample. The reduction is vectorised (:func:`fix_variables`).
 * :class:`EmbeddingCacheComposite`: ``FixedEmbeddingComposite`` with the embedding of the BQM's
-  structure from our store (:mod:`shared.solvers.embedding_cache`: found once per structure and
+  structure from our store (:mod:`shared.solvers.qpu.embedding_cache`: found once per structure and
   target, shared between workers), for QPU targets.
 """
 
@@ -361,7 +361,7 @@ class RoofDualityComposite(dimod.ComposedSampler):
 class EmbeddingCacheComposite(dimod.ComposedSampler):
     """dwave-system's ``FixedEmbeddingComposite`` on a structured child (a QPU or its mock),
     with the embedding looked up per BQM structure in an
-    :class:`~shared.solvers.embedding_cache.EmbeddingCache` (computed and stored on a miss).
+    :class:`~shared.solvers.qpu.embedding_cache.EmbeddingCache` (computed and stored on a miss).
 
     Parameters
     ----------
@@ -432,7 +432,7 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
         """
         from dwave.system import FixedEmbeddingComposite
 
-        from shared.solvers.embedding_cache import EmbeddingSize
+        from shared.solvers.qpu.embedding_cache import EmbeddingSize
 
         if reduction is None or not reduction.fixed:
             embedding, source, key = self.embedding(bqm)

@@ -17,6 +17,14 @@ class TransientSolverError(SolverError):
     """A failure worth retrying later (rate limit, timeout, solver offline)."""
 
 
+class UnknownSolverError(KeyError):
+    """A solver name nobody registered (nor an allowed ``dimod:`` class): ``args`` are the name
+    and the message the registry words (the valid names, or why the ``dimod:`` name fails)."""
+
+    def __str__(self) -> str:
+        return str(self.args[1]) if len(self.args) > 1 else f"unknown solver {self.args[0]!r}"
+
+
 def bad_parameters(name: str, error: Exception) -> SolverError | None:
     """``TypeError`` / ``ValueError`` from a sampler (bad parameters) as a ``SolverError`` naming
     solver ``name``; None for any other error (it goes through unchanged).

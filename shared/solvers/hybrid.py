@@ -18,6 +18,7 @@ variables.
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -26,8 +27,9 @@ import numpy as np
 
 from shared.solvers.base import Availability, SolverError, SolveResult, result_of
 from shared.solvers.composites import reduce
-from shared.solvers.dwave import LeapCloudSolver, mock_qpu
-from shared.solvers.packing import joined, split
+from shared.solvers.qpu import leap
+from shared.solvers.qpu.dwave import mock_qpu
+from shared.solvers.qpu.packing import joined, split
 from shared.solvers.sampler import Sampler
 
 
@@ -139,11 +141,12 @@ def _as_states(initial_state) -> Any:
     return state, list(range(state.shape[1]))
 
 
-class LeapHybridSolver(_HybridBatch, LeapCloudSolver):
+class LeapHybridSolver(_HybridBatch):
     """``hybrid``: ``LeapHybridSampler`` (needs ``DWAVE_API_TOKEN``); ``time_limit`` in seconds
     (Leap's minimum for the problem size when unset). Warm starts are not supported by Leap's
     BQM solver, so ``initial_states`` are ignored and reported as such. It decomposes problems
-    itself: bundles are whole rows, with no QPU graph to embed on."""
+    itself: bundles are whole rows, with no QPU graph to embed on (so it reaches Leap through
+    :mod:`~shared.solvers.qpu.leap`, not as a QPU adapter)."""
 
     name = "hybrid"
     simulated = False
@@ -152,11 +155,32 @@ class LeapHybridSolver(_HybridBatch, LeapCloudSolver):
         "initial_states": [],
         "preprocess": [],
     }
+    properties: dict[str, Any] = {"simulated": False}  # noqa: RUF012
+
+    def __init__(self) -> None:
+        self._sampler: Any = None
+        self._lock = threading.Lock()
+
+    def available(self) -> Availability:
+        return leap.available()
+
+    def translate(self, error: Exception) -> SolverError:
+        """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
+        return leap.translate(self.name, error, leap.secret())
 
     def _make_sampler(self):
         from dwave.system import LeapHybridSampler
 
-        return self._connect(LeapHybridSampler)
+        return leap.connect(self.name, LeapHybridSampler)
+
+    def _build_sampler(self):
+        """:meth:`_make_sampler`, its errors as ours."""
+        try:
+            return self._make_sampler()
+        except SolverError:
+            raise
+        except Exception as error:
+            raise self.translate(error) from None
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         """Send the BQM to Leap's hybrid solver and convert its timing to seconds.

@@ -146,7 +146,7 @@ class GurobiParams(SolverParams):
 SchedulePoint = tuple[Annotated[float, Ge(0), Le(2000)], Annotated[float, Ge(0), Le(1)]]
 
 
-#: Bundles packed into one QPU call at most (``shared.solvers.packing``): the 4x4 tile's
+#: Bundles packed into one QPU call at most (``shared.solvers.qpu.packing``): the 4x4 tile's
 #: translated copies number 25 on Advantage P16 and 29-46 on Zephyr Z12/Z15 with 4 labels
 #: (docs/benchmarks.md, "Tile copies"), so a call takes up to 32 of them.
 MAX_BUNDLES_PER_CALL = 32

@@ -19,12 +19,14 @@ import logging
 import sys
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from importlib import import_module, metadata
 from typing import Any
 
 from shared.config import MatchConfig
 from shared.solvers import params as schemas
-from shared.solvers.base import use_registry
+from shared.solvers.base import RowSolver
+from shared.solvers.errors import UnknownSolverError
 from shared.solvers.records import (
     CPU_WORKERS,
     DIMOD_PREFIX,
@@ -32,6 +34,9 @@ from shared.solvers.records import (
     ENTRY_POINT_GROUP,
     SolverSpec,
 )
+from shared.solvers.resolved import ResolvedSolver
+
+__all__ = ["ResolvedSolver", "SolverSpec", "UnknownSolverError", "resolve"]
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +88,7 @@ _BUILTIN = [
     ),
     _spec(
         "qpu",
-        "dwave:QPUSolver",
+        "qpu.dwave:QPUSolver",
         "D-Wave QPU (Leap) with a cached fixed embedding",
         schemas.QPUParams,
         meter="qpu",
@@ -92,7 +97,7 @@ _BUILTIN = [
     ),
     _spec(
         "qpu-sim",
-        "dwave:SimulatedQPUSolver",
+        "qpu.dwave:SimulatedQPUSolver",
         "Offline simulator of the qpu path (MockDWaveSampler, Pegasus P16)",
         schemas.SimulatedQPUParams,
         meter="qpu",
@@ -121,17 +126,6 @@ _BUILTIN = [
 _SPECS: dict[str, SolverSpec] = {spec.name: spec for spec in _BUILTIN}
 _INSTANCES: dict[str, Any] = {}
 _scanned_path: tuple[str, ...] | None = None
-
-
-class UnknownSolverError(KeyError):
-    def __str__(self) -> str:
-        name = self.args[0]
-        if isinstance(name, str) and name.startswith(DIMOD_PREFIX):
-            return f"{name!r}: {self.args[1] if len(self.args) > 1 else 'not a dimod sampler'}"
-        return (
-            f"unknown solver {name!r}; known solvers: {', '.join(solver_names())}, or "
-            f"{DIMOD_PREFIX}PACKAGE.MODULE.CLASS for an installed dimod.Sampler"
-        )
 
 
 def register(
@@ -223,8 +217,12 @@ def spec(name: str) -> SolverSpec:
         try:
             return dimod_spec(name)
         except ValueError as error:
-            raise UnknownSolverError(name, str(error)) from None
-    raise UnknownSolverError(name)
+            raise UnknownSolverError(name, f"{name!r}: {error}") from None
+    raise UnknownSolverError(
+        name,
+        f"unknown solver {name!r}; known solvers: {', '.join(solver_names())}, or "
+        f"{DIMOD_PREFIX}PACKAGE.MODULE.CLASS for an installed dimod.Sampler",
+    )
 
 
 def get_solver(name: str) -> Any:
@@ -249,30 +247,63 @@ def build(name: str) -> Any:
     """A new sampler of solver ``name`` (as for :func:`spec`), named so, from its record's
     factory: :func:`get_solver` keeps one per process; tests build their own to keep a mocked
     cloud out of the kept one."""
-    factory = spec(name).factory
+    record = spec(name)
+    factory = record.factory
     if isinstance(factory, str):
         module_name, attribute = factory.split(":")
         factory = getattr(import_module(module_name), attribute)
     solver = factory()
+    if isinstance(solver, RowSolver) != record.row_solver:
+        raise TypeError(
+            f"solver {name!r}: its record says row_solver={record.row_solver}, its sampler "
+            f"{type(solver).__name__} {'is' if isinstance(solver, RowSolver) else 'is not'} "
+            "a RowSolver (solve_rows)"
+        )
     with contextlib.suppress(AttributeError):  # a read-only name is the sampler's own
         solver.name = name
+    with contextlib.suppress(AttributeError):  # the sampler's facts: its record, handed over
+        solver.spec = record
     return solver
 
 
-def is_row_solver(name: str) -> bool:
-    """Whether the solver works on the MRF costs of whole rows (``exact``), as its record says:
-    asked without building the sampler (a QUBO sampler imports dimod).
+def resolve(config: MatchConfig | str) -> ResolvedSolver:
+    """The run's solver, resolved once: its record, its sampler (built on first use, one per
+    process) and what ``config`` makes of it; pass it along instead of the name.
 
     Parameters
     ----------
-    name
-        As for :func:`spec`.
+    config
+        The run's configuration, or a solver name (then the run-dependent answers are not
+        available).
 
     Returns
     -------
-    bool
+    ResolvedSolver
+
+    Raises
+    ------
+    UnknownSolverError
+        For a name that is neither registered nor an allowed ``dimod:`` class.
     """
-    return spec(name).row_solver
+    if isinstance(config, str):
+        return ResolvedSolver(spec(config), None, partial(_sampler, config))
+    return ResolvedSolver(spec(config.solver), config, partial(_sampler, config.solver))
+
+
+def is_row_solver(name: str) -> bool:
+    """``resolve(name).row_solver``: whether the solver works on the MRF costs of whole rows
+    (``exact``), read from its record without building the sampler."""
+    return resolve(name).row_solver
+
+
+def uses_warm_start(config: MatchConfig) -> bool:
+    """``resolve(config).warm_start``: whether the run's bundles are warm-started."""
+    return resolve(config).warm_start
+
+
+def _sampler(name: str) -> Any:
+    """:func:`get_solver`, looked up when called (a test may stand in for it)."""
+    return get_solver(name)
 
 
 def params_schema(name: str) -> type[schemas.SolverParams]:
@@ -336,23 +367,6 @@ def recommended_encoding(name: str) -> str | None:
     return spec(name).encoding
 
 
-def queue_of(name: str) -> str:
-    """The Celery queue the bundles of solver ``name`` go to: the record's ``queue``, else the
-    name itself (``name``: registered, or ``dimod:``; returns a str).
-
-    Parameters
-    ----------
-    name : str
-        Solver whose bundles are queued.
-
-    Returns
-    -------
-    str
-        The Celery queue name.
-    """
-    return spec(name).queue_name
-
-
 def queue_names() -> list[str]:
     """Every solver queue a worker may consume (the registered solvers' and ``dimod``)."""
     queues = dict.fromkeys(spec(name).queue_name for name in solver_names())
@@ -370,27 +384,3 @@ def worker_groups() -> dict[str, list[str]]:
             queues.append(record.queue_name)
     groups[CPU_WORKERS].append(DIMOD_QUEUE)
     return groups
-
-
-def uses_warm_start(config: MatchConfig) -> bool:
-    """Whether ``config``'s bundles are warm-started: ``solver_params["warm_start"]`` (kept for
-    old clients) or ``MatchConfig.warm_start`` when given, else the solver's default.
-
-    Parameters
-    ----------
-    config : MatchConfig
-        The run's configuration (its solver, ``solver_params`` and ``warm_start``).
-
-    Returns
-    -------
-    bool
-        True when every level after the coarsest starts from the coarser estimate.
-    """
-    if "warm_start" in config.solver_params:
-        return bool(config.solver_params["warm_start"])
-    if config.warm_start is not None:
-        return config.warm_start
-    return spec(config.solver).warm_start_default
-
-
-use_registry(spec)

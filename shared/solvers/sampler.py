@@ -14,7 +14,6 @@ from shared.solvers.base import (
     SolverError,
     SolveResult,
     bad_parameters,
-    record_of,
     solve,
 )
 from shared.solvers.canonical import Canonical
@@ -22,17 +21,27 @@ from shared.solvers.records import SolverSpec
 
 
 def _declared(capability: str) -> property:
-    """A sampler attribute read from its registry record, where it is declared once."""
-    return property(lambda self: getattr(self.spec, capability), doc=f"The registry's {capability}")
+    """A sampler attribute read from its record, where it is declared once (``AttributeError``
+    for a sampler built without one)."""
+
+    def read(self: Sampler) -> Any:
+        if self.spec is None:
+            raise AttributeError(f"{self.name or type(self).__name__}: built without a record")
+        return getattr(self.spec, capability)
+
+    return property(read, doc=f"The record's {capability}")
 
 
 class Sampler(dimod.Sampler):
-    """What every registered QUBO solver adds to ``dimod.Sampler``: its registry name, whether
-    it can run here, how its errors read, the registry's record of its capabilities, and
-    ``sample`` with the registry's default parameters under the given ones (subclasses
-    implement :meth:`run`)."""
+    """What every registered QUBO solver adds to ``dimod.Sampler``: its name, whether it can
+    run here, how its errors read, its record (:attr:`spec`, handed over by whoever builds it:
+    the sampler knows no registry), and ``sample`` with the record's default parameters under
+    the given ones (subclasses implement :meth:`run`)."""
 
     name: str = ""
+    #: What is declared about it (schema, description, offline...): set by
+    #: :func:`shared.solvers.registry.build`; None for a sampler built by hand.
+    spec: SolverSpec | None = None
 
     def available(self) -> Availability:
         return Availability(True, "always available (CPU)")
@@ -53,11 +62,6 @@ class Sampler(dimod.Sampler):
         """
         return bad_parameters(self.name, error)
 
-    @property
-    def spec(self) -> SolverSpec:
-        """The registry's record of this sampler (``KeyError`` when it is not registered)."""
-        return record_of(self.name)
-
     description = _declared("description")
     offline = _declared("offline")
     uses_qpu_time = _declared("uses_qpu_time")
@@ -65,13 +69,10 @@ class Sampler(dimod.Sampler):
 
     @property
     def defaults(self) -> dict[str, Any]:
-        """Default parameters: those the registry's schema states (none when unregistered)."""
+        """Default parameters: those its record's schema states (none without a record)."""
         from shared.solvers.params import schema_defaults
 
-        try:
-            return schema_defaults(self.spec.params)
-        except KeyError:  # unregistered (the registry's UnknownSolverError is a KeyError)
-            return {}
+        return {} if self.spec is None else schema_defaults(self.spec.params)
 
     def sample(
         self,

@@ -15,7 +15,7 @@ from api_helpers import LEFT, RIGHT, post
 
 from api.users import UserStore
 from shared.config import MatchConfig
-from shared.solvers import qpu_time
+from shared.solvers.meters import qpu_time
 from workers import pricing
 from workers.app import make_celery
 from workers.estimates import EstimateStore, sweep_abandoned
@@ -56,7 +56,7 @@ def no_matcher(monkeypatch):
         ("shared.residual", "survey"),
         ("shared.pipeline", "match_views"),
         ("shared.pipeline", "run_pipeline"),
-        ("shared.solvers.qpu_time", "job_seconds"),
+        ("shared.solvers.meters.qpu_time", "job_seconds"),
         ("workers.pricing", "price"),
     ):
         monkeypatch.setattr(f"{module}.{name}", refuse)

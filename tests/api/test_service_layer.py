@@ -23,8 +23,8 @@ from api.schemas import Estimate, JobUsage, LevelEstimate, UserUsage
 from api.uploads import UploadError
 from shared.ground_truth import ScaleNotInferredError
 from shared.solvers import InvalidSolverParamsError, UnknownSolverError
-from shared.solvers.qpu_time import JobEstimate
-from shared.solvers.qpu_time import LevelEstimate as CoreLevelEstimate
+from shared.solvers.meters.qpu_time import JobEstimate
+from shared.solvers.meters.qpu_time import LevelEstimate as CoreLevelEstimate
 from workers.pricing import Priced
 from workers.quota import QuotaExceededError
 from workers.quota.ledger import JobUsage as LedgerJobUsage

@@ -136,7 +136,7 @@ class Batched:
 
 def test_a_batch_solver_gets_a_levels_bundles_in_one_call_with_the_same_results(monkeypatch):
     batched = Batched()
-    monkeypatch.setattr("shared.inference.table.get_solver", lambda name: batched)
+    monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: batched)
     options, _, before = CASES["qubo-rows"]
     assert digest(options) == before
     assert batched.calls == len(run_levels(options))

@@ -131,7 +131,7 @@ def test_the_solver_code_is_exactly_where_a_tiles_answer_was_kept(pair, monkeypa
         for b in bundles[1:]
     ]
     fake = Answers(answers, cfg.encoding, inputs.candidates.shape[2])
-    monkeypatch.setattr("shared.inference.table.get_solver", lambda name: fake)
+    monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: fake)
     solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     assert solution.residual["tiles_improved"] == 1
     expected = before.copy()

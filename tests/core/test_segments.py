@@ -15,13 +15,13 @@ from shared.bundles import Bundle, owned_columns, segment_columns
 from shared.config import MatchConfig
 from shared.energy import mrf_energy
 from shared.inference import (
-    bundle_width_setting,
     level_bundles,
     solve_bundles,
     solve_level_in_process,
 )
 from shared.pipeline import match_views, plan_run, prepare_level
 from shared.solvers.exact import solve_chains
+from shared.solvers.registry import resolve
 from shared.synthetic import make_scene
 
 
@@ -65,14 +65,18 @@ def test_a_margin_of_half_the_width_or_more_is_refused():
         MatchConfig(bundle_width=4)
 
 
+def _width_setting(config: MatchConfig) -> int | str | None:
+    return resolve(config).bundle_width_setting()
+
+
 def test_solvers_that_cannot_use_a_width_say_so():
-    assert bundle_width_setting(MatchConfig(solver="sa")) is None  # whole rows
-    assert bundle_width_setting(MatchConfig(solver="qpu-sim")) == "auto"
-    assert bundle_width_setting(MatchConfig(solver="hybrid-sim")) is None
+    assert _width_setting(MatchConfig(solver="sa")) is None  # whole rows
+    assert _width_setting(MatchConfig(solver="qpu-sim")) == "auto"
+    assert _width_setting(MatchConfig(solver="hybrid-sim")) is None
     with pytest.raises(ValueError, match="solves whole rows"):
-        bundle_width_setting(MatchConfig(solver="exact", bundle_width=64))
+        _width_setting(MatchConfig(solver="exact", bundle_width=64))
     with pytest.raises(ValueError, match="give a width in pixels"):
-        bundle_width_setting(MatchConfig(solver="sa", bundle_width="auto"))
+        _width_setting(MatchConfig(solver="sa", bundle_width="auto"))
 
 
 @pytest.fixture(scope="module")

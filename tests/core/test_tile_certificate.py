@@ -28,7 +28,7 @@ from shared.pipeline import run_pipeline
 from shared.provenance_map import Stage
 from shared.solvers import get_solver
 from shared.solvers.base import SolveResult
-from shared.solvers.qpu_time import charged_seconds
+from shared.solvers.meters.qpu_time import charged_seconds
 from shared.synthetic import make_scene
 
 SMALL = {"height": 16, "width": 40, "max_disparity": 6}
@@ -84,7 +84,7 @@ def test_only_tiles_around_unsettled_pixels_are_sent_and_charged(monkeypatch):
         covered[tile] = True
     assert covered[unsettled].all()  # every unsettled pixel is in a sent tile
     counting = CountingSolver()
-    monkeypatch.setattr("shared.inference.table.get_solver", lambda name: counting)
+    monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: counting)
     results = solve_bundles(inputs, cfg, bundles)
     assert counting.calls == len(bundles)
     assert all(charged_seconds(r.timing) == 0.0 for r in results)  # (unmetered here)
@@ -111,7 +111,7 @@ def test_a_tiles_answer_replaces_the_hosts_only_where_it_lowers_the_energy(monke
     grids = [inputs.grid(cfg, v * height, (v + 1) * height) for v in range(inputs.views)]
     host_energy = sum(g.energy(host[v * height : (v + 1) * height]) for v, g in enumerate(grids))
     if solver == "worst":
-        monkeypatch.setattr("shared.inference.table.get_solver", lambda name: WorstSolver())
+        monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: WorstSolver())
     solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     energy = sum(
         g.energy(solution.labels[v * height : (v + 1) * height]) for v, g in enumerate(grids)

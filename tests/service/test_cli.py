@@ -142,7 +142,7 @@ def test_json_without_wait_is_json(api_url, images, capsys):
 def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_path, capsys):
     import json
 
-    from shared.solvers import qpu_time
+    from shared.solvers.meters import qpu_time
 
     scene = make_scene(24, 32, max_disparity=8, seed=9)
     left, right = tmp_path / "left.png", tmp_path / "right.png"

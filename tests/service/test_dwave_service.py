@@ -30,7 +30,8 @@ from sapi_stub import HYBRID_CHARGE_US, SapiStub, qpu_access_us
 from shared.config import LevelConfig, MatchConfig, Settings
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
-from shared.solvers import embedding_cache, registry
+from shared.solvers import registry
+from shared.solvers.qpu import embedding_cache
 from shared.synthetic import make_scene
 from workers.embedded_redis import free_port
 
@@ -169,9 +170,7 @@ def qhsm_serve(folder: Path, stub: SapiStub):
             yield client, log, folder / "data"
 
 
-def test_qpu_and_hybrid_jobs_run_through_qhsm_serve_with_the_token(
-    sapi, tmp_path, monkeypatch
-):
+def test_qpu_and_hybrid_jobs_run_through_qhsm_serve_with_the_token(sapi, tmp_path, monkeypatch):
     """Under `qhsm serve` only the D-Wave worker has the token; a qpu job's level planning
     (the QPU graph, the widest segment that embeds, the embeddings) runs there too."""
     from workers.embedding_store import RedisEmbeddingStore

@@ -10,7 +10,8 @@ import pytest
 from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.pyramid import plan
-from shared.solvers import embedding_cache, registry, tile_embedding
+from shared.solvers import registry
+from shared.solvers.qpu import embedding_cache, tile_embedding
 from shared.synthetic import make_scene
 from workers import orchestration
 from workers.app import make_celery

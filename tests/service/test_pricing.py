@@ -28,7 +28,7 @@ def no_matcher_here(monkeypatch):
         "shared.residual.job_residual",
         "shared.pipeline.match_views",
         "shared.pipeline.run_pipeline",
-        "shared.solvers.qpu_time.job_seconds",
+        "shared.solvers.meters.qpu_time.job_seconds",
         "workers.pricing.price",
     ):
         monkeypatch.setattr(target, refuse)

@@ -18,7 +18,7 @@ import pytest
 import redis
 
 from api.users import UserStore
-from shared.solvers import qpu_time
+from shared.solvers.meters import qpu_time
 from shared.synthetic import make_scene
 
 pytestmark = pytest.mark.service

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.solvers import embedding_cache
+from shared.solvers.qpu import embedding_cache
 
 sys.path.insert(0, str(Path(__file__).parent))  # solver_helpers
 

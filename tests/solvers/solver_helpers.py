@@ -51,3 +51,12 @@ def random_bqm(num_variables: int, seed: int) -> dimod.BinaryQuadraticModel:
         0.0,
         dimod.BINARY,
     )
+
+
+def with_record(solver, name: str):
+    """``solver``, built by hand, given the registry's record of ``name`` (its defaults and
+    description), as :func:`shared.solvers.registry.build` gives it to the samplers it builds."""
+    from shared.solvers import registry
+
+    solver.spec = registry.spec(name)
+    return solver

@@ -11,19 +11,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import (
-    SolverError,
-    SolverUnavailableError,
-    get_solver,
-    qpu_time,
-)
-from shared.solvers.dwave import SimulatedQPUSolver
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
+from shared.solvers import SolverError, SolverUnavailableError, get_solver
 from shared.solvers.exact import solve_chains
+from shared.solvers.meters import qpu_time
+from shared.solvers.qpu.dwave import SimulatedQPUSolver
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
 
 #: These tests are about the QPU path itself: roof duality would solve their tiny rows on the host.
 WHOLE = {"preprocess": "none"}
@@ -37,7 +33,7 @@ def mock_qpu():
 
 
 def sim_solver(mock_qpu, cache: EmbeddingCache) -> SimulatedQPUSolver:
-    solver = SimulatedQPUSolver(cache=cache)
+    solver = with_record(SimulatedQPUSolver(cache=cache), "qpu-sim")
     solver._sampler, solver._target = mock_qpu, "pegasus16-test"
     return solver
 
@@ -108,7 +104,7 @@ def test_embedding_is_found_once_per_structure_and_persisted(mock_qpu, tmp_path)
 def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
     """The default cache keeps embeddings under QHSM_DATA_DIR/embeddings across processes."""
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 5))
-    first = SimulatedQPUSolver().solve(bqm, seed=0, num_reads=10, **WHOLE)
+    first = with_record(SimulatedQPUSolver(), "qpu-sim").solve(bqm, seed=0, num_reads=10, **WHOLE)
     assert first.info["embedding_cache"] == "computed"
     assert default_cache().store.directory == tmp_path / "data" / "embeddings"
     script = (
@@ -259,8 +255,8 @@ def test_the_stand_in_is_a_pegasus_p16_mock_sampling_by_steepest_descent(mock_qp
 
 
 def test_qpu_sim_takes_qpus_read_budget_and_is_charged_the_reads_it_took(mock_qpu, tmp_path):
-    from shared.solvers.embedding_cache import EmbeddingSize
     from shared.solvers.params import DEFAULT_NUM_READS, SimulatedQPUParams
+    from shared.solvers.qpu.embedding_cache import EmbeddingSize
 
     # the stand-in reads what qpu reads (20, measured: docs/benchmarks.md), charged the same
     assert SimulatedQPUParams.model_fields["num_reads"].default == DEFAULT_NUM_READS == 20

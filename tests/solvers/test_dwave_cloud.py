@@ -20,15 +20,16 @@ from dwave.cloud import exceptions as cloud
 from dwave.cloud.api import exceptions as api
 from dwave.cloud.solver import BQMSolver, StructuredSolver
 from dwave.cloud.testing import mocks
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import SolverError, SolverUnavailableError, TransientSolverError, qpu_time
-from shared.solvers.dwave import QPUSolver
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers import SolverError, SolverUnavailableError, TransientSolverError
 from shared.solvers.hybrid import LeapHybridSolver
-from shared.solvers.qpu_settings import chain_strength
+from shared.solvers.meters import qpu_time
+from shared.solvers.qpu.dwave import QPUSolver
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.qpu.qpu_settings import chain_strength
 
 SENTINEL = "DEV-sentinel-7f3c9a1e-never-print-me"
 
@@ -134,11 +135,13 @@ def leap(monkeypatch, pegasus_data) -> FakeLeap:
 
 
 def qpu_solver(tmp_path) -> QPUSolver:
-    return QPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path / "embeddings")))
+    return with_record(
+        QPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path / "embeddings"))), "qpu"
+    )
 
 
 def hybrid_solver(leap: FakeLeap) -> LeapHybridSolver:
-    return LeapHybridSolver()
+    return with_record(LeapHybridSolver(), "hybrid")
 
 
 def assert_no_token(error: BaseException, caplog) -> None:
@@ -247,7 +250,7 @@ def test_worker_estimates_use_the_live_solvers_timing_data(leap, tmp_path, monke
     from shared.solvers.meters import meter_for
 
     monkeypatch.setattr(registry, "_INSTANCES", {})  # a fresh qpu adapter, not kept after
-    live = meter_for("qpu").timing_source("qpu")
+    live = meter_for("qpu").timing_source(registry.resolve("qpu"))
     assert live is not None
     expected = live.estimate_qpu_access_time(200, num_reads=100) * 1e-6
     assert qpu_time.bundle_seconds(

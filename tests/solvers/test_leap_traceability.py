@@ -19,7 +19,7 @@ from test_dimod_conformance import CLOUD_MOCKS
 
 from shared.encodings import get_codec
 from shared.solvers import SolverError, SolverUnavailableError, TransientSolverError, registry
-from shared.solvers.problems import DEFAULT_LABEL, sent_problems, task_label
+from shared.solvers.qpu.problems import DEFAULT_LABEL, sent_problems, task_label
 
 #: A triangle of antiferromagnetic couplings: roof duality fixes nothing, so it is sent.
 FRUSTRATED = dimod.BinaryQuadraticModel(

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from solver_helpers import optimum, stereo_costs
+from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import get_solver, qpu_time
+from shared.solvers import get_solver
 from shared.solvers.hybrid import blocks
-from shared.solvers.packing import joined
+from shared.solvers.meters import qpu_time
+from shared.solvers.qpu.packing import joined
 
 QUICK_HYBRID = {"max_iter": 2, "sa_sweeps": 100, "qpu_reads": 10}
 
@@ -101,7 +102,7 @@ class _FakeLeap:
 def test_hybrid_sends_a_batch_as_one_bqm_and_splits_its_samples(monkeypatch):
     from shared.solvers.hybrid import LeapHybridSolver
 
-    solver = LeapHybridSolver()
+    solver = with_record(LeapHybridSolver(), "hybrid")
     fake = _FakeLeap()
     solver._sampler = fake
     bqms = [frustrated(8, s) for s in range(3)]
@@ -148,11 +149,13 @@ def test_hybrid_sim_estimate_is_its_charge_within_10_percent(tmp_path, capsys):
 
 
 def test_qpu_sim_packs_rests_into_one_call_on_disjoint_copies(tmp_path):
-    from shared.solvers.dwave import SimulatedQPUSolver
-    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
-    from shared.solvers.packing import MAX_COPIES
+    from shared.solvers.qpu.dwave import SimulatedQPUSolver
+    from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+    from shared.solvers.qpu.packing import MAX_COPIES
 
-    solver = SimulatedQPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path)))
+    solver = with_record(
+        SimulatedQPUSolver(cache=EmbeddingCache(DirectoryStore(tmp_path))), "qpu-sim"
+    )
     bqms = [frustrated(8, s) for s in range(MAX_COPIES + 2)]
     results = solver.solve_batch([(bqm, s, None) for s, bqm in enumerate(bqms)], num_reads=5)
     per_call = [r.info["bundles_per_call"] for r in results]

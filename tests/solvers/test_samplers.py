@@ -22,8 +22,8 @@ from shared.solvers.composites import (
     RoofDualityComposite,
     SolverComposite,
 )
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
-from shared.solvers.qpu_time import is_metered, meter_of
+from shared.solvers.meters.qpu_time import is_metered, meter_of
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
 from shared.synthetic import make_scene
 
 SD = "dimod:dwave.samplers.SteepestDescentSolver"
@@ -45,7 +45,7 @@ def test_capabilities_are_declared_once_in_the_registry():
     assert is_metered("qpu-sim") and not get_solver("qpu-sim").uses_qpu_time
     assert get_solver("qpu").uses_qpu_time and not is_metered(SD)
     assert [n for n in registry.solver_names() if registry.spec(n).row_solver] == ["exact"]
-    assert registry.queue_of(SD) == "dimod" and "dimod" in registry.queue_names()
+    assert registry.resolve(SD).queue == "dimod" and "dimod" in registry.queue_names()
     assert get_solver("sa").description == registry.spec("sa").description
 
 
@@ -223,7 +223,7 @@ def test_plugins_register_through_the_entry_point_group(tmp_path, monkeypatch):
     assert registry.spec("probe") == SolverSpec(
         "probe", registry.spec("probe").factory, description="probe", queue="probe-queue"
     )
-    assert registry.queue_of("probe") == "probe-queue"
+    assert registry.resolve("probe").queue == "probe-queue"
     assert isinstance(get_solver("probe"), dimod.Sampler)
 
 

@@ -1,4 +1,4 @@
-"""Tile copies across a QPU by translation (shared.solvers.tile_embedding, packing.copies):
+"""Tile copies across a QPU by translation (shared.solvers.qpu.tile_embedding, packing.copies):
 deterministic for a seed and a budget in tries, the same on a busy machine, found once per chip."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ import sys
 import pytest
 from dwave.embedding import is_valid_embedding
 
-from shared.solvers import tile_embedding
-from shared.solvers.bundle_shapes import shape_bqm
-from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache
-from shared.solvers.packing import copies
-from shared.solvers.structure_keys import structure_edges
+from shared.solvers.qpu import tile_embedding
+from shared.solvers.qpu.bundle_shapes import shape_bqm
+from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.qpu.packing import copies
+from shared.solvers.qpu.structure_keys import structure_edges
 
 pytest.importorskip("dwave.system.testing")
 from dwave.system.testing import MockDWaveSampler

@@ -11,7 +11,8 @@ import pytest
 
 from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
-from shared.solvers import SolveResult, qpu_time, registry
+from shared.solvers import SolveResult, registry
+from shared.solvers.meters import qpu_time
 from shared.synthetic import make_scene
 from workers.quota import (
     QpuMeter,
@@ -80,7 +81,7 @@ def test_each_bundle_is_charged_what_its_sample_set_reports(fake, level, meter):
     inputs, config = level
     meter.ledger.set_limit("ada", 10.0)
     rows = [(0, 1), (1, 2), (2, 3), (3, 4)]
-    results = solve_metered(meter, "ada", "job", inputs, config, rows)
+    results = solve_metered(meter, "ada", "job", inputs, registry.resolve(config), rows)
     assert [r.row_start for r in results] == [0, 1, 2, 3]
     reported = sum(qpu_time.charged_seconds(r.timing) for r in results)
     usage = meter.ledger.job_usage("ada", "job")
@@ -102,7 +103,9 @@ def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
     fake.seconds = lambda call: estimate  # every bundle uses exactly its estimate
     meter.ledger.set_limit("ada", 2.5 * estimate)
     with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
-        solve_metered(meter, "ada", "job", inputs, config, [(r, r + 1) for r in range(8)])
+        solve_metered(
+            meter, "ada", "job", inputs, registry.resolve(config), [(r, r + 1) for r in range(8)]
+        )
     assert fake.calls == 2  # the third bundle was refused before it was sent
     usage = meter.ledger.job_usage("ada", "job")
     assert usage.problems == 2 and usage.seconds == pytest.approx(2 * estimate)
@@ -111,7 +114,8 @@ def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
 def test_a_stopped_job_sends_no_more_bundles(fake, level, meter):
     inputs, config = level
     states = iter([True, True, False])
-    assert solve_metered(meter, "ada", "job", inputs, config, [(0, 1), (1, 2), (2, 3)],
+    solver = registry.resolve(config)
+    assert solve_metered(meter, "ada", "job", inputs, solver, [(0, 1), (1, 2), (2, 3)],
                          still_running=lambda: next(states)) is None  # fmt: skip
     assert fake.calls == 2
     assert meter.semaphore.in_flight() == 0
@@ -122,14 +126,14 @@ def test_bundles_wait_for_a_free_lab_wide_slot(fake, level, meter, redis_client,
     other = QpuSemaphore(redis_client, prefix, limit=1).try_acquire("bob", ttl=0.3)
     assert other is not None  # bob's bundle holds the only slot; it expires after 0.3 s
     started = time.monotonic()
-    solve_metered(meter, "ada", "job", inputs, config, [(0, 1)])
+    solve_metered(meter, "ada", "job", inputs, registry.resolve(config), [(0, 1)])
     assert time.monotonic() - started >= 0.25
     assert fake.calls == 1
 
 
 def test_a_bundle_estimate_uses_the_embedding_once_a_worker_found_it(level, tmp_path, monkeypatch):
-    from shared.solvers import embedding_cache
-    from shared.solvers.embedding_cache import DirectoryStore, EmbeddingCache, EmbeddingSize
+    from shared.solvers.qpu import embedding_cache
+    from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache, EmbeddingSize
 
     inputs, config = level
     cache = EmbeddingCache(DirectoryStore(tmp_path))
@@ -156,7 +160,7 @@ from shared.solvers.params import SimulatedQPUParams
 
 SPEC = SolverSpec(
     "named-by-the-entry-point",
-    "shared.solvers.dwave:SimulatedQPUSolver",
+    "shared.solvers.qpu.dwave:SimulatedQPUSolver",
     params=SimulatedQPUParams,
     meter="qpu",
     offline=True,
@@ -168,7 +172,7 @@ def register_by_call(folder, monkeypatch) -> None:
     from shared.solvers.params import SimulatedQPUParams
 
     registry.register(
-        PLUGIN, "shared.solvers.dwave:SimulatedQPUSolver", SimulatedQPUParams, meter="qpu"
+        PLUGIN, "shared.solvers.qpu.dwave:SimulatedQPUSolver", SimulatedQPUParams, meter="qpu"
     )
 
 
@@ -198,7 +202,7 @@ class ReservationWatcher(FakeQPU):
 @pytest.fixture(params=[register_by_call, register_by_entry_point], ids=["register", "entry-point"])
 def plugin_config(request, tmp_path, monkeypatch, level) -> MatchConfig:
     """The level's job on a QPU-metered solver registered only now, long after
-    ``shared.solvers.qpu_time`` was imported (the registry is restored afterwards)."""
+    ``shared.solvers.meters.qpu_time`` was imported (the registry is restored afterwards)."""
     monkeypatch.setattr(registry, "_SPECS", dict(registry._SPECS))
     request.param(tmp_path, monkeypatch)
     assert registry.spec(PLUGIN).meter == "qpu"
@@ -222,12 +226,12 @@ def test_a_metered_solver_registered_later_is_estimated_and_reserved(
 
     meter.ledger.set_limit("ada", 0.5 * estimate)
     with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
-        solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1)])
+        solve_metered(meter, "ada", "job", inputs, registry.resolve(plugin_config), [(0, 1)])
     assert watcher.calls == 0  # refused before it was sent: the bundle needs its estimate
 
     meter.ledger.set_limit("ada", 10 * estimate)
     watcher.seconds = lambda call: 0.25 * estimate
-    solve_metered(meter, "ada", "job", inputs, plugin_config, [(0, 1), (1, 2)])
+    solve_metered(meter, "ada", "job", inputs, registry.resolve(plugin_config), [(0, 1), (1, 2)])
     assert watcher.reserved == [pytest.approx(estimate)] * 2  # each held its estimate meanwhile
     usage = meter.ledger.job_usage("ada", "job")
     assert usage.problems == 2 and usage.seconds == pytest.approx(0.5 * estimate)
@@ -245,7 +249,7 @@ class FakeLeapBatch:
         self.reserved: list[float] = []
 
     def solve_batch(self, problems: list[tuple], **params) -> list[SolveResult]:
-        from shared.solvers.problems import current
+        from shared.solvers.qpu.problems import current
 
         self.reserved.append(self.ledger.status("ada").reserved)
         log = current()
@@ -269,7 +273,7 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     """The issue's case: the estimate said 3.0 s, the worker reserved 3.3 s (every variable of
     the level, as if nothing were solved on the host), and a user with 3.1 s left failed at
     once. Now a level reserves its share of the accepted estimate."""
-    from shared.solvers.problems import sent_problems
+    from shared.solvers.qpu.problems import sent_problems
 
     inputs, paper = level
     config = MatchConfig.model_validate({**paper.model_dump(), "solver": "hybrid-sim"})
@@ -281,9 +285,11 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     assert upper > accepted + 0.1
     meter.ledger.set_limit("ada", accepted + 0.1)
     with pytest.raises(QuotaExceededError):  # without the accepted estimate: the upper bound
-        solve_metered(meter, "ada", "job", inputs, config, bundles)
+        solve_metered(meter, "ada", "job", inputs, registry.resolve(config), bundles)
     with sent_problems("qhsm job job level 3 bundle 0") as log:
-        solve_metered(meter, "ada", "job", inputs, config, bundles, level_estimate=accepted)
+        solve_metered(
+            meter, "ada", "job", inputs, registry.resolve(config), bundles, level_estimate=accepted
+        )
     assert fake.reserved == [pytest.approx(accepted)]
     usage = meter.ledger.job_usage("ada", "job")
     assert usage.problem_ids == ("sapi-1", "sapi-2") == tuple(log.ids)
@@ -291,5 +297,7 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     [job] = meter.ledger.usage("ada").as_dict()["jobs"]
     assert job["problem_ids"] == ["sapi-1", "sapi-2"]
     half = bundles[: len(bundles) // 2]  # a task with half the level's bundles: half of it
-    solve_metered(meter, "ada", "job", inputs, config, half, level_estimate=accepted)
+    solve_metered(
+        meter, "ada", "job", inputs, registry.resolve(config), half, level_estimate=accepted
+    )
     assert fake.reserved[-1] == pytest.approx(accepted * len(half) / len(bundles))

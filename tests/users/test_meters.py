@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from shared.config import MatchConfig
-from shared.solvers import meters, qpu_time, registry
-from shared.solvers.meters import LevelLoad, Meter
+from shared.solvers import meters, registry
+from shared.solvers.meters import LevelLoad, Meter, qpu_time
 
 
 class FlatMeter(Meter):
@@ -19,7 +19,7 @@ class FlatMeter(Meter):
     def bundle_seconds(self, call) -> float:
         return 0.5
 
-    def level_seconds(self, solver_name, params, load: LevelLoad, solver=None):
+    def level_seconds(self, solver, params, load: LevelLoad, live=None):
         return load.sent * 0.5, None
 
 

@@ -9,14 +9,14 @@ from hypothesis import strategies as st
 from shared.bundles import bundle_rows, segment_columns
 from shared.config import MatchConfig
 from shared.pyramid import level_shape, plan
-from shared.solvers import qpu_time
-from shared.solvers.embedding_cache import (
+from shared.solvers.meters import qpu_time
+from shared.solvers.meters.qpu_time import ADVANTAGE_TIMING_DATA as DATA
+from shared.solvers.qpu.embedding_cache import (
     DirectoryStore,
     EmbeddingCache,
     EmbeddingSize,
     structure_digest,
 )
-from shared.solvers.qpu_time import ADVANTAGE_TIMING_DATA as DATA
 
 
 def test_qpu_model_is_programming_plus_reads_times_sample_time():

@@ -8,7 +8,7 @@ slot. Each step is one Lua script (the ``.lua`` files beside the modules), so co
 see consistent budgets and the budget can only be overspent by what in-flight bundles use beyond
 their estimates. A worker killed mid-bundle cannot leak anything: its slot and its reservation
 expire after ``Settings.qpu_slot_ttl`` (+ the bundle's estimate). Times are seconds; the clock
-is Redis's (``TIME``), not the workers'. What is reserved is :mod:`shared.solvers.qpu_time`'s
+is Redis's (``TIME``), not the workers'. What is reserved is :mod:`shared.solvers.meters.qpu_time`'s
 estimate, what is charged the solver's meter's reading (:mod:`shared.solvers.meters`); this package
 only settles them.
 
@@ -20,7 +20,7 @@ Modules:
 - :mod:`~workers.quota.scripts`    reads the Lua sources shipped with the package
 """
 
-from shared.solvers.qpu_time import bundle_estimate  # the amount reserved, re-exported
+from shared.solvers.meters.qpu_time import bundle_estimate  # the amount reserved, re-exported
 from workers.quota.ledger import (
     LOCAL_USER,
     JobUsage,

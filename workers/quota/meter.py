@@ -1,6 +1,6 @@
 """Metering of a job's bundles: each metered problem runs inside a lab-wide slot and a
-reservation of its estimate (:mod:`shared.solvers.qpu_time`), and is charged the time its sample
-set reports (read by the solver's meter, :mod:`shared.solvers.meters`)."""
+reservation of its estimate (:mod:`shared.solvers.meters.qpu_time`), and is charged the time
+its sample set reports (read by the solver's meter, :mod:`shared.solvers.meters`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ from dataclasses import dataclass
 import redis
 
 from shared.config import Settings
-from shared.solvers.problems import current
-from shared.solvers.qpu_time import batch_estimate, bundle_estimate
+from shared.solvers.meters.qpu_time import batch_estimate, bundle_estimate
+from shared.solvers.qpu.problems import current
+from shared.solvers.resolved import ResolvedSolver
 from workers.quota.ledger import QuotaLedger
 from workers.quota.semaphore import QpuSemaphore
 
@@ -75,7 +76,7 @@ class QpuMeter:
             One :class:`Charge`, for the ``with`` body to :meth:`Charge.report` on.
         """
         ttl = self.slot_ttl + estimate
-        log = current()  # the task's D-Wave problems (shared.solvers.problems)
+        log = current()  # the task's D-Wave problems (shared.solvers.qpu.problems)
         before = len(log.ids) if log is not None else 0
         with self.semaphore.slot(user, ttl, self.slot_wait):
             reservation = self.ledger.reserve(user, job_id, estimate, ttl)
@@ -95,7 +96,7 @@ def solve_metered(
     owner: str,
     job_id: str,
     inputs,
-    config,
+    solver: ResolvedSolver,
     bundles: list,
     still_running=lambda: True,
     level_estimate: float | None = None,
@@ -111,9 +112,10 @@ def solve_metered(
         Slots and the ledger.
     owner, job_id : str
         Whose budget, and the job charged.
-    inputs, config
-        The level's inputs and the job's ``MatchConfig``, as for
-        ``shared.inference.solve_bundles``.
+    inputs : LevelInputs
+        The level's inputs, as for ``shared.inference.solve_bundles``.
+    solver : ResolvedSolver
+        The job's solver, resolved with its ``MatchConfig`` (``solver.config``).
     bundles : list
         The bundle specs to solve, in order.
     still_running : callable
@@ -131,15 +133,15 @@ def solve_metered(
         budget cannot cover the next bundle.
     """
     from shared.inference import inference_for
-    from shared.solvers import get_solver
-    from shared.solvers.base import BatchSolver
     from shared.solvers.meters import meter_for
 
+    config = solver.config
+    assert config is not None, "solve_metered needs the solver resolved with the job's config"
     inference = inference_for(config)
     sent = inference.bundle_config(inputs, config)  # as the bundles are solved (tiles: 4 rows)
-    kind = meter_for(config.solver)
+    kind = meter_for(solver.name)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
-    if isinstance(get_solver(config.solver), BatchSolver):  # one slot, one reservation
+    if solver.kind == "batch":  # one slot, one reservation
         if not still_running():
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]

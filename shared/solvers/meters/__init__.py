@@ -7,8 +7,8 @@ solver registered at any time (``register()``, a ``qhsm.solvers`` entry point) i
 the built-in ones. The offline stand-ins are metered too: they are charged what the model says
 the real service would take, so the accounting can be exercised without a token.
 
-Per level and per job the estimates are :mod:`shared.solvers.qpu_time`'s; reserving and settling
-the time in Redis is :mod:`workers.quota`'s. All figures are seconds.
+Per level and per job the estimates are :mod:`shared.solvers.meters.qpu_time`'s; reserving and
+settling the time in Redis is :mod:`workers.quota`'s. All figures are seconds.
 """
 
 from __future__ import annotations
@@ -17,10 +17,11 @@ from typing import TYPE_CHECKING, Any
 
 from shared.solvers.meters import hybrid, qpu
 from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
+from shared.solvers.params import schema_defaults
 from shared.solvers.registry import UnknownSolverError, spec
 
 if TYPE_CHECKING:
-    from shared.solvers.embedding_cache import EmbeddingSize
+    from shared.solvers.qpu.embedding_cache import EmbeddingSize
 
 __all__ = [
     "BundleCall",
@@ -123,8 +124,10 @@ def bundle_seconds(
     meter = meter_for(solver_name)
     if meter is None:
         return 0.0
+    # what the solver runs with when a parameter is not given (qpu-sim reads fewer than qpu)
+    defaults = schema_defaults(spec(solver_name).params)
     return meter.bundle_seconds(
-        BundleCall(solver_name, num_variables, params, num_qubits, embedding, solver)
+        BundleCall(solver_name, num_variables, params, num_qubits, embedding, solver, defaults)
     )
 
 

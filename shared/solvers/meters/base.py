@@ -6,17 +6,18 @@ kind, one module each (:mod:`~shared.solvers.meters.qpu`, :mod:`~shared.solvers.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from shared.solvers.embedding_cache import EmbeddingSize
+    from shared.solvers.qpu.embedding_cache import EmbeddingSize
+    from shared.solvers.resolved import ResolvedSolver
 
 
 @dataclass(frozen=True)
 class LevelLoad:
     """What of a level (or of one task's batch) reaches the metered solver, as the estimates
-    plan it (:mod:`shared.solvers.qpu_time`)."""
+    plan it (:mod:`shared.solvers.meters.qpu_time`)."""
 
     #: Bundles of the level (the batch).
     bundles: int
@@ -49,6 +50,8 @@ class BundleCall:
     embedding: EmbeddingSize | None = None
     #: A live service object whose own timing data replaces the offline model (None: offline).
     solver: Any = None
+    #: The solver's parameters when not given (its schema's defaults), under ``params``.
+    defaults: dict[str, Any] = field(default_factory=dict)
 
 
 class Meter(ABC):
@@ -71,10 +74,11 @@ class Meter(ABC):
 
     @abstractmethod
     def level_seconds(
-        self, solver_name: str, params: dict[str, Any], load: LevelLoad, solver: Any = None
+        self, solver: ResolvedSolver, params: dict[str, Any], load: LevelLoad, live: Any = None
     ) -> tuple[float, int | None]:
-        """Estimated charge of what ``load`` sends, and the qubits a bundle is assumed to use
-        (None when the meter has no qubits)."""
+        """Estimated charge of what ``load`` sends to ``solver`` (the job's, resolved), and the
+        qubits a bundle is assumed to use (None when the meter has no qubits); ``live``: as
+        :meth:`timing_source` gives it."""
 
     def charged_seconds(self, timing: dict[str, float]) -> float:
         """What one solve costs its owner: the first of :attr:`charge_keys` reported (seconds,
@@ -85,7 +89,7 @@ class Meter(ABC):
                 return max(0.0, float(value))
         return 0.0
 
-    def timing_source(self, solver_name: str) -> Any:
-        """The live service object whose timing data the estimates of ``solver_name`` use, or
-        None (the offline model)."""
+    def timing_source(self, solver: ResolvedSolver) -> Any:
+        """The live service object whose timing data the estimates of ``solver`` use, or None
+        (the offline model)."""
         return None

@@ -19,7 +19,7 @@ import numpy as np
 from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
 
 if TYPE_CHECKING:
-    pass
+    from shared.solvers.resolved import ResolvedSolver
 
 #: ``minimum_time_limit`` of hybrid_binary_quadratic_model_version2: [variables, seconds] pairs.
 HYBRID_MINIMUM_TIME_LIMIT: list[list[float]] = [
@@ -99,7 +99,7 @@ class HybridChargeMeter(Meter):
         return hybrid_charge_seconds(call.num_variables, call.params)
 
     def level_seconds(
-        self, solver_name: str, params: dict[str, Any], load: LevelLoad, solver: Any = None
+        self, solver: ResolvedSolver, params: dict[str, Any], load: LevelLoad, live: Any = None
     ) -> tuple[float, int | None]:
         variables = load.bundles * load.variables * load.variables_share
         return hybrid_level_seconds(variables, params), None

@@ -12,7 +12,7 @@ solver its ``problem_timing_data`` property is used, offline the Advantage_syste
 August 2022 below (as published by D-Wave and recorded in dwave-cloud-client's test data).
 
 The model needs the number of *qubits*, known only after embedding
-(:mod:`shared.solvers.bundle_shapes` looks actual embeddings up). Once a bundle structure
+(:mod:`shared.solvers.qpu.bundle_shapes` looks actual embeddings up). Once a bundle structure
 has been embedded (by any worker: the embedding cache records each embedding's size per solver),
 estimates use that embedding's qubit count. Before, we assume :data:`QUBITS_PER_VARIABLE` qubits
 per binary variable: on Pegasus a full-resolution domain-wall Tsukuba row (1152 variables)
@@ -23,7 +23,7 @@ factor makes is small.
 ``qpu`` is charged what D-Wave reports; the offline ``qpu-sim`` has no real timing, so it reports
 (and is charged) :func:`qpu_access_seconds` of its actual embedding and parameters, so that its
 estimates and charges agree as the real ones do. A level's bundles reach the QPU packed: the
-rests of up to a shape's disjoint embeddings in one call (:mod:`shared.solvers.packing`).
+rests of up to a shape's disjoint embeddings in one call (:mod:`shared.solvers.qpu.packing`).
 """
 
 from __future__ import annotations
@@ -36,10 +36,9 @@ import numpy as np
 from shared.solvers.base import LiveTiming
 from shared.solvers.meters.base import BundleCall, LevelLoad, Meter
 from shared.solvers.params import DEFAULT_NUM_READS, schema_defaults
-from shared.solvers.registry import get_solver, spec
 
 if TYPE_CHECKING:
-    pass
+    from shared.solvers.resolved import ResolvedSolver
 
 #: Advantage_system4.1 ``problem_timing_data`` (August 2022), microseconds.
 ADVANTAGE_TIMING_DATA: dict[str, Any] = {
@@ -167,26 +166,28 @@ class QpuAccessMeter(Meter):
         if num_qubits is None:
             num_qubits = assumed_qubits(call.num_variables)
         # what the solver runs with when a parameter is not given (qpu-sim reads fewer than qpu)
-        params = {**schema_defaults(spec(call.solver_name).params), **(call.params or {})}
+        params = {**call.defaults, **(call.params or {})}
         return qpu_access_seconds(num_qubits, params, call.solver)
 
     def level_seconds(
-        self, solver_name: str, params: dict[str, Any], load: LevelLoad, solver: Any = None
+        self, solver: ResolvedSolver, params: dict[str, Any], load: LevelLoad, live: Any = None
     ) -> tuple[float, int | None]:
         whole = load.qubits if load.qubits is not None else assumed_qubits(load.variables)
         qubits = max(1, round(whole * load.kept))
         together = min(max(load.sent, 1), load.together)
         calls = -(-load.sent // together)
+        qubits_per_call = min(MAX_QUBITS, together * qubits)
         call = BundleCall(
-            solver_name, load.variables, params, min(MAX_QUBITS, together * qubits), None, solver
-        )
+            solver.name, load.variables, params, qubits_per_call, None, live,
+            schema_defaults(solver.spec.params),
+        )  # fmt: skip
         seconds = calls * self.bundle_seconds(call)
         return seconds, qubits
 
-    def timing_source(self, solver_name: str) -> Any:
+    def timing_source(self, solver: ResolvedSolver) -> Any:
         """The cloud solver behind a QPU adapter (its ``problem_timing_data``), None offline."""
         try:
-            adapter = get_solver(solver_name)
+            adapter = solver.sampler
         except Exception:  # a missing dependency: the offline model will do
             return None
         return adapter.timing_solver() if isinstance(adapter, LiveTiming) else None

@@ -1,6 +1,6 @@
 """What the D-Wave cloud's failures and logs need before anyone sees them: the API token masked in
 dwave-cloud-client's logs, and a failed request's endpoint and innermost cause named (the
-messages of :meth:`shared.solvers.dwave.LeapCloudSolver.translate`)."""
+messages of :func:`shared.solvers.qpu.leap.translate`)."""
 
 from __future__ import annotations
 

@@ -27,10 +27,10 @@ from shared.activity import report
 from shared.config import get_settings
 from shared.solvers.base import SolverError, SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
-from shared.solvers.embedding_cache import EmbeddingCache
-from shared.solvers.embedding_search import Embedding, is_valid_on
 from shared.solvers.params import MAX_BUNDLES_PER_CALL
-from shared.solvers.structure_keys import structure_digest
+from shared.solvers.qpu.embedding_cache import EmbeddingCache
+from shared.solvers.qpu.embedding_search import Embedding, is_valid_on
+from shared.solvers.qpu.structure_keys import structure_digest
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def copies(
 ) -> tuple[list[Embedding], str]:
     """Disjoint embeddings of ``bqm``'s structure on ``sampler``'s graph: found once per shape
     and target, then read from the store. On a Pegasus or Zephyr chip they are translations of
-    one embedding into a small sublattice (:mod:`shared.solvers.tile_embedding`: a seed and a
+    one embedding into a small sublattice (:mod:`shared.solvers.qpu.tile_embedding`: a seed and a
     budget of ``Settings.embedding_tries`` tries, so the same on a busy machine); the first
     copy then becomes the shape's embedding in ``cache``. Otherwise (another graph, or no
     sublattice embeds the shape in its tries) only ``first()``: one bundle per call.
@@ -98,7 +98,7 @@ def copies(
     source : str
         ``"memory"``, ``"store"`` or ``"computed"``.
     """
-    from shared.solvers.tile_embedding import translated_copies
+    from shared.solvers.qpu.tile_embedding import translated_copies
 
     digest = structure_digest(bqm)
     key = copies_key(target, digest)
@@ -206,8 +206,8 @@ def packed_copies(
         At least 1.
     """
     from shared.encodings import get_codec
-    from shared.solvers.bundle_shapes import bundle_digest
     from shared.solvers.meters.qpu import MAX_QUBITS, assumed_qubits
+    from shared.solvers.qpu.bundle_shapes import bundle_digest
 
     per_pixel = get_codec(config.encoding).variables_per_pixel(candidates)
     variables = shape[0] * shape[1] * per_pixel
@@ -280,7 +280,7 @@ def split(
 
 class PackedCalls:
     """What the QPU solvers add for a task's bundles: :meth:`solve_batch` (``shared.inference.qubo``
-    calls it with all of a task's bundles). Mixed into ``shared.solvers.dwave``'s QPU samplers,
+    calls it with all of a task's bundles). Mixed into ``shared.solvers.qpu.dwave``'s QPU samplers,
     whose methods (``composite``, ``sampler``, ``_timing``, ...) it uses."""
 
     simulated: bool
@@ -300,7 +300,7 @@ class PackedCalls:
 
     def solve_batch(self, problems: list[tuple], **params: Any) -> list[SolveResult]:
         """Solve bundles ``(bqm, seed, warm start or None)`` with as few QPU calls as their
-        shapes' disjoint embeddings allow (:mod:`shared.solvers.packing`): roof duality first on
+        shapes' disjoint embeddings allow (:mod:`shared.solvers.qpu.packing`): roof duality first on
         each; the rests of up to that many bundles of a shape in one call, each on its own copy
         restricted to its free variables; the call's access time shared by qubits.
 
@@ -388,7 +388,7 @@ class PackedCalls:
         from dwave.embedding.chain_breaks import majority_vote
         from dwave.system import FixedEmbeddingComposite
 
-        from shared.solvers.qpu_settings import chain_strength, reverse_anneal
+        from shared.solvers.qpu.qpu_settings import chain_strength, reverse_anneal
 
         rests = [r.rest for r in reductions if r.rest is not None]
         given = params.pop("chain_strength", None)

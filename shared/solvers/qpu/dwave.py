@@ -3,7 +3,7 @@
 The two differ only in the base sampler: ``DWaveSampler`` (token, solver, region and endpoint
 from :class:`shared.config.Settings`) or ``MockDWaveSampler`` on a Pegasus P16 graph, which runs
 steepest descent on the embedded problem offline. Everything else is shared: the embedding comes
-from :mod:`shared.solvers.embedding_cache` (found once per bundle structure), chain strength is
+from :mod:`shared.solvers.qpu.embedding_cache` (found once per bundle structure), chain strength is
 uniform torque compensation with the paper's prefactor 1.414, chains are resolved by majority
 vote, and the sample set is resolved inside the call. D-Wave reports microseconds; we report
 seconds. The mock's own timing is a fixed demonstration value, so ``qpu-sim`` reports instead
@@ -12,7 +12,7 @@ parameters (:func:`shared.solvers.meters.qpu.qpu_access_seconds`), marked ``simu
 what the service charges for it.
 
 The API token never leaves ``Settings``: it is passed to ``DWaveSampler`` and scrubbed from every
-message we raise or log.
+message we raise or log (:mod:`shared.solvers.qpu.leap`).
 """
 
 from __future__ import annotations
@@ -26,35 +26,28 @@ import dimod
 import numpy as np
 
 from shared.config import get_settings
-from shared.solvers.base import (
-    Availability,
-    SolverError,
-    SolverUnavailableError,
-    TransientSolverError,
-)
-from shared.solvers.bundle_shapes import auto_width_key, shape_bqm
-from shared.solvers.cloud_errors import cause, is_connection_error, reached, scrub_cloud_logs
+from shared.solvers.base import Availability, SolverError
 from shared.solvers.composites import (
     EMBEDDING_INFO,
     EmbeddingCacheComposite,
     Reduction,
     reduce,
 )
-from shared.solvers.embedding_cache import EmbeddingCache, default_cache
 from shared.solvers.meters.qpu import qpu_access_seconds
-from shared.solvers.packing import PackedCalls
 from shared.solvers.params import DEFAULT_NUM_READS  # noqa: F401 (one default, re-exported)
-from shared.solvers.problems import LabelledSampler
-from shared.solvers.qpu_settings import chain_strength, reverse_anneal
+from shared.solvers.qpu import leap
+from shared.solvers.qpu.bundle_shapes import auto_width_key, shape_bqm
+from shared.solvers.qpu.embedding_cache import EmbeddingCache, default_cache
+from shared.solvers.qpu.packing import PackedCalls
+from shared.solvers.qpu.qpu_settings import chain_strength, reverse_anneal
+from shared.solvers.qpu.structure_keys import graph_fingerprint
 from shared.solvers.sampler import Sampler
-from shared.solvers.structure_keys import graph_fingerprint
 
 log = logging.getLogger(__name__)
 
 MOCK_TOPOLOGY = ("pegasus", [16])
 #: ``timing_solver`` not looked up yet.
 _UNKNOWN = object()
-TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION)"
 
 
 def _seconds(timing: dict[str, Any]) -> dict[str, float]:
@@ -231,99 +224,7 @@ class _EmbeddedQPU(Sampler):
 
     def translate(self, error: Exception) -> SolverError:
         """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
-        from dwave.cloud import exceptions as cloud
-        from dwave.cloud.api import exceptions as api
-
-        detail = self._scrub(f"{type(error).__name__}: {error}")
-        if isinstance(error, cloud.SolverAuthenticationError | api.ResourceAuthenticationError):
-            return SolverUnavailableError(
-                f"{self.name}: D-Wave rejected the API token (authentication failed); check "
-                "DWAVE_API_TOKEN"
-            )
-        if isinstance(error, api.ResourceAccessForbiddenError):
-            return SolverUnavailableError(
-                f"{self.name}: access to the D-Wave solver is forbidden for this token "
-                "(check the project and solver access of the account)"
-            )
-        if isinstance(error, cloud.SolverNotFoundError):
-            return SolverUnavailableError(
-                f"{self.name}: no D-Wave solver matches the configuration "
-                f"(DWAVE_SOLVER / DWAVE_API_REGION): {detail}"
-            )
-        if isinstance(error, api.ResourceLimitsExceededError):
-            return TransientSolverError(
-                f"{self.name}: D-Wave rate limit reached (HTTP 429) at "
-                f"{self._scrub(reached(error))}; retry later"
-            )
-        if isinstance(error, cloud.SolverOfflineError):
-            return TransientSolverError(
-                f"{self.name}: the D-Wave solver is offline ({self._scrub(reached(error))}); "
-                "retry later"
-            )
-        if isinstance(
-            error,
-            api.RequestTimeout
-            | cloud.PollingTimeout
-            | cloud.ProblemUploadError
-            | api.InternalServerError
-            | TimeoutError
-            | ConnectionError,
-        ) or is_connection_error(error):
-            return TransientSolverError(
-                f"{self.name}: D-Wave did not answer in time, refused, or the connection "
-                f"failed: {self._scrub(reached(error))} ({self._scrub(cause(error))}); "
-                "retry later"
-            )
-        if isinstance(
-            error,
-            cloud.ProblemStructureError
-            | dimod.exceptions.BinaryQuadraticModelStructureError
-            | api.ResourceBadRequestError,
-        ):
-            return SolverError(
-                f"{self.name}: D-Wave refused the problem as too large or not fitting the solver "
-                f"({detail}); use smaller bundles (--bundle-height 1) or --encoding domain-wall"
-            )
-        if isinstance(error, cloud.ConfigFileError):
-            return SolverUnavailableError(f"{self.name}: invalid D-Wave configuration: {detail}")
-        return SolverError(f"{self.name}: D-Wave sampling failed: {detail}")
-
-    def _scrub(self, text: str) -> str:
-        secret = self._secret()
-        return text.replace(secret, "***") if secret else text
-
-
-class LeapCloudSolver(_EmbeddedQPU):
-    """A sampler of D-Wave's cloud (Leap): the token, solver, region and endpoint come from
-    ``Settings`` (``DWAVE_API_TOKEN``, ...); the token is scrubbed from every message."""
-
-    simulated = False
-
-    def available(self) -> Availability:
-        if get_settings().dwave_api_token is None:
-            return Availability(False, f"no D-Wave API token: {TOKEN_HELP}")
-        return Availability(True, "DWAVE_API_TOKEN configured")
-
-    def _secret(self) -> str | None:
-        token = get_settings().dwave_api_token
-        return token.get_secret_value() if token is not None else None
-
-    def _connect(self, factory, **options: Any):
-        """A Leap client sampler built with the token, region and endpoint of ``Settings``,
-        labelling its problems and logging their ids (:mod:`shared.solvers.problems`); the
-        token is scrubbed from the cloud client's loggers before and after."""
-        settings = get_settings()
-        if settings.dwave_api_token is None:
-            raise SolverUnavailableError(f"{self.name}: no D-Wave API token: {TOKEN_HELP}")
-        token = settings.dwave_api_token.get_secret_value()
-        if settings.dwave_region:
-            options["region"] = settings.dwave_region
-        if settings.dwave_endpoint:
-            options["endpoint"] = settings.dwave_endpoint
-        scrub_cloud_logs(token)
-        sampler = factory(token=token, **options)
-        scrub_cloud_logs(token)  # loggers of modules the client imported lazily
-        return LabelledSampler(sampler)
+        return leap.translate(self.name, error, self._secret())
 
 
 class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
@@ -354,7 +255,7 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
         self, *, encoding: str, candidates: int, shapes: list[tuple[int, int]]
     ) -> None:
         """Embed each bundle shape (rows, columns) of a level once, with its disjoint copies
-        (:func:`~shared.solvers.packing.copies`), before its bundles fan out, so that no two
+        (:func:`~shared.solvers.qpu.packing.copies`), before its bundles fan out, so that no two
         workers compute the same embedding at the same time."""
         try:
             for height, width in shapes:
@@ -365,8 +266,9 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
             raise self.translate(error) from None
 
 
-class QPUSolver(_SegmentsOnGraph, LeapCloudSolver):
-    """``qpu``: a D-Wave Advantage QPU through Leap (needs ``DWAVE_API_TOKEN``).
+class QPUSolver(_SegmentsOnGraph):
+    """``qpu``: a D-Wave Advantage QPU through Leap (needs ``DWAVE_API_TOKEN``; the token,
+    solver, region and endpoint from ``Settings`` by :mod:`~shared.solvers.qpu.leap`).
 
     Parameters: ``num_reads`` (default 500), ``annealing_time`` (us), ``chain_strength``
     (overrides torque compensation), ``anneal_schedule`` (for warm starts), and any other
@@ -374,12 +276,19 @@ class QPUSolver(_SegmentsOnGraph, LeapCloudSolver):
     """
 
     name = "qpu"
+    simulated = False
+
+    def available(self) -> Availability:
+        return leap.available()
+
+    def _secret(self) -> str | None:
+        return leap.secret()
 
     def _make_sampler(self):
         from dwave.system import DWaveSampler
 
         solver = get_settings().dwave_solver
-        return self._connect(DWaveSampler, **({"solver": solver} if solver else {}))
+        return leap.connect(self.name, DWaveSampler, **({"solver": solver} if solver else {}))
 
 
 class SimulatedQPUSolver(_SegmentsOnGraph):

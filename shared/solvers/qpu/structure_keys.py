@@ -2,8 +2,8 @@
 graph's fingerprint, and the store keys of embeddings and their sizes built from them.
 
 All bundles of a level share one graph, so embeddings are found, stored and looked up by these
-keys (:mod:`shared.solvers.embedding_cache`), and the estimates find an embedding's size by them
-before any sampler exists (:mod:`shared.solvers.bundle_shapes`).
+keys (:mod:`shared.solvers.qpu.embedding_cache`), and the estimates find an embedding's size by them
+before any sampler exists (:mod:`shared.solvers.qpu.bundle_shapes`).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ the estimate only has to be a sensible upper-ish bound; the charge is always the
 
 The cost of one call and how a level's bundles become calls are the solver's meter's
 (:mod:`shared.solvers.meters`), the shapes the levels' bundles take and their known embeddings
-:mod:`shared.solvers.bundle_shapes`'; this module walks the planned levels and asks them. The
+:mod:`shared.solvers.qpu.bundle_shapes`'; this module walks the planned levels and asks them. The
 meters' names are re-exported here, where the service and the tests have always imported the
 model from.
 """
@@ -24,15 +24,6 @@ from shared.inference.table import settles
 from shared.pyramid import level_shape, plan
 from shared.residual import LevelResidual
 from shared.settle import TILE, tiles_of
-from shared.solvers.bundle_shapes import (
-    AUTO_VARIABLES_GUESS,
-    auto_width_key,
-    bundle_digest,
-    known_embedding,
-    segment_width,
-    shape_bqm,
-)
-from shared.solvers.embedding_cache import EmbeddingCache
 from shared.solvers.meters import (
     LevelLoad,
     Meter,
@@ -55,9 +46,18 @@ from shared.solvers.meters.qpu import (
     assumed_qubits,
     qpu_access_seconds,
 )
-from shared.solvers.packing import packed_copies
-from shared.solvers.qpu_settings import reverse_anneal
-from shared.solvers.registry import uses_warm_start
+from shared.solvers.qpu.bundle_shapes import (
+    AUTO_VARIABLES_GUESS,
+    auto_width_key,
+    bundle_digest,
+    known_embedding,
+    segment_width,
+    shape_bqm,
+)
+from shared.solvers.qpu.embedding_cache import EmbeddingCache
+from shared.solvers.qpu.packing import packed_copies
+from shared.solvers.qpu.qpu_settings import reverse_anneal
+from shared.solvers.registry import resolve
 
 __all__ = [
     "ADVANTAGE_TIMING_DATA",
@@ -236,7 +236,8 @@ def level_estimate(
         segments = len(segment_columns(width, columns, config.bundle_margin))
         bundles = views * len(rows) * segments
     variables = tallest * columns * get_codec(config.encoding).variables_per_pixel(candidates)
-    params = sampler_params(config.solver_params, warm=uses_warm_start(config))
+    resolved = resolve(config)
+    params = sampler_params(config.solver_params, warm=resolved.warm_start)
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
@@ -259,7 +260,7 @@ def level_estimate(
                 else 1
             ),
         )
-        seconds, qubits = meter.level_seconds(config.solver, params, load)
+        seconds, qubits = meter.level_seconds(resolved, params, load)
     return LevelEstimate(
         index=index,
         shape=(height, width),
@@ -322,7 +323,8 @@ def _call_basis(inputs, config: MatchConfig) -> tuple[Meter, int, int, dict[str,
         return None
     labels = inputs.candidates.shape[2]
     per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
-    return meter, labels, per_pixel, sampler_params(config.solver_params, uses_warm_start(config))
+    warm = resolve(config).warm_start
+    return meter, labels, per_pixel, sampler_params(config.solver_params, warm)
 
 
 def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None = None) -> float:
@@ -346,7 +348,7 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     float
         Seconds to reserve for the bundle.
     """
-    from shared.solvers.embedding_cache import default_cache
+    from shared.solvers.qpu.embedding_cache import default_cache
 
     basis = _call_basis(inputs, config)
     if basis is None:
@@ -359,7 +361,7 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     embedding = known_embedding(
         default_cache(), config.solver, config.encoding, (stop - start, width), labels
     )
-    live = meter.timing_source(config.solver)
+    live = meter.timing_source(resolve(config))
     return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
 
 
@@ -389,11 +391,12 @@ def batch_estimate(inputs, config, bundles: list) -> float:
     if not meter.embeds:  # one load: every bundle's variables
         pixels = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
         load = LevelLoad(bundles=1, sent=1, variables=pixels * per_pixel)
-        return meter.level_seconds(config.solver, params, load)[0]
-    from shared.solvers.embedding_cache import default_cache
+        return meter.level_seconds(resolve(config), params, load)[0]
+    from shared.solvers.qpu.embedding_cache import default_cache
 
     cache = default_cache()
-    live = meter.timing_source(config.solver)
+    resolved = resolve(config)
+    live = meter.timing_source(resolved)
     groups: dict[tuple[int, int], list] = {}
     for bundle in bundles:
         groups.setdefault(bundle.shape, []).append(bundle)
@@ -407,5 +410,5 @@ def batch_estimate(inputs, config, bundles: list) -> float:
             qubits=size.qubits if size else None,
             together=packed_copies(cache, config, shape, labels),
         )
-        seconds += meter.level_seconds(config.solver, params, load, solver=live)[0]
+        seconds += meter.level_seconds(resolved, params, load, live=live)[0]
     return seconds

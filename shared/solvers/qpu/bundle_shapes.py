@@ -3,8 +3,9 @@ embedding size a worker recorded for it, and the segment width ``--bundle-width 
 
 A bundle's QUBO graph depends only on its shape (rows, columns, candidates, encoding), never on
 its costs, so embeddings are found and recorded per shape; the estimates
-(:mod:`shared.solvers.qpu_time`), the QPU adapters (:mod:`shared.solvers.dwave`) and the packing
-of bundles into one call (:mod:`shared.solvers.packing`) all key them the same way here.
+(:mod:`shared.solvers.meters.qpu_time`), the QPU adapters (:mod:`shared.solvers.qpu.dwave`) and
+the packing of bundles into one call (:mod:`shared.solvers.qpu.packing`) all key them the same
+way here.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ import numpy as np
 from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs
-from shared.solvers.embedding_cache import EmbeddingCache, EmbeddingSize
 from shared.solvers.meters import embeds
 from shared.solvers.meters.qpu import MAX_QUBITS, QUBITS_PER_VARIABLE
-from shared.solvers.structure_keys import structure_digest
+from shared.solvers.qpu.embedding_cache import EmbeddingCache, EmbeddingSize
+from shared.solvers.qpu.structure_keys import structure_digest
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +70,7 @@ def bundle_digest(encoding: str, height: int, width: int, candidates: int) -> st
     Returns
     -------
     str
-        The :func:`~shared.solvers.structure_keys.structure_digest` (cached per shape).
+        The :func:`~shared.solvers.qpu.structure_keys.structure_digest` (cached per shape).
     """
     return structure_digest(shape_bqm(encoding, height, width, candidates))
 
@@ -147,7 +148,7 @@ def auto_width_key(
     Returns
     -------
     str
-        A key for :meth:`~shared.solvers.embedding_cache.EmbeddingCache.record_width`.
+        A key for :meth:`~shared.solvers.qpu.embedding_cache.EmbeddingCache.record_width`.
     """
     return f"{solver_name}-{encoding}-{height}x{row_width}-{candidates}-{margin}"
 

@@ -26,8 +26,8 @@ from typing import Any
 
 import dimod
 
-from shared.solvers.embedding_search import Embedding
-from shared.solvers.structure_keys import structure_digest, structure_edges
+from shared.solvers.qpu.embedding_search import Embedding
+from shared.solvers.qpu.structure_keys import structure_digest, structure_edges
 
 log = logging.getLogger(__name__)
 

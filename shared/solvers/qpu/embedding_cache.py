@@ -15,8 +15,8 @@ A store is anything with ``get(key) -> str | None`` and ``set(key, value: str) -
 Next to each embedding the cache keeps its *size* (qubits, chains, longest chain) under a key made
 of the solver's name and the structure digest, so that QPU time can be estimated from the real
 embedding before any sampler (or network connection) exists, e.g. in the API at submit time.
-The keys are :mod:`shared.solvers.structure_keys`' and the search
-:mod:`shared.solvers.embedding_search`'; this module keeps what the search found.
+The keys are :mod:`shared.solvers.qpu.structure_keys`' and the search
+:mod:`shared.solvers.qpu.embedding_search`'; this module keeps what the search found.
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ import dimod
 
 from shared.activity import report
 from shared.config import get_settings
-from shared.solvers.embedding_search import Embedding, find_embedding, is_valid_on
 from shared.solvers.errors import SolverError
-from shared.solvers.structure_keys import (  # noqa: F401 (re-exported: the cache's keys)
+from shared.solvers.qpu.embedding_search import Embedding, find_embedding, is_valid_on
+from shared.solvers.qpu.structure_keys import (  # noqa: F401 (re-exported: the cache's keys)
     graph_fingerprint,
     size_key,
     structure_digest,
@@ -169,7 +169,7 @@ class EmbeddingCache:
         #: again for every bundle of the level (not persisted: a longer timeout may succeed).
         self._failures: dict[str, str] = {}
         self._sizes: dict[str, EmbeddingSize] = {}
-        #: Disjoint copies of a shape per key (``shared.solvers.packing.copies``).
+        #: Disjoint copies of a shape per key (``shared.solvers.qpu.packing.copies``).
         self.copies: dict[str, list[Embedding]] = {}
         self._lock = threading.Lock()
         #: Embeddings this process computed (not found in memory or the store), for reports.

@@ -1,6 +1,6 @@
 """Finding a minor embedding of a bundle's graph on a QPU graph (minorminer) and checking one.
 
-The search is the slow part of using a QPU (:mod:`shared.solvers.embedding_cache` says how slow
+The search is the slow part of using a QPU (:mod:`shared.solvers.qpu.embedding_cache` says how slow
 and keeps what it finds); its failures are :class:`~shared.solvers.base.SolverError` messages
 that say what to change.
 """
@@ -13,7 +13,7 @@ import time
 import dimod
 
 from shared.solvers.errors import SolverError
-from shared.solvers.structure_keys import structure_edges
+from shared.solvers.qpu.structure_keys import structure_edges
 
 log = logging.getLogger(__name__)
 

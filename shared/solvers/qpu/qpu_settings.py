@@ -1,7 +1,7 @@
 """What a QPU call is sent with besides the problem: the chain strength and, for a warm start,
-the reverse anneal. The adapter (:mod:`shared.solvers.dwave`), the packed calls
-(:mod:`shared.solvers.packing`) and the estimates (:mod:`shared.solvers.qpu_time`) read them here,
-so an estimate prices the call that is made.
+the reverse anneal. The adapter (:mod:`shared.solvers.qpu.dwave`), the packed calls
+(:mod:`shared.solvers.qpu.packing`) and the estimates (:mod:`shared.solvers.meters.qpu_time`)
+read them here, so an estimate prices the call that is made.
 """
 
 from __future__ import annotations
