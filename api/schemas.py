@@ -106,6 +106,13 @@ class LevelTiming(BaseModel):
         "answer lowered the energy and replaced the host's (tiles_improved, pixels_improved), "
         "and the host's seconds; null for other solvers",
     )
+    termination: str | None = Field(
+        None,
+        description="Why the level's minimisation stopped: optimal (every bundle proven "
+        "optimal), gap (a grid reached dual_gap), iterations (a grid reached dual_iterations), "
+        "sampled (the QUBO solver's answers), settled (the host settled every pixel, nothing "
+        "sent); null from an older worker",
+    )
     provenance_counts: dict[str, int] | None = Field(
         None,
         description="The level's pixels (every view) per stage that decided them as solved "

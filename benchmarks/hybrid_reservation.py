@@ -19,6 +19,7 @@ import cv2
 from shared import settle
 from shared.config import MatchConfig
 from shared.images import load_pair
+from shared.inference import settles
 from shared.pipeline import match_views, plan_run, prepare_level
 from shared.residual import job_residual
 from shared.solvers.meters import qpu_time
@@ -37,7 +38,7 @@ def row(scale: float, max_disparity: int) -> str:
     _, plans = plan_run(left, right, config)
     inputs = prepare_level(*match_views(left, right, config), config, plans[0])
     sent = config
-    if settle.settles(config):  # as the control task does: the tiles the host leaves
+    if settles(config):  # as the control task does: the tiles the host leaves
         settle.prepare(inputs, config)
         sent = settle.tile_config(config)
     before = qpu_time.batch_estimate(inputs, sent, inputs.planned_bundles(sent))

@@ -22,8 +22,8 @@ from qpu_economy import halved
 from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
+from shared.inference import solve_level_in_process
 from shared.pipeline import run_pipeline
-from shared.solve import solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.exact import solve_chains
 from shared.solvers.meters import qpu_time

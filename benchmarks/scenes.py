@@ -12,9 +12,9 @@ import numpy as np
 
 from shared.config import MatchConfig
 from shared.datasets import Scene, default_middlebury_dir, load_scene
+from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
-from shared.solve import solve_level_in_process
 
 #: The ranges the targets are quoted for (PROVENANCE.md; Cones' disparities reach 55 px).
 MAX_DISPARITY = {"tsukuba": 16, "venus": 20, "cones": 60}

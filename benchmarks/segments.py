@@ -31,9 +31,9 @@ from shared.bundles import owned_columns, segment_columns
 from shared.config import Encoding, MatchConfig
 from shared.datasets import Scene, default_middlebury_dir
 from shared.energy import Costs, mrf_energy
+from shared.inference import solve_bundles
 from shared.metrics import evaluate
 from shared.pipeline import run_pipeline
-from shared.solve import solve_bundles
 from shared.solvers.exact import solve_chains
 
 MARGIN = 12

@@ -21,8 +21,8 @@ from benchmarks.grid_energy import find_scene
 from shared.config import MatchConfig
 from shared.grid import DualResult, GridMRF, dual_decomposition
 from shared.grid_inference import trws
+from shared.inference import solve_level_in_process
 from shared.pipeline import run_pipeline
-from shared.solve import solve_level_in_process
 
 
 def timed(method, grid: GridMRF, config: MatchConfig) -> tuple[float, DualResult]:

@@ -1,6 +1,7 @@
 """Putting a level back together: bundle results (labels, energy, solver report) into one label
 map, row segments stitched where each pixel lies farthest from a cut, and a per-level summary of
-the embeddings used. The in-process loop and the service's fan-in both call :func:`assemble`."""
+the embeddings used. Every level inference's ``assemble`` (:mod:`shared.inference`) starts from
+:func:`assemble`, in process and in the service's fan-in alike."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from itertools import pairwise
 import numpy as np
 
 from shared.bundles import owned_columns
-from shared.config import Inference, MatchConfig
+from shared.config import MatchConfig
 from shared.energy import mrf_energy
 from shared.level_inputs import LevelInputs
 from shared.provenance_map import Stage
@@ -58,6 +59,8 @@ class LevelSolution:
     lower_bound: float | None = None
     #: The residual design's counts (:class:`shared.settle.Residual`), None without it.
     residual: dict | None = None
+    #: Why the level's minimisation stopped (:class:`shared.inference.base.Termination`).
+    termination: str | None = None
     #: What decided each pixel of the level (:class:`shared.provenance_map.Stage`, uint8).
     stages: np.ndarray | None = None
 
@@ -69,8 +72,9 @@ def assemble(
 
     Row segments are stitched (:func:`shared.bundles.owned_columns`: each pixel from the segment
     in which it lies farthest from a cut). The level's energy is the sum of the bundles' own;
-    for stitched rows it is that of the stitched labels, and for the tiles of ``grid`` inference
-    that of the whole grid, which need ``config`` for the costs.
+    for stitched rows it is that of the stitched labels, which need ``config`` for the costs
+    (grid tiles price the level on the whole grid themselves:
+    :class:`shared.inference.qubo_tiles.QuboTiles`).
 
     Parameters
     ----------
@@ -129,16 +133,6 @@ def assemble(
             f"{doubled[:10]} (counting rows with any such pixel)"
         )
     bounds = [r.lower_bound for r in results]
-    if config is not None and config.inference is Inference.GRID and None in bounds:
-        # tiles priced their edges to the tiles around against starting labels: the level's
-        # energy is that of the assembled labels on the whole grid
-        height = inputs.view_height
-        energy = sum(
-            inputs.grid(config, view * height, (view + 1) * height).energy(
-                labels[view * height : (view + 1) * height]
-            )
-            for view in range(inputs.views)
-        )
     return LevelSolution(
         labels=labels,
         lower_bound=None if None in bounds else float(sum(b for b in bounds if b is not None)),
@@ -173,7 +167,7 @@ def embedding_summary(results: list[BundleResult], prepared: dict | None = None)
     results : list of BundleResult
         The level's bundle results.
     prepared : dict, optional
-        What :func:`level_bundles` recorded (``LevelInputs.prepared``).
+        What the level inference's ``plan`` recorded (``LevelInputs.prepared``).
 
     Returns
     -------

@@ -20,7 +20,6 @@ from shared.exit_codes import EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
 # pydantic or numpy load is one line too), and `qhsm --help` starts fast.
 
 
-
 DESCRIPTION = (
     "Quantum-hybrid stereo matching: disparity maps from rectified stereo pairs, in this process "
     "(match, eval, bench) or through the job service (serve, submit, admin). "

@@ -1,6 +1,6 @@
 """The inputs of one level: everything needed to build any bundle of it (the level's images, both
 views stacked, and its candidate array), and the bundles it is cut into. Workers receive this;
-:mod:`shared.solve` turns its bundles into QUBOs and solutions."""
+:mod:`shared.inference` cuts it into bundles and solves them."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from shared.pyramid import LevelPlan
 #: block's (D + 1) x rows x w float32 within this.
 VOLUME_BLOCK_BYTES = 64 * 2**20
 
-#: A bundle as given to :func:`shared.solve.solve_bundles`: a :class:`Bundle`, a row range
+#: A bundle as given to :func:`shared.inference.solve_bundles`: a :class:`Bundle`, a row range
 #: ``(row_start, row_stop)`` (whole rows) or ``(row_start, row_stop, col_start, col_stop)``.
 BundleSpec = Bundle | Sequence[int]
 
@@ -51,7 +51,7 @@ class LevelInputs:
     #: The bin width of ``volumes``: a level whose width is a multiple reads its bins from them
     #: (a bin's minimum is the minimum of its sub-bins' minima: the very values).
     volume_bin_width: int = 1
-    #: What preparing the bundles did (:func:`level_bundles`): segment width, embeddings.
+    #: What planning the bundles did (``LevelInference.plan``): segment width, embeddings.
     prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
 
@@ -161,8 +161,8 @@ class LevelInputs:
         ]
 
     def planned_bundles(self, config: MatchConfig) -> list[Bundle]:
-        """The bundles :func:`level_bundles` chose for this level (its width is kept in
-        ``prepared``), without searching or embedding again.
+        """The bundles of ``bundle_height`` rows and ``bundle_width`` a strategy's ``plan`` chose
+        for this level (kept in ``prepared``), without searching or embedding again.
 
         Parameters
         ----------
@@ -173,17 +173,11 @@ class LevelInputs:
         -------
         list of Bundle
         """
-        if "settle" in self.prepared:  # the residual design's tiles (shared.settle)
-            return self.residual_tiles()
         width = self.prepared.get("bundle_width")
         if width is not None and width >= self.shape[1]:
             width = None
         height = self.prepared.get("bundle_height", config.bundle_height)
         return self.bundles(height, width, config.bundle_margin)
-
-    def residual_tiles(self) -> list[Bundle]:
-        """The tiles :func:`shared.settle.prepare` chose (empty when every pixel is settled)."""
-        return [Bundle(*tile) for tile in self.prepared["settle"]["tile_list"]]
 
     def as_bundle(self, spec: BundleSpec) -> Bundle:
         """A :class:`Bundle` from a bundle or a row range (whole rows).

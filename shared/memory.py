@@ -5,7 +5,8 @@ memory shared among the host's worker processes).
 The estimate is fitted to measured peaks (docs/benchmarks.md, "Memory of a job: calibration"):
 a process's base (Python, numpy, numba, OpenCV), the cost volume cache, and bytes per
 pixel-candidate of the largest level a process holds (both views at once while their dual state
-fits in ``shared.solve.GRID_STATE_BYTES``, one after the other beyond) times a solver factor.
+fits in ``shared.inference.grid_views.GRID_STATE_BYTES``, one after the other beyond) times a
+solver factor.
 """
 
 from __future__ import annotations

@@ -33,15 +33,15 @@ from shared.data_terms import cost_volume
 from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
 from shared.finishing import finish_level, finish_maps, level_stages
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
+from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solve import solve_level_in_process
 
 SolveLevel = Callable[..., LevelSolution]
-"""``(inputs, config[, progress=shared.solve.BundleProgress]) -> LevelSolution``: one level."""
+"""``(inputs, config[, progress=shared.inference.BundleProgress]) -> LevelSolution``: one level."""
 Progress = Callable[[int, int, int, int], None]
 """``(level, levels, units done, units total)``: the 1-based level being solved, the run's
-levels, and the level's :data:`shared.solve.BundleProgress`."""
+levels, and the level's :data:`shared.inference.BundleProgress`."""
 
 #: In process, the views' aggregated cost volumes are computed once for all levels when together
 #: they are at most this large; larger volumes are kept binned at the finest level width that
@@ -78,6 +78,8 @@ class LevelReport:
     #: A QUBO solver's residual design (:class:`shared.settle.Residual`): pixels the host
     #: certified, tiles and pixels sent, tiles and pixels the solver improved; None otherwise.
     residual: dict | None = None
+    #: Why the level's minimisation stopped (:class:`shared.inference.Termination`).
+    termination: str | None = None
     #: Pixels of the level (every view) per stage that decided them as solved
     #: (:func:`shared.provenance_map.counts`; the final map's are the finest level's).
     provenance_counts: dict[str, int] | None = None
@@ -297,6 +299,7 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
         timing=solution.timing,
         info=solution.info,
         residual=solution.residual,
+        termination=solution.termination,
         provenance_counts=None
         if solution.stages is None
         else provenance_map.counts(solution.stages),
@@ -323,7 +326,7 @@ def run_pipeline(
     solve_level : callable, optional
         ``(LevelInputs, MatchConfig) -> LevelSolution``; default: in process. With
         ``progress`` it is also given ``progress=``, the level's
-        :data:`shared.solve.BundleProgress`.
+        :data:`shared.inference.BundleProgress`.
     progress : callable, optional
         A :data:`Progress`: called as bundles of a level are solved (as often as
         ``solve_level`` reports) and once more when the level is done.

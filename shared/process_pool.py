@@ -1,5 +1,6 @@
 """A ``solve_level`` over local worker processes (``qhsm match --processes``, the benchmarks):
-the same bundles and seeds as :func:`shared.solve.solve_level_in_process`, so the same result."""
+the same bundles and seeds as :func:`shared.inference.solve_level_in_process`, so the same
+result."""
 
 from __future__ import annotations
 
@@ -14,12 +15,9 @@ from multiprocessing import get_context
 from multiprocessing.pool import Pool
 
 from shared.assembly import BundleResult, LevelSolution
-from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
+from shared.inference import BundleProgress, inference_for, solve_bundles, solve_level_in_process
 from shared.level_inputs import LevelInputs
-from shared.settle import assemble_level
-from shared.solve import BundleProgress, solve_bundles, solve_level_in_process
-from shared.solvers.registry import resolve
 from shared.threads import limit_threads, thread_budget
 
 
@@ -27,8 +25,9 @@ class ProcessPoolLevelSolver:
     """A ``solve_level`` that spreads a level's bundles over local worker processes.
 
     Bundles are independent and seeded by position, so the result equals the sequential one.
-    Row solvers (the exact DP) are vectorised over rows already and run in this process; the
-    pool is started by the first level that needs it (never for them: idle children cost a
+    A level whose inference does not split (``LevelInference.splits``: the exact DP's,
+    vectorised over rows already; a batch solver's, one problem a level) runs in this process;
+    the pool is started by the first level that needs it (never for them: idle children cost a
     second of CPU to start). Use as a context manager so the pool lives across levels. The
     children ignore Ctrl-C (SIGINT reaches the whole process group): the parent terminates them
     when it leaves the block on an exception.
@@ -64,14 +63,11 @@ class ProcessPoolLevelSolver:
     def __call__(
         self, inputs: LevelInputs, config: MatchConfig, progress: BundleProgress | None = None
     ) -> LevelSolution:
-        if (
-            self.processes <= 1
-            or resolve(config).kind != "qubo"
-        ):
-            # a batch solver sends the level as one problem (split, it would be billed per part)
+        inference = inference_for(config)
+        if self.processes <= 1 or not inference.splits:
             return solve_level_in_process(inputs, config, progress)
         pool = self._started()
-        bundles = level_bundles(inputs, config)
+        bundles = inference.plan(inputs, config)
         count = self.processes * 4
         # consecutive bundles stay together: segments of one row then share its costs
         size = -(-len(bundles) // count)
@@ -85,7 +81,7 @@ class ProcessPoolLevelSolver:
             results.extend(chunk_results)
             if progress is not None:
                 progress(len(results), len(bundles))
-        return assemble_level(inputs, results, config)
+        return inference.assemble(inputs, results, config)
 
 
 @contextmanager

@@ -1,12 +1,12 @@
 """The provenance map: which stage decided each pixel of the final disparity.
 
-One small code per pixel (uint8, :class:`Stage`). A bundle's solver path gives its pixels a
-code as it solves them (:mod:`shared.solve`), the level's assembly places them as it places the
-labels (:mod:`shared.assembly`; the residual design's :func:`shared.settle.merge` starts from
-the host's codes and gives a tile's codes only where the tile's answer was kept), the level's
-median marks what it changed, and the finishing step (:mod:`shared.finishing`) carries the
-finest level's codes to full resolution and marks what the left-right check filled and what the
-final filters moved.
+One small code per pixel (uint8, :class:`Stage`). A bundle's level inference gives its pixels
+a code as it solves them (each strategy of :mod:`shared.inference`), the level's assembly
+places them as it places the labels (:mod:`shared.assembly`; the residual design's
+:func:`shared.settle.merge` starts from the host's codes and gives a tile's codes only where
+the tile's answer was kept), the level's median marks what it changed, and the finishing step
+(:mod:`shared.finishing`) carries the finest level's codes to full resolution and marks what the
+left-right check filled and what the final filters moved.
 
 Rule: the finest level decides. A coarser level only narrows the finer level's candidates and
 warm-starts it; the finer level's solve decides the label, so its codes replace the coarser

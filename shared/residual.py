@@ -60,17 +60,20 @@ def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelR
     bundles: with ``certify_tiles`` only the tiles the host leaves unsettled (:mod:`shared.settle`),
     roof duality fixing what it proves of them."""
     from shared import settle
+    from shared.inference import inference_for, settles
+    from shared.inference.qubo import QuboStrategy
 
+    inference = inference_for(config)
+    assert isinstance(inference, QuboStrategy)  # a metered solver's
     share = 1.0  # of the level's bundles the sampled ones stand for
-    if settle.settles(config):  # the host settles the level; only tiles around the rest go
+    if settles(config):  # the host settles the level; only tiles around the rest go
         saved = inputs.initial_labels, inputs.prepared
         inputs.prepared = {}
         certified = settle.prepare(inputs, config).certified
-        bundles = inputs.residual_tiles()
+        bundles = settle.tiles(inputs)
         share = len(bundles) / settle.tiles_of(inputs.view_height, inputs.shape[1], inputs.views)
-        config = settle.tile_config(config)
         try:
-            found = _reduced(inputs, config, bundles, limit) if bundles else None
+            found = _reduced(inputs, inference, config, bundles, limit) if bundles else None
         finally:
             inputs.initial_labels, inputs.prepared = saved
         if found is None:
@@ -83,22 +86,21 @@ def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelR
             tiles=len(bundles),
             certified=certified,
         )
-    return _reduced(
-        inputs, config, inputs.bundles(config.bundle_height, width, config.bundle_margin), limit
-    )
+    bundles = inputs.bundles(config.bundle_height, width, config.bundle_margin)
+    return _reduced(inputs, inference, config, bundles, limit)
 
 
-def _reduced(inputs, config: MatchConfig, bundles: list, limit: int) -> LevelResidual:
-    """Roof duality on an evenly spread sample of at most ``limit`` of ``bundles``."""
+def _reduced(inputs, inference, config: MatchConfig, bundles: list, limit: int) -> LevelResidual:
+    """Roof duality on an evenly spread sample of at most ``limit`` of ``bundles``, encoded as
+    ``inference`` (a ``QuboStrategy``) sends them."""
     from shared.encodings import get_codec
-    from shared.solve import encoded_bundles
     from shared.solvers.composites import reduce
 
     picked = np.unique(np.linspace(0, len(bundles) - 1, min(limit, len(bundles))).astype(int))
     preprocess = config.solver_params.get("preprocess", "roof-duality")
     codec = get_codec(config.encoding)
     variables, left, sent, sent_variables, sent_left = 0, 0, 0, 0, 0
-    for problem in encoded_bundles(inputs, config, [bundles[i] for i in picked]):
+    for problem in inference.problems(inputs, config, [bundles[i] for i in picked]):
         height, columns, labels = problem.costs.unary.shape
         n = height * columns * codec.variables_per_pixel(labels)
         m = int(reduce(problem.bqm, preprocess).free.size)
@@ -141,8 +143,8 @@ def survey(
     list of LevelResidual
         One per level, coarsest first.
     """
+    from shared.inference import solve_level_in_process
     from shared.pipeline import run_pipeline
-    from shared.solve import solve_level_in_process
 
     exact = config.model_copy(
         update={
@@ -205,7 +207,7 @@ def job_residual(
     -------
     list of LevelResidual or None
     """
-    from shared.settle import settles
+    from shared.inference import settles
     from shared.solvers.meters import is_metered
 
     classical = config.solver_params.get("preprocess") != "none" or settles(config)

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.assembly import BundleResult, LevelSolution, assemble, embedding_summary
+from shared.assembly import BundleResult, LevelSolution, embedding_summary
 from shared.bundles import Bundle
 from shared.config import MatchConfig
 from shared.energy import Costs
@@ -75,12 +75,14 @@ class Residual:
         }
 
 
-def settles(config: MatchConfig) -> bool:
-    """Whether a level runs the residual design: ``grid`` inference with a QUBO solver (not a
-    row solver, which solves whole views itself) and ``certify_tiles`` (the default)."""
-    from shared.solvers.registry import resolve
+def settled(inputs: LevelInputs) -> bool:
+    """Whether the host settled the level (:func:`prepare` recorded its plan)."""
+    return "settle" in inputs.prepared
 
-    return resolve(config).certifies_tiles
+
+def tiles(inputs: LevelInputs) -> list[Bundle]:
+    """The tiles :func:`prepare` chose (empty when every pixel is settled)."""
+    return [Bundle(*tile) for tile in inputs.prepared["settle"]["tile_list"]]
 
 
 def tile_config(config: MatchConfig) -> MatchConfig:
@@ -238,16 +240,6 @@ def pin(costs: Costs) -> float:
         (float(pair.max()) for pair in (costs.pair_h, costs.pair_v) if pair.size), default=0.0
     )
     return 1.1 * (float(np.ptp(costs.unary)) + 4 * edges) + 1e-6
-
-
-def assemble_level(
-    inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
-) -> LevelSolution:
-    """The level from its bundles' results: :func:`merge` when the host settled it (the
-    residual design), else :func:`shared.assembly.assemble` (every pixel from one bundle)."""
-    if "settle" in inputs.prepared:
-        return merge(inputs, results, config)
-    return assemble(inputs, results, config)
 
 
 def merge(inputs: LevelInputs, results: list[BundleResult], config: MatchConfig) -> LevelSolution:

@@ -10,6 +10,7 @@ import numpy as np
 
 from shared.assembly import BundleResult
 from shared.config import MatchConfig, Settings
+from shared.inference import inference_for
 from shared.level_inputs import LevelInputs
 from shared.solvers.meters import meter_for
 from shared.solvers.qpu.packing import MAX_COPIES
@@ -17,8 +18,9 @@ from shared.solvers.qpu.packing import MAX_COPIES
 #: Bundles as JSON-friendly lists: [row_start, row_stop] (whole rows, from older tasks) or
 #: [row_start, row_stop, col_start, col_stop].
 RowRanges = list[list[int]]
-#: The solver's report fields a bundle carries back for the level's summary.
-BUNDLE_INFO = ("embedding_cache", "qubits", "longest_chain")
+#: The solver's report fields a bundle carries back for the level's summary (and a grid's
+#: termination: ``shared.inference.grid_views.termination``).
+BUNDLE_INFO = ("embedding_cache", "qubits", "longest_chain", "dual_iterations", "disagreeing")
 
 
 def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) -> list[RowRanges]:
@@ -31,12 +33,13 @@ def task_chunks(inputs: LevelInputs, config: MatchConfig, rows_per_task: int) ->
     Leap bills its minimum time per problem, so splitting the level would multiply the bill). A
     retried task re-sends its own bundles only.
     """
-    bundles = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
+    bundles = [bundle.as_list() for bundle in inference_for(config).planned(inputs, config)]
     return group_bundles(bundles, config, rows_per_task)
 
 
 def is_planned(inputs: LevelInputs) -> bool:
-    """Whether the level's bundles were planned (``level_bundles`` recorded their width)."""
+    """Whether the level's bundles were planned (``LevelInference.plan`` recorded their
+    width)."""
     return "bundle_width" in inputs.prepared
 
 

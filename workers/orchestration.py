@@ -11,7 +11,8 @@
                               its chord, or finish_maps() (+ metrics) and store the result
 
 No task ever waits for another: each level's callback launches the next level. The level logic
-is ``shared.pipeline``'s and ``shared.solve``'s; this module only moves data between them.
+is ``shared.pipeline``'s and the level inference's (``shared.inference``: planned, solved
+and assembled by the strategy its table chooses); this module only moves data between them.
 The tasks stay together because each hands the next its data; the job's state changes are
 ``JobRecord``'s pure methods (``workers/records.py``), applied by ``JobStore.apply``.
 """
@@ -27,22 +28,20 @@ from functools import partial
 import numpy as np
 from celery import Celery, chain, chord
 
-from shared import pyramid, settle
+from shared import pyramid
 from shared.activity import reporting
 from shared.assembly import BundleResult
-from shared.bundle_plan import level_bundles
 from shared.bundles import bundle_key
 from shared.config import MatchConfig, Settings
 from shared.disparity_range import resolve_max_disparity
 from shared.finishing import finish_level, finish_maps, level_stages
+from shared.inference import inference_for
 from shared.level_inputs import LevelInputs
 from shared.memory import VOLUME_CACHE_MB, check_fits, job_memory_mb, worker_budget_mb
 from shared.metrics import evaluate
 from shared.pipeline import confidence_map, match_views, prepare_level, report
 from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
-from shared.settle import assemble_level, tile_config
-from shared.solve import solve_bundles
 from shared.solvers.qpu.problems import sent_problems, task_label
 from shared.solvers.registry import resolve
 from workers import fair
@@ -147,22 +146,17 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     them it is a task on the solver's own queue (:func:`plan_level`), followed by
     :func:`fan_out_level` here."""
     config = record.config
+    inference = inference_for(config)
     started = time.time()
-    solver = resolve(config)
-    remote = solver.plans_with_solver
-    phase = partial(store.set_phase, record.id, inputs.index)
-    if solver.certifies_tiles:  # the host settles the level here; its labels go with the inputs
-        phase("settling the level on the host (dual decomposition of each view)")
-        counts = settle.prepare(inputs, config)
-        log.info(
-            "job %s: level %d settled on the host in %.1f s: %d of %d pixels unsettled, "
-            "%d tiles to send",
-            record.id, inputs.index + 1, counts.host_seconds, counts.unsettled, counts.pixels,
-            counts.tiles,
-        )  # fmt: skip
-    if not remote:
-        with reporting(phase):
-            level_bundles(inputs, config)  # sets inputs.prepared: the bundles' width
+    remote = inference.plans_with_solver
+    # the host's step (the residual design settles the level): its labels go with the inputs;
+    # the strategy reports what it does as the level's phase (shared.activity)
+    with reporting(partial(store.set_phase, record.id, inputs.index)):
+        done = inference.prepare(inputs, config)
+        if done is not None:
+            log.info("job %s: level %d %s", record.id, inputs.index + 1, done)
+        if not remote:
+            inference.plan(inputs, config)  # sets inputs.prepared: the bundles' width
     store.save_level(record.id, inputs, started=started)
     if remote:
         if _advance(store, record.id, inputs.index):
@@ -233,7 +227,7 @@ def plan_level(store: JobStore, job_id: str, index: int) -> dict | None:
     inputs, _ = store.load_level(job_id, index)
     if not is_planned(inputs):
         with reporting(partial(store.set_phase, job_id, index)):  # e.g. the embedding search
-            level_bundles(inputs, record.config)
+            inference_for(record.config).plan(inputs, record.config)
         store.save_prepared(job_id, index, inputs.prepared)
     return inputs.prepared
 
@@ -333,7 +327,7 @@ def _solved_bundles(
     some are missing."""
     width = inputs.shape[1]
     solved = store.solved_bundles(job_id, index)
-    expected = [bundle_key(b.as_list()) for b in inputs.planned_bundles(config)]
+    expected = [bundle_key(b.as_list()) for b in inference_for(config).planned(inputs, config)]
     missing = [key for key in expected if key not in solved]
     if missing:  # lost with a worker or a Redis outage: the watchdog re-sends them
         log.warning("job %s: level %d misses %d bundles", job_id, index, len(missing))
@@ -346,7 +340,7 @@ def _assemble_level(
 ) -> tuple[np.ndarray, np.ndarray, LevelRecord]:
     """The level's filtered disparity map (``finish_level``), its provenance codes
     (``level_stages``) and its report for the record."""
-    solution = assemble_level(inputs, bundles, config)
+    solution = inference_for(config).assemble(inputs, bundles, config)
     level_map = finish_level(inputs, solution, config)
     level_report = LevelRecord.of(report(inputs, solution, time.time() - started))
     return level_map, level_stages(inputs, solution, level_map), level_report
@@ -453,8 +447,6 @@ def solve_chunk(
         return {"bundles": len(row_ranges), "duplicate": True}
     inputs, record = level_for(store, job_id, index)
     config = record.config
-    if "settle" in inputs.prepared:  # the residual design's tiles (shared.settle)
-        config = tile_config(config)
     # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
     solver = resolve(config)
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
@@ -472,7 +464,8 @@ def solve_chunk(
             if results is None:
                 return None
         else:
-            results = solve_bundles(inputs, config, [tuple(spec) for spec in row_ranges])
+            bundles = [tuple(spec) for spec in row_ranges]
+            results = inference_for(config).solve(inputs, config, bundles)
     timing: dict[str, float] = {}
     for result in results:
         for key, value in result.timing.items():

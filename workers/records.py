@@ -136,6 +136,7 @@ class LevelRecord(BaseModel):
     timing: dict[str, float | None] = Field(default_factory=dict)
     info: dict[str, Any] = Field(default_factory=dict)
     residual: dict[str, float | None] | None = None
+    termination: str | None = None
     provenance_counts: dict[str, int] | None = None
 
     @model_validator(mode="before")

@@ -37,6 +37,7 @@ import redis
 from celery import Celery
 
 from shared.bundles import bundle_key
+from shared.inference import inference_for
 from workers import estimates, fair, liveness, orchestration
 from workers.app import LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, START_JOB, send_first_task
 from workers.chunks import group_bundles, is_planned, rows_per_task
@@ -269,7 +270,7 @@ class Watchdog:
             self.telemetry.resent(1)
             return "resent"
         solved = self.store.solved_rows(record.id, index)
-        expected = [bundle.as_list() for bundle in inputs.planned_bundles(config)]
+        expected = [bundle.as_list() for bundle in inference_for(config).planned(inputs, config)]
         missing = [b for b in expected if bundle_key(b) not in solved]
         busy = self.in_flight(record.id, index)
         if busy is not None and missing and all(bundle_key(b) in busy for b in missing):

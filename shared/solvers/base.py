@@ -233,8 +233,8 @@ def result_of(
 class RowSolver(Protocol):
     """A solver that works on the MRF costs of whole rows instead of a QUBO (the exact DP).
 
-    ``shared.solve`` hands such a solver all rows of a task at once, which is what lets it
-    vectorise over rows; it raises ``SolverError`` for bundle shapes it cannot solve.
+    ``shared.inference.row_chains`` hands such a solver all rows of a task at once, which is
+    what lets it vectorise over rows; it raises ``SolverError`` for bundle shapes it cannot solve.
     """
 
     def solve_rows(self, costs: Costs, bundle_height: int) -> np.ndarray:
@@ -279,7 +279,7 @@ class LiveTiming(Protocol):
 @runtime_checkable
 class ShapePlanner(Protocol):
     """A solver that embeds on a QPU graph, so a level's bundles are planned on it
-    (``shared.bundle_plan``): the widest row segment that embeds (``--bundle-width auto``) and
+    (``shared.inference.qubo``): the widest row segment that embeds (``--bundle-width auto``) and
     each bundle shape's embedding, found once before the bundles fan out."""
 
     #: Where the embeddings are kept (an ``EmbeddingCache``: ``computed`` counts new ones).

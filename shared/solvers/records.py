@@ -43,7 +43,8 @@ class SolverSpec:
     #: D-Wave token): docker-compose.yml's ``worker-<group>`` service, ``python -m
     #: workers.queues <group>``.
     workers: str = CPU_WORKERS
-    #: Works on the MRF costs of whole rows instead of a QUBO (shared.solve hands it rows).
+    #: Works on the MRF costs of whole rows instead of a QUBO (shared.inference.row_chains
+    #: hands it rows).
     row_solver: bool = False
     #: Whether bundles start from the best guess at hand unless the config says otherwise:
     #: local searches refine one far more cheaply than they find a minimum from scratch.

@@ -17,9 +17,9 @@ from shared.data_terms import ad_census_volume, bin_minimum, census
 from shared.disparity_range import estimate_max_disparity
 from shared.finishing import finish_level
 from shared.images import load_pair
+from shared.inference import solve_level_in_process
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
-from shared.solve import solve_level_in_process
 from shared.synthetic import make_scene
 
 

@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from shared.bundle_plan import level_bundles
 from shared.cli import build_parser, main
 from shared.cli_options import config_from_args
 from shared.images import load_disparity
+from shared.inference import level_bundles
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level
 

@@ -210,7 +210,7 @@ def test_views_whose_dual_state_exceeds_the_budget_are_minimised_one_after_the_o
 ):
     """Large levels run their views' grids one at a time (memory: 2000 x 2000 within 2 GiB);
     each grid is minimised on its own, so the map is the same either way."""
-    import shared.solve as solve
+    import shared.inference.grid_views as solve
 
     scene = make_scene(24, 40, max_disparity=8, seed=2)
     config = MatchConfig(max_disparity=8)

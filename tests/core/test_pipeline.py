@@ -12,9 +12,9 @@ from shared.assembly import BundleResult, assemble
 from shared.config import LevelConfig, MatchConfig, Preset, Regularizer
 from shared.disparity_range import ViewsWarning
 from shared.energy import mrf_energy
+from shared.inference import solve_bundles, solve_level_in_process
 from shared.metrics import evaluate
 from shared.pipeline import match_views, plan_run, prepare_level, run_pipeline
-from shared.solve import solve_bundles, solve_level_in_process
 
 
 def _scores(scene, **overrides):

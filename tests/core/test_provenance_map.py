@@ -13,13 +13,13 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from shared import provenance_map as pm
-from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.encodings import get_codec
+from shared.inference import inference_for, level_bundles, solve_bundles, solve_level_in_process
+from shared.inference.qubo import sampler_stages
 from shared.pipeline import run_pipeline
 from shared.provenance_map import Stage
-from shared.settle import assemble_level, host_stages
-from shared.solve import sampler_stages, solve_bundles, solve_level_in_process
+from shared.settle import host_stages
 from shared.solvers.base import SolveResult
 from shared.synthetic import make_scene
 
@@ -132,7 +132,7 @@ def test_the_solver_code_is_exactly_where_a_tiles_answer_was_kept(pair, monkeypa
     ]
     fake = Answers(answers, cfg.encoding, inputs.candidates.shape[2])
     monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: fake)
-    solution = assemble_level(inputs, solve_bundles(inputs, cfg, bundles), cfg)
+    solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     assert solution.residual["tiles_improved"] == 1
     expected = before.copy()
     kept = expected[rows, columns]

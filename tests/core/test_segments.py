@@ -11,12 +11,15 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from shared.assembly import assemble
-from shared.bundle_plan import level_bundles
 from shared.bundles import Bundle, owned_columns, segment_columns
 from shared.config import MatchConfig
 from shared.energy import mrf_energy
+from shared.inference import (
+    level_bundles,
+    solve_bundles,
+    solve_level_in_process,
+)
 from shared.pipeline import match_views, plan_run, prepare_level
-from shared.solve import solve_bundles, solve_level_in_process
 from shared.solvers.exact import solve_chains
 from shared.solvers.registry import resolve
 from shared.synthetic import make_scene

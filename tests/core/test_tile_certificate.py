@@ -14,14 +14,18 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from shared import settle
-from shared.bundle_plan import level_bundles
 from shared.config import MatchConfig
 from shared.grid import GridMRF, dual_decomposition
+from shared.inference import (
+    inference_for,
+    level_bundles,
+    settles,
+    solve_bundles,
+    solve_level_in_process,
+)
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
 from shared.provenance_map import Stage
-from shared.settle import assemble_level
-from shared.solve import solve_bundles, solve_level_in_process
 from shared.solvers import get_solver
 from shared.solvers.base import SolveResult
 from shared.solvers.meters.qpu_time import charged_seconds
@@ -84,7 +88,7 @@ def test_only_tiles_around_unsettled_pixels_are_sent_and_charged(monkeypatch):
     results = solve_bundles(inputs, cfg, bundles)
     assert counting.calls == len(bundles)
     assert all(charged_seconds(r.timing) == 0.0 for r in results)  # (unmetered here)
-    solution = assemble_level(inputs, results, cfg)
+    solution = inference_for(cfg).assemble(inputs, results, cfg)
     assert solution.residual["tiles"] == len(bundles)
     assert solution.residual["pixels_sent"] == 16 * len(bundles)
 
@@ -108,7 +112,7 @@ def test_a_tiles_answer_replaces_the_hosts_only_where_it_lowers_the_energy(monke
     host_energy = sum(g.energy(host[v * height : (v + 1) * height]) for v, g in enumerate(grids))
     if solver == "worst":
         monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: WorstSolver())
-    solution = assemble_level(inputs, solve_bundles(inputs, cfg, bundles), cfg)
+    solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     energy = sum(
         g.energy(solution.labels[v * height : (v + 1) * height]) for v, g in enumerate(grids)
     )
@@ -167,10 +171,10 @@ def test_turning_it_off_gives_the_tiles_of_before(solver, options, before):
 
 
 def test_rows_inference_and_row_solvers_are_not_settled():
-    assert settle.settles(config())
-    assert not settle.settles(config(certify_tiles=False))
-    assert not settle.settles(config(inference="rows"))
-    assert not settle.settles(MatchConfig(solver="exact", max_disparity=6))
+    assert settles(config())
+    assert not settles(config(certify_tiles=False))
+    assert not settles(config(inference="rows"))
+    assert not settles(MatchConfig(solver="exact", max_disparity=6))
 
 
 def small_grid(data, height: int, width: int, labels: int) -> GridMRF:

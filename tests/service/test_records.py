@@ -30,7 +30,8 @@ STORED_LEVEL = {
     "index": 0, "downsample": 1, "bin_width": 4, "views": 2, "height": 6, "width": 8,
     "candidates": 5, "bundles": 4, "energy": 12.5, "lower_bound": 12.0, "gap": 0.04,
     "repaired": 0, "seconds": 0.25, "solver_seconds": 0.125, "timing": {"qpu": 0.5},
-    "info": {"embeddings": 1}, "residual": None, "provenance_counts": None,
+    "info": {"embeddings": 1}, "residual": None, "termination": "gap",
+    "provenance_counts": None,
 }  # fmt: skip
 STORED_RANGE = {"max_disparity": 8, "source": "auto", "confirmed": 0.75, "note": "", "warning": ""}
 

@@ -12,9 +12,9 @@ from solver_helpers import optimum, random_bqm, stereo_costs
 from shared.config import LevelConfig, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
+from shared.inference import solve_bundles
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solve import solve_bundles
 from shared.solvers import SolverError, get_solver
 from shared.solvers.anneal import SA_PRESETS, beta_range
 from shared.solvers.composites import fix_variables

@@ -178,8 +178,8 @@ def test_qpu_sim_charge_and_estimates_use_the_actual_embedding(tmp_path, capsys)
     from shared.cli import main
     from shared.config import MatchConfig
     from shared.images import load_pair
+    from shared.inference import solve_level_in_process
     from shared.pipeline import run_pipeline
-    from shared.solve import solve_level_in_process
     from shared.synthetic import make_scene
 
     scene = make_scene(12, 20, max_disparity=6, seed=5)

@@ -7,10 +7,9 @@ import pytest
 from dwave import graphs as dwave_graphs
 
 from shared.assembly import assemble
-from shared.bundle_plan import level_bundles
 from shared.config import LevelConfig, MatchConfig
+from shared.inference import level_bundles, solve_bundles
 from shared.pipeline import match_views, plan_run, prepare_level
-from shared.solve import solve_bundles
 from shared.solvers.meters.qpu_time import shape_bqm
 from shared.solvers.qpu import embedding_cache
 from shared.solvers.qpu.embedding_cache import EmbeddingCache

@@ -101,10 +101,10 @@ def solve_metered(
     still_running=lambda: True,
     level_estimate: float | None = None,
 ):
-    """``solve_bundles`` for a metered solver: one bundle at a time, each inside a lab-wide
-    slot and a reservation of its estimate, charged what its sample set reports; a solver that
-    joins bundles into one problem (``solve_batch``: the hybrid solvers) takes all of them in one
-    slot and one reservation, charged what their results report together.
+    """The level inference's ``solve`` for a metered solver: one bundle at a time, each inside
+    a lab-wide slot and a reservation of its estimate, charged what its sample set reports; a
+    solver that joins bundles into one problem (``solve_batch``: the hybrid solvers) takes all
+    of them in one slot and one reservation, charged what their results report together.
 
     Parameters
     ----------
@@ -113,7 +113,7 @@ def solve_metered(
     owner, job_id : str
         Whose budget, and the job charged.
     inputs : LevelInputs
-        The level's inputs, as for ``shared.solve.solve_bundles``.
+        The level's inputs, as for ``shared.inference.solve_bundles``.
     solver : ResolvedSolver
         The job's solver, resolved with its ``MatchConfig`` (``solver.config``).
     bundles : list
@@ -132,11 +132,13 @@ def solve_metered(
         then not sent. Raises :class:`~workers.quota.ledger.QuotaExceededError` when the owner's
         budget cannot cover the next bundle.
     """
-    from shared.solve import solve_bundles
+    from shared.inference import inference_for
     from shared.solvers.meters import meter_for
 
     config = solver.config
     assert config is not None, "solve_metered needs the solver resolved with the job's config"
+    inference = inference_for(config)
+    sent = inference.bundle_config(inputs, config)  # as the bundles are solved (tiles: 4 rows)
     kind = meter_for(solver.name)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
     if solver.kind == "batch":  # one slot, one reservation
@@ -144,12 +146,12 @@ def solve_metered(
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]
         if level_estimate is None:
-            reserve = batch_estimate(inputs, config, given)
+            reserve = batch_estimate(inputs, sent, given)
         else:
-            share = len(given) / max(len(inputs.planned_bundles(config)), len(given), 1)
+            share = len(given) / max(len(inference.planned(inputs, config)), len(given), 1)
             reserve = level_estimate * share
         with meter.problem(owner, job_id, reserve) as charge:
-            results = solve_bundles(inputs, config, given)
+            results = inference.solve(inputs, config, given)
             charge.report(sum(charged_seconds(result.timing) for result in results))
         return results
     results = []
@@ -158,9 +160,9 @@ def solve_metered(
             return None
         bundle = inputs.as_bundle(spec)
         start, stop, first, last = bundle.as_list()
-        estimate = bundle_estimate(inputs, config, start, stop, last - first)
+        estimate = bundle_estimate(inputs, sent, start, stop, last - first)
         with meter.problem(owner, job_id, estimate) as charge:
-            [result] = solve_bundles(inputs, config, [bundle])
+            [result] = inference.solve(inputs, config, [bundle])
             charge.report(charged_seconds(result.timing))
         results.append(result)
     return results

@@ -20,9 +20,10 @@ from typing import Any
 from shared.bundles import bundle_rows, segment_columns
 from shared.config import MatchConfig
 from shared.encodings import get_codec
+from shared.inference.table import settles
 from shared.pyramid import level_shape, plan
 from shared.residual import LevelResidual
-from shared.settle import TILE, settles, tiles_of
+from shared.settle import TILE, tiles_of
 from shared.solvers.meters import (
     LevelLoad,
     Meter,

@@ -228,7 +228,7 @@ class _EmbeddedQPU(Sampler):
 
 
 class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
-    """What planning a level asks of a QPU solver (``shared.bundle_plan.level_bundles``): the widest
+    """What planning a level asks of a QPU solver (``LevelInference.plan``): the widest
     row segment that embeds on its graph, and each bundle shape's embedding, found once."""
 
     def widest_bundle(

@@ -279,7 +279,7 @@ def split(
 
 
 class PackedCalls:
-    """What the QPU solvers add for a task's bundles: :meth:`solve_batch` (``shared.solve``
+    """What the QPU solvers add for a task's bundles: :meth:`solve_batch` (``shared.inference.qubo``
     calls it with all of a task's bundles). Mixed into ``shared.solvers.qpu.dwave``'s QPU samplers,
     whose methods (``composite``, ``sampler``, ``_timing``, ...) it uses."""
 

@@ -1,0 +1,151 @@
+"""What every level inference is: a :class:`LevelInference` cuts a level's MRF into bundles,
+solves them and puts the level back together (its labels, energy, bound and why it stopped).
+
+Each strategy is one module of :mod:`shared.inference`, chosen by the one table of
+:mod:`shared.inference.table` from the run's configuration and the solver's facts. The
+in-process loop (:mod:`shared.inference.level`), the process pool and the service's tasks (plan
+on the control or the solver's queue, bundles as Celery jobs, the fan-in) all go through it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Protocol
+
+from shared.assembly import BundleResult, LevelSolution, assemble
+from shared.bundles import Bundle
+from shared.config import MatchConfig
+from shared.level_inputs import BundleSpec, LevelInputs
+from shared.solvers.resolved import ResolvedSolver
+
+BundleProgress = Callable[[int, int], None]
+"""``(units done, units total)`` within a level: bundles (rows for a row solver)."""
+
+
+class LevelInference(Protocol):
+    """How one level's MRF is cut into bundles and minimised.
+
+    ``plan`` runs once per level where the level is planned (in process, the service's control
+    worker, or the solver's queue when ``plans_with_solver``), ``solve`` wherever bundles are
+    solved (any process, any share of them), ``assemble`` once per level on all the results.
+    """
+
+    @property
+    def name(self) -> str:
+        """The strategy's name (logs, tests)."""
+        ...
+
+    @property
+    def plans_with_solver(self) -> bool:
+        """Planning asks the sampler (its QPU graph: the widest segment that embeds, each
+        shape's embedding): a service plans the level on the solver's queue, where its
+        credentials are."""
+        ...
+
+    @property
+    def splits(self) -> bool:
+        """The level's bundles may be spread over worker processes (False: the strategy is
+        vectorised over the level already, or sends the level as one problem)."""
+        ...
+
+    def width_setting(self, config: MatchConfig) -> int | str | None:
+        """The run's ``bundle_width`` with the default filled in (None: whole rows), or a
+        ``ValueError`` saying what to change."""
+        ...
+
+    def prepare(self, inputs: LevelInputs, config: MatchConfig) -> str | None:
+        """The host's work on the level before it is planned and its inputs are kept (the
+        service's control worker): what it did, for the log, or None when there is none."""
+        ...
+
+    def plan(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+        """Every bundle of the level; records the plan in ``inputs.prepared``."""
+        ...
+
+    def planned(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+        """The bundles :meth:`plan` chose, read back from ``inputs.prepared``."""
+        ...
+
+    def bundle_config(self, inputs: LevelInputs, config: MatchConfig) -> MatchConfig:
+        """The configuration a bundle is solved and estimated with."""
+        ...
+
+    def solve(
+        self,
+        inputs: LevelInputs,
+        config: MatchConfig,
+        bundles: Sequence[BundleSpec],
+        progress: BundleProgress | None = None,
+    ) -> list[BundleResult]:
+        """The given bundles (any share of the level), one result each in the given order."""
+        ...
+
+    def assemble(
+        self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
+    ) -> LevelSolution:
+        """The level from every bundle's result: labels, energy, bound and termination."""
+        ...
+
+
+class Termination:
+    """Why a level's minimisation stopped (``LevelSolution.termination``)."""
+
+    #: Every bundle's labels are proven optimal (a row's chain by dynamic programming, a view's
+    #: grid whose row and column chains agree).
+    OPTIMAL = "optimal"
+    #: A grid stopped once its relative gap to the bound reached ``dual_gap``.
+    GAP = "gap"
+    #: A grid stopped at ``dual_iterations`` with its chains still disagreeing.
+    ITERATIONS = "iterations"
+    #: The QUBO solver's answers (its reads), decoded and repaired.
+    SAMPLED = "sampled"
+    #: The host settled every pixel of the level: nothing was sent.
+    SETTLED = "settled"
+
+
+class Strategy:
+    """Defaults of a :class:`LevelInference`: no host step, the plan read back from
+    ``inputs.prepared`` (height and width), bundles solved with the run's configuration and
+    the level assembled from bundles that cover it once (:func:`shared.assembly.assemble`)."""
+
+    name = ""
+    plans_with_solver = False
+    splits = False
+    #: ``LevelSolution.termination`` of the level (:class:`Termination`).
+    termination: str | None = None
+
+    def prepare(self, inputs: LevelInputs, config: MatchConfig) -> str | None:
+        return None
+
+    def planned(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+        return inputs.planned_bundles(config)
+
+    def bundle_config(self, inputs: LevelInputs, config: MatchConfig) -> MatchConfig:
+        return config
+
+    def assemble(
+        self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
+    ) -> LevelSolution:
+        solution = assemble(inputs, results, config)
+        solution.termination = self.termination
+        return solution
+
+
+def whole_rows(inputs: LevelInputs, solver: str, bundles: Sequence[BundleSpec]) -> list[Bundle]:
+    """The bundles as :class:`Bundle`; a ``ValueError`` when one is a segment of its rows (a row
+    solver solves whole rows)."""
+    items = [inputs.as_bundle(spec) for spec in bundles]
+    width = inputs.shape[1]
+    if any(b.col_start != 0 or b.col_stop != width for b in items):
+        raise ValueError(f"{solver} solves whole rows only, not row segments")
+    return items
+
+
+def width_setting(solver: ResolvedSolver, config: MatchConfig) -> int | str | None:
+    """``solver``'s :meth:`~shared.solvers.resolved.ResolvedSolver.bundle_width_setting` for
+    ``config`` (the run's, or a bundle's): the ``bundle_width`` with the solver's default filled
+    in, or a ``ValueError`` saying what to change."""
+    if config is not solver.config:
+        solver = replace(solver, config=config)
+    return solver.bundle_width_setting()

@@ -1,0 +1,127 @@
+"""Rows inference with a row solver (``exact``): each bundle is one row's chain (the paper's MRF,
+no edge between rows), minimised exactly on its costs by the solver's dynamic programme, blocks
+of consecutive rows at once (vectorised over rows, memory bounded by :data:`COST_BLOCK_BYTES`,
+not by the image)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+
+from shared.assembly import BundleResult
+from shared.bundles import Bundle
+from shared.config import MatchConfig
+from shared.energy import mrf_energy, row_energies
+from shared.inference.base import (
+    BundleProgress,
+    Strategy,
+    Termination,
+    whole_rows,
+    width_setting,
+)
+from shared.level_inputs import BundleSpec, LevelInputs
+from shared.provenance_map import Stage, filled
+from shared.solvers.base import RowSolver
+from shared.solvers.resolved import ResolvedSolver
+from shared.threads import threads
+
+#: A row solver takes as many rows at once as keep one block's pairwise cost arrays (float64,
+#: horizontal and vertical, K x K per pixel) within this: large enough to vectorise, small
+#: enough that memory is bounded by the block, not by the image (one block per core at a time).
+COST_BLOCK_BYTES = 32 * 2**20
+
+
+class RowChains(Strategy):
+    """Blocks of rows solved by ``solver``'s :class:`RowSolver` (built on first use), in
+    threads (numpy releases the GIL inside its loops: the blocks of both views overlap)."""
+
+    name = "row-chains"
+    termination = Termination.OPTIMAL
+
+    def __init__(self, solver: ResolvedSolver) -> None:
+        self.solver = solver
+
+    def width_setting(self, config: MatchConfig) -> int | str | None:
+        return width_setting(self.solver, config)  # whole rows, one a bundle
+
+    def plan(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+        self.width_setting(config)
+        inputs.prepared = {"bundle_width": None, "bundle_height": config.bundle_height}
+        return inputs.bundles(config.bundle_height, None, config.bundle_margin)
+
+    def solve(
+        self,
+        inputs: LevelInputs,
+        config: MatchConfig,
+        bundles: Sequence[BundleSpec],
+        progress: BundleProgress | None = None,
+    ) -> list[BundleResult]:
+        if not bundles:
+            return []
+        row_ranges = [(b.row_start, b.row_stop) for b in whole_rows(inputs, config.solver, bundles)]
+        width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
+        rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
+        blocks = _blocks(sorted(row_ranges), rows, inputs.view_height)
+        inputs.binned_volumes()
+        results: list[BundleResult] = []
+        with ThreadPoolExecutor(min(len(blocks), threads())) as pool:
+            solve = partial(_solve_block, self.solver.rows(), inputs, config)
+            for block_results in pool.map(solve, blocks):
+                results.extend(block_results)
+                if progress is not None:
+                    progress(len(results), len(row_ranges))
+        return results
+
+
+def _solve_block(
+    solver: RowSolver, inputs: LevelInputs, config: MatchConfig, block: list[tuple[int, int]]
+) -> list[BundleResult]:
+    """One block of consecutive bundles' rows: costs, the row solver, each bundle's energy."""
+    started = time.perf_counter()
+    first, last = block[0][0], block[-1][1]
+    costs = inputs.costs(config, first, last)
+    labels = solver.solve_rows(costs, config.bundle_height)
+    chains = row_energies(costs, labels) if config.bundle_height == 1 else None
+    share = (time.perf_counter() - started) / len(block)
+    results = []
+    for start, stop in block:
+        bundle_labels = labels[start - first : stop - first]
+        energy = (
+            float(chains[start - first])
+            if chains is not None
+            else mrf_energy(costs.rows(start - first, stop - first), bundle_labels)
+        )
+        results.append(
+            BundleResult(
+                row_start=start,
+                row_stop=stop,
+                labels=bundle_labels,
+                energy=energy,
+                repaired=0,
+                wall_time=share,
+                stages=filled(bundle_labels.shape, Stage.CERTIFIED),  # a row's exact optimum
+            )
+        )
+    return results
+
+
+def _blocks(
+    row_ranges: list[tuple[int, int]], rows: int, view_height: int
+) -> list[list[tuple[int, int]]]:
+    """Consecutive, contiguous row ranges grouped into blocks of at most ``rows`` rows of one
+    view (a gap between ranges, or the seam between views, starts a new block)."""
+    blocks: list[list[tuple[int, int]]] = []
+    for start, stop in row_ranges:
+        first = blocks[-1][0][0] if blocks else 0
+        if (
+            blocks
+            and blocks[-1][-1][1] == start
+            and stop - first <= rows
+            and start // view_height == first // view_height
+        ):
+            blocks[-1].append((start, stop))
+        else:
+            blocks.append([(start, stop)])
+    return blocks
