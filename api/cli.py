@@ -39,7 +39,7 @@ from shared.cli_options import (
     settings_from_args,
 )
 from shared.config import MatchConfig
-from shared.exit_codes import EXIT_INTERRUPTED
+from shared.exit_codes import interrupted
 from workers import cli as worker_cli
 from workers import embeddings_cli
 
@@ -297,7 +297,7 @@ def _follow(client, job_id: str, args: argparse.Namespace, shown: set[str]) -> i
                 f"service{charged}: {_job_commands(job_id, args)}",
                 file=sys.stderr,
             )
-        return EXIT_INTERRUPTED
+        return interrupted()
     scores = f"; {scores_text(status)}" if status.get("metrics") else ""
     where = "" if args.output else " (no -o given: named after the job, in this directory)"
     line = f"wrote {output}{where}{scores}"

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from importlib.metadata import entry_points
 from pathlib import Path
 
-from shared.exit_codes import EXIT_BROKEN_PIPE, EXIT_FAILED, EXIT_INTERRUPTED
+from shared.exit_codes import EXIT_BROKEN_PIPE, EXIT_FAILED, interrupted
 
 # Nothing heavy at import time: main() is then in charge from the first instant (a Ctrl-C while
 # pydantic or numpy load is one line too), and `qhsm --help` starts fast.
@@ -363,7 +363,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _run(argv)
     except KeyboardInterrupt:  # Ctrl-C, at any point: one line, no traceback
         print("qhsm: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return interrupted()
     except BrokenPipeError:
         # stdout's reader went away; later writes (the interpreter flushes stdout at exit) go
         # nowhere instead of failing again

@@ -184,6 +184,7 @@ def press_ctrl_c(command: list[str], when: str, timeout: float = 120.0, **popen)
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         process_group=0,
+        preexec_fn=_foreground_signals,
         **popen,
     )
     assert process.stderr is not None
@@ -207,6 +208,14 @@ def press_ctrl_c(command: list[str], when: str, timeout: float = 120.0, **popen)
             os.killpg(process.pid, signal.SIGKILL)
             process.wait()
     return Interrupted(process.returncode, out.decode(), (seen + err).decode(), left)
+
+
+def _foreground_signals() -> None:
+    """In the child, before it runs: SIGINT as a shell leaves it for a foreground job, its
+    default action and not blocked, whatever this test process (its threads: Celery's, the
+    API's) had when it forked."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
 
 
 def _group_alive(group: int) -> bool:
