@@ -27,6 +27,7 @@ from workers.embedded_redis import free_port
 CHROMIUM = Path("/usr/bin/chromium")
 SERVICE_TESTS = Path(__file__).parents[1] / "service"
 sys.path.insert(0, str(SERVICE_TESTS))  # the harness
+sys.path.insert(0, str(Path(__file__).parent))  # web_page
 import harness  # noqa: E402
 
 #: Seconds the fake-slow solver sleeps per bundle: a job that takes long enough to cancel.

@@ -11,41 +11,9 @@ import cv2
 import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
+from web_page import RESULT_TIMEOUT, sign_in, submit_pair
 
 pytestmark = pytest.mark.service
-
-RESULT_TIMEOUT = 60_000  # ms: the exact solver on a 64x48 pair takes well under a second
-
-
-def sign_in(page: Page, server, key: str | None = None) -> None:
-    """Open the page through a `#key=` address (what `qhsm serve` prints when it makes the
-    key) and accept its question whose account that is (unless the tab is already that user)."""
-    page.goto(f"{server.url}/#key={key or server.admin_key}")
-    # a tab signed in as someone else shows both (its user, and the question)
-    asked = page.locator("#view-switch:visible").or_(page.locator("#who:visible"))
-    expect(asked.first).to_be_visible()
-    if page.locator("#view-switch").is_visible():
-        page.locator("#switch-accept").click()
-    expect(page.locator("#who")).to_be_visible()
-
-
-def submit_pair(
-    page: Page, pair_files, solver: str, *, ground_truth: bool = False, tags: str = ""
-) -> str:
-    """Fill and send the submit form; the id of the job the page then shows."""
-    page.get_by_role("link", name="Submit", exact=True).click()
-    page.get_by_label("Left image").set_input_files(pair_files["left"])
-    page.get_by_label("Right image").set_input_files(pair_files["right"])
-    page.get_by_label("Solver").select_option(solver)
-    page.get_by_label("Max disparity (px)").fill("8")
-    if tags:
-        page.get_by_label("Tags (optional)").fill(tags)
-    if ground_truth:
-        page.get_by_text("Ground truth (optional)").click()
-        page.get_by_label("Ground truth", exact=True).set_input_files(pair_files["ground_truth"])
-    page.get_by_role("button", name="Submit").click()
-    page.wait_for_url(re.compile(r"#/job/[0-9a-f]{32}$"))
-    return page.url.rsplit("/", 1)[1]
 
 
 def test_the_sign_in_url_of_serve_signs_the_admin_in_and_leaves_no_key_behind(
@@ -460,49 +428,3 @@ def test_a_job_lists_the_ids_of_its_d_wave_problems(page: Page, server, pair_fil
     expect(summary).to_be_visible()
     summary.click()
     expect(page.get_by_label("D-Wave problem ids")).to_have_text("\n".join(ids))
-
-
-def test_the_job_list_filters_by_tag_and_by_batch(page: Page, server, pair_files, screenshots):
-    """A batch (POST /v1/batches) and a lone job, tagged apart: the list shows one tag's jobs,
-    a batch's jobs with its progress (from a job's batch link), then all again."""
-    views = {name: pair_files[name].read_bytes() for name in ("left", "right")}
-    files = [(side, (f"{side}{i}.png", views[side])) for i in range(2) for side in views]
-    params = {"params": '{"solver": "exact", "max_disparity": 8}'}
-    with server.client() as api:
-        batch = api.post("/v1/batches", files=files, data={**params, "tags": "web-batch"})
-        assert batch.status_code == 202, batch.text
-        lone = api.post(
-            "/v1/jobs",
-            files={side: (f"{side}.png", data) for side, data in views.items()},
-            data={**params, "tags": "web-lone"},
-        )
-        assert lone.status_code == 202, lone.text
-    batch_id, lone_id = batch.json()["id"], lone.json()["id"]
-    batch_jobs = [job["id"] for job in batch.json()["jobs"]]
-    sign_in(page, server)
-    rows = page.locator("#jobs-table tbody tr")
-    page.get_by_label("Tag", exact=True).fill("web-lone")
-    page.get_by_role("button", name="Filter").click()
-    expect(rows).to_have_count(1)
-    expect(page.locator(f'tr[data-job="{lone_id}"]')).to_be_visible()
-    assert page.url.endswith("#/jobs/tag/web-lone")
-
-    page.get_by_role("button", name="Show all").click()
-    first = page.locator(f'tr[data-job="{batch_jobs[0]}"]')
-    first.get_by_role("link", name=f"batch {batch_id[:8]}").click()
-    expect(rows).to_have_count(2)
-    for job in batch_jobs:
-        expect(page.locator(f'tr[data-job="{job}"]')).to_be_visible()
-    summary = page.locator("#batch-summary")
-    expect(summary).to_contain_text(f"Batch {batch_id[:8]} (web-batch)")
-    expect(summary).to_contain_text("2/2 finished · 2 succeeded", timeout=RESULT_TIMEOUT)
-    expect(page.get_by_label("Batch", exact=True)).to_have_value(batch_id)
-    screenshots(page, "jobs-batch")
-
-    page.get_by_label("Tag", exact=True).fill("web-lone")  # the batch's jobs with that tag: none
-    page.get_by_role("button", name="Filter").click()
-    expect(rows).to_have_count(0)
-    expect(page.get_by_text("No job matches the filter.")).to_be_visible()
-    page.get_by_role("button", name="Show all").click()
-    expect(page.locator(f'tr[data-job="{lone_id}"]')).to_be_visible()
-    assert page.url.endswith("#/jobs")
