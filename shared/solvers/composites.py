@@ -438,9 +438,7 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
             embedding, source, key = self.embedding(bqm)
             composite = self._composites.get(key)
             if composite is None:
-                composite = self._composites[key] = FixedEmbeddingComposite(
-                    self._child, embedding
-                )
+                composite = self._composites[key] = FixedEmbeddingComposite(self._child, embedding)
         else:
             whole, source, key = self.embedding(reduction.bqm)
             embedding = {i: whole[int(v)] for i, v in enumerate(reduction.free)}
