@@ -29,11 +29,11 @@ from api.job_service import JobForm, find_job, finished_result
 from api.responses import (
     NOT_FOUND,
     SCALE_HEADER,
-    UPLOAD_ERRORS,
     charged_seconds,
     display_max,
     links,
     summary_of,
+    upload_route,
 )
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary
 from api.uploads import GT_SCALE_RANGE, MAX_GT_BORDER, MAX_LABEL, MAX_TAGS, TAG, cameras_of
@@ -91,12 +91,11 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     )
 
 
-@router.post(
+@upload_route(
+    router,
     "",
-    status_code=http.HTTP_202_ACCEPTED,
-    response_model=JobCreated,
-    responses={
-        **UPLOAD_ERRORS,
+    JobCreated,
+    {
         403: {"description": "QPU budget too small for the job's estimate"},
         429: {"description": "Too many of the user's jobs are queued or running"},
         422: {
