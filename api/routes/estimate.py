@@ -24,15 +24,14 @@ router = APIRouter(tags=["jobs"])
 NOT_FOUND: Responses = {404: {"description": "No such estimate (or not yours), or it expired"}}
 
 
-@upload_route(
-    router,
-    "/estimate",
-    EstimateStatus,
-    {
-        422: {"description": "Invalid parameters, sizes, or solver"},
-        429: {"description": "Too many of your estimates are waiting or computing"},
-    },
-)
+#: What else an estimate upload can be refused with (:func:`~api.responses.upload_route`).
+REFUSED: Responses = {
+    422: {"description": "Invalid parameters, sizes, or solver"},
+    429: {"description": "Too many of your estimates are waiting or computing"},
+}
+
+
+@upload_route(router, "/estimate", EstimateStatus, REFUSED)
 def estimate(
     svc: ServicesDep,
     principal: PrincipalDep,
