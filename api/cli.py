@@ -32,6 +32,7 @@ from shared.cli_options import (
     CommandError,
     add_json_option,
     add_match_options,
+    add_pair_arguments,
     config_from_args,
     match_params,
     model_option,
@@ -72,8 +73,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     api.set_defaults(handler=cmd_api)
 
     submit = commands.add_parser("submit", help="send a stereo pair to a running service")
-    submit.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
-    submit.add_argument("right", help="right view, same size, rectified")
+    add_pair_arguments(submit)
     add_match_options(submit)
     submit.add_argument("--label", help="your name for the job, shown in job lists")
     submit.add_argument(
@@ -121,8 +121,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     estimate = commands.add_parser(
         "estimate", help="print a job's estimated QPU (or hybrid) seconds without running it"
     )
-    estimate.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")
-    estimate.add_argument("right", help="right view, same size")
+    add_pair_arguments(estimate)
     add_match_options(estimate)
     setting_option(estimate, "api_url", "--url")
     estimate.add_argument("--key", help="API key (QHSM_API_KEY; default: the local admin key)")

@@ -4,7 +4,11 @@ this module, never each other."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
+from fastapi import APIRouter
 from fastapi import status as http
 
 from api.deps import Responses
@@ -15,12 +19,25 @@ from workers.quota import LOCAL_USER
 from workers.records import JobRecord, JobState
 
 NOT_FOUND: Responses = {http.HTTP_404_NOT_FOUND: {"description": "No such job (or it expired)"}}
-#: Errors of the upload form (POST /v1/jobs and /v1/estimate) for the OpenAPI docs.
+#: Errors of the upload form (POST /v1/jobs, /v1/estimate and /v1/batches) for the OpenAPI docs.
 UPLOAD_ERRORS: Responses = {
     400: {"description": "params is not JSON"},
     413: {"description": "File or image too large"},
     415: {"description": "Not a supported image format"},
 }
+
+
+def upload_route(
+    router: APIRouter, path: str, model: type, errors: Responses
+) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``POST path`` taking uploaded views as work for a worker: answered 202 with ``model``,
+    documented with the upload form's errors (:data:`UPLOAD_ERRORS`) and the route's own."""
+    return router.post(
+        path,
+        status_code=http.HTTP_202_ACCEPTED,
+        response_model=model,
+        responses={**UPLOAD_ERRORS, **errors},
+    )
 
 
 #: Response header of colour-mapped images: the value (pixels) the top colour stands for.

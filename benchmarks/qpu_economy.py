@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -24,11 +25,24 @@ from shared.images import load_disparity_values, load_pair
 from shared.metrics import evaluate
 from shared.pipeline import match_views, run_pipeline
 from shared.process_pool import ProcessPoolLevelSolver
-from shared.residual import job_residual
+from shared.residual import LevelResidual, job_residual
 from shared.solvers.meters.qpu_time import job_seconds
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 PAIRS = ("tsukuba", "venus", "cones")
+
+
+def surveys(
+    left: np.ndarray, right: np.ndarray, max_disparity: str | int
+) -> Iterator[tuple[MatchConfig, int, list[LevelResidual] | None, float]]:
+    """Per metered solver (qpu, hybrid) what ``qhsm estimate --local`` does before it prices a
+    job: its configuration, the pair's range, the host's residual survey and its seconds."""
+    for solver in ("qpu", "hybrid"):
+        config = MatchConfig(solver=solver, max_disparity=max_disparity)
+        top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
+        started = time.perf_counter()
+        residual = job_residual(config, left, right, top.max_disparity)
+        yield config, top.max_disparity, residual, time.perf_counter() - started
 
 
 def estimates(pair: str, max_disparity: str | int) -> list[str]:
@@ -36,14 +50,10 @@ def estimates(pair: str, max_disparity: str | int) -> list[str]:
     scene = load_scene(DATA / pair)
     left, right = load_pair(scene.left, scene.right)
     rows = []
-    for solver in ("qpu", "hybrid"):
-        config = MatchConfig(solver=solver, max_disparity=max_disparity)
-        top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
-        started = time.perf_counter()
-        residual = job_residual(config, left, right, top.max_disparity)
-        surveyed = time.perf_counter() - started
-        before = job_seconds(config, left.shape[:2], top.max_disparity)
-        after = job_seconds(config, left.shape[:2], top.max_disparity, residual=residual)
+    for config, top, residual, surveyed in surveys(left, right, max_disparity):
+        solver = config.solver
+        before = job_seconds(config, left.shape[:2], top)
+        after = job_seconds(config, left.shape[:2], top, residual=residual)
         for level, whole in zip(after.levels, before.levels, strict=True):
             rows.append(
                 f"| {pair} | {solver} | {level.index} | {level.bundles} | {level.bundles_sent} "
@@ -51,7 +61,7 @@ def estimates(pair: str, max_disparity: str | int) -> list[str]:
                 f"| {whole.seconds:,.1f} | {level.seconds:,.1f} |"
             )
         rows.append(
-            f"| {pair} | {solver} | all (range {top.max_disparity}, survey {surveyed:.0f} s) "
+            f"| {pair} | {solver} | all (range {top}, survey {surveyed:.0f} s) "
             f"| {after.bundles} | {after.bundles_sent} "
             f"| {1 - after.bundles_sent / after.bundles:.1%} | | {before.seconds:,.1f} "
             f"| **{after.seconds:,.1f}** |"

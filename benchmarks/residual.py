@@ -24,15 +24,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from qpu_economy import halved  # the half-size pair and ground truth, as issue 19 measured
+from qpu_economy import halved, surveys  # the half-size pair and truth, as issue 19 measured
 
 from shared.config import MatchConfig
 from shared.datasets.scenes import load_scene
-from shared.disparity_range import resolve_max_disparity
 from shared.images import load_disparity_values, load_pair
 from shared.metrics import evaluate
-from shared.pipeline import match_views, run_pipeline
-from shared.residual import job_residual
+from shared.pipeline import run_pipeline
 from shared.solvers.meters.qpu_time import job_seconds
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -43,18 +41,13 @@ WIDE = DATA / "middlebury2006" / "Lampshade1"
 def estimate_rows(name: str, left, right, max_disparity: int | str) -> list[str]:
     """Markdown rows: per solver, the total estimate and per level the pixels certified/sent."""
     rows = []
-    for solver in ("qpu", "hybrid"):
-        config = MatchConfig(solver=solver, max_disparity=max_disparity)
-        top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
-        started = time.perf_counter()
-        residual = job_residual(config, left, right, top.max_disparity)
-        surveyed = time.perf_counter() - started
-        estimate = job_seconds(config, left.shape[:2], top.max_disparity, residual=residual)
+    for config, top, residual, surveyed in surveys(left, right, max_disparity):
+        estimate = job_seconds(config, left.shape[:2], top, residual=residual)
         levels = "; ".join(
             f"{level.pixels_sent} px in {level.bundles_sent} tiles" for level in estimate.levels
         )
         rows.append(
-            f"| {name} {left.shape[1]}x{left.shape[0]} | {solver} | {top.max_disparity} "
+            f"| {name} {left.shape[1]}x{left.shape[0]} | {config.solver} | {top} "
             f"| {levels} | {surveyed:.0f} | **{estimate.seconds:.2f}** |"
         )
     return rows

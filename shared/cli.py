@@ -229,6 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
         Parser,
         add_json_option,
         add_match_options,
+        add_pair_arguments,
         add_processes_option,
         int_or_auto,
         model_option,
@@ -241,8 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
 
     match = commands.add_parser("match", help="match a stereo pair in this process")
-    match.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
-    match.add_argument("right", help="right view, same size, rectified")
+    add_pair_arguments(match)
     match.add_argument("-o", "--output", required=True, help="OUT.pfm, OUT.png (x256) or .npy")
     add_match_options(match)
     match.add_argument("--preview", help="write a colour-mapped PNG here")

@@ -257,6 +257,18 @@ def add_processes_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_pair_arguments(parser: argparse.ArgumentParser) -> None:
+    """The stereo pair, ``left`` and ``right`` (``qhsm match``, ``submit`` and ``estimate``).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    """
+    parser.add_argument("left", help="left view (PNG, PPM/PGM, JPEG, PFM, TIFF, BMP)")
+    parser.add_argument("right", help="right view, same size, rectified")
+
+
 #: ``MatchConfig`` options of ``qhsm match``, ``submit`` and ``estimate`` (``--param`` aside).
 MATCH_OPTIONS = (
     "preset",

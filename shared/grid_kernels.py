@@ -288,6 +288,24 @@ def _send(
     return smallest
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pass_on(half, back, sent, yp, xp, yq, xq, w, edges, buffers):  # pragma: no cover - jit
+    """TRW-S's message from pixel p to its neighbour q ahead: p's ``half`` less what q sent back
+    (``back[p]``), through the edge (:func:`_send`; ``edges``: the grid's candidates and
+    regulariser, ``buffers``: scratch) into ``sent[q]``; returns its normalisation constant."""
+    candidates, first, windows, slope, truncation = edges
+    source, envelope, out = buffers
+    count = half.shape[0]
+    for k in range(count):
+        source[k] = half[k] - back[yp, xp, k]
+    constant = _send(
+        source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
+    )
+    for k in range(count):
+        sent[yq, xq, k] = out[k]
+    return constant
+
+
 @numba.njit(cache=True, nogil=True)
 def _trws_pass(
     unary,
@@ -318,6 +336,12 @@ def _trws_pass(
     source = np.empty(count)
     out = np.empty(count)
     envelope = np.empty(count)
+    # along each axis: what a pixel receives from ahead (sent back to it in the last pass) and
+    # where what it sends ahead arrives
+    back_h, sent_h = (from_right, from_left) if forward else (from_left, from_right)
+    back_v, sent_v = (from_down, from_up) if forward else (from_up, from_down)
+    edges = (candidates, first, windows, slope, truncation)
+    buffers = (source, envelope, out)
     bound = 0.0
     for step_y in range(height):
         y = step_y if forward else height - 1 - step_y
@@ -343,10 +367,7 @@ def _trws_pass(
                 # the label: the messages from ahead, the pairwise terms to the labels behind
                 here = _label(candidates, first, windows, y, x, k)
                 score = unary[y, x, k]
-                if forward:
-                    score += from_right[y, x, k] + from_down[y, x, k]
-                else:
-                    score += from_left[y, x, k] + from_up[y, x, k]
+                score += back_h[y, x, k] + back_v[y, x, k]
                 if has_xb:
                     there = _label(candidates, first, windows, y, xb, labels[y, xb])
                     w = weight_h[y, min(x, xb)]
@@ -359,55 +380,13 @@ def _trws_pass(
                     best, arg = score, k
             labels[y, x] = arg
             if has_xa:
-                for k in range(count):
-                    back = from_right[y, x, k] if forward else from_left[y, x, k]
-                    source[k] = half[k] - back
-                bound += _send(
-                    source,
-                    candidates,
-                    first,
-                    windows,
-                    y,
-                    x,
-                    y,
-                    xa,
-                    weight_h[y, min(x, xa)],
-                    slope,
-                    truncation,
-                    envelope,
-                    out,
-                )
-                for k in range(count):
-                    if forward:
-                        from_left[y, xa, k] = out[k]
-                    else:
-                        from_right[y, xa, k] = out[k]
+                w = weight_h[y, min(x, xa)]
+                bound += _pass_on(half, back_h, sent_h, y, x, y, xa, w, edges, buffers)
             else:
                 bound += lowest  # the end of its row chain
             if has_ya:
-                for k in range(count):
-                    back = from_down[y, x, k] if forward else from_up[y, x, k]
-                    source[k] = half[k] - back
-                bound += _send(
-                    source,
-                    candidates,
-                    first,
-                    windows,
-                    y,
-                    x,
-                    ya,
-                    x,
-                    weight_v[min(y, ya), x],
-                    slope,
-                    truncation,
-                    envelope,
-                    out,
-                )
-                for k in range(count):
-                    if forward:
-                        from_up[ya, x, k] = out[k]
-                    else:
-                        from_down[ya, x, k] = out[k]
+                w = weight_v[min(y, ya), x]
+                bound += _pass_on(half, back_v, sent_v, y, x, ya, x, w, edges, buffers)
             else:
                 bound += lowest  # the end of its column chain
     return bound

@@ -13,7 +13,7 @@ solver will cut them. Classical work only: nothing is sent anywhere.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -45,14 +45,7 @@ class LevelResidual:
     certified: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "sampled": self.sampled,
-            "sent_share": self.sent_share,
-            "variables_share": self.variables_share,
-            "sent_variables_share": self.sent_variables_share,
-            "tiles": self.tiles,
-            "certified": self.certified,
-        }
+        return asdict(self)
 
 
 def _probe(inputs, config: MatchConfig, width: int | None, limit: int) -> LevelResidual:

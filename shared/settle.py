@@ -28,7 +28,7 @@ carries the plan (JSON: the service keeps it with the level's inputs).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -63,16 +63,7 @@ class Residual:
     host_seconds: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
-        return {
-            "pixels": self.pixels,
-            "certified": self.certified,
-            "unsettled": self.unsettled,
-            "tiles": self.tiles,
-            "pixels_sent": self.pixels_sent,
-            "tiles_improved": self.tiles_improved,
-            "pixels_improved": self.pixels_improved,
-            "host_seconds": self.host_seconds,
-        }
+        return asdict(self)
 
 
 def settled(inputs: LevelInputs) -> bool:

@@ -26,18 +26,20 @@ import logging
 from collections.abc import Callable
 from datetime import datetime
 from enum import StrEnum
+from functools import partial
 from typing import Any
 
 import numpy as np
 import redis
 from celery import Celery
 from pydantic import BaseModel, Field
+from redis.client import Pipeline
 
 from shared.config import MatchConfig, Settings
 from workers.arrays import array_fields, array_from
 from workers.bounded import piece_bytes, read_hash, write_hash
 from workers.records import JOB_ID, bounded_message, new_job_id, now
-from workers.redis_client import members
+from workers.redis_client import Writes, members, update_watched
 
 log = logging.getLogger(__name__)
 
@@ -161,29 +163,26 @@ class EstimateStore:
         self, estimate_id: str, change: Callable[..., EstimateRecord | None], *args: Any
     ) -> EstimateRecord | None:
         """Write ``change(record, *args)`` atomically (optimistic locking); the record written,
-        or None where there is none or the change does not apply. An estimate that ends
-        leaves the open index, its owner's count and its views behind."""
+        or None where there is none or the change does not apply (:meth:`_write_change`)."""
         key = self.key("estimate", estimate_id)
-        with self.redis.pipeline() as pipe:
-            while True:
-                try:
-                    pipe.watch(key)
-                    raw = pipe.get(key)
-                    current = None if raw is None else EstimateRecord.model_validate_json(raw)
-                    changed = None if current is None else change(current, *args)
-                    if changed is None:
-                        pipe.unwatch()
-                        return None
-                    pipe.multi()
-                    pipe.set(key, changed.model_dump_json(), keepttl=True)
-                    if changed.state.terminal:
-                        pipe.zrem(self.key("estimates", "open"), estimate_id)
-                        pipe.srem(self.key("estimates", "owner", changed.owner), estimate_id)
-                        pipe.delete(self.key("estimate", estimate_id, "views"))
-                    pipe.execute()
-                    return changed
-                except redis.WatchError:
-                    continue
+
+        def step(raw: bytes | None) -> tuple[EstimateRecord | None, Writes | None]:
+            current = None if raw is None else EstimateRecord.model_validate_json(raw)
+            changed = None if current is None else change(current, *args)
+            if changed is None:
+                return None, None
+            return changed, partial(self._write_change, estimate_id, changed)
+
+        return update_watched(self.redis, key, step)
+
+    def _write_change(self, estimate_id: str, changed: EstimateRecord, pipe: Pipeline) -> None:
+        """The changed record; an estimate that ends leaves the open index, its owner's count
+        and its views behind."""
+        pipe.set(self.key("estimate", estimate_id), changed.model_dump_json(), keepttl=True)
+        if changed.state.terminal:
+            pipe.zrem(self.key("estimates", "open"), estimate_id)
+            pipe.srem(self.key("estimates", "owner", changed.owner), estimate_id)
+            pipe.delete(self.key("estimate", estimate_id, "views"))
 
     def polled(self, estimate_id: str) -> None:
         """Its client is still there: the abandon clock starts again (open estimates only)."""

@@ -74,9 +74,7 @@ def _running_key(prefix: str, owner: str) -> str:
     return f"{prefix}:fair:running:{owner}"
 
 
-def task_started(
-    client: redis.Redis, prefix: str, queue: str, task_id: str, limit: float
-) -> None:
+def task_started(client: redis.Redis, prefix: str, queue: str, task_id: str, limit: float) -> None:
     """A solver task taken from ``queue`` runs (for at most ``limit`` seconds)."""
     owner = owner_of(queue)
     if owner is not None:

@@ -9,12 +9,18 @@ whatever the client's setting, which is also what redis-py's type hints (``bytes
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
 
 import redis
+from redis.client import Pipeline
 
 from shared.config import Settings
+
+T = TypeVar("T")
+
+#: Queues a change's commands on a pipeline (inside its MULTI).
+Writes = Callable[[Pipeline], object]
 
 #: Where the service looks for Redis when ``QHSM_REDIS_URL`` is unset.
 DEFAULT_REDIS_URL = "redis://127.0.0.1:6379/0"
@@ -64,3 +70,27 @@ def scored(reply: Iterable[object]) -> dict[str, float]:
         member, score = pair
         scores[text(member)] = float(score)
     return scores
+
+
+def update_watched(
+    client: redis.Redis, key: str, step: Callable[[bytes | None], tuple[T, Writes | None]]
+) -> T:
+    """Optimistic locking of one key: ``step(value)`` (None: no such key) says what to answer
+    and what to write (None: nothing); the writes go in one ``MULTI``/``EXEC`` that fails when
+    another client changed ``key`` since it was read, and then ``step`` runs again on the new
+    value. An exception from ``step`` leaves the key unchanged."""
+    with client.pipeline() as pipe:
+        while True:
+            try:
+                pipe.watch(key)
+                raw = pipe.get(key)
+                answer, writes = step(None if raw is None else as_bytes(raw))
+                if writes is None:
+                    pipe.unwatch()
+                    return answer
+                pipe.multi()
+                writes(pipe)
+                pipe.execute()
+                return answer
+            except redis.WatchError:
+                continue

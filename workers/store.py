@@ -39,11 +39,13 @@ import json
 import logging
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
+from functools import partial
 from importlib.resources import files
 from typing import Any, NamedTuple
 
 import numpy as np
 import redis
+from redis.client import Pipeline
 
 from shared.config import Settings
 from workers.arrays import array_fields, array_from, from_npy
@@ -61,7 +63,7 @@ from workers.records import (
     load_record,
     now,
 )
-from workers.redis_client import as_bytes, client_for, members, text
+from workers.redis_client import Writes, as_bytes, client_for, members, text, update_watched
 
 log = logging.getLogger(__name__)
 
@@ -260,34 +262,31 @@ class JobStore(LevelStorage):
         that returns None to leave it alone. A state the transition table does not allow
         from the current one raises :class:`TransitionError`."""
         key = self.key("job", job_id)
-        with self.redis.pipeline() as pipe:
-            while True:
-                try:
-                    pipe.watch(key)
-                    raw = pipe.get(key)
-                    current = None if raw is None else load_record(raw, job_id)
-                    if current is None:
-                        pipe.unwatch()
-                        return Applied(None, False)
-                    changed = change(current.model_copy(deep=True), *args, **kwargs)
-                    if changed is None:
-                        pipe.unwatch()
-                        return Applied(current, False)
-                    if not allowed(current.state, changed.state):
-                        pipe.unwatch()
-                        raise TransitionError(
-                            f"job {job_id}: {current.state} -> {changed.state} is not allowed"
-                        )
-                    pipe.multi()
-                    pipe.set(key, changed.model_dump_json(), keepttl=True)
-                    if changed.state.terminal and not changed.pinned:
-                        pipe.expire(key, self.ttl)
-                    pipe.execute()
-                    if changed.state.terminal and not current.state.terminal:
-                        self._finished(job_id, changed.pinned)
-                    return Applied(changed, True)
-                except redis.WatchError:
-                    continue
+
+        def step(raw: bytes | None) -> tuple[tuple[Applied, JobRecord | None], Writes | None]:
+            current = None if raw is None else load_record(raw, job_id)
+            if current is None:
+                return (Applied(None, False), None), None
+            changed = change(current.model_copy(deep=True), *args, **kwargs)
+            if changed is None:
+                return (Applied(current, False), None), None
+            if not allowed(current.state, changed.state):
+                raise TransitionError(
+                    f"job {job_id}: {current.state} -> {changed.state} is not allowed"
+                )
+            ended = changed if changed.state.terminal and not current.state.terminal else None
+            return (Applied(changed, True), ended), partial(self._write_change, key, changed)
+
+        applied, ended = update_watched(self.redis, key, step)
+        if ended is not None:
+            self._finished(job_id, ended.pinned)
+        return applied
+
+    def _write_change(self, key: str, changed: JobRecord, pipe: Pipeline) -> None:
+        """The changed record, kept for the results' time once it has ended (unless pinned)."""
+        pipe.set(key, changed.model_dump_json(), keepttl=True)
+        if changed.state.terminal and not changed.pinned:
+            pipe.expire(key, self.ttl)
 
     def update(
         self, job_id: str, change: Callable[[JobRecord], JobRecord | None]

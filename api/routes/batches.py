@@ -10,25 +10,23 @@ from fastapi.responses import JSONResponse
 
 from api import batch_service
 from api.batch_service import BatchForm
-from api.deps import ParamsForm, PrincipalDep, ServicesDep, UsersDep
-from api.responses import UPLOAD_ERRORS, links, summary_of
+from api.deps import ParamsForm, PrincipalDep, Responses, ServicesDep, UsersDep
+from api.responses import links, summary_of, upload_route
 from api.schemas import Batch, BatchCreated, BatchJob, BatchProgress, JobCreated
 from api.uploads import MAX_TAGS
 
 router = APIRouter(prefix="/batches", tags=["batches"])
 
 
-@router.post(
-    "",
-    status_code=http.HTTP_202_ACCEPTED,
-    response_model=BatchCreated,
-    responses={
-        **UPLOAD_ERRORS,
-        403: {"description": "QPU budget too small for the pairs so far (the pair is named)"},
-        429: {"description": "The batch would exceed the user's active-job cap"},
-        422: {"description": "A pair's views, params or ground truth refused (it is named)"},
-    },
-)
+#: What else a batch upload can be refused with (:func:`~api.responses.upload_route`).
+REFUSED: Responses = {
+    403: {"description": "QPU budget too small for the pairs so far (the pair is named)"},
+    429: {"description": "The batch would exceed the user's active-job cap"},
+    422: {"description": "A pair's views, params or ground truth refused (it is named)"},
+}
+
+
+@upload_route(router, "", BatchCreated, REFUSED)
 def create_batch(
     svc: ServicesDep,
     principal: PrincipalDep,

@@ -16,7 +16,7 @@ from api.deps import (
     ServicesDep,
     UsersDep,
 )
-from api.responses import UPLOAD_ERRORS
+from api.responses import upload_route
 from api.schemas import EstimateStatus
 
 router = APIRouter(tags=["jobs"])
@@ -24,16 +24,14 @@ router = APIRouter(tags=["jobs"])
 NOT_FOUND: Responses = {404: {"description": "No such estimate (or not yours), or it expired"}}
 
 
-@router.post(
-    "/estimate",
-    status_code=status.HTTP_202_ACCEPTED,
-    response_model=EstimateStatus,
-    responses={
-        **UPLOAD_ERRORS,
-        422: {"description": "Invalid parameters, sizes, or solver"},
-        429: {"description": "Too many of your estimates are waiting or computing"},
-    },
-)
+#: What else an estimate upload can be refused with (:func:`~api.responses.upload_route`).
+REFUSED: Responses = {
+    422: {"description": "Invalid parameters, sizes, or solver"},
+    429: {"description": "Too many of your estimates are waiting or computing"},
+}
+
+
+@upload_route(router, "/estimate", EstimateStatus, REFUSED)
 def estimate(
     svc: ServicesDep,
     principal: PrincipalDep,

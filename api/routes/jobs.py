@@ -19,6 +19,7 @@ from api.deps import (
     LeftView,
     ParamsForm,
     PrincipalDep,
+    Responses,
     RightView,
     Services,
     ServicesDep,
@@ -29,11 +30,11 @@ from api.job_service import JobForm, find_job, finished_result
 from api.responses import (
     NOT_FOUND,
     SCALE_HEADER,
-    UPLOAD_ERRORS,
     charged_seconds,
     display_max,
     links,
     summary_of,
+    upload_route,
 )
 from api.schemas import JobCreated, JobPage, JobStatus, JobSummary
 from api.uploads import GT_SCALE_RANGE, MAX_GT_BORDER, MAX_LABEL, MAX_TAGS, TAG, cameras_of
@@ -56,6 +57,14 @@ DISPARITY_MEDIA = {
 }
 #: Largest listing offset (Redis indexes are 64-bit; far past any real job count).
 MAX_OFFSET = 10**9
+#: What else a job upload can be refused with (:func:`~api.responses.upload_route`).
+REFUSED: Responses = {
+    403: {"description": "QPU budget too small for the job's estimate"},
+    429: {"description": "Too many of the user's jobs are queued or running"},
+    422: {
+        "description": "Invalid parameters (solver_params outside their range), sizes, or solver"
+    },
+}
 
 
 def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
@@ -91,20 +100,7 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     )
 
 
-@router.post(
-    "",
-    status_code=http.HTTP_202_ACCEPTED,
-    response_model=JobCreated,
-    responses={
-        **UPLOAD_ERRORS,
-        403: {"description": "QPU budget too small for the job's estimate"},
-        429: {"description": "Too many of the user's jobs are queued or running"},
-        422: {
-            "description": "Invalid parameters (solver_params outside their range), sizes, or "
-            "solver"
-        },
-    },
-)
+@upload_route(router, "", JobCreated, REFUSED)
 def create_job(
     svc: ServicesDep,
     principal: PrincipalDep,

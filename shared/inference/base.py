@@ -9,7 +9,7 @@ on the control or the solver's queue, bundles as Celery jobs, the fan-in) all go
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from typing import Protocol
 
@@ -112,6 +112,8 @@ class Strategy:
     name = ""
     plans_with_solver = False
     splits = False
+    #: Its bundles are whole rows (a row solver's chains or grids): a row segment is refused.
+    whole_rows = False
     #: ``LevelSolution.termination`` of the level (:class:`Termination`).
     termination: str | None = None
 
@@ -124,22 +126,42 @@ class Strategy:
     def bundle_config(self, inputs: LevelInputs, config: MatchConfig) -> MatchConfig:
         return config
 
+    def solve(
+        self,
+        inputs: LevelInputs,
+        config: MatchConfig,
+        bundles: Sequence[BundleSpec],
+        progress: BundleProgress | None = None,
+    ) -> list[BundleResult]:
+        """The strategy's :meth:`_solve` of the given bundles as :class:`Bundle` (none given:
+        nothing to do), progress reported as it goes; a ``ValueError`` when a strategy of
+        :attr:`whole_rows` is given a segment."""
+        if not bundles:
+            return []
+        items = [inputs.as_bundle(spec) for spec in bundles]
+        width = inputs.shape[1]
+        if self.whole_rows and any(b.col_start != 0 or b.col_stop != width for b in items):
+            raise ValueError(f"{config.solver} solves whole rows only, not row segments")
+        results: list[BundleResult] = []
+        for done in self._solve(inputs, config, items):
+            results.extend(done)
+            if progress is not None:
+                progress(len(results), len(items))
+        return results
+
+    def _solve(
+        self, inputs: LevelInputs, config: MatchConfig, items: list[Bundle]
+    ) -> Iterator[list[BundleResult]]:
+        """:meth:`solve`'s work on at least one bundle: their results in the given order, a
+        list at a time as they are done (progress is reported after each)."""
+        raise NotImplementedError
+
     def assemble(
         self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
     ) -> LevelSolution:
         solution = assemble(inputs, results, config)
         solution.termination = self.termination
         return solution
-
-
-def whole_rows(inputs: LevelInputs, solver: str, bundles: Sequence[BundleSpec]) -> list[Bundle]:
-    """The bundles as :class:`Bundle`; a ``ValueError`` when one is a segment of its rows (a row
-    solver solves whole rows)."""
-    items = [inputs.as_bundle(spec) for spec in bundles]
-    width = inputs.shape[1]
-    if any(b.col_start != 0 or b.col_stop != width for b in items):
-        raise ValueError(f"{solver} solves whole rows only, not row segments")
-    return items
 
 
 def width_setting(solver: ResolvedSolver, config: MatchConfig) -> int | str | None:

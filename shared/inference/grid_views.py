@@ -6,7 +6,7 @@ minimised over its row and column chains with a lower bound: dual decomposition
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -17,13 +17,11 @@ from shared.config import MatchConfig
 from shared.grid import DualResult
 from shared.grid_inference import Minimiser
 from shared.inference.base import (
-    BundleProgress,
     Strategy,
     Termination,
-    whole_rows,
     width_setting,
 )
-from shared.level_inputs import BundleSpec, LevelInputs
+from shared.level_inputs import LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.resolved import ResolvedSolver
 from shared.threads import threads
@@ -42,6 +40,8 @@ class GridViews(Strategy):
     """Each view's whole grid, minimised by ``minimise`` (the views side by side in threads:
     the compiled chain kernels release the GIL)."""
 
+    whole_rows = True
+
     def __init__(self, name: str, minimise: Minimiser, solver: ResolvedSolver) -> None:
         self.name = name
         self.minimise = minimise
@@ -56,16 +56,9 @@ class GridViews(Strategy):
         inputs.prepared = {"bundle_width": None, "bundle_height": height}
         return inputs.bundles(height, None, config.bundle_margin)
 
-    def solve(
-        self,
-        inputs: LevelInputs,
-        config: MatchConfig,
-        bundles: Sequence[BundleSpec],
-        progress: BundleProgress | None = None,
-    ) -> list[BundleResult]:
-        if not bundles:
-            return []
-        items = whole_rows(inputs, config.solver, bundles)
+    def _solve(
+        self, inputs: LevelInputs, config: MatchConfig, items: list[Bundle]
+    ) -> Iterator[list[BundleResult]]:
         row_ranges = [(b.row_start, b.row_stop) for b in items]
         inputs.binned_volumes()
 
@@ -85,13 +78,9 @@ class GridViews(Strategy):
                 stages=grid_stages(outcome),
             )
 
-        results: list[BundleResult] = []
         with ThreadPoolExecutor(grids_at_once(inputs, row_ranges)) as pool:
             for result in pool.map(solve, row_ranges):
-                results.append(result)
-                if progress is not None:
-                    progress(len(results), len(row_ranges))
-        return results
+                yield [result]
 
     def assemble(self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig):
         solution = super().assemble(inputs, results, config)

@@ -18,8 +18,8 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.inference.base import BundleProgress, Strategy, Termination, width_setting
-from shared.level_inputs import BundleSpec, LevelInputs
+from shared.inference.base import Strategy, Termination, width_setting
+from shared.level_inputs import LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.base import BatchSolver, ShapePlanner, SolveResult
 from shared.solvers.resolved import ResolvedSolver
@@ -125,19 +125,14 @@ class QuboStrategy(Strategy):
             }
         return bundles
 
-    def solve(
-        self,
-        inputs: LevelInputs,
-        config: MatchConfig,
-        bundles: Sequence[BundleSpec],
-        progress: BundleProgress | None = None,
-    ) -> list[BundleResult]:
+    def _solve(
+        self, inputs: LevelInputs, config: MatchConfig, items: list[Bundle]
+    ) -> Iterator[list[BundleResult]]:
         """The bundles' :meth:`problems` sent to the solver, in order."""
-        if not bundles:
-            return []
-        items = [inputs.as_bundle(spec) for spec in bundles]
-        problems = self.problems(inputs, config, items)
-        return sample(self.sampler, problems, config, len(items), progress)
+        codec = get_codec(config.encoding)
+        params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
+        for problem, outcome in answers(self.sampler, self.problems(inputs, config, items), params):
+            yield [bundle_result(problem, outcome, codec)]
 
     def warm_start(
         self, inputs: LevelInputs, row_costs: Costs, bundle: Bundle
@@ -163,25 +158,6 @@ def encoded(
     initial = None if start is None else codec.encode_labels(start, costs.num_labels)
     bqm = codec.encode(costs, config.rectifier)
     return TileProblem(bundle, costs, bqm, seed, initial)
-
-
-def sample(
-    solver: Any,
-    problems: Iterable[TileProblem],
-    config: MatchConfig,
-    total: int,
-    progress: BundleProgress | None = None,
-) -> list[BundleResult]:
-    """Each of the ``total`` problems' result, decoded (:func:`bundle_result`) as the solver
-    answers (:func:`answers`)."""
-    codec = get_codec(config.encoding)
-    params = {k: v for k, v in config.solver_params.items() if k not in PIPELINE_PARAMS}
-    results = []
-    for problem, outcome in answers(solver, problems, params):
-        results.append(bundle_result(problem, outcome, codec))
-        if progress is not None:
-            progress(len(results), total)
-    return results
 
 
 def answers(

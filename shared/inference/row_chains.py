@@ -6,7 +6,7 @@ not by the image)."""
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
@@ -15,13 +15,11 @@ from shared.bundles import Bundle
 from shared.config import MatchConfig
 from shared.energy import mrf_energy, row_energies
 from shared.inference.base import (
-    BundleProgress,
     Strategy,
     Termination,
-    whole_rows,
     width_setting,
 )
-from shared.level_inputs import BundleSpec, LevelInputs
+from shared.level_inputs import LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.base import RowSolver
 from shared.solvers.resolved import ResolvedSolver
@@ -38,6 +36,7 @@ class RowChains(Strategy):
     threads (numpy releases the GIL inside its loops: the blocks of both views overlap)."""
 
     name = "row-chains"
+    whole_rows = True
     termination = Termination.OPTIMAL
 
     def __init__(self, solver: ResolvedSolver) -> None:
@@ -51,28 +50,16 @@ class RowChains(Strategy):
         inputs.prepared = {"bundle_width": None, "bundle_height": config.bundle_height}
         return inputs.bundles(config.bundle_height, None, config.bundle_margin)
 
-    def solve(
-        self,
-        inputs: LevelInputs,
-        config: MatchConfig,
-        bundles: Sequence[BundleSpec],
-        progress: BundleProgress | None = None,
-    ) -> list[BundleResult]:
-        if not bundles:
-            return []
-        row_ranges = [(b.row_start, b.row_stop) for b in whole_rows(inputs, config.solver, bundles)]
+    def _solve(
+        self, inputs: LevelInputs, config: MatchConfig, items: list[Bundle]
+    ) -> Iterator[list[BundleResult]]:
+        row_ranges = [(b.row_start, b.row_stop) for b in items]
         width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
         rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
         blocks = _blocks(sorted(row_ranges), rows, inputs.view_height)
         inputs.binned_volumes()
-        results: list[BundleResult] = []
         with ThreadPoolExecutor(min(len(blocks), threads())) as pool:
-            solve = partial(_solve_block, self.solver.rows(), inputs, config)
-            for block_results in pool.map(solve, blocks):
-                results.extend(block_results)
-                if progress is not None:
-                    progress(len(results), len(row_ranges))
-        return results
+            yield from pool.map(partial(_solve_block, self.solver.rows(), inputs, config), blocks)
 
 
 def _solve_block(

@@ -1,4 +1,5 @@
-"""Composites around dimod samplers: what the pipeline adds to any sampler, in one place each.
+"""Composites around dimod samplers: what the pipeline adds to any sampler, in one place each
+(each a :class:`ChildComposite`: one child, its parameters and properties passed on).
 
 * :class:`SolverComposite`: a child sampler as a registered solver: the registry's default
   parameters, warm starts as ``initial_states`` (tiled over the reads) when the child takes them,
@@ -36,7 +37,31 @@ EMBEDDING_INFO = (
 PREPROCESSORS = ("roof-duality", "none")
 
 
-class SolverComposite(Sampler, dimod.ComposedSampler):
+class ChildComposite(dimod.ComposedSampler):
+    """A composite around one child sampler, in dimod's manner: the child as its only child, the
+    child's parameters plus :attr:`added_parameters`, the child's properties as
+    ``child_properties``."""
+
+    #: The parameters the composite takes on top of the child's.
+    added_parameters: tuple[str, ...] = ()
+
+    def __init__(self, child: Any) -> None:
+        self._child = child
+
+    @property
+    def children(self) -> list[dimod.Sampler]:
+        return [self._child]
+
+    @property
+    def parameters(self) -> dict[str, list]:
+        return {**self._child.parameters, **{name: [] for name in self.added_parameters}}
+
+    @property
+    def properties(self) -> dict[str, Any]:
+        return {"child_properties": self._child.properties.copy()}
+
+
+class SolverComposite(Sampler, ChildComposite):
     """A child ``dimod.Sampler`` run as a registered solver.
 
     Parameters
@@ -49,21 +74,13 @@ class SolverComposite(Sampler, dimod.ComposedSampler):
     """
 
     def __init__(self, child: dimod.Sampler, warm_overrides: dict[str, Any] | None = None):
-        self._child = child
+        super().__init__(child)
         self.warm_overrides = dict(warm_overrides or {})
-
-    @property
-    def children(self) -> list[dimod.Sampler]:
-        return [self._child]
 
     @property
     def parameters(self) -> dict[str, list]:
         child = self._child.parameters
         return {**child, "seed": child.get("seed", []), "initial_states": []}
-
-    @property
-    def properties(self) -> dict[str, Any]:
-        return {"child_properties": self._child.properties.copy()}
 
     def configure(self, params: dict[str, Any], warm: bool) -> tuple[dict[str, Any], dict]:
         """The child's parameters for a call with ``params`` (defaults filled in; with a warm
@@ -298,7 +315,7 @@ def reduce(bqm: dimod.BinaryQuadraticModel, preprocess: str = "roof-duality") ->
     return Reduction(bqm, fixed, rest, free, preprocess)
 
 
-class RoofDualityComposite(dimod.ComposedSampler):
+class RoofDualityComposite(ChildComposite):
     """Roof-duality fixing (:func:`reduce`) before the child samples the rest.
 
     Fixes most variables of domain-wall rows whose smoothness is convex (submodular rows); with
@@ -308,20 +325,7 @@ class RoofDualityComposite(dimod.ComposedSampler):
     them) are restricted to the free variables.
     """
 
-    def __init__(self, child: dimod.Sampler) -> None:
-        self._child = child
-
-    @property
-    def children(self) -> list[dimod.Sampler]:
-        return [self._child]
-
-    @property
-    def parameters(self) -> dict[str, list]:
-        return {**self._child.parameters, "preprocess": []}
-
-    @property
-    def properties(self) -> dict[str, Any]:
-        return {"child_properties": self._child.properties.copy()}
+    added_parameters = ("preprocess",)
 
     def sample(
         self,
@@ -358,7 +362,7 @@ class RoofDualityComposite(dimod.ComposedSampler):
         return reduction.complete(self._child.sample(reduction.rest, **params))
 
 
-class EmbeddingCacheComposite(dimod.ComposedSampler):
+class EmbeddingCacheComposite(ChildComposite):
     """dwave-system's ``FixedEmbeddingComposite`` on a structured child (a QPU or its mock),
     with the embedding looked up per BQM structure in an
     :class:`~shared.solvers.qpu.embedding_cache.EmbeddingCache` (computed and stored on a miss).
@@ -375,23 +379,14 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
         Solver name under which embedding sizes are recorded (for the QPU time estimates).
     """
 
+    added_parameters = ("chain_strength", "chain_break_method")
+
     def __init__(self, child: Any, cache, target: str, solver: str) -> None:
-        self._child, self.cache, self.target, self.solver = child, cache, target, solver
+        super().__init__(child)
+        self.cache, self.target, self.solver = cache, target, solver
         #: one FixedEmbeddingComposite per embedding: its chain structure is built once, not per
         #: bundle (that was ~10 % of a qpu-sim bundle's time)
         self._composites: dict[str, Any] = {}
-
-    @property
-    def children(self) -> list[dimod.Sampler]:
-        return [self._child]
-
-    @property
-    def parameters(self) -> dict[str, list]:
-        return {**self._child.parameters, "chain_strength": [], "chain_break_method": []}
-
-    @property
-    def properties(self) -> dict[str, Any]:
-        return {"child_properties": self._child.properties.copy()}
 
     def embedding(self, bqm: dimod.BinaryQuadraticModel) -> tuple[dict, str, str]:
         """(embedding, where it came from, cache key) of ``bqm``'s structure. Seed 0, not the
@@ -438,9 +433,7 @@ class EmbeddingCacheComposite(dimod.ComposedSampler):
             embedding, source, key = self.embedding(bqm)
             composite = self._composites.get(key)
             if composite is None:
-                composite = self._composites[key] = FixedEmbeddingComposite(
-                    self._child, embedding
-                )
+                composite = self._composites[key] = FixedEmbeddingComposite(self._child, embedding)
         else:
             whole, source, key = self.embedding(reduction.bqm)
             embedding = {i: whole[int(v)] for i, v in enumerate(reduction.free)}

@@ -96,7 +96,7 @@ class _HybridBatch(Sampler):
         started = time.perf_counter()
         params = {**self.defaults, **params}
         preprocess = params.pop("preprocess", "roof-duality")
-        try:
+        with self.translating():
             reductions = [reduce(bqm, preprocess) for bqm, _, _ in problems]
             sets: list[dimod.SampleSet | None] = [None] * len(problems)
             sent = [i for i, r in enumerate(reductions) if r.rest is not None]
@@ -114,13 +114,6 @@ class _HybridBatch(Sampler):
                     sampleset.info["block_variables"] = total
                     sampleset.info["block_bundles"] = len(block)
                     sets[i] = sampleset
-        except SolverError:
-            raise
-        except Exception as error:
-            mapped = self.translate(error)
-            if mapped is None:
-                raise
-            raise mapped from None
         each = (time.perf_counter() - started) / max(len(problems), 1)
         return [
             result_of(
@@ -175,12 +168,8 @@ class LeapHybridSolver(_HybridBatch):
 
     def _build_sampler(self):
         """:meth:`_make_sampler`, its errors as ours."""
-        try:
+        with self.translating():
             return self._make_sampler()
-        except SolverError:
-            raise
-        except Exception as error:
-            raise self.translate(error) from None
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
         """Send the BQM to Leap's hybrid solver and convert its timing to seconds.

@@ -23,7 +23,7 @@ import dimod
 
 from shared.solvers import params as schemas
 from shared.solvers.base import SolverError
-from shared.solvers.composites import RoofDualityComposite, SolverComposite
+from shared.solvers.composites import ChildComposite, RoofDualityComposite, SolverComposite
 from shared.solvers.records import DIMOD_PREFIX, DIMOD_QUEUE, SolverSpec
 
 
@@ -139,24 +139,13 @@ def sampler_class(name: str) -> type[dimod.Sampler]:
     return target
 
 
-class SizeLimit(dimod.ComposedSampler):
+class SizeLimit(ChildComposite):
     """Refuses bundles with more than ``max_variables`` variables (after roof duality) before
     the child allocates for them: an exact enumeration would need 2^n states."""
 
     def __init__(self, child: dimod.Sampler, max_variables: int, name: str) -> None:
-        self._child, self.max_variables, self.name = child, max_variables, name
-
-    @property
-    def children(self) -> list[dimod.Sampler]:
-        return [self._child]
-
-    @property
-    def parameters(self) -> dict[str, list]:
-        return self._child.parameters
-
-    @property
-    def properties(self) -> dict[str, Any]:
-        return {"child_properties": self._child.properties.copy()}
+        super().__init__(child)
+        self.max_variables, self.name = max_variables, name
 
     def sample(self, bqm, **params: Any) -> dimod.SampleSet:
         if bqm.num_variables > self.max_variables:

@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import dimod
@@ -61,6 +63,20 @@ class Sampler(dimod.Sampler):
             parameters); None for anything else.
         """
         return bad_parameters(self.name, error)
+
+    @contextmanager
+    def translating(self) -> Iterator[None]:
+        """Errors raised inside as ours (:meth:`translate`; ours, and those it leaves alone, pass
+        unchanged): for the sampler's own calls to its solver (building it, planning, a batch)."""
+        try:
+            yield
+        except SolverError:
+            raise
+        except Exception as error:
+            mapped = self.translate(error)
+            if mapped is None:
+                raise
+            raise mapped from None
 
     description = _declared("description")
     offline = _declared("offline")

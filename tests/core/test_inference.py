@@ -195,3 +195,36 @@ def test_a_grids_termination_is_read_from_its_views():
     assert (
         termination([result(0, 3), BundleResult(1, 2, np.zeros((1, 1)), 0.0, 0, 0.0)], cfg) is None
     )
+
+
+@pytest.mark.parametrize("name", ["grid-dd", "row-chains", "qubo-rows"])
+def test_solving_refuses_segments_to_whole_row_strategies_and_reports_each_bundle(name):
+    """:meth:`Strategy.solve`, shared by every strategy: a segment of a row goes to the QUBO
+    strategies only; nothing given, nothing solved or reported; otherwise (done, given) after
+    each unit of work, ending at all of them."""
+    options, _, _ = CASES[name]
+    events: list[tuple[int, int]] = []
+    outcome: dict[str, object] = {}
+
+    def check(inputs, cfg):
+        events.clear()  # each level's own
+        inference = inference_for(cfg)
+        bundles = inference.plan(inputs, cfg)
+        assert inference.solve(inputs, cfg, [], progress=lambda *e: events.append(e)) == []
+        assert events == []
+        segment = [0, 1, 0, inputs.shape[1] // 2]
+        try:
+            outcome["segment"] = len(inference.solve(inputs, cfg, [segment]))
+        except ValueError as error:
+            outcome["segment"] = str(error)
+        results = inference.solve(inputs, cfg, bundles, progress=lambda *e: events.append(e))
+        outcome["bundles"] = len(bundles)
+        return inference.assemble(inputs, results, cfg)
+
+    scene = pair()
+    run_pipeline(scene.left, scene.right, config(options), check)
+    refused = "exact solves whole rows only, not row segments"
+    assert outcome["segment"] == (1 if name == "qubo-rows" else refused)
+    given = outcome["bundles"]
+    assert events[-1] == (given, given)
+    assert [done for done, _ in events] == sorted({done for done, _ in events})

@@ -118,12 +118,8 @@ class _EmbeddedQPU(Sampler):
     def _build_sampler(self):
         """:meth:`_make_sampler`, its errors as ours (planning builds it outside any solve: an
         unreachable endpoint is then a transient error, a refused token a final one)."""
-        try:
+        with self.translating():
             return self._make_sampler()
-        except SolverError:
-            raise
-        except Exception as error:
-            raise self.translate(error) from None
 
     def timing_solver(self) -> Any:
         """The cloud solver whose ``problem_timing_data`` the estimates use (``LiveTiming``);
@@ -257,13 +253,9 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
         """Embed each bundle shape (rows, columns) of a level once, with its disjoint copies
         (:func:`~shared.solvers.qpu.packing.copies`), before its bundles fan out, so that no two
         workers compute the same embedding at the same time."""
-        try:
+        with self.translating():
             for height, width in shapes:
                 self.shape_copies(shape_bqm(str(encoding), height, width, candidates))
-        except SolverError:
-            raise
-        except Exception as error:
-            raise self.translate(error) from None
 
 
 class QPUSolver(_SegmentsOnGraph):

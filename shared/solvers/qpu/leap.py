@@ -88,8 +88,7 @@ def translate(name: str, error: Exception, token: str | None = None) -> SolverEr
     detail = scrub(f"{type(error).__name__}: {error}", token)
     if isinstance(error, cloud.SolverAuthenticationError | api.ResourceAuthenticationError):
         return SolverUnavailableError(
-            f"{name}: D-Wave rejected the API token (authentication failed); check "
-            "DWAVE_API_TOKEN"
+            f"{name}: D-Wave rejected the API token (authentication failed); check DWAVE_API_TOKEN"
         )
     if isinstance(error, api.ResourceAccessForbiddenError):
         return SolverUnavailableError(
@@ -108,8 +107,7 @@ def translate(name: str, error: Exception, token: str | None = None) -> SolverEr
         )
     if isinstance(error, cloud.SolverOfflineError):
         return TransientSolverError(
-            f"{name}: the D-Wave solver is offline ({scrub(reached(error), token)}); "
-            "retry later"
+            f"{name}: the D-Wave solver is offline ({scrub(reached(error), token)}); retry later"
         )
     if isinstance(
         error,

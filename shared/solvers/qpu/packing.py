@@ -25,7 +25,7 @@ import numpy as np
 
 from shared.activity import report
 from shared.config import get_settings
-from shared.solvers.base import SolverError, SolveResult, result_of
+from shared.solvers.base import SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
 from shared.solvers.params import MAX_BUNDLES_PER_CALL
 from shared.solvers.qpu.embedding_cache import EmbeddingCache
@@ -294,7 +294,7 @@ class PackedCalls:
 
         def composite(self) -> Any: ...
         def sampler(self) -> Any: ...
-        def translate(self, error: Exception) -> Any: ...
+        def translating(self) -> Any: ...
         def _seed_sampler(self, sampler: Any, seed: int | None) -> None: ...
         def _timing(self, info: dict, qubits: int, settings: dict) -> dict[str, float]: ...
 
@@ -320,7 +320,7 @@ class PackedCalls:
         params = {**self.defaults, **params}
         preprocess = params.pop("preprocess", "roof-duality")
         per_call = int(params.pop("bundles_per_call", MAX_COPIES))
-        try:
+        with self.translating():
             reductions = [reduce(bqm, preprocess) for bqm, _, _ in problems]
             sets: list[dimod.SampleSet | None] = [None] * len(problems)
             groups: dict[str, list[int]] = {}
@@ -341,10 +341,6 @@ class PackedCalls:
                     for i, part in zip(chunk, parts, strict=True):
                         part.info["embedding_cache"] = source
                         sets[i] = part
-        except SolverError:
-            raise
-        except Exception as error:
-            raise self.translate(error) from None
         each = (time.perf_counter() - started) / max(len(problems), 1)
         return [
             result_of(

@@ -19,6 +19,8 @@ from typing import Any
 
 import dimod
 
+from shared.solvers.composites import ChildComposite
+
 #: The label of a problem sent outside any job (``qhsm match``).
 DEFAULT_LABEL = "qhsm"
 
@@ -61,13 +63,10 @@ def current() -> ProblemLog | None:
     return _current.get()
 
 
-class LabelledSampler(dimod.ComposedSampler, dimod.Structured):
+class LabelledSampler(ChildComposite, dimod.Structured):
     """A Leap sampler (``DWaveSampler``, ``LeapHybridSampler``) whose every problem is labelled
     and whose problem ids are logged (:func:`sent_problems`); everything else is the child's
     (its graph, properties, ``solver``, ...)."""
-
-    def __init__(self, child: Any) -> None:
-        self._child = child
 
     def __getattr__(self, name: str) -> Any:  # the child's own attributes (client, solver, ...)
         if name == "_child":
@@ -75,16 +74,8 @@ class LabelledSampler(dimod.ComposedSampler, dimod.Structured):
         return getattr(self._child, name)
 
     @property
-    def children(self) -> list[Any]:
-        return [self._child]
-
-    @property
-    def parameters(self) -> dict[str, Any]:
-        return self._child.parameters
-
-    @property
     def properties(self) -> dict[str, Any]:
-        return self._child.properties
+        return self._child.properties  # its own, as the child's users read them
 
     @property
     def nodelist(self) -> list:
