@@ -25,19 +25,20 @@ from shared.synthetic import make_scene
 
 #: Each strategy's run on a tiny pair, and its digest (disparity, each level's energy, bound,
 #: bundles, repairs) as the if/isinstance dispatch (since folded into the strategies) gave it
-#: before them (main at e0e56e6).
+#: before them (main at e0e56e6; re-pinned with energies to 6 digits from 2d260cd, the commit that
+#: checked them against e0e56e6, whose code gives the same digests as today's).
 CASES = {
-    "grid-dd": ({"solver": "exact", "inference": "grid"}, GridViews, "c0a9fd5eea5c87d7"),
+    "grid-dd": ({"solver": "exact", "inference": "grid"}, GridViews, "91f054ba8fc46281"),
     "grid-trws": (
         {"solver": "exact", "inference": "grid", "grid_inference": "trws"},
         GridViews,
-        "71c45003e8b875e2",
+        "1453b2afe5f6e6c9",
     ),
-    "row-chains": ({"solver": "exact", "inference": "rows"}, RowChains, "621aa89d7282dfdf"),
+    "row-chains": ({"solver": "exact", "inference": "rows"}, RowChains, "5caa2ee2eb13cad8"),
     "qubo-rows": (
         {"solver": "steepest-descent", "inference": "rows", "bundle_width": 16, "bundle_margin": 4},
         QuboRows,
-        "38b89b9261d623bf",
+        "e0bfbc027850197c",
     ),
     "qubo-tiles": (
         {
@@ -47,12 +48,12 @@ CASES = {
             "solver_params": {"num_reads": 2},
         },
         QuboTiles,
-        "3fe2d697f3ec9487",
+        "e17fced6ee4027fb",
     ),
     "qubo-residual": (
         {"solver": "sa", "inference": "grid", "solver_params": {"num_reads": 2}},
         ResidualTiles,
-        "57dabf5918cb8379",
+        "40dc16063228fd5a",
     ),
 }
 
@@ -71,9 +72,16 @@ def digest(options: dict, solve_level=solve_level_in_process) -> str:
     found = hashlib.sha256(np.ascontiguousarray(result.disparity, np.float32).tobytes())
     for level in result.levels:
         found.update(
-            repr((level.energy, level.lower_bound, level.bundles, level.repaired)).encode()
+            repr((rounded(level.energy), rounded(level.lower_bound), level.bundles, level.repaired))
+            .encode()
         )
     return found.hexdigest()[:16]
+
+
+def rounded(value: float | None) -> str | None:
+    """Energies to 6 significant digits: OpenCV's SIMD paths (which differ between CPUs) move
+    the costs in the 8th digit without changing a label; the disparity is hashed exactly."""
+    return None if value is None else f"{value:.6g}"
 
 
 @pytest.mark.parametrize("name", list(CASES))
