@@ -72,8 +72,9 @@ def digest(options: dict, solve_level=solve_level_in_process) -> str:
     found = hashlib.sha256(np.ascontiguousarray(result.disparity, np.float32).tobytes())
     for level in result.levels:
         found.update(
-            repr((rounded(level.energy), rounded(level.lower_bound), level.bundles, level.repaired))
-            .encode()
+            repr(
+                (rounded(level.energy), rounded(level.lower_bound), level.bundles, level.repaired)
+            ).encode()
         )
     return found.hexdigest()[:16]
 
