@@ -20,9 +20,8 @@ import numpy as np
 from fastapi import FastAPI
 from starlette.exceptions import HTTPException
 
-from api.deps import Services, load_solver
+from api.deps import Services, load_solver, solver_catalog
 from api.uploads import decode_pair
-from shared.solvers.registry import solver_names
 from workers.arrays import array_fields
 
 log = logging.getLogger("qhsm.api")
@@ -92,8 +91,8 @@ async def _routes(app: FastAPI) -> None:
 def _solvers() -> None:
     """Every registered solver's adapter imported and its availability read (what
     ``check_solver`` does per request; one per process, kept by the registry)."""
-    for name in solver_names():
-        load_solver(name)
+    for solver in solver_catalog():
+        load_solver(solver.name)
 
 
 def _celery(svc: Services) -> None:
