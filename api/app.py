@@ -5,6 +5,8 @@ the package (fastapi-offline), never from a CDN."""
 from __future__ import annotations
 
 import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 
 import redis
 from fastapi import FastAPI, Request
@@ -22,6 +24,7 @@ from api.errors import DOMAIN_ERRORS, refusal_of, storage_full
 from api.middleware import ErrorBoundary, RequestGuard, storage_full_response
 from api.routes import health, metrics
 from api.users import UserStore
+from api.warmup import warm_up
 from shared.config import Settings, get_settings
 from workers.app import make_celery
 from workers.records import finite_or_null
@@ -34,7 +37,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """An app bound to ``settings`` (read from the environment when omitted)."""
     settings = settings or get_settings()
     celery = make_celery(settings, with_tasks=False)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await warm_up(app)  # before the first request is accepted (api/warmup.py)
+        yield
+
     app: FastAPI = FastAPIOffline(
+        lifespan=lifespan,
         title="qhsm",
         version="1",
         summary="Quantum-hybrid stereo matching as a job service",

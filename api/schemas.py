@@ -385,6 +385,10 @@ class EstimateStatus(BaseModel):
     finished_at: datetime | None = None
     result: Estimate | None = Field(None, description="Once done: the estimate")
     error: str | None = Field(None, description="Once failed or cancelled: why")
+    stage: str | None = Field(None, description="While running: what the worker is doing")
+    fraction: float | None = Field(
+        None, description="While running: the share of the levels priced so far (0-1)"
+    )
     links: dict[str, str] = Field(description="self: where to poll (and DELETE to cancel)")
 
     @classmethod
@@ -397,6 +401,8 @@ class EstimateStatus(BaseModel):
             finished_at=record.finished_at,
             result=result,
             error=record.error,
+            stage=record.stage,
+            fraction=record.fraction,
             links={"self": f"/v1/estimates/{record.id}"},
         )
 

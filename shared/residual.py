@@ -13,6 +13,7 @@ solver will cut them. Classical work only: nothing is sent anywhere.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -22,6 +23,13 @@ from shared.config import MatchConfig
 
 #: Bundles per level the survey reduces at most (evenly spread): a few seconds on Tsukuba.
 SURVEY_BUNDLES = 160
+
+#: Told ``(levels surveyed, levels)`` after each level (a pricing job's progress).
+LevelProgress = Callable[[int, int], object]
+
+
+def _no_progress(done: int, total: int) -> None:
+    return None
 
 
 @dataclass(frozen=True)
@@ -115,6 +123,7 @@ def survey(
     max_disparity: int,
     widths: list[int | None],
     limit: int = SURVEY_BUNDLES,
+    progress: LevelProgress = _no_progress,
 ) -> list[LevelResidual]:
     """Per level, what roof duality leaves of the bundles ``config``'s metered solver will send.
 
@@ -130,6 +139,8 @@ def survey(
         Each level's segment width (None: whole rows), as the estimate assumes it.
     limit : int
         Bundles reduced per level at most.
+    progress : callable, optional
+        Told ``(levels surveyed, len(widths))`` after each level is surveyed and solved.
 
     Returns
     -------
@@ -151,7 +162,9 @@ def survey(
 
     def solve_level(inputs, cfg):
         found.append(_probe(inputs, config, widths[len(found)], limit))
-        return solve_level_in_process(inputs, cfg)
+        solved = solve_level_in_process(inputs, cfg)
+        progress(len(found), len(widths))
+        return solved
 
     run_pipeline(left, right, exact, solve_level)
     return found
@@ -179,7 +192,12 @@ def level_widths(
 
 
 def job_residual(
-    config: MatchConfig, left, right, max_disparity: int, cache=None
+    config: MatchConfig,
+    left,
+    right,
+    max_disparity: int,
+    cache=None,
+    progress: LevelProgress = _no_progress,
 ) -> list[LevelResidual] | None:
     """What the exact classical steps (the host's settling, roof duality) leave of a metered job's
     bundles, per level (None for an unmetered solver, or with neither step):
@@ -195,6 +213,8 @@ def job_residual(
         The resolved maximum disparity.
     cache : EmbeddingCache, optional
         Where ``auto`` widths chosen before are looked up.
+    progress : callable, optional
+        Told ``(levels surveyed, levels)`` after each level (not called without a survey).
 
     Returns
     -------
@@ -207,4 +227,4 @@ def job_residual(
     if not is_metered(config.solver) or not classical:
         return None
     widths = level_widths(config, left.shape[:2], max_disparity, cache)
-    return survey(left, right, config, max_disparity, widths)
+    return survey(left, right, config, max_disparity, widths, progress=progress)

@@ -72,18 +72,30 @@ class EstimateRecord(BaseModel):
     cached: bool = False
     result: dict[str, Any] | None = None
     error: str | None = None
+    #: While running: what the pricing worker is doing, and the share of the levels priced
+    stage: str | None = None
+    fraction: float | None = None
 
     # state changes: pure, the record to write or None where the estimate has ended already
 
     def _ended(self, state: EstimateState, **fields: Any) -> EstimateRecord | None:
         if self.state.terminal:
             return None
-        return self.model_copy(update={"state": state, "finished_at": now(), **fields})
+        ended = {"state": state, "finished_at": now(), "stage": None, "fraction": None}
+        return self.model_copy(update=ended | fields)
 
     def running(self) -> EstimateRecord | None:
         if self.state is not EstimateState.PENDING:
             return None
         return self.model_copy(update={"state": EstimateState.RUNNING})
+
+    def progressed(self, stage: str, fraction: float) -> EstimateRecord | None:
+        if self.state is not EstimateState.RUNNING or (self.stage, self.fraction) == (
+            stage,
+            fraction,
+        ):
+            return None
+        return self.model_copy(update={"stage": stage, "fraction": fraction})
 
     def done(self, result: dict[str, Any], cached: bool = False) -> EstimateRecord | None:
         return self._ended(EstimateState.DONE, result=result, cached=cached)

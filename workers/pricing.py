@@ -37,6 +37,14 @@ log = logging.getLogger(__name__)
 #: What a pricing job's status says it is doing (``JobRecord.pricing_stage``).
 RANGE, SURVEY, ADMISSION = "estimating the disparity range", "surveying the levels", "admitting"
 
+#: Told what pricing is doing and the share of the levels priced so far (0-1): a pricing
+#: job's or estimate's progress.
+Stage = Callable[[str, float], object]
+
+
+def _quiet(stage: str, fraction: float) -> None:
+    return None
+
 
 class PricingError(ValueError):
     """The job cannot be priced with these parameters (the message says which)."""
@@ -75,21 +83,26 @@ def price(
     left: np.ndarray,
     right: np.ndarray,
     cache: EmbeddingCache,
-    stage: Callable[[str], object] = lambda _: None,
+    stage: Stage = _quiet,
     resolve_range: bool = True,
 ) -> Priced:
     """The job's metered time with the embeddings workers have found for the bundle shapes
-    they met and what the classical steps leave of its bundles (surveyed on the pair).
-    ``resolve_range`` False: a given range is taken as it is (the job's start checks the
-    views); ``PricingError`` for solver parameters the estimate cannot use."""
+    they met and what the classical steps leave of its bundles (surveyed on the pair; its
+    levels are what ``stage``'s fraction counts). ``resolve_range`` False: a given range is
+    taken as it is (the job's start checks the views); ``PricingError`` for solver parameters
+    the estimate cannot use."""
     found: RangeEstimate | None = None
     if resolve_range or not isinstance(config.max_disparity, int):
-        stage(RANGE)
+        stage(RANGE, 0.0)
         found = disparity_range_of(left, right, config)
     top = found.max_disparity if found is not None else int(config.max_disparity)
-    stage(SURVEY)
+    stage(SURVEY, 0.0)
+
+    def surveyed(done: int, total: int) -> None:
+        stage(SURVEY, done / total)
+
     try:
-        residual = job_residual(config, left, right, top, cache)
+        residual = job_residual(config, left, right, top, cache, surveyed)
         estimate = job_seconds(config, left.shape[:2], top, cache, residual)
     except (TypeError, ValueError, KeyError) as error:
         raise PricingError(
@@ -118,7 +131,11 @@ def price_estimate(
     views = estimates.load_views(estimate_id)
     if record is None or views is None:
         return None
-    priced = price(record.config, *views, embedding_cache(store))
+
+    def stage(name: str, fraction: float) -> None:
+        estimates.apply(estimate_id, EstimateRecord.progressed, name, fraction)
+
+    priced = price(record.config, *views, embedding_cache(store), stage)
     result = priced.result()
     estimates.cache(record.digest, result)
     return estimates.apply(estimate_id, EstimateRecord.done, result)
@@ -142,11 +159,11 @@ def price_job(
         return None
     left, right = store.load_views(job_id)
 
-    def stage(name: str) -> None:
-        store.apply(job_id, JobRecord.pricing_at, name)
+    def stage(name: str, fraction: float) -> None:
+        store.apply(job_id, JobRecord.pricing_at, name, fraction)
 
     priced = price(record.config, left, right, embedding_cache(store), stage, resolve_range=False)
-    stage(ADMISSION)
+    stage(ADMISSION, 1.0)
     check_fits(priced.memory_mb, budget_mb)
     bundles = priced.estimate.bundles
     ledger.check(record.owner or "", priced.estimate.seconds, f"this job ({bundles} bundles)")

@@ -207,6 +207,8 @@ class JobRecord(BaseModel):
     provenance_counts: dict[str, int] | None = None
     #: While pricing: what the pricing worker is doing (``workers.pricing.STAGES``)
     pricing_stage: str | None = None
+    #: While pricing: the share of the job's levels priced so far (0-1)
+    pricing_fraction: float | None = None
 
     @field_validator("metrics")
     @classmethod
@@ -251,11 +253,14 @@ class JobRecord(BaseModel):
             updates.setdefault("finished_at", at)
         return self.model_copy(update=updates)
 
-    def pricing_at(self, stage: str) -> JobRecord | None:
-        """The pricing job's current stage; None once it is no longer pricing."""
-        if self.state is not JobState.PRICING or self.pricing_stage == stage:
+    def pricing_at(self, stage: str, fraction: float | None = None) -> JobRecord | None:
+        """The pricing job's current stage and share of its levels priced; None once it is no
+        longer pricing (or nothing changed)."""
+        if self.state is not JobState.PRICING:
             return None
-        return self.model_copy(update={"pricing_stage": stage})
+        if (self.pricing_stage, self.pricing_fraction) == (stage, fraction):
+            return None
+        return self.model_copy(update={"pricing_stage": stage, "pricing_fraction": fraction})
 
     def priced(
         self,
@@ -281,6 +286,7 @@ class JobRecord(BaseModel):
             memory_mb=memory_mb,
             warnings=warnings,
             pricing_stage=None,
+            pricing_fraction=None,
             dispatched=False,
         )
 
@@ -431,6 +437,11 @@ class Progress(BaseModel):
     )
     stage: str | None = Field(
         None, description="While pricing: what the pricing worker is doing (range, survey, ...)"
+    )
+    fraction: float | None = Field(
+        None,
+        description="While pricing: the share of the levels priced so far (0-1; null before "
+        "a pricing worker has taken the job)",
     )
 
 

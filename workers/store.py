@@ -420,6 +420,7 @@ class JobStore(LevelStorage):
             bundles_total=record.bundles_total,
             phase=self.phase(record.id, max(current, 0)) if preparing else None,
             stage=record.pricing_stage,  # a pricing job's (workers.pricing)
+            fraction=record.pricing_fraction,
         )
 
     @staticmethod

@@ -67,7 +67,11 @@ function progressOf(job) {
   if (job.state === "succeeded") return { fraction: 1, text: "done" };
   const p = job.progress;
   if (job.state === "queued") return { fraction: 0, text: "waiting for a worker" };
-  if (job.state === "pricing") return { fraction: 0, text: `pricing: ${p?.stage ?? "waiting for a pricing worker"}` };
+  if (job.state === "pricing") {
+    // the bar is the run's: pricing comes before it, its own share of levels priced is text
+    const priced = p?.fraction == null ? "" : ` (${Math.round(p.fraction * 100)} % of the levels)`;
+    return { fraction: 0, text: `pricing: ${p?.stage ?? "waiting for a pricing worker"}${priced}` };
+  }
   if (!p) return { fraction: 0, text: "—" };
   if (!p.level || !p.bundles_total) {
     // the level is being prepared (a QPU solver's embedding search can take minutes)

@@ -257,3 +257,46 @@ def test_a_pricing_job_whose_pricing_task_was_lost_is_priced_again(api, api_sett
     assert pricing_task_id(job).encode() in message
     assert price_job(api_settings, job).state == "queued"  # the resent task prices it
     assert api.delete(f"/v1/jobs/{job}").status_code == 200
+
+
+def test_pricing_reports_the_share_of_levels_priced_while_it_runs(api, api_settings, monkeypatch):
+    """Issue 29: an estimate's poll and a pricing job's progress give the levels surveyed /
+    the levels as the pricing worker goes (not a stage name only); nothing once it ended."""
+    params = {"solver": "qpu-sim", "max_disparity": 16}  # three levels
+    seen: list[tuple[str | None, float | None]] = []
+    read = {"now": lambda: (None, None)}
+    real = pricing.job_residual
+
+    def watched(config, left, right, top, cache, progress):
+        def told(done: int, total: int) -> None:
+            progress(done, total)  # what the worker writes, then what a poll reads
+            seen.append(read["now"]())
+
+        return real(config, left, right, top, cache, told)
+
+    monkeypatch.setattr(pricing, "job_residual", watched)
+    created = ask(api, params).json()
+
+    def estimate_now():
+        body = api.get(created["links"]["self"]).json()
+        assert body["state"] == "running"
+        return body["stage"], body["fraction"]
+
+    read["now"] = estimate_now
+    compute(api_settings, created["id"])
+    assert seen == [(pricing.SURVEY, 1 / 3), (pricing.SURVEY, 2 / 3), (pricing.SURVEY, 1.0)]
+    done = api.get(created["links"]["self"]).json()
+    assert done["state"] == "done" and done["stage"] is None and done["fraction"] is None
+
+    job = post(api, params=params).json()["id"]
+    assert api.get(f"/v1/jobs/{job}").json()["progress"]["fraction"] is None  # not taken yet
+
+    def job_now():
+        progress = api.get(f"/v1/jobs/{job}").json()["progress"]
+        return progress["stage"], progress["fraction"]
+
+    read["now"], seen[:] = job_now, []
+    assert price_job(api_settings, job) is not None
+    assert seen == [(pricing.SURVEY, 1 / 3), (pricing.SURVEY, 2 / 3), (pricing.SURVEY, 1.0)]
+    assert job_now() == (None, None)  # queued
+    api.delete(f"/v1/jobs/{job}")

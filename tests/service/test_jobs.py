@@ -84,6 +84,7 @@ def test_result_identical_to_in_process_pipeline(client, pair, settings, params)
         "bundles_total": bundles,
         "phase": None,  # said only while a level is prepared
         "stage": None,  # only a pricing job has one
+        "fraction": None,
     }
     bounds = [level["lower_bound"] for level in status["levels"]]
     assert all(b <= level["energy"] for b, level in zip(bounds, status["levels"], strict=True))

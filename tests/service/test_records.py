@@ -73,16 +73,20 @@ def test_a_pricing_job_is_queued_once_with_its_estimate_or_ends():
     pricing = record(JobState.PRICING, warnings=["scale inferred"])
     assert not allowed(JobState.PRICING, JobState.RUNNING)
     assert pricing.started(T0) is None  # only queued by its pricing
-    surveying = pricing.pricing_at("surveying the levels")
+    surveying = pricing.pricing_at("surveying the levels", 0.0)
     assert surveying is not None and surveying.pricing_stage == "surveying the levels"
-    assert surveying.pricing_at("surveying the levels") is None  # nothing to write
+    assert surveying.pricing_at("surveying the levels", 0.0) is None  # nothing to write
+    halfway = surveying.pricing_at("surveying the levels", 0.5)
+    assert halfway is not None and halfway.pricing_fraction == 0.5
+    surveying = halfway
     found = RangeEstimate(max_disparity=12, source="auto", warning="views look swapped")
     queued = surveying.priced(T0, [0.5, 1.5], found, 3, 120)
     assert queued is not None and queued.state is JobState.QUEUED and not queued.dispatched
     assert queued.estimate_seconds == [0.5, 1.5] and queued.levels_total == 3
     assert queued.disparity_range == found and queued.memory_mb == 120
     assert queued.warnings == ["views look swapped", "scale inferred"]
-    assert queued.pricing_stage is None and queued.pricing_at("admitting") is None
+    assert queued.pricing_stage is None and queued.pricing_fraction is None
+    assert queued.pricing_at("admitting", 1.0) is None
     assert queued.priced(T0, [1.0], None, 1, 1) is None  # priced once
     assert pricing.cancelled(T0).state is JobState.CANCELLED
     assert pricing.failed(T0, "refused: not enough QPU budget").state is JobState.FAILED
