@@ -18,10 +18,17 @@ from typing import TYPE_CHECKING, Any, Final, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 if TYPE_CHECKING:  # re-exported lazily (__getattr__): `qhsm match` needs no pydantic-settings
-    from shared.settings import Settings, default_data_dir, get_settings, seconds_field
+    from shared.settings import (  # noqa: F401 (re-exported: one import path for configuration)
+        Settings,
+        default_data_dir,
+        get_settings,
+        seconds_field,
+    )
 
 #: What this module re-exports from :mod:`shared.settings` (one import path for configuration).
-_SETTINGS_NAMES: Final = frozenset({"Settings", "default_data_dir", "get_settings", "seconds_field"})
+_SETTINGS_NAMES: Final = frozenset(
+    {"Settings", "default_data_dir", "get_settings", "seconds_field"}
+)
 
 
 def __getattr__(name: str) -> Any:
@@ -234,9 +241,7 @@ class MatchConfig(BaseModel):
         "host's labels, and a tile's answer replaces the host's only where it lowers the "
         "level's energy (off: every bundle_height-row tile is sent)",
     )
-    data_term: DataTerm = Field(
-        description="squared, ad-census or census-gradient (from preset)"
-    )
+    data_term: DataTerm = Field(description="squared, ad-census or census-gradient (from preset)")
     max_disparity: int | Literal["auto"] = Field(
         AUTO,
         description="Largest disparity in full-resolution pixels, or auto: estimated from "
