@@ -9,12 +9,24 @@ go, the build fails with that message and the kernels stay just-in-time.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 import warnings
 from pathlib import Path
 
 from shared.kernels import SIGNATURES, cache_directory, module_name, pycc_signature
+
+
+def _releasing_gil(flags: type) -> type:
+    """``flags`` (numba's compiler flags) with ``release_gil`` on by default."""
+
+    class ReleasingGil(flags):
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    return ReleasingGil
 
 
 def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -> Path:
@@ -35,6 +47,7 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
     """
     with warnings.catch_warnings():  # pycc's deprecation notice: said in the module doc
         warnings.simplefilter("ignore")
+        import numba.pycc.compiler
         from numba.pycc import CC
 
     import shared.grid_kernels
@@ -42,7 +55,13 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
     directory = directory or cache_directory()
     directory.mkdir(parents=True, exist_ok=True)
     name = module_name()
-    with tempfile.TemporaryDirectory(dir=directory) as scratch:
+    flags = numba.pycc.compiler.Flags
+    with contextlib.ExitStack() as stack:
+        # pycc's Python wrappers keep the GIL, the kernels' ``nogil`` notwithstanding: its flags
+        # with ``release_gil`` set, as the jit wrappers have (two views solve in two threads)
+        setattr(numba.pycc.compiler, "Flags", _releasing_gil(flags))  # noqa: B010 (a type)
+        stack.callback(setattr, numba.pycc.compiler, "Flags", flags)
+        scratch = stack.enter_context(tempfile.TemporaryDirectory(dir=directory))
         cc = CC(name, source_module=shared.grid_kernels)
         cc.output_dir = scratch
         for kernel in names or tuple(SIGNATURES):

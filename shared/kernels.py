@@ -74,6 +74,7 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
 }  # fmt: skip
 
 SOURCE: Final = Path(__file__).with_name("grid_kernels.py")
+BUILD: Final = Path(__file__).with_name("kernel_build.py")
 
 
 def pycc_signature(name: str) -> str:
@@ -85,8 +86,10 @@ def pycc_signature(name: str) -> str:
 
 def module_name() -> str:
     """The compiled module's name: a digest of what its code depends on (the kernels' source,
-    the signatures, numba's version, Python's), so that a stale module is never loaded."""
+    the build, the signatures, numba's version, Python's), so that a stale module is never
+    loaded."""
     digest = hashlib.sha256(SOURCE.read_bytes())
+    digest.update(BUILD.read_bytes())  # how it was compiled
     digest.update(repr(SIGNATURES).encode())
     digest.update(sys.version.encode())
     spec = importlib.util.find_spec("numba")

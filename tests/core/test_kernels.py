@@ -66,3 +66,11 @@ def test_a_module_of_other_kernels_is_not_loaded(directory, compiled, tmp_path, 
     changed.write_bytes(kernels.SOURCE.read_bytes() + b"\n# changed\n")
     monkeypatch.setattr(kernels, "SOURCE", changed)
     assert kernels.load_compiled(directory) is None
+
+
+def test_the_compiled_wrappers_release_the_gil(directory):
+    """The two views solve in two threads: the compiled wrappers must release the GIL around a
+    kernel, as the jit ones do (``nogil``); pycc's own flags do not (a module built without
+    :func:`shared.kernel_build._releasing_gil` calls no ``PyEval_SaveThread``)."""
+    (built,) = directory.glob("_qhsm_kernels_*")
+    assert b"PyEval_SaveThread" in built.read_bytes()
