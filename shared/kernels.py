@@ -126,12 +126,13 @@ def load_compiled(directory: Path | None = None) -> ModuleType | None:
     return module
 
 
-def _fits(value: Any, argument: Argument) -> bool:
-    """Whether ``value`` is what the compiled code reads for ``argument``."""
+def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
+    """Whether ``value`` is what the compiled code reads for ``argument`` (an array's dtype
+    object, not its name: ``dtype.name`` is computed in Python at every call)."""
     if isinstance(argument, tuple):
         return (
             type(value) is np.ndarray
-            and value.dtype.name == argument[0]
+            and value.dtype == argument[0]
             and value.ndim == argument[1]
             and value.flags.c_contiguous
             and value.flags.writeable
@@ -149,7 +150,9 @@ class Kernel:
 
     def __init__(self, name: str, compiled: ModuleType | None) -> None:
         self.name = name
-        self.arguments = SIGNATURES[name][1]
+        self.arguments = [
+            (np.dtype(a[0]), a[1]) if isinstance(a, tuple) else a for a in SIGNATURES[name][1]
+        ]
         self.compiled: Callable[..., Any] | None = getattr(compiled, name, None)
         self._jit: Callable[..., Any] | None = None
 
