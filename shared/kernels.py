@@ -107,7 +107,8 @@ def cache_directory() -> Path:
 
 
 def load_compiled(directory: Path | None = None) -> ModuleType | None:
-    """The compiled module built for this source, or None when there is none.
+    """The compiled module built for this source, or None when there is none (or it does not
+    load).
 
     Parameters
     ----------
@@ -121,8 +122,11 @@ def load_compiled(directory: Path | None = None) -> ModuleType | None:
     spec = importlib.util.spec_from_file_location(name, found[0])
     if spec is None or spec.loader is None:
         return None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        module = importlib.util.module_from_spec(spec)  # an extension is loaded here
+        spec.loader.exec_module(module)
+    except (ImportError, OSError):  # built for another machine, or damaged: numba compiles
+        return None
     return module
 
 

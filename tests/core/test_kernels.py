@@ -74,3 +74,8 @@ def test_the_compiled_wrappers_release_the_gil(directory):
     :func:`shared.kernel_build._releasing_gil` calls no ``PyEval_SaveThread``)."""
     (built,) = directory.glob("_qhsm_kernels_*")
     assert b"PyEval_SaveThread" in built.read_bytes()
+
+
+def test_a_damaged_module_is_left_to_numba(tmp_path):
+    (tmp_path / f"{kernels.module_name()}.cpython-311-x86_64-linux-gnu.so").write_bytes(b"no")
+    assert kernels.load_compiled(tmp_path) is None
