@@ -115,6 +115,13 @@ def save_result(disparity, output: str) -> str:
     return output
 
 
+def cmd_build_kernels(args: argparse.Namespace) -> int:
+    from shared.kernel_build import build
+
+    print(f"wrote {build()}")
+    return 0
+
+
 def cmd_solvers(args: argparse.Namespace) -> int:
     """``qhsm solvers``: list every registered solver and whether it can run here, as a table
     or (``json``) JSON rows; 0, unavailable solvers being listed, not an error."""
@@ -224,22 +231,9 @@ def cmd_datasets_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from shared.cli_options import (
-        Parser,
-        add_json_option,
-        add_match_options,
-        add_pair_arguments,
-        add_processes_option,
-        int_or_auto,
-        model_option,
-    )
-    from shared.config import Encoding, MatchConfig
-    from shared.provenance import qhsm_version
-
-    parser = Parser(prog="qhsm", description=DESCRIPTION)
-    parser.add_argument("--version", action="version", version=f"qhsm {qhsm_version()}")
-    commands = parser.add_subparsers(dest="command", required=True)
+def _add_match(commands: argparse._SubParsersAction) -> None:
+    """Add ``qhsm match`` to the command's sub-parsers."""
+    from shared.cli_options import add_match_options, add_pair_arguments, add_processes_option
 
     match = commands.add_parser("match", help="match a stereo pair in this process")
     add_pair_arguments(match)
@@ -260,9 +254,38 @@ def build_parser() -> argparse.ArgumentParser:
     add_processes_option(match)
     match.set_defaults(handler=cmd_match)
 
+
+def build_parser(only_match: bool = False) -> argparse.ArgumentParser:
+    """``qhsm``'s parser with every command, or with ``match`` alone (``only_match``): the other
+    commands' parsers import the service's modules and read the settings for their defaults,
+    which a ``qhsm match`` process needs neither of (issue 28, item 3)."""
+    from shared.cli_options import (
+        Parser,
+        add_json_option,
+        add_processes_option,
+        int_or_auto,
+        model_option,
+    )
+    from shared.config import Encoding, MatchConfig
+    from shared.provenance import qhsm_version
+
+    parser = Parser(prog="qhsm", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"qhsm {qhsm_version()}")
+    commands = parser.add_subparsers(dest="command", required=True)
+    _add_match(commands)
+    if only_match:
+        return parser
+
     from shared import cli_results
 
     cli_results.register(commands)
+
+    kernels = commands.add_parser(
+        "build-kernels",
+        help="compile the matcher's kernels ahead of time (once after installing: each qhsm "
+        "match then starts about 0.7 s of CPU sooner; needs a C compiler)",
+    )
+    kernels.set_defaults(handler=cmd_build_kernels)
 
     solvers = commands.add_parser("solvers", help="list solvers and whether they can run here")
     add_json_option(solvers, "the list")
@@ -393,7 +416,8 @@ def _run(argv: Sequence[str] | None) -> int:
     from shared.solvers import SolverError, UnknownSolverError
 
     warnings.showwarning = _show_warning
-    args = build_parser().parse_args(argv)
+    arguments = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(only_match=arguments[:1] == ["match"]).parse_args(arguments)
     try:
         return args.handler(args)
     except (

@@ -9,12 +9,15 @@ import argparse
 import json
 from enum import Enum
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin
+from typing import TYPE_CHECKING, Any, Literal, get_args, get_origin
 
 from pydantic import AliasChoices, BaseModel
 from pydantic.fields import FieldInfo
 
-from shared.config import AUTO, MatchConfig, Settings, get_settings
+from shared.config import AUTO, MatchConfig
+
+if TYPE_CHECKING:
+    from shared.settings import Settings
 
 
 class CommandError(Exception):
@@ -190,6 +193,8 @@ def setting_option(
     argparse.Action
         The added option.
     """
+    from shared.settings import Settings, get_settings  # the service's commands only
+
     field = Settings.model_fields[name]
     alias = field.validation_alias
     env = alias.choices[0] if isinstance(alias, AliasChoices) else alias
@@ -220,6 +225,8 @@ def settings_from_args(args: argparse.Namespace) -> Settings:
     Settings
         A copy of :func:`shared.config.get_settings` with the overrides.
     """
+    from shared.settings import Settings, get_settings
+
     changes = {
         name: getattr(args, name)
         for name in Settings.model_fields

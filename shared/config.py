@@ -13,16 +13,32 @@ from __future__ import annotations
 
 import itertools
 from enum import StrEnum
-from typing import Any, Final, Literal
+from typing import TYPE_CHECKING, Any, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from shared.settings import (  # noqa: F401 (re-exported: one import path for all configuration)
-    Settings,
-    default_data_dir,
-    get_settings,
-    seconds_field,
+if TYPE_CHECKING:  # re-exported lazily (__getattr__): `qhsm match` needs no pydantic-settings
+    from shared.settings import (  # noqa: F401 (re-exported: one import path for configuration)
+        Settings,
+        default_data_dir,
+        get_settings,
+        seconds_field,
+    )
+
+#: What this module re-exports from :mod:`shared.settings` (one import path for configuration).
+_SETTINGS_NAMES: Final = frozenset(
+    {"Settings", "default_data_dir", "get_settings", "seconds_field"}
 )
+
+
+def __getattr__(name: str) -> Any:
+    """The re-exports of :mod:`shared.settings`, imported on first use: it loads
+    pydantic-settings, which the matcher's path (``qhsm match``) does not need."""
+    if name in _SETTINGS_NAMES:
+        import shared.settings
+
+        return getattr(shared.settings, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class Regularizer(StrEnum):
@@ -225,9 +241,7 @@ class MatchConfig(BaseModel):
         "host's labels, and a tile's answer replaces the host's only where it lowers the "
         "level's energy (off: every bundle_height-row tile is sent)",
     )
-    data_term: DataTerm = Field(
-        description="squared, ad-census or census-gradient (from preset)"
-    )
+    data_term: DataTerm = Field(description="squared, ad-census or census-gradient (from preset)")
     max_disparity: int | Literal["auto"] = Field(
         AUTO,
         description="Largest disparity in full-resolution pixels, or auto: estimated from "

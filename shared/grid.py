@@ -35,13 +35,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.config import LevelConfig, Regularizer
-from shared.grid_kernels import (
-    _chains_general,
-    _chains_windows,
-    _disagreements,
-    _grid_energy,
-    _neighbour_costs,
-    _subgradient_step,
+from shared.kernels import (
+    chains_general,
+    chains_windows,
+    disagreements,
+    grid_energy,
+    neighbour_costs,
+    subgradient_step,
 )
 
 #: The primal heuristic runs every this many dual iterations.
@@ -130,7 +130,7 @@ class GridMRF:
         -------
         float
         """
-        per_row = _grid_energy(
+        per_row = grid_energy(
             self.unary,
             self.candidates,
             self.weight_h,
@@ -209,7 +209,7 @@ class GridMRF:
             (h, w, K) float32.
         """
         out = np.empty(self.unary.shape, dtype=np.float32)
-        _neighbour_costs(
+        neighbour_costs(
             self.candidates,
             self.windows(),
             self.first is not None,
@@ -358,11 +358,11 @@ def solve_chains(
     weight = mrf.weight_v if along_columns else mrf.weight_h
     common = (turn(base), float(scale), turn(extra), float(sign))
     if mrf.first is not None:
-        energies = _chains_windows(
+        energies = chains_windows(
             *common, flip(mrf.first), flip(weight), mrf.slope, mrf.truncation, flip(labels)
         )
     else:
-        energies = _chains_general(
+        energies = chains_general(
             *common, turn(mrf.candidates), flip(weight), mrf.slope, mrf.truncation, flip(labels)
         )
     return labels, energies
@@ -450,7 +450,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
         consider(column_labels)
         if done % PRIMAL_EVERY == 0:
             consider(chain_primal(mrf, turned, column_labels))
-        disagreeing = _disagreements(row_labels, turned_labels)
+        disagreeing = disagreements(row_labels, turned_labels)
         if current > bound:
             bound, stalled = current, 0
         else:
@@ -460,7 +460,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
         if disagreeing == 0 or best_energy - bound <= gap * abs(best_energy):
             break
         step = np.float32(gamma * max(best_energy - current, 0.0) / (2 * disagreeing))
-        _subgradient_step(multipliers, multipliers_turned, row_labels, turned_labels, step)
+        subgradient_step(multipliers, multipliers_turned, row_labels, turned_labels, step)
     return DualResult(
         labels=best_labels,
         energy=float(best_energy),

@@ -17,7 +17,7 @@ import numpy as np
 
 from shared.config import GridInference, MatchConfig
 from shared.grid import DualResult, GridMRF, chain_primal, dual_decomposition
-from shared.grid_kernels import _trws_pass
+from shared.kernels import trws_pass
 
 #: A minimiser of one view's grid: (mrf, iterations, gap) -> its result.
 Minimiser = Callable[[GridMRF, int, float], DualResult]
@@ -53,7 +53,7 @@ def trws(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualResult:
     for iteration in range(1, iterations + 1):
         done = iteration
         for forward, labels in ((True, passes[0]), (False, passes[1])):
-            pass_bound = _trws_pass(
+            pass_bound = trws_pass(
                 mrf.unary,
                 mrf.candidates,
                 mrf.windows(),

@@ -19,7 +19,8 @@ PROBE = """
 import sys
 from shared.cli import main
 code = main(sys.argv[1:])
-heavy = sorted(m for m in ("dimod", "networkx", "celery", "fastapi", "dwave") if m in sys.modules)
+heavy = ("dimod", "networkx", "celery", "fastapi", "dwave", "pydantic_settings")
+heavy = sorted(m for m in heavy if m in sys.modules)
 print("HEAVY", ",".join(heavy))
 sys.exit(code)
 """
@@ -44,3 +45,46 @@ def test_match_with_exact_imports_neither_dimod_nor_networkx(tmp_path):
     assert done.returncode == 0, done.stderr
     assert output.exists()
     assert "HEAVY \n" in done.stdout
+
+
+def test_match_with_compiled_kernels_imports_no_numba_and_gives_the_same_map(tmp_path):
+    """With the kernels built ahead of time (``qhsm build-kernels``) neither numba nor SciPy is
+    imported, and the map is the just-in-time one's, byte for byte."""
+    from shared.kernel_build import build
+
+    scene = make_scene(20, 28, max_disparity=4, seed=1)
+    views = []
+    for name, view in (("left", scene.left), ("right", scene.right)):
+        path = tmp_path / f"{name}.png"
+        cv2.imwrite(str(path), np.round(np.clip(view, 0, 1) * 255).astype(np.uint8))
+        views.append(str(path))
+    probe = PROBE.replace('"dwave", ', '"dwave", "numba", "scipy", ')
+    assert probe != PROBE
+    maps = []
+    for cache in (tmp_path / "none", tmp_path / "built"):
+        if cache.name == "built":
+            build(cache / "qhsm" / "kernels")
+        output = tmp_path / f"{cache.name}.pfm"
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                probe,
+                "match",
+                *views,
+                "-o",
+                str(output),
+                "--max-disparity",
+                "4",
+            ],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            env={**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(cache)},
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr
+        maps.append(output.read_bytes())
+        heavy = "HEAVY numba,scipy\n" if cache.name == "none" else "HEAVY \n"
+        assert heavy in done.stdout
+    assert maps[0] == maps[1]

@@ -1,0 +1,74 @@
+"""Compile the kernels of :mod:`shared.grid_kernels` ahead of time (numba's ``pycc``) into the
+module :mod:`shared.kernels` loads: ``qhsm build-kernels`` once after installing or upgrading
+(about a minute of CPU; needs a C compiler). Without it everything works, each process then
+compiles or loads the kernels through numba (issue 28, item 3).
+
+Numba 0.68 still ships ``numba.pycc`` (deprecated since 0.57 without a replacement); should it
+go, the build fails with that message and the kernels stay just-in-time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+from shared.kernels import SIGNATURES, cache_directory, module_name, pycc_signature
+
+
+def _releasing_gil(flags: type) -> type:
+    """``flags`` (numba's compiler flags) with ``release_gil`` on by default."""
+
+    class ReleasingGil(flags):
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    return ReleasingGil
+
+
+def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -> Path:
+    """Compile the kernels and put the module where :func:`shared.kernels.load_compiled` looks.
+
+    Parameters
+    ----------
+    directory : pathlib.Path, optional
+        Destination (default: :func:`shared.kernels.cache_directory`).
+    names : tuple of str, optional
+        A subset of :data:`shared.kernels.SIGNATURES` (default: all); the others stay
+        just-in-time.
+
+    Returns
+    -------
+    pathlib.Path
+        The compiled module's file.
+    """
+    with warnings.catch_warnings():  # pycc's deprecation notice: said in the module doc
+        warnings.simplefilter("ignore")
+        import numba.pycc.compiler
+        from numba.pycc import CC
+
+    import shared.grid_kernels
+
+    directory = directory or cache_directory()
+    directory.mkdir(parents=True, exist_ok=True)
+    name = module_name()
+    flags = numba.pycc.compiler.Flags
+    with contextlib.ExitStack() as stack:
+        # pycc's Python wrappers keep the GIL, the kernels' ``nogil`` notwithstanding: its flags
+        # with ``release_gil`` set, as the jit wrappers have (two views solve in two threads)
+        setattr(numba.pycc.compiler, "Flags", _releasing_gil(flags))  # noqa: B010 (a type)
+        stack.callback(setattr, numba.pycc.compiler, "Flags", flags)
+        scratch = stack.enter_context(tempfile.TemporaryDirectory(dir=directory))
+        cc = CC(name, source_module=shared.grid_kernels)
+        cc.output_dir = scratch
+        for kernel in names or tuple(SIGNATURES):
+            dispatcher = getattr(shared.grid_kernels, kernel)
+            cc.export(kernel, pycc_signature(kernel))(dispatcher.py_func)
+        cc.compile()
+        built = next(Path(scratch).glob(f"{name}.*"))
+        target = directory / built.name
+        os.replace(built, target)  # atomic: a process loading it sees all or nothing
+    return target

@@ -1,0 +1,189 @@
+"""The kernels of :mod:`shared.grid_kernels` as the rest of the code calls them: from their
+ahead-of-time compiled module when one was built for this source (``qhsm build-kernels``,
+:mod:`shared.kernel_build`), else just in time by numba.
+
+Why: a process that jit-calls a kernel pays numba's import (0.3 s CPU) and, at its first call,
+numba's target set-up with SciPy's import (0.4-0.5 s), even when the compiled code is cached;
+``qhsm match`` on Tsukuba takes about 2.5 s in all (issue 28, item 3). A compiled module imports
+in a millisecond.
+
+A compiled function converts its arguments without checking their types (a wrong dtype reads
+memory as another type), so each call is checked here against the signature it was compiled for
+(:data:`SIGNATURES`); any other call (strided views, other dtypes) goes to numba, which compiles
+what it needs. Both compile the same source with the same numba: the results are the same.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+from typing import Any, Final
+
+import numpy as np
+
+#: An argument: ``(dtype, ndim)`` for a C-contiguous, writeable array, else a scalar type name.
+Argument = tuple[str, int] | str
+
+#: Each exported kernel's signature: its result (pycc notation) and its arguments.
+SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
+    "_chains_windows": (
+        "float64[::1]",
+        (
+            ("float32", 3), "float64", ("float32", 3), "float64", ("int32", 2),
+            ("float64", 2), "float64", "float64", ("int32", 2),
+        ),
+    ),
+    "_chains_general": (
+        "float64[::1]",
+        (
+            ("float32", 3), "float64", ("float32", 3), "float64", ("int32", 3),
+            ("float64", 2), "float64", "float64", ("int32", 2),
+        ),
+    ),
+    "_grid_energy": (
+        "float64[::1]",
+        (
+            ("float32", 3), ("int32", 3), ("float64", 2), ("float64", 2), "float64", "float64",
+            ("int32", 2),
+        ),
+    ),
+    "_neighbour_costs": (
+        "none",
+        (
+            ("int32", 3), ("int32", 2), "boolean", ("float64", 2), ("float64", 2), "float64",
+            "float64", ("int32", 2), "boolean", ("float32", 3),
+        ),
+    ),
+    "_disagreements": ("int64", (("int32", 2), ("int32", 2))),
+    "_subgradient_step": (
+        "none",
+        (("float32", 3), ("float32", 3), ("int32", 2), ("int32", 2), "float32"),
+    ),
+    "_trws_pass": (
+        "float64",
+        (
+            ("float32", 3), ("int32", 3), ("int32", 2), "boolean", ("float64", 2),
+            ("float64", 2), "float64", "float64", ("float32", 3), ("float32", 3),
+            ("float32", 3), ("float32", 3), "boolean", ("int32", 2),
+        ),
+    ),
+}  # fmt: skip
+
+SOURCE: Final = Path(__file__).with_name("grid_kernels.py")
+BUILD: Final = Path(__file__).with_name("kernel_build.py")
+
+
+def pycc_signature(name: str) -> str:
+    """The signature of kernel ``name`` in numba's notation, e.g. ``int64(int32[:, ::1], ...)``."""
+    result, arguments = SIGNATURES[name]
+    written = [f"{a[0]}[{':, ' * (a[1] - 1)}::1]" if isinstance(a, tuple) else a for a in arguments]
+    return f"{result}({', '.join(written)})"
+
+
+def module_name() -> str:
+    """The compiled module's name: a digest of what its code depends on (the kernels' source,
+    the build, the signatures, numba's version, Python's), so that a stale module is never
+    loaded."""
+    digest = hashlib.sha256(SOURCE.read_bytes())
+    digest.update(BUILD.read_bytes())  # how it was compiled
+    digest.update(repr(SIGNATURES).encode())
+    digest.update(sys.version.encode())
+    spec = importlib.util.find_spec("numba")
+    if spec is not None and spec.origin is not None:  # its version file, not an import
+        version = Path(spec.origin).with_name("_version.py")
+        digest.update(version.read_bytes() if version.exists() else b"")
+    return f"_qhsm_kernels_{digest.hexdigest()[:16]}"
+
+
+def cache_directory() -> Path:
+    """Where compiled modules are kept: the user's cache folder (``~/.cache/qhsm/kernels``)."""
+    import platformdirs
+
+    return platformdirs.user_cache_path("qhsm", appauthor=False) / "kernels"
+
+
+def load_compiled(directory: Path | None = None) -> ModuleType | None:
+    """The compiled module built for this source, or None when there is none (or it does not
+    load).
+
+    Parameters
+    ----------
+    directory : pathlib.Path, optional
+        Where to look (default: :func:`cache_directory`).
+    """
+    name = module_name()
+    found = sorted((directory or cache_directory()).glob(f"{name}.*"))
+    if not found:
+        return None
+    spec = importlib.util.spec_from_file_location(name, found[0])
+    if spec is None or spec.loader is None:
+        return None
+    try:
+        module = importlib.util.module_from_spec(spec)  # an extension is loaded here
+        spec.loader.exec_module(module)
+    except (ImportError, OSError):  # built for another machine, or damaged: numba compiles
+        return None
+    return module
+
+
+def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
+    """Whether ``value`` is what the compiled code reads for ``argument`` (an array's dtype
+    object, not its name: ``dtype.name`` is computed in Python at every call)."""
+    if isinstance(argument, tuple):
+        return (
+            type(value) is np.ndarray
+            and value.dtype == argument[0]
+            and value.ndim == argument[1]
+            and value.flags.c_contiguous
+            and value.flags.writeable
+            and value.flags.aligned
+        )
+    if argument == "float64":
+        return isinstance(value, float)  # numba types np.float64 as float64 too
+    if argument == "float32":
+        return isinstance(value, np.float32)
+    return type(value) is bool or isinstance(value, np.bool_)
+
+
+class Kernel:
+    """One kernel: compiled when the call fits its signature, else numba's dispatcher."""
+
+    def __init__(self, name: str, compiled: ModuleType | None) -> None:
+        self.name = name
+        self.arguments = [
+            (np.dtype(a[0]), a[1]) if isinstance(a, tuple) else a for a in SIGNATURES[name][1]
+        ]
+        self.compiled: Callable[..., Any] | None = getattr(compiled, name, None)
+        self._jit: Callable[..., Any] | None = None
+
+    def jit(self) -> Callable[..., Any]:
+        """Numba's dispatcher of the kernel (imports numba on first use)."""
+        if self._jit is None:
+            import shared.grid_kernels
+
+            self._jit = getattr(shared.grid_kernels, self.name)
+        return self._jit
+
+    def __call__(self, *args: Any) -> Any:
+        if (
+            self.compiled is not None
+            and len(args) == len(self.arguments)
+            and all(_fits(a, kind) for a, kind in zip(args, self.arguments, strict=True))
+        ):
+            return self.compiled(*args)
+        return self.jit()(*args)
+
+
+_COMPILED = load_compiled()
+
+chains_windows = Kernel("_chains_windows", _COMPILED)
+chains_general = Kernel("_chains_general", _COMPILED)
+grid_energy = Kernel("_grid_energy", _COMPILED)
+neighbour_costs = Kernel("_neighbour_costs", _COMPILED)
+disagreements = Kernel("_disagreements", _COMPILED)
+subgradient_step = Kernel("_subgradient_step", _COMPILED)
+trws_pass = Kernel("_trws_pass", _COMPILED)

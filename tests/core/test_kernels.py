@@ -1,0 +1,81 @@
+"""The ahead-of-time compiled kernels (issue 28, item 3): the same results as numba's, used only
+for calls that fit their signature, and a module of another source never loaded."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import shared.grid_kernels
+from shared import kernels
+from shared.kernel_build import build
+
+
+@pytest.fixture(scope="module")
+def directory(tmp_path_factory):
+    built = tmp_path_factory.mktemp("kernels")
+    build(built, names=("_disagreements", "_grid_energy"))
+    return built
+
+
+@pytest.fixture(scope="module")
+def compiled(directory):
+    return kernels.load_compiled(directory)
+
+
+def _energy_arguments(seed: int) -> tuple:
+    rng = np.random.default_rng(seed)
+    height, width, count = 5, 7, 4
+    return (
+        rng.random((height, width, count), dtype=np.float32),
+        rng.integers(0, 9, (height, width, count), dtype=np.int32),
+        rng.random((height, width - 1)),
+        rng.random((height - 1, width)),
+        0.7,
+        2.5,
+        rng.integers(0, count, (height, width), dtype=np.int32),
+    )
+
+
+def test_the_compiled_kernel_gives_numbas_floats(compiled):
+    kernel = kernels.Kernel("_grid_energy", compiled)
+    assert kernel.compiled is not None
+    for seed in range(3):
+        arguments = _energy_arguments(seed)
+        assert np.array_equal(
+            kernel.compiled(*arguments), shared.grid_kernels._grid_energy(*arguments)
+        )
+
+
+def test_calls_that_do_not_fit_the_signature_go_to_numba(compiled, monkeypatch):
+    kernel = kernels.Kernel("_disagreements", compiled)
+    taken = []
+    monkeypatch.setattr(kernel, "compiled", lambda *a: taken.append("compiled") or 0)
+    monkeypatch.setattr(kernel, "_jit", lambda *a: taken.append("jit") or 0)
+    rows = np.zeros((3, 4), dtype=np.int32)
+    kernel(rows, np.zeros((4, 3), dtype=np.int32))
+    kernel(rows, np.zeros((3, 4), dtype=np.int32).T)  # strided
+    kernel(rows, np.zeros((4, 3), dtype=np.int64))  # another dtype: would read garbage
+    kernel(rows.astype(np.float32), np.zeros((4, 3), dtype=np.int32))
+    assert taken == ["compiled", "jit", "jit", "jit"]
+
+
+def test_a_module_of_other_kernels_is_not_loaded(directory, compiled, tmp_path, monkeypatch):
+    assert compiled is not None
+    changed = tmp_path / "grid_kernels.py"
+    changed.write_bytes(kernels.SOURCE.read_bytes() + b"\n# changed\n")
+    monkeypatch.setattr(kernels, "SOURCE", changed)
+    assert kernels.load_compiled(directory) is None
+
+
+def test_the_compiled_wrappers_release_the_gil(directory):
+    """The two views solve in two threads: the compiled wrappers must release the GIL around a
+    kernel, as the jit ones do (``nogil``); pycc's own flags do not (a module built without
+    :func:`shared.kernel_build._releasing_gil` calls no ``PyEval_SaveThread``)."""
+    (built,) = directory.glob("_qhsm_kernels_*")
+    assert b"PyEval_SaveThread" in built.read_bytes()
+
+
+def test_a_damaged_module_is_left_to_numba(tmp_path):
+    (tmp_path / f"{kernels.module_name()}.cpython-311-x86_64-linux-gnu.so").write_bytes(b"no")
+    assert kernels.load_compiled(tmp_path) is None
