@@ -131,7 +131,7 @@ def finish_maps(
     if views == 2:
         right_disparity = pyramid.upsample_disparity(level_map[height:, ::-1], left.shape[:2])
         valid = filters.left_right_check(disparity, right_disparity, config.lr_tolerance)
-        disparity = filters.fill_from_background(disparity, valid)
+        disparity = filters.fill_occlusions(disparity, valid, config.lr_tolerance)
         if provenance is not None:
             provenance = np.where(valid, provenance, np.uint8(pm.Stage.FILLED))
     if config.weighted_median:
