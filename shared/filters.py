@@ -138,16 +138,16 @@ def fill_from_background(
 
 
 def fill_occlusions(disparity: np.ndarray, valid: np.ndarray, tolerance: float = 1.0) -> np.ndarray:
-    """:func:`fill_from_background` where the row can explain the hole as an occlusion, else
-    from the column: the accurate preset's fill after its left-right check.
+    """:func:`fill_from_background`, except where a hole cannot be one occlusion and its column
+    holds nearer support than its row: the accurate preset's fill after its left-right check.
 
     A pixel hidden from the right view lies in a strip beside a foreground edge as wide as the
     disparity step across it, so a run of invalid pixels longer than the difference of the
     valid disparities at its two ends (+ ``tolerance``, the check's) is not one occlusion but
-    mismatches (say a wrong right-view label), and filling it along the row lets the single
-    pixel at its far end decide it all (issue 27: one pixel spread a border's 0 over ~950 px of
-    Tsukuba). Such a run's pixels take the smaller of the nearest valid disparities above and
-    below them instead (the row's value where the column has none).
+    mismatches, and along the row the single pixel at its far end decides it all (issue 27: a
+    border's 0 spread over ~950 px of Tsukuba). Such a pixel takes the background of its
+    column (the smaller of the nearest valid disparities above and below) when the invalid run
+    there is shorter than on the row: the nearer support decides.
 
     Parameters
     ----------
@@ -161,15 +161,17 @@ def fill_occlusions(disparity: np.ndarray, valid: np.ndarray, tolerance: float =
     Returns
     -------
     numpy.ndarray
-        Filled map (h, w), float32; rows and columns without a valid pixel keep their values.
+        Filled map (h, w), float32; pixels without a valid pixel on their row or column keep
+        their values.
     """
     from_left, from_right, run = _row_neighbours(disparity, valid)
-    above, below, _ = _row_neighbours(disparity.T, valid.T)
+    above, below, column_run = (a.T for a in _row_neighbours(disparity.T, valid.T))
     along_row = np.minimum(from_left, from_right)
-    along_column = np.minimum(above, below).T
+    along_column = np.minimum(above, below)
     step = np.abs(from_left - from_right)  # inf or nan unless both ends exist
-    mismatch = np.isfinite(step) & (run > step + tolerance) & np.isfinite(along_column)
-    nearest = np.where(mismatch, along_column, along_row)
+    mismatch = np.isfinite(step) & (run > step + tolerance)
+    use_column = mismatch & np.isfinite(along_column) & (column_run < run)
+    nearest = np.where(use_column, along_column, along_row)
     return np.where(valid | ~np.isfinite(nearest), disparity, nearest).astype(np.float32)
 
 
