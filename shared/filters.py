@@ -91,24 +91,6 @@ def left_right_check(left: np.ndarray, right: np.ndarray, tolerance: float = 1.0
     return inside & (np.abs(left - back) <= tolerance)
 
 
-def _row_neighbours(
-    disparity: np.ndarray, valid: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The nearest valid disparities to the left and to the right of each pixel on its row
-    (inf where there is none) and the length of the invalid run between them."""
-    height, width = disparity.shape
-    columns = np.broadcast_to(np.arange(width), (height, width))
-    left_index = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
-    right_index = np.minimum.accumulate(np.where(valid, columns, width)[:, ::-1], axis=1)[:, ::-1]
-    rows = np.arange(height)[:, None]
-    inf = np.float32(np.inf)
-    from_left = np.where(left_index >= 0, disparity[rows, np.maximum(left_index, 0)], inf)
-    from_right = np.where(
-        right_index < width, disparity[rows, np.minimum(right_index, width - 1)], inf
-    )
-    return from_left, from_right, right_index - left_index - 1
-
-
 def fill_from_background(
     disparity: np.ndarray, valid: np.ndarray, empty: float | None = None
 ) -> np.ndarray:
@@ -130,48 +112,19 @@ def fill_from_background(
     numpy.ndarray
         Filled map (h, w), float32.
     """
-    from_left, from_right, _ = _row_neighbours(disparity, valid)
+    height, width = disparity.shape
+    columns = np.broadcast_to(np.arange(width), (height, width))
+    left_index = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
+    right_index = np.minimum.accumulate(np.where(valid, columns, width)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(height)[:, None]
+    inf = np.float32(np.inf)
+    from_left = np.where(left_index >= 0, disparity[rows, np.maximum(left_index, 0)], inf)
+    from_right = np.where(
+        right_index < width, disparity[rows, np.minimum(right_index, width - 1)], inf
+    )
     nearest = np.minimum(from_left, from_right)
     if empty is not None:
         nearest = np.where(np.isfinite(nearest), nearest, np.float32(empty))
-    return np.where(valid | ~np.isfinite(nearest), disparity, nearest).astype(np.float32)
-
-
-def fill_occlusions(disparity: np.ndarray, valid: np.ndarray, tolerance: float = 1.0) -> np.ndarray:
-    """:func:`fill_from_background`, except where a hole cannot be one occlusion and its column
-    holds nearer support than its row: the accurate preset's fill after its left-right check.
-
-    A pixel hidden from the right view lies in a strip beside a foreground edge as wide as the
-    disparity step across it, so a run of invalid pixels longer than the difference of the
-    valid disparities at its two ends (+ ``tolerance``, the check's) is not one occlusion but
-    mismatches, and along the row the single pixel at its far end decides it all (issue 27: a
-    border's 0 spread over ~950 px of Tsukuba). Such a pixel takes the background of its
-    column (the smaller of the nearest valid disparities above and below) when the invalid run
-    there is shorter than on the row: the nearer support decides.
-
-    Parameters
-    ----------
-    disparity : numpy.ndarray
-        Disparity map (h, w).
-    valid : numpy.ndarray
-        Mask (h, w) of the pixels to keep.
-    tolerance : float, optional
-        Slack on the occlusion's width, pixels (the left-right check's tolerance).
-
-    Returns
-    -------
-    numpy.ndarray
-        Filled map (h, w), float32; pixels without a valid pixel on their row or column keep
-        their values.
-    """
-    from_left, from_right, run = _row_neighbours(disparity, valid)
-    above, below, column_run = (a.T for a in _row_neighbours(disparity.T, valid.T))
-    along_row = np.minimum(from_left, from_right)
-    along_column = np.minimum(above, below)
-    step = np.abs(from_left - from_right)  # inf or nan unless both ends exist
-    mismatch = np.isfinite(step) & (run > step + tolerance)
-    use_column = mismatch & np.isfinite(along_column) & (column_run < run)
-    nearest = np.where(use_column, along_column, along_row)
     return np.where(valid | ~np.isfinite(nearest), disparity, nearest).astype(np.float32)
 
 

@@ -132,7 +132,7 @@ def finish_maps(
         right_disparity = pyramid.upsample_disparity(level_map[height:, ::-1], left.shape[:2])
         valid = filters.left_right_check(disparity, right_disparity, config.lr_tolerance)
         valid[:, valid.shape[1] - window_reach(config.data_term) :] = False  # padding's labels
-        disparity = filters.fill_occlusions(disparity, valid, config.lr_tolerance)
+        disparity = filters.fill_from_background(disparity, valid)
         if provenance is not None:
             provenance = np.where(valid, provenance, np.uint8(pm.Stage.FILLED))
     if config.weighted_median:

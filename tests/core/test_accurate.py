@@ -162,43 +162,11 @@ def test_occluded_strip_takes_the_background_disparity():
     occluded = ~valid
     assert occluded.any()
     corrupted = np.where(occluded, 99.0, right_of_left).astype(np.float32)
+    filled = filters.fill_from_background(corrupted, valid)
     background = float(scene.disparity.min())
-    for filled in (
-        filters.fill_from_background(corrupted, valid),
-        filters.fill_occlusions(corrupted, valid, 1.0),  # the accurate preset's: the same here
-    ):
-        # every occluded pixel (uncovered background beside the square) gets the background's
-        np.testing.assert_allclose(filled[occluded], background, atol=1.0)
-        np.testing.assert_array_equal(filled[valid], right_of_left[valid])
-
-
-def test_a_run_too_long_for_an_occlusion_takes_its_nearer_support():
-    # issue 27's Tsukuba: a surface at 6 between an 8 and a wrong 0 at the right edge; a 28-px
-    # run of failed checks there cannot be one occlusion (a strip <= 8 - 0 + 1 px wide), and
-    # its column (3 px tall) is nearer support than its row: the column's 6, not the far 0
-    disparity = np.full((9, 40), 6.0, np.float32)
-    disparity[:, :10] = 8.0
-    disparity[:, -2:] = 0.0
-    valid = np.ones(disparity.shape, bool)
-    valid[3:6, 10:38] = False
-    holes = np.where(valid, disparity, 50.0)
-    np.testing.assert_array_equal(filters.fill_occlusions(holes, valid, 1.0)[3:6, 10:38], 6.0)
-    assert (filters.fill_from_background(holes, valid)[3:6, 10:38] == 0).all()
-    # a hole taller than it is wide keeps the row's background: the column is farther support
-    tall = np.full((30, 40), 6.0, np.float32)
-    tall[:, -2:] = 0.0
-    narrow = np.ones(tall.shape, bool)
-    narrow[1:-1, 26:38] = False  # 12 px between a 6 and a 0: no occlusion either, 28 px tall
-    assert (filters.fill_occlusions(tall, narrow, 1.0)[1:-1, 26:38] == 0).all()
-    # a strip as wide as the step between its ends is an occlusion: the row's background (6),
-    # though the column above and below it, nearer, holds the foreground's 10
-    occlusion = np.full((9, 40), 6.0, np.float32)
-    occlusion[:, 20:30] = 10.0
-    occlusion[:3, 16:20] = occlusion[6:, 16:20] = 10.0
-    hole = np.ones(occlusion.shape, bool)
-    hole[3:6, 16:20] = False
-    filled = filters.fill_occlusions(np.where(hole, occlusion, 50.0), hole, 1.0)
-    np.testing.assert_array_equal(filled[3:6, 16:20], 6.0)
+    # every occluded pixel (uncovered background beside the square) gets the background's value
+    np.testing.assert_allclose(filled[occluded], background, atol=1.0)
+    np.testing.assert_array_equal(filled[valid], right_of_left[valid])
 
 
 def test_the_right_edge_within_the_windows_reach_is_never_confirmed():
