@@ -252,6 +252,13 @@ VOLUMES: dict[str, VolumeFunction] = {
 }
 
 
+def window_reach(data_term: str) -> int:
+    """Columns at an image edge whose costs under ``data_term`` read the replicated border: at
+    the right edge both views' windows are padded alike only at disparity 0, which biases those
+    pixels to 0 (the left-right check then confirms the bias: issue 27)."""
+    return 0 if data_term == "squared" else HALO
+
+
 def cost_volume(
     data_term: str, left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
 ) -> np.ndarray:

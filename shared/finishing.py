@@ -11,7 +11,7 @@ from shared import filters, pyramid
 from shared import provenance_map as pm
 from shared.assembly import LevelSolution
 from shared.config import MatchConfig
-from shared.data_terms import cost_volume
+from shared.data_terms import cost_volume, window_reach
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
 
@@ -113,8 +113,8 @@ def finish_maps(
     disparity : numpy.ndarray
         The left view's disparity (h, w), float32, full-resolution px.
     validity : numpy.ndarray or None
-        Where the left-right check confirmed the pixel before it was filled (None with one
-        view).
+        Where the left-right check confirmed the pixel before it was filled, never in the
+        last :func:`~shared.data_terms.window_reach` columns (None with one view).
     provenance : numpy.ndarray or None
         The provenance map (h, w) uint8 (None without ``stages``).
     """
@@ -131,6 +131,7 @@ def finish_maps(
     if views == 2:
         right_disparity = pyramid.upsample_disparity(level_map[height:, ::-1], left.shape[:2])
         valid = filters.left_right_check(disparity, right_disparity, config.lr_tolerance)
+        valid[:, valid.shape[1] - window_reach(config.data_term) :] = False  # padding's labels
         disparity = filters.fill_from_background(disparity, valid)
         if provenance is not None:
             provenance = np.where(valid, provenance, np.uint8(pm.Stage.FILLED))

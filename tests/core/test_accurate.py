@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from shared import filters, pipeline, pyramid
 from shared.config import MatchConfig, Preset
-from shared.data_terms import ad_census_volume, bin_minimum, census
+from shared.data_terms import ad_census_volume, bin_minimum, census, window_reach
 from shared.disparity_range import estimate_max_disparity
 from shared.finishing import finish_level
 from shared.images import load_pair
@@ -167,6 +167,15 @@ def test_occluded_strip_takes_the_background_disparity():
     # every occluded pixel (uncovered background beside the square) gets the background's value
     np.testing.assert_allclose(filled[occluded], background, atol=1.0)
     np.testing.assert_array_equal(filled[valid], right_of_left[valid])
+
+
+def test_the_right_edge_within_the_windows_reach_is_never_confirmed():
+    scene = make_scene(48, 80, max_disparity=8, seed=4)
+    config = MatchConfig(max_disparity=8)
+    validity = run_pipeline(scene.left, scene.right, config).validity
+    reach = window_reach(config.data_term)
+    assert reach > 0 and not validity[:, -reach:].any()
+    assert validity[:, -reach - 8 : -reach].mean() > 0.5  # only the padding's columns
 
 
 def test_the_mirrored_pair_gives_the_right_views_disparity():

@@ -26,19 +26,20 @@ from shared.synthetic import make_scene
 #: Each strategy's run on a tiny pair, and its digest (disparity, each level's energy, bound,
 #: bundles, repairs) as the if/isinstance dispatch (since folded into the strategies) gave it
 #: before them (main at e0e56e6; re-pinned with energies to 6 digits from 2d260cd, the commit that
-#: checked them against e0e56e6, whose code gives the same digests as today's).
+#: checked them against e0e56e6, whose code gives the same digests as today's; re-pinned for
+#: issue 27's unconfirmed right edge, with which set to 0 columns they are the ones before).
 CASES = {
-    "grid-dd": ({"solver": "exact", "inference": "grid"}, GridViews, "91f054ba8fc46281"),
+    "grid-dd": ({"solver": "exact", "inference": "grid"}, GridViews, "a2428fcd50f1d74c"),
     "grid-trws": (
         {"solver": "exact", "inference": "grid", "grid_inference": "trws"},
         GridViews,
-        "1453b2afe5f6e6c9",
+        "d0ffe02eb34319eb",
     ),
-    "row-chains": ({"solver": "exact", "inference": "rows"}, RowChains, "5caa2ee2eb13cad8"),
+    "row-chains": ({"solver": "exact", "inference": "rows"}, RowChains, "793a0b787e8abb50"),
     "qubo-rows": (
         {"solver": "steepest-descent", "inference": "rows", "bundle_width": 16, "bundle_margin": 4},
         QuboRows,
-        "e0bfbc027850197c",
+        "b9ff8c4c46d0553b",
     ),
     "qubo-tiles": (
         {
@@ -48,12 +49,12 @@ CASES = {
             "solver_params": {"num_reads": 2},
         },
         QuboTiles,
-        "e17fced6ee4027fb",
+        "f70489973e28966d",
     ),
     "qubo-residual": (
         {"solver": "sa", "inference": "grid", "solver_params": {"num_reads": 2}},
         ResidualTiles,
-        "40dc16063228fd5a",
+        "0d5701a7626a8400",
     ),
 }
 
