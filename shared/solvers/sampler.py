@@ -52,9 +52,9 @@ class Sampler(dimod.Sampler):
     @property
     def settings(self) -> Settings:
         """The settings it runs with (token, endpoint, embedding limits, licence): the ones
-        handed over, else the environment's now. The adapters and their helpers read them here
-        only, and take the values as parameters below (``shared.solvers.qpu.leap``, packing,
-        the embedding cache)."""
+        handed over, else the environment's now (a test's patched environment is seen). An
+        adapter reads them here only and hands the values on as parameters
+        (:mod:`shared.solvers.qpu.leap`, ``packing.copies``, the embedding cache's timeout)."""
         return self._settings if self._settings is not None else get_settings()
 
     @settings.setter
