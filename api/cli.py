@@ -316,7 +316,9 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     files = _existing([args.left, args.right])
     if args.local:
-        result = _local_estimate(config, files)
+        from shared.cli import local_estimate
+
+        result = local_estimate(config, files[0], files[1])
     else:
         params = match_params(args)
         with api_client(args, hint=" (or use --local)") as client:
@@ -331,24 +333,6 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     else:
         print(format_estimate(result))
     return 0
-
-
-def _local_estimate(config, files: list[Path]) -> dict:
-    from shared.disparity_range import resolve_max_disparity
-    from shared.images import load_pair
-    from shared.pipeline import match_views
-    from shared.residual import job_residual
-    from shared.solvers import get_solver
-    from shared.solvers.meters.qpu_time import job_seconds
-    from shared.solvers.qpu.embedding_cache import default_cache
-
-    get_solver(config.solver)  # UnknownSolverError lists the valid names
-    left, right = load_pair(files[0], files[1])
-    top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
-    cache = default_cache()
-    residual = job_residual(config, left, right, top.max_disparity, cache)
-    estimate = job_seconds(config, left.shape[:2], top.max_disparity, cache, residual)
-    return {**estimate.as_dict(), "max_disparity": top.max_disparity}
 
 
 def format_estimate(result: dict) -> str:

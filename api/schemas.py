@@ -13,8 +13,9 @@ from shared.config import MatchConfig
 from shared.disparity_range import RangeEstimate
 from shared.metrics import Scores
 from shared.settings import BudgetPeriod
+from shared.wire import model_of
 from workers.estimates import EstimateRecord, EstimateState
-from workers.records import Cameras, GroundTruth, JobState, Progress
+from workers.records import Cameras, GroundTruth, JobState, LevelRecord, Progress
 
 if TYPE_CHECKING:
     from workers.quota.ledger import UserUsage as LedgerUsage
@@ -59,65 +60,55 @@ class JobCreated(BaseModel):
     )
 
 
-class LevelTiming(BaseModel):
-    """One pyramid level of a job's status; times in seconds.
+#: What the job status says of a level's fields (the OpenAPI descriptions); the fields themselves
+#: are the core's (:class:`shared.level_report.LevelReport`, as the record keeps them).
+LEVEL_DOCS = {
+    "bin_width": "Disparity-bin width of the level's labels (px)",
+    "views": "2 when the right view is matched too (rows stacked)",
+    "energy": "MRF energy of the level (null if not finite)",
+    "lower_bound": "A lower bound on the level's least energy (grid inference with exact: "
+    "the dual decomposition's), null when the solver gives none",
+    "gap": "(energy - lower_bound) / energy: how far above the optimum the level's "
+    "labelling can be, at most",
+    "repaired": "Pixels whose QUBO sample was not a valid label encoding (one-hot: no or "
+    "several bits set; domain-wall: a broken wall) and that were given their cheapest "
+    "label next to their valid neighbours; 0 for the exact row solver",
+    "residual": "Grid inference with a QUBO solver (shared.settle): the level's pixels, "
+    "those the host's dual decomposition certified (row and column copies agree) and left "
+    "unsettled, the 4x4 tiles sent and their pixels, the tiles and pixels whose solver "
+    "answer lowered the energy and replaced the host's (tiles_improved, pixels_improved), "
+    "and the host's seconds; null for other solvers",
+    "termination": "Why the level's minimisation stopped: optimal (every bundle proven "
+    "optimal), gap (a grid reached dual_gap), iterations (a grid reached dual_iterations), "
+    "sampled (the QUBO solver's answers), settled (the host settled every pixel, nothing "
+    "sent); null from an older worker",
+    "provenance_counts": "The level's pixels (every view) per stage that decided them as "
+    "solved (certified, host, roof_duality, solver, repaired; the job's provenance_counts "
+    "are the final map's)",
+}
 
-    The wire form of ``shared.pipeline.LevelReport`` (its fields, pinned by
-    tests/api/test_wire_models.py), not the dataclass itself: the report's ``info`` (the
-    solver's embedding notes) is not sent, a non-finite energy or time is null (JSON has no
-    Infinity), and the fields carry the OpenAPI descriptions. Built in one place: ``JobStatus``
-    reads the job record's levels (``workers.records.LevelRecord``: the report, numbers that
-    are not finite made null)."""
 
+class _FromRecord(BaseModel):
     model_config = ConfigDict(from_attributes=True)
 
-    index: int
-    downsample: int
-    bin_width: int = Field(1, description="Disparity-bin width of the level's labels (px)")
-    views: int = Field(1, description="2 when the right view is matched too (rows stacked)")
-    height: int
-    width: int
-    candidates: int
-    bundles: int
-    energy: float | None = Field(description="MRF energy of the level (null if not finite)")
-    lower_bound: float | None = Field(
-        None,
-        description="A lower bound on the level's least energy (grid inference with exact: "
-        "the dual decomposition's), null when the solver gives none",
-    )
-    gap: float | None = Field(
-        None,
-        description="(energy - lower_bound) / energy: how far above the optimum the level's "
-        "labelling can be, at most",
-    )
-    repaired: int = Field(
-        description="Pixels whose QUBO sample was not a valid label encoding (one-hot: no or "
-        "several bits set; domain-wall: a broken wall) and that were given their cheapest "
-        "label next to their valid neighbours; 0 for the exact row solver"
-    )
-    seconds: float
-    solver_seconds: float
-    timing: dict[str, float | None] = Field(default_factory=dict)
-    residual: dict[str, float] | None = Field(
-        None,
-        description="Grid inference with a QUBO solver (shared.settle): the level's pixels, "
-        "those the host's dual decomposition certified (row and column copies agree) and left "
-        "unsettled, the 4x4 tiles sent and their pixels, the tiles and pixels whose solver "
-        "answer lowered the energy and replaced the host's (tiles_improved, pixels_improved), "
-        "and the host's seconds; null for other solvers",
-    )
-    termination: str | None = Field(
-        None,
-        description="Why the level's minimisation stopped: optimal (every bundle proven "
-        "optimal), gap (a grid reached dual_gap), iterations (a grid reached dual_iterations), "
-        "sampled (the QUBO solver's answers), settled (the host settled every pixel, nothing "
-        "sent); null from an older worker",
-    )
-    provenance_counts: dict[str, int] | None = Field(
-        None,
-        description="The level's pixels (every view) per stage that decided them as solved "
-        "(certified, host, roof_duality, solver, repaired; the job's provenance_counts are the "
-        "final map's)",
+
+if TYPE_CHECKING:
+    LevelTiming = Any  # made at import from the record's fields
+else:
+    LevelTiming = model_of(
+        LevelRecord,
+        "LevelTiming",
+        base=_FromRecord,
+        exclude={"info"},
+        docs=LEVEL_DOCS,
+        module=__name__,
+        doc="""One pyramid level of a job's status; times in seconds.
+
+    The wire form of ``shared.level_report.LevelReport`` as the job record keeps it
+    (``workers.records.LevelRecord``: numbers that are not finite are null, as JSON has no
+    Infinity), derived from it (a field is declared once, in the core) less the report's
+    ``info`` (the solver's embedding notes), with the OpenAPI descriptions of
+    :data:`LEVEL_DOCS`.""",
     )
 
 
@@ -141,6 +132,14 @@ else:
         "Scores against the uploaded ground truth (``shared.metrics.Scores``); null where a "
         "score is not a finite number.",
     )
+
+
+def record_fields(model: type[BaseModel], record: BaseModel) -> dict[str, Any]:
+    """The fields ``model`` shares with ``record`` by name, read from it: a value the wire sends
+    as it is stored is declared on the record and on the wire model (with its description),
+    and copied by no hand-written list."""
+    stored = type(record).model_fields
+    return {name: getattr(record, name) for name in model.model_fields if name in stored}
 
 
 class JobSummary(BaseModel):
@@ -181,25 +180,14 @@ class JobSummary(BaseModel):
 
     @classmethod
     def fields_of(cls, record, links: Links, qpu_seconds: float | None = None) -> dict:
-        """The summary fields of a job record (``workers.store.JobRecord``) and its charge."""
+        """The fields of a job record (``workers.records.JobRecord``) for this model (a
+        summary, or with :class:`JobStatus` the details the record keeps): those it shares
+        with the record by name (:func:`record_fields`), the config's solver, the charge and
+        the links; the caller adds what the record does not keep."""
         return {
-            "id": record.id,
-            "owner": record.owner,
-            "label": record.label,
-            "tags": record.tags,
-            "files": record.files,
-            "batch": record.batch,
-            "state": record.state,
+            **record_fields(cls, record),
             "solver": record.config.solver,
-            "width": record.width,
-            "height": record.height,
-            "created_at": record.created_at,
-            "started_at": record.started_at,
-            "finished_at": record.finished_at,
-            "metrics": record.metrics,
             "qpu_seconds": qpu_seconds,
-            "memory_mb": record.memory_mb,
-            "pinned": record.pinned,
             "links": links,
         }
 
@@ -393,18 +381,8 @@ class EstimateStatus(BaseModel):
 
     @classmethod
     def of(cls, record: EstimateRecord, result: Estimate | None) -> EstimateStatus:
-        return cls(
-            id=record.id,
-            state=record.state,
-            cached=record.cached,
-            created_at=record.created_at,
-            finished_at=record.finished_at,
-            result=result,
-            error=record.error,
-            stage=record.stage,
-            fraction=record.fraction,
-            links={"self": f"/v1/estimates/{record.id}"},
-        )
+        fields = record_fields(cls, record)  # id, state, dates, error, stage...: as stored
+        return cls(**{**fields, "result": result, "links": {"self": f"/v1/estimates/{record.id}"}})
 
 
 class JobUsage(BaseModel):

@@ -23,6 +23,7 @@ from shared.inference import settles
 from shared.pipeline import match_views, plan_run, prepare_level
 from shared.residual import job_residual
 from shared.solvers.meters import qpu_time
+from shared.solvers.registry import resolve
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury" / "tsukuba"
 
@@ -34,14 +35,16 @@ def row(scale: float, max_disparity: int) -> str:
     size = (round(left.shape[1] * scale), round(left.shape[0] * scale))
     left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (left, right))
     residual = job_residual(config, left, right, max_disparity, None)
-    accepted = qpu_time.job_seconds(config, left.shape[:2], max_disparity, None, residual)
+    accepted = qpu_time.job_seconds(resolve(config), left.shape[:2], max_disparity, None, residual)
     _, plans = plan_run(left, right, config)
     inputs = prepare_level(*match_views(left, right, config), config, plans[0])
     sent = config
     if settles(config):  # as the control task does: the tiles the host leaves
         settle.prepare(inputs, config)
         sent = settle.tile_config(config)
-    before = qpu_time.batch_estimate(inputs, sent, inputs.planned_bundles(sent))
+    before = qpu_time.batch_estimate(
+        inputs, sent, inputs.planned_bundles(sent), solver=resolve(sent)
+    )
     now = accepted.levels[0].seconds
     scene = f"{size[0]}x{size[1]}, range {max_disparity}"
     return f"| {scene} | {now:.1f} s | {before:.1f} s ({before / now:.1f}x) | {now:.1f} s |"

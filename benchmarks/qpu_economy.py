@@ -27,6 +27,7 @@ from shared.pipeline import match_views, run_pipeline
 from shared.process_pool import ProcessPoolLevelSolver
 from shared.residual import LevelResidual, job_residual
 from shared.solvers.meters.qpu_time import job_seconds
+from shared.solvers.registry import resolve
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury"
 PAIRS = ("tsukuba", "venus", "cones")
@@ -52,8 +53,8 @@ def estimates(pair: str, max_disparity: str | int) -> list[str]:
     rows = []
     for config, top, residual, surveyed in surveys(left, right, max_disparity):
         solver = config.solver
-        before = job_seconds(config, left.shape[:2], top)
-        after = job_seconds(config, left.shape[:2], top, residual=residual)
+        before = job_seconds(resolve(config), left.shape[:2], top)
+        after = job_seconds(resolve(config), left.shape[:2], top, residual=residual)
         for level, whole in zip(after.levels, before.levels, strict=True):
             rows.append(
                 f"| {pair} | {solver} | {level.index} | {level.bundles} | {level.bundles_sent} "

@@ -24,9 +24,9 @@ from shared.encodings import get_codec
 from shared.energy import mrf_energy
 from shared.inference import solve_level_in_process
 from shared.pipeline import run_pipeline
-from shared.solvers import get_solver
 from shared.solvers.exact import solve_chains
 from shared.solvers.meters import qpu_time
+from shared.solvers.registry import get_solver
 
 
 def measure(bundles: int, reads: list[int]) -> list[str]:

@@ -32,6 +32,7 @@ from shared.images import load_disparity_values, load_pair
 from shared.metrics import evaluate
 from shared.pipeline import run_pipeline
 from shared.solvers.meters.qpu_time import job_seconds
+from shared.solvers.registry import resolve
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 TSUKUBA = DATA / "middlebury" / "tsukuba"
@@ -42,7 +43,7 @@ def estimate_rows(name: str, left, right, max_disparity: int | str) -> list[str]
     """Markdown rows: per solver, the total estimate and per level the pixels certified/sent."""
     rows = []
     for config, top, residual, surveyed in surveys(left, right, max_disparity):
-        estimate = job_seconds(config, left.shape[:2], top, residual=residual)
+        estimate = job_seconds(resolve(config), left.shape[:2], top, residual=residual)
         levels = "; ".join(
             f"{level.pixels_sent} px in {level.bundles_sent} tiles" for level in estimate.levels
         )

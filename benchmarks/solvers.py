@@ -35,9 +35,10 @@ from shared.bundles import bundle_rows, bundle_seed
 from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.solvers import SolverError, get_solver, solver_names
+from shared.solvers import SolverError
 from shared.solvers.exact import solve_chains
 from shared.solvers.gurobi import PIP_LICENCE_VARIABLES
+from shared.solvers.registry import get_solver, solver_names
 
 ENCODINGS = ("one-hot", "domain-wall")
 #: Solvers compared in both encodings; the others run on domain-wall only (measured best).

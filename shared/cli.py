@@ -13,8 +13,12 @@ import warnings
 from collections.abc import Sequence
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from shared.exit_codes import EXIT_BROKEN_PIPE, EXIT_FAILED, interrupted
+
+if TYPE_CHECKING:
+    from shared.config import MatchConfig
 
 # Nothing heavy at import time: main() is then in charge from the first instant (a Ctrl-C while
 # pydantic or numpy load is one line too), and `qhsm --help` starts fast.
@@ -122,10 +126,31 @@ def cmd_build_kernels(args: argparse.Namespace) -> int:
     return 0
 
 
+def local_estimate(config: MatchConfig, left_path: Path, right_path: Path) -> dict:
+    """This process's estimate of a job (``qhsm estimate --local``): the pair's disparity range,
+    what the classical steps leave of its bundles and the meters' walk, in the wire form of
+    ``POST /v1/estimate``. ``UnknownSolverError`` lists the valid names before any work."""
+    from shared.disparity_range import resolve_max_disparity
+    from shared.images import load_pair
+    from shared.pipeline import match_views
+    from shared.residual import job_residual
+    from shared.solvers.meters.qpu_time import job_seconds
+    from shared.solvers.qpu.embedding_cache import default_cache
+    from shared.solvers.registry import resolve
+
+    solver = resolve(config)
+    left, right = load_pair(left_path, right_path)
+    top = resolve_max_disparity(*match_views(left, right, config), config.max_disparity)
+    cache = default_cache()
+    residual = job_residual(config, left, right, top.max_disparity, cache)
+    estimate = job_seconds(solver, left.shape[:2], top.max_disparity, cache, residual)
+    return {**estimate.as_dict(), "max_disparity": top.max_disparity}
+
+
 def cmd_solvers(args: argparse.Namespace) -> int:
     """``qhsm solvers``: list every registered solver and whether it can run here, as a table
     or (``json``) JSON rows; 0, unavailable solvers being listed, not an error."""
-    from shared.solvers import get_solver, solver_names
+    from shared.solvers.registry import get_solver, solver_names
 
     rows = []
     for name in solver_names():

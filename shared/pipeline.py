@@ -21,7 +21,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from functools import partial
 
 import numpy as np
@@ -35,6 +35,7 @@ from shared.finishing import finish_level, finish_maps, level_stages
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
+from shared.level_report import LevelReport
 from shared.pyramid import LevelPlan
 
 SolveLevel = Callable[..., LevelSolution]
@@ -50,39 +51,6 @@ levels, and the level's :data:`shared.inference.BundleProgress`."""
 #: time -16 to -27 %; a 4 MP / 64 px pair's at width 8 (2 levels of 5; peak RSS 1.56 GB, where
 #: 640 MiB, width 4 for 3 levels, peaked at 2.08 GB).
 VOLUME_CACHE_BYTES = 512 * 2**20
-
-
-@dataclass
-class LevelReport:
-    """What one level did, for the CLI's ``--json`` and the job status."""
-
-    index: int
-    downsample: int
-    bin_width: int
-    views: int
-    height: int  # of one view (the level has ``views`` times as many rows)
-    width: int
-    candidates: int
-    bundles: int
-    energy: float
-    #: A lower bound on the level's least energy (``grid`` inference with ``exact``), and the
-    #: relative gap (energy - bound) / energy: how far from the optimum the level can be.
-    lower_bound: float | None
-    gap: float | None
-    repaired: int
-    seconds: float
-    solver_seconds: float
-    timing: dict[str, float] = field(default_factory=dict)
-    #: Once per level from the solver: embeddings computed / reused, qubits, longest chain.
-    info: dict = field(default_factory=dict)
-    #: A QUBO solver's residual design (:class:`shared.settle.Residual`): pixels the host
-    #: certified, tiles and pixels sent, tiles and pixels the solver improved; None otherwise.
-    residual: dict | None = None
-    #: Why the level's minimisation stopped (:class:`shared.inference.Termination`).
-    termination: str | None = None
-    #: Pixels of the level (every view) per stage that decided them as solved
-    #: (:func:`shared.provenance_map.counts`; the final map's are the finest level's).
-    provenance_counts: dict[str, int] | None = None
 
 
 @dataclass

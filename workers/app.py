@@ -123,10 +123,9 @@ class QhsmCelery(Celery):
 
 def make_celery(settings: Settings | None = None, *, with_tasks: bool = True) -> QhsmCelery:
     """A Celery app for ``settings``; ``with_tasks=False`` gives a light client (the API's)."""
-    settings = settings or get_settings()
     include = ["workers.tasks", "workers.pricing_tasks"] if with_tasks else []
     celery = QhsmCelery("qhsm", include=include, settings=settings)
-    celery.conf.update(celery_config(settings))
+    celery.conf.update(celery_config(celery.qhsm_settings))
     if with_tasks:  # a worker: heartbeats with the messages it holds (workers/liveness.py)
         from workers import liveness
 

@@ -20,11 +20,15 @@ Keys (under ``{key_prefix}:``):
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING, ClassVar
 
 import redis
 from kombu.utils.scheduling import round_robin_cycle
 
 from workers.redis_client import client_for, text
+
+if TYPE_CHECKING:
+    from shared.config import Settings
 
 #: Between a solver's queue and the owner in a user queue's name (not allowed in user names).
 SEPARATOR = "~"
@@ -103,6 +107,10 @@ class FewestRunningFirst(round_robin_cycle):
 
     #: Seconds a count of running tasks is reused (a poll comes at least once a second).
     FRESH = 0.2
+    #: The worker's settings (its Redis and key prefix), handed over by its context when the
+    #: process starts (:func:`workers.context.start`): kombu builds the strategy without
+    #: arguments. None: kombu's own order.
+    settings: ClassVar[Settings | None] = None
 
     def __init__(self, it=None) -> None:
         super().__init__(it)
@@ -122,13 +130,13 @@ class FewestRunningFirst(round_robin_cycle):
     def _running(self, owners: list[str]) -> dict[str, int] | None:
         """The owners' running tasks, from Redis at most every :attr:`FRESH` seconds; None
         when Redis cannot be asked (kombu's own order then)."""
-        from shared.config import get_settings
-
         stamp, counts = self._counts
         if time.monotonic() - stamp < self.FRESH and set(owners) <= set(counts):
             return counts
         try:
-            settings = get_settings()
+            settings = self.settings
+            if settings is None:
+                return None
             if self._client is None:
                 self._client = client_for(settings, socket_timeout=1)
             counts = running(self._client, settings.key_prefix, owners)

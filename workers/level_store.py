@@ -22,12 +22,12 @@ import numpy as np
 import redis
 
 from shared.bundles import bundle_key
-from shared.config import Settings
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
 from workers.arrays import array_fields, array_from
 from workers.bounded import batches, not_stored, piece_bytes, read_hash, write_hash
 from workers.redis_client import as_bytes, text
+from workers.store_base import StoreBase
 
 #: Level inputs live this long at most (they are deleted as soon as the level is assembled).
 LEVEL_INPUTS_GRACE = 3600
@@ -38,20 +38,10 @@ class LevelInputsMissingError(LookupError):
     """The level's inputs are gone (job finished, cancelled or expired)."""
 
 
-class LevelStorage:
+class LevelStorage(StoreBase):
     """Level inputs and solved bundles of a job's pyramid levels (mixed into ``JobStore``)."""
 
-    redis: redis.Redis
-    settings: Settings
     _images: OrderedDict[tuple[str, str], tuple[np.ndarray, ...]]
-
-    def key(self, *parts: object) -> str:
-        raise NotImplementedError  # JobStore's
-
-    @property
-    def limit(self) -> int:
-        """Largest Redis command or reply of a job's data (``redis_max_command_bytes``)."""
-        return self.settings.redis_max_command_bytes
 
     def save_level(self, job_id: str, inputs: LevelInputs, started: float) -> None:
         """Write a level's inputs once; every worker of the level reads them (by reference).

@@ -43,7 +43,6 @@ from shared.pipeline import confidence_map, match_views, prepare_level, report
 from shared.provenance_map import counts as pixel_counts
 from shared.pyramid import LevelPlan
 from shared.solvers.qpu.problems import sent_problems, task_label
-from shared.solvers.registry import resolve
 from workers import fair
 from workers.app import FAN_OUT_LEVEL, LEVEL_DONE, PLAN_LEVEL, SOLVE_BUNDLES, task_time_limits
 from workers.chunks import (
@@ -55,6 +54,7 @@ from workers.chunks import (
     task_chunks,
 )
 from workers.level_store import LevelInputsMissingError
+from workers.queues import job_solver, solver_queue
 from workers.quota import LOCAL_USER, QpuMeter, solve_metered
 from workers.records import ChunkReport, JobRecord, JobState, LevelRecord, now
 from workers.store import JobStore
@@ -204,7 +204,7 @@ def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solve
         celery.signature(
             PLAN_LEVEL,
             args=(job_id, index),
-            queue=resolve(solver).queue,
+            queue=solver_queue(solver),
             **task_time_limits(settings, solver),
         ),
         celery.signature(
@@ -253,7 +253,7 @@ def fan_out(
     users are served in turn), with the solver's time limits, then the level's fan-in on the
     control queue."""
     settings, solver = store.settings, record.config.solver
-    queue = fair.route(store.redis, store.prefix, resolve(solver).queue, record.owner)
+    queue = fair.route(store.redis, store.prefix, solver_queue(solver), record.owner)
     limits = task_time_limits(settings, solver)
     header = [
         celery.signature(SOLVE_BUNDLES, args=(record.id, index, chunk), queue=queue, **limits)
@@ -448,7 +448,7 @@ def solve_chunk(
     inputs, record = level_for(store, job_id, index)
     config = record.config
     # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
-    solver = resolve(config)
+    solver = job_solver(config)  # once for the task: the inference and the meter take it
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
         if solver.metered and meter is not None:
             results = solve_metered(
@@ -465,7 +465,7 @@ def solve_chunk(
                 return None
         else:
             bundles = [tuple(spec) for spec in row_ranges]
-            results = inference_for(config).solve(inputs, config, bundles)
+            results = inference_for(solver).solve(inputs, config, bundles)
     timing: dict[str, float] = {}
     for result in results:
         for key, value in result.timing.items():

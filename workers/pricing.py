@@ -28,6 +28,7 @@ from shared.solvers.qpu.embedding_cache import EmbeddingCache
 from workers import embedding_store
 from workers.app import START_JOB
 from workers.estimates import EstimateRecord, EstimateStore
+from workers.queues import job_solver
 from workers.quota import QuotaLedger
 from workers.records import JobRecord, JobState, now
 from workers.store import JobStore
@@ -103,7 +104,7 @@ def price(
 
     try:
         residual = job_residual(config, left, right, top, cache, surveyed)
-        estimate = job_seconds(config, left.shape[:2], top, cache, residual)
+        estimate = job_seconds(job_solver(config), left.shape[:2], top, cache, residual)
     except (TypeError, ValueError, KeyError) as error:
         raise PricingError(
             f"params: cannot estimate the job's QPU time from solver_params ({error})"

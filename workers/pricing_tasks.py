@@ -18,35 +18,18 @@ from shared.memory import MemoryBudgetError
 from workers import orchestration, pricing
 from workers.app import PRICE_ESTIMATE, PRICE_JOB, PRICING, app, task_time_limits
 from workers.bounded import DataNotStoredError
-from workers.estimates import EstimateRecord, EstimateStore
+from workers.context import WorkerContext, current
+from workers.estimates import EstimateRecord
 from workers.process import memory_budget
-from workers.quota import QuotaExceededError, QuotaLedger
+from workers.quota import QuotaExceededError
 from workers.store import UploadsMissingError
-from workers.tasks import REDIS_DOWN, budget, settings, store
+from workers.tasks import REDIS_DOWN
 
 log = logging.getLogger(__name__)
 
-_estimates: EstimateStore | None = None
-_ledger: QuotaLedger | None = None
 
-
-def estimates() -> EstimateStore:
-    """This process's estimate store (sharing the job store's connection)."""
-    global _estimates
-    if _estimates is None or _estimates.redis is not store().redis:
-        _estimates = EstimateStore(store().redis, settings)
-    return _estimates
-
-
-def ledger() -> QuotaLedger:
-    global _ledger
-    if _ledger is None or _ledger.redis is not store().redis:
-        _ledger = QuotaLedger(store().redis, settings.key_prefix)
-    return _ledger
-
-
-def out_of_time(hard: bool) -> str:
-    limits = task_time_limits(settings, PRICING)
+def out_of_time(ctx: WorkerContext, hard: bool) -> str:
+    limits = task_time_limits(ctx.settings, PRICING)
     limit = limits["time_limit" if hard else "soft_time_limit"]
     return (
         f"pricing was stopped after the time limit of {limit:g} s (QHSM_TASK_SOFT_TIME_LIMIT, "
@@ -55,10 +38,10 @@ def out_of_time(hard: bool) -> str:
     )
 
 
-def out_of_memory() -> str:
+def out_of_memory(ctx: WorkerContext) -> str:
     return (
-        f"pricing needed more memory than the limit of {budget()} MiB per worker process "
-        "(QHSM_TASK_MEMORY_LIMIT_MB, or the host's share); send a smaller pair or range"
+        f"pricing needed more memory than the limit of {ctx.budget_mb()} MiB per worker "
+        "process (QHSM_TASK_MEMORY_LIMIT_MB, or the host's share); send a smaller pair or range"
     )
 
 
@@ -67,50 +50,54 @@ class PricingTask(Task):
 
     def on_failure(self, exc, task_id, args, kwargs, einfo) -> None:
         if isinstance(exc, TimeLimitExceeded) and args:
+            ctx = current()
             if self.name == PRICE_JOB:
-                store().fail(args[0], out_of_time(hard=True))
+                ctx.store.fail(args[0], out_of_time(ctx, hard=True))
             else:
-                estimates().apply(args[0], EstimateRecord.failed, out_of_time(hard=True))
+                ctx.estimates.apply(args[0], EstimateRecord.failed, out_of_time(ctx, hard=True))
 
 
 @app.task(name=PRICE_JOB, bind=True, base=PricingTask, ignore_result=True)
 def price_job(self, job_id: str) -> None:
     """Price a metered job, then queue and start it, or fail it with the reason."""
+    ctx = current()
+    store = ctx.store
     try:
-        with memory_budget(budget()):
-            pricing.price_job(app, store(), ledger(), job_id, budget())
+        with memory_budget(ctx.budget_mb()):
+            pricing.price_job(app, store, ctx.ledger, job_id, ctx.budget_mb())
     except (QuotaExceededError, MemoryBudgetError, pricing.PricingError) as error:
         log.info("job %s refused at pricing: %s", job_id, error)
-        store().fail(job_id, f"refused: {error}")
+        store.fail(job_id, f"refused: {error}")
     except SoftTimeLimitExceeded:
-        store().fail(job_id, out_of_time(hard=False))
+        store.fail(job_id, out_of_time(ctx, hard=False))
     except MemoryError:
-        store().fail(job_id, out_of_memory())
+        store.fail(job_id, out_of_memory(ctx))
     except UploadsMissingError:
         return
     except (ValueError, DataNotStoredError) as error:  # views the range estimate cannot use
-        store().fail(job_id, str(error))
+        store.fail(job_id, str(error))
     except REDIS_DOWN as error:
         log.warning("job %s: Redis unavailable while pricing it: %s", job_id, error)
         raise
     except Exception:
         log.exception("job %s: pricing failed", job_id)
-        store().fail(job_id, orchestration.internal_error(job_id, "pricing the job"))
+        store.fail(job_id, orchestration.internal_error(job_id, "pricing the job"))
 
 
 @app.task(name=PRICE_ESTIMATE, bind=True, base=PricingTask, ignore_result=True)
 def price_estimate(self, estimate_id: str) -> None:
     """Compute an estimate (``POST /v1/estimate``), or fail it with the reason."""
+    ctx = current()
     message = None
     try:
-        with memory_budget(budget()):
-            pricing.price_estimate(estimates(), store(), estimate_id)
+        with memory_budget(ctx.budget_mb()):
+            pricing.price_estimate(ctx.estimates, ctx.store, estimate_id)
     except (pricing.PricingError, ValueError) as error:
         message = str(error)
     except SoftTimeLimitExceeded:
-        message = out_of_time(hard=False)
+        message = out_of_time(ctx, hard=False)
     except MemoryError:
-        message = out_of_memory()
+        message = out_of_memory(ctx)
     except REDIS_DOWN as error:
         log.warning("estimate %s: Redis unavailable: %s", estimate_id, error)
         raise
@@ -118,4 +105,4 @@ def price_estimate(self, estimate_id: str) -> None:
         log.exception("estimate %s failed", estimate_id)
         message = f"internal error computing estimate {estimate_id}; report it"
     if message is not None:
-        estimates().apply(estimate_id, EstimateRecord.failed, message)
+        ctx.estimates.apply(estimate_id, EstimateRecord.failed, message)

@@ -1,5 +1,6 @@
-"""The solver queues, from the registry: the workers' one door to it (a job's own solver is
-resolved once, by :mod:`workers.orchestration`).
+"""The solver queues, from the registry: the workers' one door to it. A task resolves its job's
+solver here once (:func:`job_solver`) and hands the :class:`ResolvedSolver` along (the level's
+inference, the meter's reservations, the estimates); no other worker module looks a solver up.
 
 The queues a group of workers consumes (``SolverSpec.workers``): ``python -m workers.queues
 cpu`` prints ``exact,sa,...,dimod`` for ``celery worker -Q``, as docker-compose.yml's worker
@@ -11,10 +12,18 @@ from __future__ import annotations
 import logging
 import sys
 
+from shared.config import MatchConfig
 from shared.solvers.records import DIMOD_QUEUE
 from shared.solvers.registry import queue_names, resolve, solver_names, worker_groups
+from shared.solvers.resolved import ResolvedSolver
 
 log = logging.getLogger(__name__)
+
+
+def job_solver(config: MatchConfig) -> ResolvedSolver:
+    """The job's solver resolved with its configuration (``UnknownSolverError`` for a name no
+    longer registered): once per task, then passed along."""
+    return resolve(config)
 
 
 def solver_queue(solver: str) -> str:

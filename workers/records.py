@@ -25,9 +25,8 @@ from pydantic import (
 from shared.config import MatchConfig
 from shared.datasets.calibration import Calibration
 from shared.disparity_range import RangeEstimate
-
-if TYPE_CHECKING:
-    from shared.pipeline import LevelReport
+from shared.level_report import LevelReport
+from shared.wire import model_of
 
 log = logging.getLogger(__name__)
 
@@ -112,32 +111,11 @@ class Cameras(BaseModel):
         return Calibration(self.focal, cx, cy, self.baseline, self.doffs, self.unit, source="job")
 
 
-class LevelRecord(BaseModel):
-    """One assembled level as the record keeps it: :class:`shared.pipeline.LevelReport`'s fields
-    (the job status's ``levels``), numbers that are not finite as null. Fields it does not name
-    are kept (a report field added later, or read from a newer worker)."""
+class _LevelRecordBase(BaseModel):
+    """What :data:`LevelRecord` adds to the core's fields: unknown fields kept, numbers that are
+    not finite stored as null, and :meth:`of`."""
 
     model_config = ConfigDict(extra="allow", ser_json_inf_nan="constants")
-
-    index: int
-    downsample: int = 1
-    bin_width: int = 1
-    views: int = 1
-    height: int
-    width: int
-    candidates: int
-    bundles: int
-    energy: float | None
-    lower_bound: float | None = None
-    gap: float | None = None
-    repaired: int = 0
-    seconds: float | None
-    solver_seconds: float | None
-    timing: dict[str, float | None] = Field(default_factory=dict)
-    info: dict[str, Any] = Field(default_factory=dict)
-    residual: dict[str, float | None] | None = None
-    termination: str | None = None
-    provenance_counts: dict[str, int] | None = None
 
     @model_validator(mode="before")
     @classmethod
@@ -145,8 +123,34 @@ class LevelRecord(BaseModel):
         return finite_or_null(value)
 
     @classmethod
-    def of(cls, report: LevelReport) -> LevelRecord:
+    def of(cls, report: LevelReport) -> Any:
+        """The record of a level's report (a :data:`LevelRecord`)."""
         return cls.model_validate(asdict(report))
+
+
+#: One assembled level as the record keeps it: :class:`shared.level_report.LevelReport`'s
+#: fields, derived from it (declared once, in the core), every number nullable (not finite:
+#: null), with the defaults a record written before a field existed reads as. Fields it does
+#: not name are kept (a report field added later, or read from a newer worker).
+if TYPE_CHECKING:
+    LevelRecord = _LevelRecordBase  # its fields are the report's, made at import
+else:
+    LevelRecord = model_of(
+        LevelReport,
+        "LevelRecord",
+        base=_LevelRecordBase,
+        nullable_numbers=True,
+        defaults={
+            "downsample": 1,
+            "bin_width": 1,
+            "views": 1,
+            "lower_bound": None,
+            "gap": None,
+            "repaired": 0,
+        },
+        module=__name__,
+        doc=_LevelRecordBase.__doc__,
+    )
 
 
 class JobRecord(BaseModel):

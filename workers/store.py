@@ -12,18 +12,12 @@ Keys (all under ``{key_prefix}:``):
     jobs:owner:{user}        the same, one user's jobs
     jobs:tag:{tag}           the same, the jobs with that tag (and jobs:owner:{user}:tag:{tag})
     jobs:active              hash id -> owner of the jobs queued or running (the per-user cap)
-    job:{id}:chunks          hash "{level}:{first row}" -> JSON ``ChunkReport`` (progress, usage)
     job:{id}:upload          hash of the decoded views ``left``, ``right`` (their integer form,
                              in pieces): written by the API at submission, read by the control
                              worker; deleted when the job ends
     job:{id}:level:...       level inputs and solved bundles (:mod:`workers.level_store`)
-    job:{id}:result          hash of the full-resolution disparity and the maps beside it
-                             (``map:validity``, ``map:confidence``), in bounded pieces
-    job:{id}:tasks           set of the ids of the job's solver tasks running now
-    job:{id}:view:{name}     what the web page shows next to the result: the left view
-                             (``left.png``) and the ground truth (``ground_truth``, a hash like
-                             the uploads, which the final scoring also reads); they outlive the
-                             uploads like the result
+    job:{id}:chunks, :tasks  chunk reports and running tasks (:mod:`workers.job_progress`)
+    job:{id}:result, :view:  the result and the views beside it (:mod:`workers.job_results`)
 
 Chunk reports and solved bundles are written with HSET, so a task that runs twice (a worker died
 after solving, or the watchdog re-sent it) is counted once. A record changes by
@@ -50,20 +44,20 @@ from redis.client import Pipeline
 from shared.config import Settings
 from workers.arrays import array_fields, array_from, from_npy
 from workers.bounded import piece_bytes, read_hash, write_hash
+from workers.job_progress import ProgressStorage
+from workers.job_results import ResultStorage
 from workers.level_store import LevelStorage
 from workers.records import (
     ACTIVE,
     JOB_ID,
-    ChunkReport,
     JobRecord,
     JobState,
-    Progress,
     TransitionError,
     allowed,
     load_record,
     now,
 )
-from workers.redis_client import Writes, as_bytes, client_for, members, text, update_watched
+from workers.redis_client import Writes, client_for, members, text, update_watched
 
 log = logging.getLogger(__name__)
 
@@ -91,14 +85,13 @@ class Applied(NamedTuple):
     changed: bool
 
 
-class JobStore(LevelStorage):
-    """Job records, uploads, level inputs and results in Redis (see the module's keys)."""
+class JobStore(LevelStorage, ProgressStorage, ResultStorage):
+    """Job records and uploads in Redis (see the module's keys); level inputs, progress and
+    results are its mixins' (:mod:`workers.level_store`, :mod:`workers.job_progress`,
+    :mod:`workers.job_results`), over :class:`~workers.store_base.StoreBase`."""
 
     def __init__(self, client: redis.Redis, settings: Settings):
-        self.redis = client
-        self.settings = settings
-        self.prefix = settings.key_prefix
-        self.ttl = settings.result_ttl_seconds
+        super().__init__(client, settings)
         self._create = client.register_script(_CREATE)
         self._images = OrderedDict()  # LevelStorage._level_images
 
@@ -106,23 +99,8 @@ class JobStore(LevelStorage):
     def from_settings(cls, settings: Settings) -> JobStore:
         return cls(client_for(settings), settings)
 
-    # keys -------------------------------------------------------------------------------------
-
-    def key(self, *parts: object) -> str:
-        return ":".join([self.prefix, *map(str, parts)])
-
     def ping(self) -> bool:
         return bool(self.redis.ping())
-
-    @property
-    def limit(self) -> int:
-        """Largest Redis command or reply of a job's data (``redis_max_command_bytes``)."""
-        return self.settings.redis_max_command_bytes
-
-    @property
-    def view_ttl(self) -> int:
-        """Lifetime of uploads and views while the job runs (at its end: :attr:`ttl`)."""
-        return self.ttl + self.settings.task_visibility_timeout
 
     # records ----------------------------------------------------------------------------------
 
@@ -392,109 +370,3 @@ class JobStore(LevelStorage):
         if stale:
             self.redis.hdel(index, *stale)
         return len(ids) - len(stale)
-
-    # progress and usage -----------------------------------------------------------------------
-
-    def record_chunk(self, job_id: str, first_row: int | str, chunk: ChunkReport) -> None:
-        """Idempotent (a task solved twice counts once); expires like the job's record."""
-        key = self.key("job", job_id, "chunks")
-        with self.redis.pipeline() as pipe:
-            pipe.hset(key, f"{chunk.level}:{first_row}", chunk.model_dump_json())
-            pipe.expire(key, self.ttl + self.settings.task_visibility_timeout)
-            pipe.execute()
-
-    def chunks(self, job_id: str) -> list[ChunkReport]:
-        raw = self.redis.hvals(self.key("job", job_id, "chunks"))
-        return [ChunkReport.model_validate_json(value) for value in raw]
-
-    def progress(self, record: JobRecord, chunks: list[ChunkReport] | None = None) -> Progress:
-        chunks = self.chunks(record.id) if chunks is None else chunks
-        current = record.level - 1
-        done = sum(chunk.bundles for chunk in chunks if chunk.level == current)
-        done = record.bundles_total if record.state is JobState.SUCCEEDED else done
-        preparing = record.state is JobState.RUNNING and not record.bundles_total
-        return Progress(
-            level=record.level,
-            levels=record.levels_total,
-            bundles_done=min(done, record.bundles_total),
-            bundles_total=record.bundles_total,
-            phase=self.phase(record.id, max(current, 0)) if preparing else None,
-            stage=record.pricing_stage,  # a pricing job's (workers.pricing)
-            fraction=record.pricing_fraction,
-        )
-
-    @staticmethod
-    def usage(chunks: list[ChunkReport]) -> dict[str, float]:
-        """Solver time spent on the job so far, summed over solved chunks (seconds)."""
-        total: dict[str, float] = {"solver_seconds": 0.0}
-        for chunk in chunks:
-            total["solver_seconds"] += chunk.wall_time
-            for key, value in chunk.timing.items():
-                total[key] = total.get(key, 0.0) + value
-        return total
-
-    @staticmethod
-    def problem_ids(chunks: list[ChunkReport]) -> list[str]:
-        """The ids SAPI gave the job's D-Wave problems, level by level."""
-        return [i for chunk in sorted(chunks, key=lambda c: c.level) for i in chunk.problem_ids]
-
-    # running solver tasks (what a cancel terminates) ------------------------------------------
-
-    def task_started(self, job_id: str, task_id: str) -> None:
-        key = self.key("job", job_id, "tasks")
-        with self.redis.pipeline() as pipe:
-            pipe.sadd(key, task_id)
-            pipe.expire(key, self.settings.task_visibility_timeout)
-            pipe.execute()
-
-    def task_ended(self, job_id: str, task_id: str) -> None:
-        self.redis.srem(self.key("job", job_id, "tasks"), task_id)
-
-    def running_tasks(self, job_id: str) -> list[str]:
-        """Ids of the job's solver tasks that started and have not ended (or were killed)."""
-        return sorted(text(raw) for raw in self.redis.smembers(self.key("job", job_id, "tasks")))
-
-    # results ----------------------------------------------------------------------------------
-
-    def save_result(
-        self, job_id: str, disparity: np.ndarray, maps: dict[str, np.ndarray] | None = None
-    ) -> None:
-        """The full-resolution disparity and the maps beside it (``validity``,
-        ``confidence``), in bounded pieces of one hash (:mod:`workers.bounded`)."""
-        piece = piece_bytes(self.limit)
-        fields = array_fields("disparity", disparity, piece=piece)
-        for name, array in (maps or {}).items():
-            fields |= array_fields(f"map:{name}", array, piece=piece)
-        key = self.key("job", job_id, "result")
-        write_hash(self.redis, key, fields, self.limit, self.ttl, "the job's result")
-
-    def _result_array(self, job_id: str, name: str) -> np.ndarray | None:
-        """One array of the result hash, reading only its own fields (None: absent)."""
-        key = self.key("job", job_id, "result")
-        header = self.redis.hget(key, name)
-        if header is None:
-            return None
-        names = [name, *(f"{name}:{n}" for n in range(json.loads(header)["pieces"]))]
-        fields = read_hash(self.redis, key, self.limit, names)
-        return array_from(fields, name) if len(fields) == len(names) else None
-
-    def load_map(self, job_id: str, name: str) -> np.ndarray | None:
-        """A map saved beside the result (None: the job has none, or it expired)."""
-        return self._result_array(job_id, f"map:{name}")
-
-    def load_result(self, job_id: str) -> np.ndarray | None:
-        key = self.key("job", job_id, "result")
-        if self.redis.type(key) == b"string":  # written whole by an earlier version
-            data = self.redis.get(key)
-            return None if data is None else from_npy(as_bytes(data))
-        return self._result_array(job_id, "disparity")
-
-    # views ------------------------------------------------------------------------------------
-
-    def save_view(self, job_id: str, name: str, data: bytes) -> None:
-        """Keep ``data`` for the job's web view; it expires with the result once the job ends."""
-        self.redis.set(self.key("job", job_id, "view", name), data, ex=self.view_ttl)
-
-    def load_view(self, job_id: str, name: str) -> bytes | None:
-        data = self.redis.get(self.key("job", job_id, "view", name))
-        return None if data is None else as_bytes(data)

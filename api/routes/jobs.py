@@ -36,7 +36,7 @@ from api.responses import (
     summary_of,
     upload_route,
 )
-from api.schemas import JobCreated, JobPage, JobStatus, JobSummary
+from api.schemas import JobCreated, JobPage, JobStatus
 from api.uploads import GT_SCALE_RANGE, MAX_GT_BORDER, MAX_LABEL, MAX_TAGS, TAG, cameras_of
 from api.users import UserStore
 from shared import provenance_map
@@ -79,24 +79,18 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     chunks = svc.store.chunks(record.id)
     progress = svc.store.progress(record, chunks)
     return JobStatus(
-        **JobSummary.fields_of(record, links(record), charged_seconds(record, users)),
-        progress=progress.model_dump(),
-        levels=record.levels,
-        usage=svc.store.usage(chunks),
-        problem_ids=svc.store.problem_ids(chunks),
-        error=record.error,
-        warnings=record.warnings + budget_warning(record, users),
-        ground_truth=record.ground_truth,
-        config=record.config,
-        disparity_range=record.disparity_range,
-        version=record.version,
-        cameras=record.cameras,
-        provenance_counts=record.provenance_counts,
-        expires_at=(
-            record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
-            if record.finished_at and not record.pinned
-            else None
-        ),
+        **{
+            **JobStatus.fields_of(record, links(record), charged_seconds(record, users)),
+            "progress": progress.model_dump(),
+            "usage": svc.store.usage(chunks),
+            "problem_ids": svc.store.problem_ids(chunks),
+            "warnings": record.warnings + budget_warning(record, users),
+            "expires_at": (
+                record.finished_at + timedelta(seconds=svc.settings.result_ttl_seconds)
+                if record.finished_at and not record.pinned
+                else None
+            ),
+        }
     )
 
 

@@ -57,7 +57,6 @@ from shared.bench.experiments import (
     BenchOptions,
     PaperFigure,
     Variant,
-    encoding_for,
     match_config,
     paper_figure,
     parse_solver_params,
@@ -65,7 +64,7 @@ from shared.bench.experiments import (
     variants,
 )
 from shared.bench.report import error_map_png, markdown
-from shared.bench.runner import run_bench, run_one, select_scenes
+from shared.bench.runner import encoding_for, run_bench, run_one, select_scenes
 from shared.bench.scene_runners import (
     RUNNER_GROUP,
     RemoteRunner,

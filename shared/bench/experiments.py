@@ -196,28 +196,9 @@ def variants(options: BenchOptions) -> list[Variant]:
     return chosen
 
 
-def encoding_for(solver: str, options: BenchOptions) -> str | None:
-    """The encoding a solver's runs use.
-
-    Parameters
-    ----------
-    solver
-        Registry name of the solver.
-    options
-        The bench options (``encoding``: the one asked for, if any).
-
-    Returns
-    -------
-    str or None
-        The asked-for encoding, else the solver's recommended one (the registry's: domain-wall
-        for the annealers), else None: the run's preset decides.
-    """
-    from shared.solvers.registry import recommended_encoding
-
-    return options.encoding or recommended_encoding(solver)
-
-
-def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> MatchConfig:
+def match_config(
+    variant: Variant, scene: Scene, options: BenchOptions, encoding: str | None
+) -> MatchConfig:
     """The pipeline configuration of a pipeline variant on one scene.
 
     Parameters
@@ -227,7 +208,9 @@ def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> Match
     scene
         The scene (its protocol gives the disparity range unless ``auto`` was asked for).
     options
-        The bench options (bundle height, encoding, seed, solver parameters).
+        The bench options (bundle height, seed, solver parameters).
+    encoding
+        The encoding its runs use (``runner.encoding_for``: the solver's record is read there).
 
     Returns
     -------
@@ -240,7 +223,7 @@ def match_config(variant: Variant, scene: Scene, options: BenchOptions) -> Match
         "solver": variant.solver,
         "max_disparity": AUTO if options.max_disparity == AUTO else scene.max_disparity,
         "bundle_height": options.bundle_height,
-        "encoding": encoding_for(variant.solver, options),
+        "encoding": encoding,
         "seed": options.seed,
         "solver_params": {
             **options.solver_params.get("*", {}),

@@ -1,7 +1,8 @@
 """The bench loop: each variant on each scene, scored, imaged and reported.
 
 Failures of one run are recorded in its :class:`~shared.bench.scoring.Run`, never raised, so the
-other runs go on.
+other runs go on. The one module of :mod:`shared.bench` that reads the solver registry (a
+variant's availability and recommended encoding).
 """
 
 from __future__ import annotations
@@ -33,17 +34,35 @@ from shared.config import AUTO
 from shared.datasets import Scene, find_scenes
 from shared.images import to_gray
 from shared.provenance import qhsm_version
-from shared.solvers import SolverUnavailableError
+from shared.solvers import SolverUnavailableError, UnknownSolverError
+from shared.solvers.registry import resolve
+
+
+def encoding_for(solver: str, options: BenchOptions) -> str | None:
+    """The encoding a solver's runs use.
+
+    Parameters
+    ----------
+    solver
+        Registry name of the solver.
+    options
+        The bench options (``encoding``: the one asked for, if any).
+
+    Returns
+    -------
+    str or None
+        The asked-for encoding, else the solver's recommended one (the registry's: domain-wall
+        for the annealers), else None: the run's preset decides.
+    """
+    return options.encoding or resolve(solver).spec.encoding
 
 
 def _skip_reason(variant: Variant, remote: bool) -> str | None:
     """Why a pipeline variant cannot run here (local runs only; a service checks its own)."""
-    from shared.solvers import UnknownSolverError, get_solver
-
     if variant.method != "pipeline" or remote:
         return None
     try:
-        availability = get_solver(variant.solver or "").available()
+        availability = resolve(variant.solver or "").sampler.available()
     except UnknownSolverError as error:
         return str(error)
     except Exception as error:  # a broken adapter must not stop the other runs
@@ -99,7 +118,9 @@ def run_one(
     left, right = images
     try:
         if variant.method == "pipeline":
-            config = match_config(variant, scene, options)
+            config = match_config(
+                variant, scene, options, encoding_for(variant.solver or "", options)
+            )
             run.config = config.model_dump(mode="json")
             key = config.model_dump_json()
             if cache is not None and key in cache:

@@ -111,7 +111,7 @@ def inference_for(config: MatchConfig | ResolvedSolver) -> LevelInference:
     return row_of(solver).make(solver)
 
 
-def settles(config: MatchConfig) -> bool:
+def settles(config: MatchConfig | ResolvedSolver) -> bool:
     """Whether a level is settled on the host first (the residual design, :mod:`shared.settle`):
     its bundles are the tiles the host leaves, estimated as such before the job runs. The
     solver's ``certifies_tiles``, which keys :class:`~.qubo_residual.ResidualTiles`' row."""

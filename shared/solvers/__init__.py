@@ -1,4 +1,10 @@
-"""QUBO solvers as dimod samplers behind one registry (see :mod:`shared.solvers.registry`)."""
+"""QUBO solvers as dimod samplers behind one registry (:mod:`shared.solvers.registry`).
+
+The package's names are the solvers' contract (errors, results, the resolved solver); the
+registry's functions are not re-exported: the few modules that look a solver up import
+:mod:`shared.solvers.registry` itself (``tests/core/test_import_cycles.py`` lists them), the rest
+are handed a :class:`ResolvedSolver`.
+"""
 
 from typing import TYPE_CHECKING, Any
 
@@ -12,17 +18,8 @@ from shared.solvers.base import (
 )
 from shared.solvers.errors import UnknownSolverError
 from shared.solvers.params import InvalidSolverParamsError
-from shared.solvers.registry import (
-    ResolvedSolver,
-    SolverSpec,
-    check_params,
-    get_solver,
-    params_schema,
-    register,
-    resolve,
-    solver_names,
-    spec,
-)
+from shared.solvers.records import SolverSpec
+from shared.solvers.resolved import ResolvedSolver
 
 if TYPE_CHECKING:
     from shared.solvers.sampler import Sampler
@@ -53,12 +50,5 @@ __all__ = [
     "SolverUnavailableError",
     "TransientSolverError",
     "UnknownSolverError",
-    "check_params",
-    "get_solver",
-    "params_schema",
-    "register",
-    "resolve",
     "solve",
-    "solver_names",
-    "spec",
 ]

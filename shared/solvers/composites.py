@@ -377,13 +377,19 @@ class EmbeddingCacheComposite(ChildComposite):
         Name of the child's graph in the cache keys (topology and edge fingerprint).
     solver
         Solver name under which embedding sizes are recorded (for the QPU time estimates).
+    timeout
+        Seconds minorminer may search on a miss (None: the cache's default).
     """
 
     added_parameters = ("chain_strength", "chain_break_method")
 
-    def __init__(self, child: Any, cache, target: str, solver: str) -> None:
+    def __init__(
+        self, child: Any, cache, target: str, solver: str, timeout: float | None = None
+    ) -> None:
         super().__init__(child)
         self.cache, self.target, self.solver = cache, target, solver
+        #: Seconds minorminer may search on a miss (the adapter's ``embedding_timeout``).
+        self.timeout = timeout
         #: one FixedEmbeddingComposite per embedding: its chain structure is built once, not per
         #: bundle (that was ~10 % of a qpu-sim bundle's time)
         self._composites: dict[str, Any] = {}
@@ -402,7 +408,9 @@ class EmbeddingCacheComposite(ChildComposite):
         tuple
             ``(embedding, source, key)`` of :meth:`EmbeddingCache.lookup`.
         """
-        return self.cache.lookup(bqm, self._child.edgelist, self.target, seed=0, solver=self.solver)
+        return self.cache.lookup(
+            bqm, self._child.edgelist, self.target, self.timeout, seed=0, solver=self.solver
+        )
 
     def sample(
         self, bqm: dimod.BinaryQuadraticModel, reduction: Reduction | None = None, **params: Any

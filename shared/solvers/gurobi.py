@@ -15,7 +15,7 @@ from typing import Any
 import dimod
 import numpy as np
 
-from shared.config import Settings, get_settings
+from shared.config import Settings
 from shared.solvers.base import (
     Availability,
     SolverError,
@@ -99,7 +99,7 @@ class GurobiSampler(Sampler, dimod.Initialized):
             import gurobipy  # noqa: F401
         except ImportError:
             return Availability(False, "gurobipy is not installed (pip install 'qhsm[gurobi]')")
-        kind = licence_kind(get_settings())
+        kind = licence_kind(self.settings)
         if kind == "wls":
             return Availability(True, "full licence (Gurobi Web License Service)")
         if kind == "file":
@@ -141,7 +141,7 @@ class GurobiSampler(Sampler, dimod.Initialized):
         import gurobipy as gp
         import scipy.sparse as sp
 
-        settings = get_settings()
+        settings = self.settings
         start = None
         if initial_states is not None:
             parsed = self.parse_initial_states(bqm, initial_states, num_reads=1)

@@ -155,16 +155,17 @@ class LeapHybridSolver(_HybridBatch):
         self._lock = threading.Lock()
 
     def available(self) -> Availability:
-        return leap.available()
+        return leap.available(self.settings)
 
     def translate(self, error: Exception) -> SolverError:
         """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
-        return leap.translate(self.name, error, leap.secret())
+        settings = self.settings
+        return leap.translate(self.name, error, settings, leap.secret(settings))
 
     def _make_sampler(self):
         from dwave.system import LeapHybridSampler
 
-        return leap.connect(self.name, LeapHybridSampler)
+        return leap.connect(self.name, LeapHybridSampler, self.settings)
 
     def _build_sampler(self):
         """:meth:`_make_sampler`, its errors as ours."""

@@ -11,6 +11,7 @@ from typing import Any
 
 import dimod
 
+from shared.config import Settings, get_settings
 from shared.solvers.base import (
     Availability,
     SolverError,
@@ -44,6 +45,21 @@ class Sampler(dimod.Sampler):
     #: What is declared about it (schema, description, offline...): set by
     #: :func:`shared.solvers.registry.build`; None for a sampler built by hand.
     spec: SolverSpec | None = None
+    #: The service settings handed over by whoever builds it (a worker's context); None: read
+    #: from the environment when asked (:attr:`settings`).
+    _settings: Settings | None = None
+
+    @property
+    def settings(self) -> Settings:
+        """The settings it runs with (token, endpoint, embedding limits, licence): the ones
+        handed over, else the environment's now (a test's patched environment is seen). An
+        adapter reads them here only and hands the values on as parameters
+        (:mod:`shared.solvers.qpu.leap`, ``packing.copies``, the embedding cache's timeout)."""
+        return self._settings if self._settings is not None else get_settings()
+
+    @settings.setter
+    def settings(self, settings: Settings | None) -> None:
+        self._settings = settings
 
     def available(self) -> Availability:
         return Availability(True, "always available (CPU)")

@@ -16,6 +16,7 @@ from api_helpers import LEFT, RIGHT, post
 from api.users import UserStore
 from shared.config import MatchConfig
 from shared.solvers.meters import qpu_time
+from shared.solvers.registry import resolve
 from workers import pricing
 from workers.app import make_celery
 from workers.estimates import EstimateStore, sweep_abandoned
@@ -83,7 +84,7 @@ def test_a_polled_estimate_gives_the_workers_result_then_a_repeat_is_cached(api,
     body = api.get(created["links"]["self"]).json()
     assert body["state"] == "done" and not body["cached"] and body["error"] is None
     result = body["result"]
-    expected = qpu_time.job_seconds(MatchConfig.model_validate(params), (24, 32), 6)
+    expected = qpu_time.job_seconds(resolve(MatchConfig.model_validate(params)), (24, 32), 6)
     assert result["max_disparity"] == 6 and result["bundles"] == expected.bundles
     # roof duality surveyed on the pair: what it solves on the host is not charged
     assert 0 < result["seconds"] <= expected.seconds * (1 + 1e-9)

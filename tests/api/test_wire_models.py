@@ -71,3 +71,53 @@ def test_progress_bar_redraws_changes_and_ends_on_the_final_state(final):
     assert lines[-1].startswith(f"{final}: level 2/2: {done}/8 bundles (")
     assert len(lines) == 2 and "0/0" not in stream.getvalue()
     assert stream.getvalue().endswith("\n")  # the next line starts clean
+
+
+def test_level_fields_are_declared_once_in_the_core():
+    """The record and the wire model are derived from LevelReport (issue 30): same fields in
+    the same order, the wire's descriptions only for fields that exist."""
+    from api.schemas import LEVEL_DOCS
+    from workers.records import LevelRecord
+
+    core = [field.name for field in dataclasses.fields(LevelReport)]
+    assert list(LevelRecord.model_fields) == core
+    assert list(LevelTiming.model_fields) == [name for name in core if name != "info"]
+    for name, text in LEVEL_DOCS.items():
+        assert LevelTiming.model_fields[name].description == text
+    # numbers that are not finite are stored and sent as null
+    stored = LevelRecord.of(LevelReport(0, 1, 1, 1, 2, 3, 4, 5, float("inf"), None, None, 0,
+                                        1.0, 0.5, {"qpu": float("nan")}))  # fmt: skip
+    sent = LevelTiming.model_validate(stored).model_dump()
+    assert sent["energy"] is None and sent["timing"] == {"qpu": None} and "info" not in sent
+
+
+def test_a_derived_model_refuses_docs_for_fields_it_does_not_have():
+    from shared.wire import model_of
+
+    with pytest.raises(KeyError, match="bundels"):
+        model_of(LevelReport, "Typo", docs={"bundels": "a misspelt field"})
+
+
+def test_the_status_copies_every_field_it_shares_with_the_record():
+    """``record_fields``: what the status sends as stored is read by name, no hand-kept list."""
+    from api.schemas import EstimateStatus, record_fields
+    from workers.estimates import EstimateRecord
+    from workers.records import JobRecord
+
+    shared = set(JobStatus.model_fields) & set(JobRecord.model_fields)
+    assert {"levels", "config", "disparity_range", "provenance_counts", "metrics"} <= shared
+    record = EstimateRecord(config={"solver": "sa"}, cached=True, error="why")
+    fields = record_fields(EstimateStatus, record)
+    assert fields == {
+        "id": record.id,
+        "state": record.state,
+        "cached": True,
+        "result": None,
+        "created_at": record.created_at,
+        "finished_at": None,
+        "error": "why",
+        "stage": None,
+        "fraction": None,
+    }
+    status = EstimateStatus.of(record, None)
+    assert status.links == {"self": f"/v1/estimates/{record.id}"} and status.cached

@@ -12,9 +12,10 @@ from hypothesis import strategies as st
 
 from shared.encodings import onehot
 from shared.energy import mrf_energy
-from shared.solvers import SolverError, get_solver
+from shared.solvers import SolverError
 from shared.solvers.base import sample_array
 from shared.solvers.exact import ExactSolver, solve_chains
+from shared.solvers.registry import get_solver
 
 
 @given(

@@ -20,7 +20,7 @@ from shared.inference.qubo_tiles import QuboTiles
 from shared.inference.row_chains import RowChains
 from shared.inference.table import ANY, TABLE
 from shared.pipeline import run_pipeline
-from shared.solvers import get_solver
+from shared.solvers.registry import get_solver
 from shared.synthetic import make_scene
 
 #: Each strategy's run on a tiny pair, and its digest (disparity, each level's energy, bound,

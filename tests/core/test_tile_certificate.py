@@ -26,9 +26,9 @@ from shared.inference import (
 from shared.level_inputs import LevelInputs
 from shared.pipeline import run_pipeline
 from shared.provenance_map import Stage
-from shared.solvers import get_solver
 from shared.solvers.base import SolveResult
 from shared.solvers.meters.qpu_time import charged_seconds
+from shared.solvers.registry import get_solver
 from shared.synthetic import make_scene
 
 SMALL = {"height": 16, "width": 40, "max_disparity": 6}

@@ -17,6 +17,7 @@ from shared.cli import main
 from shared.config import MatchConfig
 from shared.images import load_pair
 from shared.pipeline import run_pipeline
+from shared.solvers.registry import resolve
 from shared.synthetic import make_scene
 from workers.embedded_redis import EmbeddedRedis, free_port
 
@@ -152,7 +153,7 @@ def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_
     assert main(["estimate", str(left), str(right), *options, "--url", api_url, "--json"]) == 0
     remote = json.loads(capsys.readouterr().out)
     config = MatchConfig(solver="qpu", encoding="domain-wall", max_disparity=8)
-    expected = qpu_time.job_seconds(config, (24, 32), 8)
+    expected = qpu_time.job_seconds(resolve(config), (24, 32), 8)
     # what roof duality solves on the host is not estimated (the model alone: every bundle)
     assert 0 < remote["seconds"] <= expected.seconds * (1 + 1e-9) and remote["metered"]
     assert remote["bundles"] == expected.bundles and remote["fits"] is True

@@ -171,8 +171,8 @@ def test_flower_is_an_opt_in_profile_on_task_events(compose):
 
 def test_a_worker_reads_the_settings_its_app_was_made_with():
     """Settings are read from the environment once and passed down: the app carries them (also
-    through a pickle, where Celery rebuilds it with its own keywords only) and the tasks'
-    module reads the app's."""
+    through a pickle, where Celery rebuilds it with its own keywords only) and the worker's
+    context (``workers.context``) is built from the app's."""
     import pickle
 
     from workers import tasks
@@ -182,4 +182,4 @@ def test_a_worker_reads_the_settings_its_app_was_made_with():
     celery = make_celery(settings, with_tasks=False)
     assert celery.qhsm_settings is settings
     assert pickle.loads(pickle.dumps(celery)).qhsm_settings.key_prefix == Settings().key_prefix
-    assert tasks.settings is app.qhsm_settings
+    assert tasks.current().settings is app.qhsm_settings

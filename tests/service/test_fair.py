@@ -52,8 +52,8 @@ def test_a_free_worker_takes_from_the_user_with_fewest_tasks_running(settings, m
 
     from workers import fair
 
-    monkeypatch.setenv("QHSM_REDIS_URL", settings.redis_url)
-    monkeypatch.setenv("QHSM_KEY_PREFIX", settings.key_prefix)
+    # what the worker's context hands the strategy at start (kombu builds it without arguments)
+    monkeypatch.setattr(fair.FewestRunningFirst, "settings", settings)
     client = redis.Redis.from_url(settings.redis_url)
     prefix = settings.key_prefix
     for task in ("t1", "t2", "t3"):

@@ -16,7 +16,7 @@ import pytest
 from shared.config import MatchConfig
 from shared.images import decode_image
 from shared.pipeline import run_pipeline
-from shared.solvers import get_solver, solver_names
+from shared.solvers.registry import get_solver, solver_names
 from shared.synthetic import make_scene
 
 pytestmark = pytest.mark.service

@@ -19,6 +19,7 @@ import redis
 
 from api.users import UserStore
 from shared.solvers.meters import qpu_time
+from shared.solvers.registry import resolve
 from shared.synthetic import make_scene
 
 pytestmark = pytest.mark.service
@@ -118,7 +119,7 @@ QPU_PARAMS = {
 def job_estimate(shape=(16, 24)) -> qpu_time.JobEstimate:
     from shared.config import MatchConfig
 
-    return qpu_time.job_seconds(MatchConfig.model_validate(QPU_PARAMS), shape, 6)
+    return qpu_time.job_seconds(resolve(MatchConfig.model_validate(QPU_PARAMS)), shape, 6)
 
 
 def submit(http, key, pair, params, expect=202):

@@ -15,9 +15,10 @@ from shared.energy import mrf_energy
 from shared.inference import solve_bundles
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
-from shared.solvers import SolverError, get_solver
+from shared.solvers import SolverError
 from shared.solvers.anneal import SA_PRESETS, beta_range
 from shared.solvers.composites import fix_variables
+from shared.solvers.registry import get_solver
 
 #: Solvers that reach the ground state of a 10-variable BQM (gurobi: exact; sa: 20 reads). Tabu
 #: search does not always (seed 305, 6 variables: every read ends in a local minimum 4 flips away).

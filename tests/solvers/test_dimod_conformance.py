@@ -24,10 +24,11 @@ from dwave.system.testing import MockDWaveSampler, MockLeapHybridSolver
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared.solvers import get_solver, registry
+from shared.solvers import registry
 from shared.solvers.canonical import Canonical
 from shared.solvers.plugins import BUILTIN_SAMPLERS
 from shared.solvers.records import DIMOD_PREFIX
+from shared.solvers.registry import get_solver
 
 
 def _ships_with_qhsm(name: str) -> bool:

@@ -15,11 +15,12 @@ from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import SolverError, SolverUnavailableError, get_solver
+from shared.solvers import SolverError, SolverUnavailableError
 from shared.solvers.exact import solve_chains
 from shared.solvers.meters import qpu_time
 from shared.solvers.qpu.dwave import SimulatedQPUSolver
 from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache, default_cache
+from shared.solvers.registry import get_solver
 
 #: These tests are about the QPU path itself: roof duality would solve their tiny rows on the host.
 WHOLE = {"preprocess": "none"}
@@ -111,7 +112,7 @@ def test_directory_store_is_shared_with_a_fresh_process(mock_qpu, tmp_path):
         "import json, sys; sys.path.insert(0, sys.argv[1]);"
         "from solver_helpers import stereo_costs;"
         "from shared.encodings import get_codec;"
-        "from shared.solvers import get_solver;"
+        "from shared.solvers.registry import get_solver;"
         "bqm = get_codec('domain-wall').encode(stereo_costs(1, 5, seed=9));"
         "r = get_solver('qpu-sim').solve(bqm, seed=0, num_reads=10, preprocess='none');"
         "print(json.dumps([r.info['embedding_cache'], r.info['embedding_key']]))"

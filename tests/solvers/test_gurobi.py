@@ -9,8 +9,9 @@ from solver_helpers import optimum, random_bqm, stereo_costs
 from shared.config import get_settings
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import SolverError, get_solver
+from shared.solvers import SolverError
 from shared.solvers.gurobi import PIP_LICENCE_VARIABLES, licence_kind
+from shared.solvers.registry import get_solver
 
 
 @pytest.mark.parametrize("encoding", ["one-hot", "domain-wall"])

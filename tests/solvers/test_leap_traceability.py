@@ -154,6 +154,7 @@ def test_planning_retries_an_unreachable_endpoint_with_backoff_then_fails_naming
     "internal error". The planning task now retries (eagerly here: no waiting) and then fails
     the job with the endpoint and the cause."""
     from workers import orchestration, tasks
+    from workers.context import WorkerContext
 
     endpoint = f"http://127.0.0.1:{_closed_port()}/sapi/v2/"
     monkeypatch.setenv("DWAVE_API_ENDPOINT", endpoint)
@@ -165,9 +166,10 @@ def test_planning_retries_an_unreachable_endpoint_with_backoff_then_fails_naming
 
     failed: list[str] = []
     monkeypatch.setattr(orchestration, "plan_level", plan)
-    monkeypatch.setattr(tasks, "_fail", lambda job_id, message, *_: failed.append(message))
-    monkeypatch.setattr(tasks, "store", lambda: None)
-    monkeypatch.setattr(tasks, "settings", tasks.settings.model_copy(update={"task_retries": 2}))
+    monkeypatch.setattr(tasks, "_fail", lambda ctx, job_id, message, *_: failed.append(message))
+    settings = tasks.current().settings.model_copy(update={"task_retries": 2})
+    context = WorkerContext(settings, _store=object())  # the planning is replaced: no Redis
+    monkeypatch.setattr(tasks, "current", lambda: context)
     delays: list[float] = []
     backoff = orchestration.retry_delay
     monkeypatch.setattr(

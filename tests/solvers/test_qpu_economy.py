@@ -14,10 +14,10 @@ from solver_helpers import optimum, stereo_costs, with_record
 
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
-from shared.solvers import get_solver
 from shared.solvers.hybrid import blocks
 from shared.solvers.meters import qpu_time
 from shared.solvers.qpu.packing import joined
+from shared.solvers.registry import get_solver
 
 QUICK_HYBRID = {"max_iter": 2, "sa_sweeps": 100, "qpu_reads": 10}
 

@@ -14,8 +14,9 @@ from solver_helpers import stereo_costs
 
 from shared.cli import main
 from shared.encodings import get_codec
-from shared.solvers import SolverError, SolverUnavailableError, get_solver, solver_names
+from shared.solvers import SolverError, SolverUnavailableError
 from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.registry import get_solver, solver_names
 
 SENTINEL = "SENTINEL-TOKEN-7f3a9c"
 EXPECTED = {

@@ -15,7 +15,7 @@ from shared.config import MatchConfig
 from shared.encodings import get_codec
 from shared.energy import mrf_energy
 from shared.pipeline import run_pipeline
-from shared.solvers import SolverError, SolverSpec, UnknownSolverError, get_solver, registry, solve
+from shared.solvers import SolverError, SolverSpec, UnknownSolverError, registry, solve
 from shared.solvers.base import sample_array
 from shared.solvers.composites import (
     EmbeddingCacheComposite,
@@ -24,6 +24,7 @@ from shared.solvers.composites import (
 )
 from shared.solvers.meters.qpu_time import is_metered, meter_of
 from shared.solvers.qpu.embedding_cache import DirectoryStore, EmbeddingCache
+from shared.solvers.registry import get_solver
 from shared.synthetic import make_scene
 
 SD = "dimod:dwave.samplers.SteepestDescentSolver"
@@ -175,7 +176,8 @@ def test_a_bad_dimod_name_says_what_to_do_and_imports_nothing_not_allowed(
 
 def test_allowed_dimod_samplers_have_bounded_parameters(monkeypatch):
     """As for the built-in solvers: a sweep count that would run for hours is refused."""
-    from shared.solvers import InvalidSolverParamsError, check_params
+    from shared.solvers import InvalidSolverParamsError
+    from shared.solvers.registry import check_params
 
     anneal = "dimod:dwave.samplers.SimulatedAnnealingSampler"
     assert check_params(anneal, {"num_reads": 10, "num_sweeps": 1000}) == {

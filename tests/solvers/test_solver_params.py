@@ -8,8 +8,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from shared.solvers import InvalidSolverParamsError, check_params, params_schema, solver_names
+from shared.solvers import InvalidSolverParamsError
 from shared.solvers.params import AnnealParams, NoParams, SolverParams
+from shared.solvers.registry import check_params, params_schema, solver_names
 
 
 def test_every_registered_solver_has_a_schema():
@@ -20,8 +21,8 @@ def test_every_registered_solver_has_a_schema():
 
 
 def test_adapter_defaults_and_presets_are_inside_their_schemas():
-    from shared.solvers import get_solver
     from shared.solvers.anneal import SA_PRESETS
+    from shared.solvers.registry import get_solver
 
     for preset, values in SA_PRESETS.items():
         assert check_params("sa", {"preset": preset, **values})["preset"] == preset

@@ -13,6 +13,7 @@ from shared.config import MatchConfig
 from shared.pipeline import plan_run, prepare_level
 from shared.solvers import SolveResult, registry
 from shared.solvers.meters import qpu_time
+from shared.solvers.registry import resolve
 from shared.synthetic import make_scene
 from workers.quota import (
     QpuMeter,
@@ -94,12 +95,12 @@ def test_estimate_of_a_bundle_is_the_model_for_its_size(level):
     inputs, config = level
     width, labels = inputs.shape[1], inputs.candidates.shape[2]
     expected = qpu_time.bundle_seconds("qpu-sim", 2 * width * (labels - 1), {"num_reads": 10})
-    assert bundle_estimate(inputs, config, 0, 2) == expected
+    assert bundle_estimate(inputs, config, 0, 2, solver=resolve(config)) == expected
 
 
 def test_running_out_of_budget_stops_before_the_next_bundle(fake, level, meter):
     inputs, config = level
-    estimate = bundle_estimate(inputs, config, 0, 1)
+    estimate = bundle_estimate(inputs, config, 0, 1, solver=resolve(config))
     fake.seconds = lambda call: estimate  # every bundle uses exactly its estimate
     meter.ledger.set_limit("ada", 2.5 * estimate)
     with pytest.raises(QuotaExceededError, match="not enough QPU budget left for user 'ada'"):
@@ -139,15 +140,15 @@ def test_a_bundle_estimate_uses_the_embedding_once_a_worker_found_it(level, tmp_
     cache = EmbeddingCache(DirectoryStore(tmp_path))
     monkeypatch.setattr(embedding_cache, "_default_cache", cache)
     width, labels = inputs.shape[1], inputs.candidates.shape[2]
-    assumed = bundle_estimate(inputs, config, 0, 1)
+    assumed = bundle_estimate(inputs, config, 0, 1, solver=resolve(config))
     digest = qpu_time.bundle_digest(config.encoding, 1, width, labels)
     size = EmbeddingSize(qubits=7, chains=width * (labels - 1), longest_chain=1)
     cache.store.set(embedding_cache.size_key("qpu-sim", digest), json.dumps(size.__dict__))
-    known = bundle_estimate(inputs, config, 0, 1)
+    known = bundle_estimate(inputs, config, 0, 1, solver=resolve(config))
     assert known == qpu_time.qpu_access_seconds(7, {"num_reads": 10}) != assumed
     # a two-row bundle is another structure, not embedded yet: still the assumption
     two_rows = qpu_time.bundle_seconds("qpu-sim", 2 * width * (labels - 1), {"num_reads": 10})
-    assert bundle_estimate(inputs, config, 0, 2) == two_rows
+    assert bundle_estimate(inputs, config, 0, 2, solver=resolve(config)) == two_rows
 
 
 # --- a metered solver added after the timing model was imported ----------------------------------
@@ -218,10 +219,10 @@ def test_a_metered_solver_registered_later_is_estimated_and_reserved(
     watcher = ReservationWatcher(meter.ledger, "ada")
     monkeypatch.setitem(registry._INSTANCES, PLUGIN, watcher)
 
-    estimate = bundle_estimate(inputs, plugin_config, 0, 1)
-    assert estimate == bundle_estimate(inputs, builtin, 0, 1) > 0
-    job = qpu_time.job_seconds(plugin_config, (16, 24), 6)
-    assert job.seconds == qpu_time.job_seconds(builtin, (16, 24), 6).seconds > 0
+    estimate = bundle_estimate(inputs, plugin_config, 0, 1, solver=resolve(plugin_config))
+    assert estimate == bundle_estimate(inputs, builtin, 0, 1, solver=resolve(builtin)) > 0
+    job = qpu_time.job_seconds(resolve(plugin_config), (16, 24), 6)
+    assert job.seconds == qpu_time.job_seconds(resolve(builtin), (16, 24), 6).seconds > 0
     assert job.as_dict()["metered"] and job.levels[-1].qubits_per_bundle
 
     meter.ledger.set_limit("ada", 0.5 * estimate)
@@ -280,7 +281,9 @@ def test_a_level_reserves_what_its_accepted_estimate_said_and_keeps_its_problem_
     fake = FakeLeapBatch(meter.ledger)
     monkeypatch.setitem(registry._INSTANCES, "hybrid-sim", fake)
     bundles = [tuple(bundle.as_list()) for bundle in inputs.planned_bundles(config)]
-    upper = qpu_time.batch_estimate(inputs, config, [inputs.as_bundle(b) for b in bundles])
+    upper = qpu_time.batch_estimate(
+        inputs, config, [inputs.as_bundle(b) for b in bundles], solver=resolve(config)
+    )
     accepted = 3.0
     assert upper > accepted + 0.1
     meter.ledger.set_limit("ada", accepted + 0.1)

@@ -8,6 +8,7 @@ import pytest
 from shared.config import MatchConfig
 from shared.solvers import meters, registry
 from shared.solvers.meters import LevelLoad, Meter, qpu_time
+from shared.solvers.registry import resolve
 
 
 class FlatMeter(Meter):
@@ -42,7 +43,7 @@ def test_every_registered_solver_names_a_registered_meter():
 
 def test_a_plugins_meter_estimates_and_charges_its_solver(flat):
     config = MatchConfig(solver=flat, preset="paper", max_disparity=6)
-    job = qpu_time.job_seconds(config, (16, 24), 6)
+    job = qpu_time.job_seconds(resolve(config), (16, 24), 6)
     assert job.seconds == pytest.approx(0.5 * job.bundles_sent) and job.seconds > 0
     assert job.as_dict()["metered"]
     assert meters.bundle_seconds(flat, 100) == 0.5

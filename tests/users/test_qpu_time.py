@@ -17,6 +17,7 @@ from shared.solvers.qpu.embedding_cache import (
     EmbeddingSize,
     structure_digest,
 )
+from shared.solvers.registry import resolve
 
 
 def test_qpu_model_is_programming_plus_reads_times_sample_time():
@@ -46,7 +47,7 @@ def test_qpu_estimate_grows_with_qubits_and_reads(qubits, reads, more_qubits, mo
 def test_default_reads_match_the_qpu_adapter():
     """Without ``num_reads`` the estimate counts the reads the QPU adapter samples with (its
     defaults), and the reads do count."""
-    from shared.solvers import get_solver
+    from shared.solvers.registry import get_solver
 
     reads = get_solver("qpu").defaults["num_reads"]
     default = qpu_time.bundle_seconds("qpu", 100)
@@ -86,7 +87,7 @@ def test_job_estimate_counts_every_bundle_of_every_level(encoding, preset):
     config = MatchConfig(solver="qpu-sim", encoding=encoding, bundle_height=2, preset=preset,
                          bundle_width=4096, solver_params={"num_reads": 10},
                          warm_start=False, certify_tiles=False)  # fmt: skip
-    estimate = qpu_time.job_seconds(config, (37, 50), 20)
+    estimate = qpu_time.job_seconds(resolve(config), (37, 50), 20)
     per_pixel = {"one-hot": 0, "domain-wall": -1}[encoding]
     views = 2 if preset == "accurate" else 1  # the right view's bundles too
     plans = plan(config, 20)
@@ -106,7 +107,7 @@ def test_job_estimate_counts_row_segments(tmp_path):
     config = MatchConfig(
         solver="qpu-sim", inference="rows", bundle_width=24, bundle_margin=6, lr_check=False
     )
-    got = qpu_time.job_seconds(config, (10, 50), 20).levels[-1]
+    got = qpu_time.job_seconds(resolve(config), (10, 50), 20).levels[-1]
     assert got.bundles == 10 * len(segment_columns(50, 24, 6)) == 10 * 3
     assert got.variables_per_bundle == 24 * (got_labels(config) - 1)
 
@@ -115,10 +116,10 @@ def test_job_estimate_counts_row_segments(tmp_path):
     labels = got_labels(auto)
     key = qpu_time.auto_width_key("qpu-sim", "domain-wall", 1, labels, 50, 6)
     cache.record_width(key, 30)
-    level = qpu_time.job_seconds(auto, (10, 50), 20, cache).levels[-1]
+    level = qpu_time.job_seconds(resolve(auto), (10, 50), 20, cache).levels[-1]
     assert level.bundles == 10 * len(segment_columns(50, 30, 6))
     cache.record_width(key, None)  # whole rows embed
-    assert qpu_time.job_seconds(auto, (10, 50), 20, cache).levels[-1].bundles == 10
+    assert qpu_time.job_seconds(resolve(auto), (10, 50), 20, cache).levels[-1].bundles == 10
 
 
 def got_labels(config: MatchConfig) -> int:
@@ -126,15 +127,15 @@ def got_labels(config: MatchConfig) -> int:
 
 
 def test_unmetered_solvers_cost_nothing():
-    assert qpu_time.job_seconds(MatchConfig(solver="sa"), (40, 60), 16).seconds == 0.0
+    assert qpu_time.job_seconds(resolve(MatchConfig(solver="sa")), (40, 60), 16).seconds == 0.0
     assert not qpu_time.is_metered("exact") and qpu_time.is_metered("hybrid-sim")
 
 
 def test_warm_started_levels_are_estimated_as_reverse_anneals():
     cold = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": False})
     warm = MatchConfig(solver="qpu", solver_params={"num_reads": 100, "warm_start": True})
-    cold_levels = qpu_time.job_seconds(cold, (60, 80), 16).levels
-    warm_levels = qpu_time.job_seconds(warm, (60, 80), 16).levels
+    cold_levels = qpu_time.job_seconds(resolve(cold), (60, 80), 16).levels
+    warm_levels = qpu_time.job_seconds(resolve(warm), (60, 80), 16).levels
     # every level is warm: the coarsest starts from the data term's winner-takes-all
     for cold_level, warm_level in zip(cold_levels, warm_levels, strict=True):
         assert warm_level.seconds != cold_level.seconds
@@ -185,19 +186,21 @@ def test_known_embeddings_replace_the_assumed_qubits_level_by_level():
     config = MatchConfig(solver="qpu", encoding="domain-wall", preset="paper",
                          solver_params={"num_reads": 100})  # fmt: skip
     shape = (40, 64)
-    assumed = qpu_time.job_seconds(config, shape, 16)
+    assumed = qpu_time.job_seconds(resolve(config), shape, 16)
     assert all(not level.embedding_known for level in assumed.levels)
     finest = assumed.levels[-1]
     digest = qpu_time.bundle_digest("domain-wall", 1, finest.shape[1], 4)
     size = EmbeddingSize(qubits=150, chains=finest.variables_per_bundle, longest_chain=3)
-    known = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu", digest): size}))
+    known = qpu_time.job_seconds(resolve(config), shape, 16, KnownSizes({("qpu", digest): size}))
     assert [level.embedding_known for level in known.levels] == [False, False, True]
     assert known.levels[:2] == assumed.levels[:2]
     assert known.levels[-1].qubits_per_bundle == 150
     each = qpu_time.qpu_access_seconds(150, {"num_reads": 100})
     assert known.levels[-1].seconds == pytest.approx(each * finest.bundles)
     # another solver's embedding of the same structure is not used
-    other = qpu_time.job_seconds(config, shape, 16, KnownSizes({("qpu-sim", digest): size}))
+    other = qpu_time.job_seconds(
+        resolve(config), shape, 16, KnownSizes({("qpu-sim", digest): size})
+    )
     assert other == assumed
 
 
@@ -207,8 +210,8 @@ def test_an_unreachable_embedding_store_falls_back_to_the_assumption():
             raise ConnectionError("store down")
 
     config = MatchConfig(solver="qpu-sim")
-    assert qpu_time.job_seconds(config, (20, 30), 16, Broken()) == qpu_time.job_seconds(
-        config, (20, 30), 16
+    assert qpu_time.job_seconds(resolve(config), (20, 30), 16, Broken()) == qpu_time.job_seconds(
+        resolve(config), (20, 30), 16
     )
 
 

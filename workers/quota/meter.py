@@ -137,7 +137,7 @@ def solve_metered(
 
     config = solver.config
     assert config is not None, "solve_metered needs the solver resolved with the job's config"
-    inference = inference_for(config)
+    inference = inference_for(solver)  # the task's resolution, not a second one
     sent = inference.bundle_config(inputs, config)  # as the bundles are solved (tiles: 4 rows)
     kind = meter_for(solver.name)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
@@ -146,7 +146,7 @@ def solve_metered(
             return None
         given = [inputs.as_bundle(spec) for spec in bundles]
         if level_estimate is None:
-            reserve = batch_estimate(inputs, sent, given)
+            reserve = batch_estimate(inputs, sent, given, solver=solver)
         else:
             share = len(given) / max(len(inference.planned(inputs, config)), len(given), 1)
             reserve = level_estimate * share
@@ -160,7 +160,7 @@ def solve_metered(
             return None
         bundle = inputs.as_bundle(spec)
         start, stop, first, last = bundle.as_list()
-        estimate = bundle_estimate(inputs, sent, start, stop, last - first)
+        estimate = bundle_estimate(inputs, sent, start, stop, last - first, solver=solver)
         with meter.problem(owner, job_id, estimate) as charge:
             [result] = inference.solve(inputs, config, [bundle])
             charge.report(charged_seconds(result.timing))

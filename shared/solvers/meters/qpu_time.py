@@ -10,6 +10,10 @@ The cost of one call and how a level's bundles become calls are the solver's met
 :mod:`shared.solvers.qpu.bundle_shapes`'; this module walks the planned levels and asks them. The
 meters' names are re-exported here, where the service and the tests have always imported the
 model from.
+
+Every estimate is handed the job's :class:`~shared.solvers.resolved.ResolvedSolver` (resolved
+with its configuration, once, by the caller): its warm start, its parameter schema and, for the
+live timing data, its sampler come from there; nothing here looks a solver up again.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ from shared.solvers.qpu.bundle_shapes import (
 from shared.solvers.qpu.embedding_cache import EmbeddingCache
 from shared.solvers.qpu.packing import packed_copies
 from shared.solvers.qpu.qpu_settings import reverse_anneal
-from shared.solvers.registry import resolve
+from shared.solvers.resolved import ResolvedSolver
 
 __all__ = [
     "ADVANTAGE_TIMING_DATA",
@@ -187,7 +191,7 @@ def sampler_params(solver_params: dict[str, Any], warm: bool) -> dict[str, Any]:
 
 
 def level_estimate(
-    config: MatchConfig,
+    solver: ResolvedSolver,
     index: int,
     shape: tuple[int, int],
     candidates: int,
@@ -203,8 +207,8 @@ def level_estimate(
 
     Parameters
     ----------
-    config : MatchConfig
-        The run's configuration.
+    solver : ResolvedSolver
+        The run's solver, resolved with its configuration.
     index : int
         The level's index in the pyramid.
     shape : (int, int)
@@ -225,8 +229,9 @@ def level_estimate(
     LevelEstimate
         Bundles, variables per bundle, qubits and the total estimated seconds of the level.
     """
+    config = _config(solver)
     height, width = shape
-    if settles(config):  # the residual design: 4x4 tiles (shared.settle)
+    if settles(solver):  # the residual design: 4x4 tiles (shared.settle)
         tallest, columns = min(TILE, height), min(TILE, width)
         bundles = tiles_of(height, width, views)
     else:
@@ -236,8 +241,7 @@ def level_estimate(
         segments = len(segment_columns(width, columns, config.bundle_margin))
         bundles = views * len(rows) * segments
     variables = tallest * columns * get_codec(config.encoding).variables_per_pixel(candidates)
-    resolved = resolve(config)
-    params = sampler_params(config.solver_params, warm=resolved.warm_start)
+    params = sampler_params(config.solver_params, warm=solver.warm_start)
     embedding = known_embedding(
         cache, config.solver, config.encoding, (tallest, columns), candidates
     )
@@ -255,12 +259,12 @@ def level_estimate(
             variables_share=residual.variables_share,
             qubits=embedding.qubits if embedding else None,
             together=(  # a shape's disjoint copies on the QPU graph, one call
-                packed_copies(cache, config, (tallest, columns), candidates, settles(config))
+                packed_copies(cache, config, (tallest, columns), candidates, settles(solver))
                 if meter.embeds
                 else 1
             ),
         )
-        seconds, qubits = meter.level_seconds(resolved, params, load)
+        seconds, qubits = meter.level_seconds(solver, params, load)
     return LevelEstimate(
         index=index,
         shape=(height, width),
@@ -277,24 +281,26 @@ def level_estimate(
 
 
 def job_seconds(
-    config: MatchConfig,
+    solver: ResolvedSolver,
     shape: tuple[int, int],
     max_disparity: int,
     cache: EmbeddingCache | None = None,
     residual: list[LevelResidual] | None = None,
 ) -> JobEstimate:
     """Estimate a job before accepting it: total seconds and bundles, and one
-    :class:`LevelEstimate` per level, from the image ``shape`` (height, width), its resolved
-    ``max_disparity``, the pyramid and the solver parameters; nothing is embedded or solved.
+    :class:`LevelEstimate` per level, from the run's ``solver`` (resolved with its
+    configuration), the image ``shape`` (height, width), its resolved ``max_disparity``, the
+    pyramid and the solver parameters; nothing is embedded or solved.
 
     ``cache`` is where the actual embeddings of earlier jobs are looked up (the service's shared
     store; None: assumptions only); ``residual`` what roof duality leaves per level
     (:func:`shared.residual.job_residual`; None: bundles sent whole).
     """
+    config = _config(solver)
     views = 2 if config.lr_check else 1
     levels = [
         level_estimate(
-            config,
+            solver,
             level.index,
             level_shape(shape, level.downsample),
             level.candidates,
@@ -315,7 +321,15 @@ def job_seconds(
 # --- what a worker reserves for the bundles it is about to send -------------------------------
 
 
-def _call_basis(inputs, config: MatchConfig) -> tuple[Meter, int, int, dict[str, Any]] | None:
+def _config(solver: ResolvedSolver) -> MatchConfig:
+    if solver.config is None:
+        raise ValueError(f"{solver.name} was resolved without the job's configuration")
+    return solver.config
+
+
+def _call_basis(
+    inputs, config: MatchConfig, solver: ResolvedSolver
+) -> tuple[Meter, int, int, dict[str, Any]] | None:
     """What a worker's reservation is estimated with: the solver's meter, the level's labels
     per pixel, binary variables per pixel and the sampler parameters; None when unmetered."""
     meter = meter_for(config.solver)
@@ -323,11 +337,13 @@ def _call_basis(inputs, config: MatchConfig) -> tuple[Meter, int, int, dict[str,
         return None
     labels = inputs.candidates.shape[2]
     per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
-    warm = resolve(config).warm_start
+    warm = solver.warm_start
     return meter, labels, per_pixel, sampler_params(config.solver_params, warm)
 
 
-def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None = None) -> float:
+def bundle_estimate(
+    inputs, config, start: int, stop: int, columns: int | None = None, *, solver: ResolvedSolver
+) -> float:
     """Estimated charge of the bundle of rows [start, stop) of a level (no BQM is built), with
     the shape's actual embedding once any worker has embedded one and, with a D-Wave token, the
     live solver's own timing data: the amount reserved before it is sent.
@@ -342,6 +358,8 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
         The bundle's rows.
     columns : int or None
         Width of a row segment; None: whole rows.
+    solver : ResolvedSolver
+        The job's solver, resolved once for the task (warm start, live timing data).
 
     Returns
     -------
@@ -350,7 +368,7 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     """
     from shared.solvers.qpu.embedding_cache import default_cache
 
-    basis = _call_basis(inputs, config)
+    basis = _call_basis(inputs, config, solver)
     if basis is None:
         return 0.0
     meter, labels, per_pixel, params = basis
@@ -361,11 +379,11 @@ def bundle_estimate(inputs, config, start: int, stop: int, columns: int | None =
     embedding = known_embedding(
         default_cache(), config.solver, config.encoding, (stop - start, width), labels
     )
-    live = meter.timing_source(resolve(config))
+    live = meter.timing_source(solver)
     return bundle_seconds(config.solver, variables, params, embedding=embedding, solver=live)
 
 
-def batch_estimate(inputs, config, bundles: list) -> float:
+def batch_estimate(inputs, config, bundles: list, *, solver: ResolvedSolver) -> float:
     """Estimated charge of bundles sent as one batch, before roof duality (an upper bound): the
     meter's charge of them as a level's load (QPU: each shape's bundles in packed calls, as the
     job's estimate counts them; hybrid: joined into blocks of the solver's size).
@@ -378,25 +396,26 @@ def batch_estimate(inputs, config, bundles: list) -> float:
         The job's ``MatchConfig``.
     bundles : list of Bundle
         The batch.
+    solver : ResolvedSolver
+        The job's solver, resolved once for the task.
 
     Returns
     -------
     float
         Seconds to reserve for the whole batch (one reservation).
     """
-    basis = _call_basis(inputs, config)
+    basis = _call_basis(inputs, config, solver)
     if basis is None:
         return 0.0
     meter, labels, per_pixel, params = basis
     if not meter.embeds:  # one load: every bundle's variables
         pixels = sum((b.row_stop - b.row_start) * (b.col_stop - b.col_start) for b in bundles)
         load = LevelLoad(bundles=1, sent=1, variables=pixels * per_pixel)
-        return meter.level_seconds(resolve(config), params, load)[0]
+        return meter.level_seconds(solver, params, load)[0]
     from shared.solvers.qpu.embedding_cache import default_cache
 
     cache = default_cache()
-    resolved = resolve(config)
-    live = meter.timing_source(resolved)
+    live = meter.timing_source(solver)
     groups: dict[tuple[int, int], list] = {}
     for bundle in bundles:
         groups.setdefault(bundle.shape, []).append(bundle)
@@ -410,5 +429,5 @@ def batch_estimate(inputs, config, bundles: list) -> float:
             qubits=size.qubits if size else None,
             together=packed_copies(cache, config, shape, labels),
         )
-        seconds += meter.level_seconds(resolved, params, load, live=live)[0]
+        seconds += meter.level_seconds(solver, params, load, live=live)[0]
     return seconds

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import logging
 
-from shared.config import get_settings
+from shared.config import Settings
 
 
 class _TokenScrubber(logging.Filter):
@@ -57,14 +57,13 @@ def _chain(error: BaseException) -> list[BaseException]:
     return seen
 
 
-def reached(error: BaseException) -> str:
+def reached(error: BaseException, settings: Settings) -> str:
     """Which endpoint a failed request was for: its URL (without the query), else the
     configured ``DWAVE_API_ENDPOINT``, else the region Leap's default endpoint serves."""
     for link in _chain(error):
         url = getattr(getattr(link, "request", None), "url", None)
         if url:
             return f"endpoint {str(url).split('?')[0]}"
-    settings = get_settings()
     if settings.dwave_endpoint:
         return f"endpoint {settings.dwave_endpoint}"
     from dwave.cloud.config.constants import DEFAULT_REGION

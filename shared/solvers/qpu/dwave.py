@@ -25,7 +25,6 @@ from typing import Any
 import dimod
 import numpy as np
 
-from shared.config import get_settings
 from shared.solvers.base import Availability, SolverError
 from shared.solvers.composites import (
     EMBEDDING_INFO,
@@ -148,7 +147,9 @@ class _EmbeddedQPU(Sampler):
             cache,
             self._target,
         ):
-            kept = self._composite = EmbeddingCacheComposite(base, cache, self._target, self.name)
+            kept = self._composite = EmbeddingCacheComposite(
+                base, cache, self._target, self.name, self.settings.embedding_timeout
+            )
         return kept
 
     def run(self, bqm, params: dict[str, Any], *, seed, initial_states) -> dimod.SampleSet:
@@ -220,7 +221,7 @@ class _EmbeddedQPU(Sampler):
 
     def translate(self, error: Exception) -> SolverError:
         """Ocean's exceptions as our typed errors, with the token scrubbed from the text."""
-        return leap.translate(self.name, error, self._secret())
+        return leap.translate(self.name, error, self.settings, self._secret())
 
 
 class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
@@ -240,7 +241,7 @@ class _SegmentsOnGraph(PackedCalls, _EmbeddedQPU):
             narrowest=2 * margin + 1,
             target_edges=base.edgelist,
             target=self._target,
-            timeout=get_settings().embedding_search_timeout,
+            timeout=self.settings.embedding_search_timeout,
             solver=self.name,
         )
         key = auto_width_key(self.name, str(encoding), height, candidates, row_width, margin)
@@ -271,16 +272,19 @@ class QPUSolver(_SegmentsOnGraph):
     simulated = False
 
     def available(self) -> Availability:
-        return leap.available()
+        return leap.available(self.settings)
 
     def _secret(self) -> str | None:
-        return leap.secret()
+        return leap.secret(self.settings)
 
     def _make_sampler(self):
         from dwave.system import DWaveSampler
 
-        solver = get_settings().dwave_solver
-        return leap.connect(self.name, DWaveSampler, **({"solver": solver} if solver else {}))
+        settings = self.settings
+        solver = settings.dwave_solver
+        return leap.connect(
+            self.name, DWaveSampler, settings, **({"solver": solver} if solver else {})
+        )
 
 
 class SimulatedQPUSolver(_SegmentsOnGraph):

@@ -34,7 +34,7 @@ from typing import Protocol
 import dimod
 
 from shared.activity import report
-from shared.config import get_settings
+from shared.config import Settings, get_settings
 from shared.solvers.errors import SolverError
 from shared.solvers.qpu.embedding_search import Embedding, find_embedding, is_valid_on
 from shared.solvers.qpu.structure_keys import (  # noqa: F401 (re-exported: the cache's keys)
@@ -46,6 +46,9 @@ from shared.solvers.qpu.structure_keys import (  # noqa: F401 (re-exported: the 
 )
 
 log = logging.getLogger(__name__)
+
+#: Seconds minorminer may search when a caller gives no timeout (the setting's default).
+DEFAULT_TIMEOUT: float = Settings.model_fields["embedding_timeout"].default
 
 
 @dataclass(frozen=True)
@@ -205,7 +208,8 @@ class EmbeddingCache:
         target : str
             Name of the target graph in the key (topology and edge fingerprint).
         timeout : float, optional
-            Seconds minorminer may search on a miss; default ``Settings.embedding_timeout``.
+            Seconds minorminer may search on a miss; default ``Settings.embedding_timeout``'s
+            default (an adapter passes its own setting: ``EmbeddingCacheComposite.timeout``).
         seed : int, default 0
             minorminer's random seed.
         solver : str, optional
@@ -243,7 +247,7 @@ class EmbeddingCache:
                 self._record_size(solver, digest, embedding)
                 return embedding, "store", key
             log.warning("embedding %s in the store does not fit the target; recomputing", key)
-        timeout = get_settings().embedding_timeout if timeout is None else timeout
+        timeout = DEFAULT_TIMEOUT if timeout is None else timeout
         try:
             embedding = find_embedding(bqm, target_edges, timeout, seed)
         except SolverError as error:

@@ -14,7 +14,7 @@ from typing import Any
 
 import dimod
 
-from shared.config import get_settings
+from shared.config import Settings
 from shared.solvers.base import (
     Availability,
     SolverError,
@@ -27,24 +27,25 @@ from shared.solvers.qpu.problems import LabelledSampler
 TOKEN_HELP = "set DWAVE_API_TOKEN (and optionally DWAVE_SOLVER, DWAVE_API_REGION)"
 
 
-def available() -> Availability:
+def available(settings: Settings) -> Availability:
     """Whether a Leap sampler can run here: a token is configured."""
-    if get_settings().dwave_api_token is None:
+    if settings.dwave_api_token is None:
         return Availability(False, f"no D-Wave API token: {TOKEN_HELP}")
     return Availability(True, "DWAVE_API_TOKEN configured")
 
 
-def secret() -> str | None:
+def secret(settings: Settings) -> str | None:
     """The token, to scrub from messages (None: none configured)."""
-    token = get_settings().dwave_api_token
+    token = settings.dwave_api_token
     return token.get_secret_value() if token is not None else None
 
 
-def connect(name: str, factory: Callable[..., Any], **options: Any) -> LabelledSampler:
+def connect(
+    name: str, factory: Callable[..., Any], settings: Settings, **options: Any
+) -> LabelledSampler:
     """A Leap client sampler of solver ``name`` built with the token, region and endpoint of
-    ``Settings``, labelling its problems and logging their ids; the token is scrubbed from the
-    cloud client's loggers before and after."""
-    settings = get_settings()
+    ``settings`` (the adapter's), labelling its problems and logging their ids; the token is
+    scrubbed from the cloud client's loggers before and after."""
     if settings.dwave_api_token is None:
         raise SolverUnavailableError(f"{name}: no D-Wave API token: {TOKEN_HELP}")
     token = settings.dwave_api_token.get_secret_value()
@@ -63,7 +64,9 @@ def scrub(text: str, token: str | None) -> str:
     return text.replace(token, "***") if token else text
 
 
-def translate(name: str, error: Exception, token: str | None = None) -> SolverError:
+def translate(
+    name: str, error: Exception, settings: Settings, token: str | None = None
+) -> SolverError:
     """Ocean's exception ``error`` of solver ``name`` as our typed error, ``token`` scrubbed
     from the text.
 
@@ -73,6 +76,8 @@ def translate(name: str, error: Exception, token: str | None = None) -> SolverEr
         The solver, for the message.
     error : Exception
         What Ocean (the cloud client, dimod) raised.
+    settings : Settings
+        The adapter's (the endpoint or region a failed request was for).
     token : str, optional
         The secret to scrub (None: nothing to scrub, e.g. the simulator).
 
@@ -103,11 +108,12 @@ def translate(name: str, error: Exception, token: str | None = None) -> SolverEr
     if isinstance(error, api.ResourceLimitsExceededError):
         return TransientSolverError(
             f"{name}: D-Wave rate limit reached (HTTP 429) at "
-            f"{scrub(reached(error), token)}; retry later"
+            f"{scrub(reached(error, settings), token)}; retry later"
         )
     if isinstance(error, cloud.SolverOfflineError):
         return TransientSolverError(
-            f"{name}: the D-Wave solver is offline ({scrub(reached(error), token)}); retry later"
+            f"{name}: the D-Wave solver is offline ({scrub(reached(error, settings), token)}); "
+            "retry later"
         )
     if isinstance(
         error,
@@ -120,7 +126,7 @@ def translate(name: str, error: Exception, token: str | None = None) -> SolverEr
     ) or is_connection_error(error):
         return TransientSolverError(
             f"{name}: D-Wave did not answer in time, refused, or the connection "
-            f"failed: {scrub(reached(error), token)} ({scrub(cause(error), token)}); "
+            f"failed: {scrub(reached(error, settings), token)} ({scrub(cause(error), token)}); "
             "retry later"
         )
     if isinstance(

@@ -24,7 +24,7 @@ import dimod
 import numpy as np
 
 from shared.activity import report
-from shared.config import get_settings
+from shared.config import Settings
 from shared.solvers.base import SolveResult, result_of
 from shared.solvers.composites import Reduction, reduce
 from shared.solvers.params import MAX_BUNDLES_PER_CALL
@@ -64,6 +64,7 @@ def copies(
     limit: int = MAX_COPIES,
     solver: str | None = None,
     progress: Callable[[str], None] | None = None,
+    tries: int = Settings.model_fields["embedding_tries"].default,
 ) -> tuple[list[Embedding], str]:
     """Disjoint embeddings of ``bqm``'s structure on ``sampler``'s graph: found once per shape
     and target, then read from the store. On a Pegasus or Zephyr chip they are translations of
@@ -90,6 +91,8 @@ def copies(
         Solver name under which their number is recorded for the estimates.
     progress : callable, optional
         Told what the search is doing, in words (default: logged).
+    tries : int
+        Sublattices tried (the adapter's ``Settings.embedding_tries``).
 
     Returns
     -------
@@ -123,7 +126,7 @@ def copies(
 
     found = translated_copies(
         bqm, sampler.properties, list(sampler.nodelist), list(sampler.edgelist),
-        tries=get_settings().embedding_tries, limit=max(limit, STORED_COPIES), progress=searching,
+        tries=tries, limit=max(limit, STORED_COPIES), progress=searching,
         store=cache.store,
     )  # fmt: skip
     if found:
@@ -132,7 +135,7 @@ def copies(
         log.warning(
             "%s: no sublattice of the QPU graph takes this shape within QHSM_EMBEDDING_TRIES="
             "%d tries; one bundle per QPU call (raise QHSM_EMBEDDING_TRIES, or use "
-            "--encoding domain-wall for fewer variables)", key, get_settings().embedding_tries,
+            "--encoding domain-wall for fewer variables)", key, tries,
         )  # fmt: skip
         searching(f"embedding a {bqm.num_variables}-variable shape on the whole QPU graph")
         found = [first()]
@@ -289,6 +292,7 @@ class PackedCalls:
     _target: str
     _lock: Any
     defaults: dict[str, Any]
+    settings: Settings
 
     if TYPE_CHECKING:  # the QPU sampler's own (not defined here: they would shadow them)
 
@@ -375,6 +379,7 @@ class PackedCalls:
         return copies(
             self.cache, bqm, self.sampler(), self._target,
             lambda: composite.embedding(bqm)[0], solver=self.name, progress=progress,
+            tries=self.settings.embedding_tries,
         )  # fmt: skip
 
     def _sample_packed(
