@@ -63,7 +63,9 @@ class WorkerContext:
     def ledger(self) -> QuotaLedger:
         """The owners' QPU budgets (the pricing's admission check)."""
         if self._ledger is None or self._ledger.redis is not self.store.redis:
-            self._ledger = QuotaLedger(self.store.redis, self.settings.key_prefix)
+            self._ledger = QuotaLedger(
+                self.store.redis, self.settings.key_prefix, self.settings.budget_period
+            )
         return self._ledger
 
     def budget_mb(self) -> int | None:

@@ -31,6 +31,14 @@ def test_services_are_made_from_the_settings_on_one_connection(no_context):
     assert ctx.ledger.redis is store.redis and ctx.estimates.settings is settings
 
 
+def test_the_pricing_ledger_keeps_the_deployments_budget_period(no_context):
+    """The pricing's admission check counts a monthly deployment's month, not the lifetime."""
+    settings = Settings(
+        key_prefix="qhsm-context-test", redis_url="redis://127.0.0.1:1/0", budget_period="monthly"
+    )
+    assert context.start(settings).ledger.period == "monthly"
+
+
 def test_a_pool_process_starts_its_own_services(no_context):
     """After the fork each pool process starts a context: nothing of the parent's is reused."""
     settings = Settings(key_prefix="qhsm-context-test", redis_url="redis://127.0.0.1:1/0")
