@@ -1,8 +1,8 @@
 """Schemathesis over the OpenAPI document with a valid key, an admin's and a member's:
 whatever the schema allows (and, in negative mode, what it does not), no request may end in a
-5xx. At most 30 examples per
-operation and phase with the admin's key, 10 with the member's (halved from 60 and 20 to keep the
-suite short: about 15 s here); the timeout caps a slow machine."""
+5xx. At most 30 examples per operation and phase with the admin's key, 10 with the member's
+(halved from 60 and 20 to keep the suite short: about 20 s here); the timeout caps a slow
+machine."""
 
 from __future__ import annotations
 

@@ -307,18 +307,12 @@ def test_serve_gives_the_control_queue_a_worker_of_its_own(served):
         args = Path(f"/proc/{pid}/cmdline").read_bytes().decode().split("\0")
         if parent(pid) == served.process.pid and "celery" in args and "-n" in args:
             started.add(args[args.index("-n") + 1])
-    inspect = make_celery(settings, with_tasks=False).control.inspect(
-        timeout=2, destination=sorted(started)
-    )
-    queues = {
-        worker: {queue["name"] for queue in consumed}
-        for worker, consumed in (inspect.active_queues() or {}).items()
-    }
+    celery = make_celery(settings, with_tasks=False)
+    replies = celery.control.inspect(timeout=2, destination=sorted(started)).active_queues()
+    queues = {name: {queue["name"] for queue in got} for name, got in (replies or {}).items()}
     assert set(queues) == started and len(started) >= 2
-    control = [worker for worker, names in queues.items() if settings.control_queue in names]
-    assert len(control) == 1 and queues[control[0]] == {settings.control_queue}
-    pricing = [worker for worker, names in queues.items() if settings.pricing_queue in names]
-    assert len(pricing) == 1 and queues[pricing[0]] == {settings.pricing_queue}
+    for queue in (settings.control_queue, settings.pricing_queue):
+        assert [names for names in queues.values() if queue in names] == [{queue}]
     assert "sa" in set().union(*queues.values())
 
 
