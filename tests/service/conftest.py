@@ -104,8 +104,7 @@ def workers(settings, markers, service_dir):
         )
         yield started
     finally:
-        for worker in started.values():
-            worker.stop()
+        harness.stop_workers(started.values())
 
 
 @pytest.fixture(scope="session")

@@ -251,8 +251,7 @@ def test_qpu_and_hybrid_jobs_run_on_the_compose_files_worker_split(
         for name in split:  # the workers shared nothing with the API but Redis
             assert not (tmp_path / name).exists() or not any((tmp_path / name).iterdir())
     finally:
-        for worker in started:
-            worker.stop()
+        harness.stop_workers(started)
         harness.drop_prefix(url, settings.key_prefix)
 
 

@@ -1,6 +1,7 @@
 """No user can stall the service (issue 10, item 2), with real workers: solver tasks have time
 limits, a cancel terminates the job's running tasks, and orchestration has a worker of its own,
-so a new job starts while every solver process is busy."""
+so a new job starts while every solver process is busy (that `qhsm serve` starts it so:
+tests/service/test_serve.py)."""
 
 from __future__ import annotations
 
@@ -122,35 +123,6 @@ def test_orchestration_runs_while_every_solver_process_is_busy(client, pair, sto
     finally:
         client.delete(f"/v1/jobs/{heavy}")
     assert harness.wait_for(client, small, timeout=30)["state"] == "succeeded"
-
-
-def test_qhsm_serve_gives_the_control_queue_a_worker_of_its_own(settings, tmp_path):
-    """What `qhsm serve` starts: the control queue is consumed by one worker, and only that;
-    the pricing queue likewise."""
-    from workers.app import make_celery
-    from workers.supervisor import Stack
-
-    own = settings.model_copy(update={"key_prefix": harness.unique_prefix(), "data_dir": tmp_path})
-    stack = Stack(own, concurrency=1).start()
-    started = len(stack.workers)
-    try:
-        inspect = make_celery(own, with_tasks=False).control.inspect(
-            timeout=2, destination=[worker.hostname for worker in stack.workers]
-        )
-        queues = {
-            worker: {queue["name"] for queue in consumed}
-            for worker, consumed in (inspect.active_queues() or {}).items()
-        }
-    finally:
-        stack.stop()
-        harness.drop_prefix(own.redis_url, own.key_prefix)
-    assert len(queues) == started >= 2
-    control = [worker for worker, names in queues.items() if own.control_queue in names]
-    assert len(control) == 1 and queues[control[0]] == {own.control_queue}
-    # estimates and metered jobs' pricing on a worker of their own too (issue 29)
-    pricing = [worker for worker, names in queues.items() if own.pricing_queue in names]
-    assert len(pricing) == 1 and queues[pricing[0]] == {own.pricing_queue}
-    assert "sa" in set().union(*queues.values())
 
 
 def test_a_task_that_needs_more_memory_than_a_process_has_fails_its_job(client, pair):

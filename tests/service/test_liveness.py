@@ -54,23 +54,38 @@ def stack(tmp_path, redis_url):
     env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parent), env.get("PYTHONPATH", "")])
     env["QHSM_WORKER_HEARTBEAT_SECONDS"] = str(HEARTBEAT)
     env["QHSM_TEST_SLOW_SECONDS"] = str(SLOW_SECONDS)
-    started: list[WorkerProcess] = []
-    celery = make_celery(settings, with_tasks=False)
+    starter = Starter(settings, env, tmp_path)
+    try:
+        yield settings, starter
+    finally:
+        harness.stop_workers(starter.started)
+        harness.drop_prefix(redis_url, settings.key_prefix)
 
-    def start(name: str, queues: list[str], **more: str) -> WorkerProcess:
-        worker = WorkerProcess(
-            f"{name}-{settings.key_prefix}", queues, 1, {**env, **more}, tmp_path / f"{name}.log"
-        ).start()
-        started.append(worker)
-        wait_for_workers(celery, [worker.hostname])
+
+class Starter:
+    """Starts workers of the stack: one (``starter(name, queues, **env)``) or several at once
+    (``together``: their start-ups overlap), each answering before it returns."""
+
+    def __init__(self, settings: Settings, env: dict[str, str], folder: Path):
+        self.settings, self.env, self.folder = settings, env, folder
+        self.celery = make_celery(settings, with_tasks=False)
+        self.started: list[WorkerProcess] = []
+
+    def __call__(self, name: str, queues: list[str], **more: str) -> WorkerProcess:
+        [worker] = self.together((name, queues, more))
         return worker
 
-    try:
-        yield settings, start
-    finally:
-        for worker in started:
-            worker.stop()
-        harness.drop_prefix(redis_url, settings.key_prefix)
+    def together(self, *specs: tuple[str, list[str], dict[str, str]]) -> list[WorkerProcess]:
+        workers = [
+            WorkerProcess(
+                f"{name}-{self.settings.key_prefix}", queues, 1, {**self.env, **more},
+                self.folder / f"{name}.log",
+            ).start()
+            for name, queues, more in specs
+        ]  # fmt: skip
+        self.started += workers
+        wait_for_workers(self.celery, [worker.hostname for worker in workers])
+        return workers
 
 
 def reference(params: dict) -> np.ndarray:
@@ -124,8 +139,7 @@ def succeeds_past_a_kill(
         if held_state is not None:
             assert client.get(f"/v1/jobs/{job_id}").json()["state"] == held_state
         kill(victim)
-        for name, queues in replacements:
-            start(name, queues)
+        start.together(*[(name, queues, {}) for name, queues in replacements])
         began = time.monotonic()
         status = harness.wait_for(client, job_id, timeout=timeout)
     assert status["state"] == "succeeded", status
@@ -152,8 +166,9 @@ def test_a_job_whose_solver_worker_died_mid_task_finishes_identically(stack):
     """A CPU worker's main process is SIGKILLed while its task runs: the message it held goes
     back to the queue at once, not after the 300 s stall."""
     settings, start = stack
-    start("control", [settings.control_queue])
-    victim = start("cpu-a", ["fake-slow"])
+    _, victim = start.together(
+        ("control", [settings.control_queue], {}), ("cpu-a", ["fake-slow"], {})
+    )
     params = harness.one_level(solver="fake-slow", seed=4)
     succeeds_past_a_kill(stack, victim, params, [("cpu-b", ["fake-slow"])], 90, within=60)
     assert resend_count(JobStore.from_settings(settings)) >= 1
@@ -164,13 +179,14 @@ def test_a_live_workers_long_task_is_never_sent_again(stack):
     and watchdog_lost_seconds, 3 s here) on a live worker are left alone: each bundle is solved
     once."""
     settings, start = stack
-    start(
-        "control",
-        [settings.control_queue],
-        QHSM_ROWS_PER_TASK="16",  # one task: 8 s
-        QHSM_WATCHDOG_LOST_SECONDS="3",
+    start.together(
+        (
+            "control",
+            [settings.control_queue],
+            {"QHSM_ROWS_PER_TASK": "16", "QHSM_WATCHDOG_LOST_SECONDS": "3"},  # one task: 8 s
+        ),
+        ("cpu", ["fake-slow"], {}),
     )
-    start("cpu", ["fake-slow"])
     params = harness.one_level(solver="fake-slow", seed=6)
     with harness.api_client(settings) as client:
         job_id = harness.submit(client, *UPLOADS, params)
@@ -195,8 +211,10 @@ def test_a_queued_job_whose_start_was_never_sent_is_started(stack):
     )  # fmt: skip
     views = [decode_image(data, name) for data, name in zip(UPLOADS, ("l", "r"), strict=True)]
     store.create(record, {"left": views[0], "right": views[1]})
-    start("control", [settings.control_queue], QHSM_WATCHDOG_LOST_SECONDS="2")
-    start("cpu", ["exact"])
+    start.together(
+        ("control", [settings.control_queue], {"QHSM_WATCHDOG_LOST_SECONDS": "2"}),
+        ("cpu", ["exact"], {}),
+    )
     with harness.api_client(settings) as client:
         status = harness.wait_for(client, record.id, timeout=60)
     assert status["state"] == "succeeded", status

@@ -1,7 +1,7 @@
 """`qhsm serve` as a user runs it (a subprocess with its embedded Redis): a private store,
-supervision of what it starts, recovery of a job whose worker or Redis was SIGKILLed, no orphans
-after SIGKILL of serve itself, a busy port refused up front; `qhsm admin` on the data directory;
-the embedded Redis's AOF stays small."""
+the queues of the workers it starts, supervision of what it starts, recovery of a job whose
+worker or Redis was SIGKILLed, no orphans after SIGKILL of serve itself, a busy port refused up
+front; `qhsm admin` on the data directory; the embedded Redis's AOF stays small."""
 
 from __future__ import annotations
 
@@ -294,6 +294,26 @@ def test_serve_prices_estimates_and_metered_jobs_on_its_pricing_worker(served, p
     assert status["state"] == "succeeded", status["error"]
     assert status["qpu_seconds"] and status["disparity_range"]["max_disparity"] == 8
     assert "GET /v1/estimates/" not in served.log.read_text()  # polls are logged at debug
+
+
+def test_serve_gives_the_control_queue_a_worker_of_its_own(served):
+    """What `qhsm serve` starts: the control queue is consumed by one worker, and only that;
+    the pricing queue likewise (estimates and metered jobs' pricing, issue 29)."""
+    from workers.app import make_celery
+
+    settings = Settings(redis_url=served.redis_url)
+    started = set()  # the Celery workers among serve's children, by their `-n` hostname
+    for pid in descendants(served.process.pid):
+        args = Path(f"/proc/{pid}/cmdline").read_bytes().decode().split("\0")
+        if parent(pid) == served.process.pid and "celery" in args and "-n" in args:
+            started.add(args[args.index("-n") + 1])
+    celery = make_celery(settings, with_tasks=False)
+    replies = celery.control.inspect(timeout=2, destination=sorted(started)).active_queues()
+    queues = {name: {queue["name"] for queue in got} for name, got in (replies or {}).items()}
+    assert set(queues) == started and len(started) >= 2
+    for queue in (settings.control_queue, settings.pricing_queue):
+        assert [names for names in queues.values() if queue in names] == [{queue}]
+    assert "sa" in set().union(*queues.values())
 
 
 # --- supervision and the watchdog ----------------------------------------------------------------
