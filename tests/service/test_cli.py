@@ -184,9 +184,14 @@ def test_submit_says_how_to_follow_and_wait_and_cancel_follow(api_url, images, c
 
 
 def test_ctrl_c_leaves_the_job_running_and_says_how_to_cancel_or_wait(
-    api_url, images, ctrl_c, capsys
+    api_url, images, ctrl_c, capsys, tmp_path
 ):
-    command = [sys.executable, "-m", "shared.cli", "submit", *images, "--url", api_url]
+    # a pair with many bundles: the job must outlast the CLI's start and its answer to Ctrl-C
+    scene = make_scene(96, 48, max_disparity=4, seed=5)
+    (tmp_path / "long-l.png").write_bytes(harness.png(scene.left))
+    (tmp_path / "long-r.png").write_bytes(harness.png(scene.right))
+    pair = ["long-l.png", "long-r.png", *images[2:]]
+    command = [sys.executable, "-m", "shared.cli", "submit", *pair, "--url", api_url]
     got = ctrl_c([*command, "--solver", "fake-slow", "--wait"], when="job ")
     assert got.returncode == 130 and "Traceback" not in got.stderr
     job_id = got.stderr.split("job ", 1)[1].split()[0]
