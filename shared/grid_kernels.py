@@ -66,6 +66,20 @@ def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
     return first[y, x] + k if windows else candidates[y, x, k]
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
+    """The chain's best last label (the first of equal messages), where both chain kernels'
+    read-back starts: written to ``labels``, its message to ``energies`` as the optimum."""
+    length, count = messages.shape
+    arg = 0
+    for k in range(1, count):
+        if messages[length - 1, k] < messages[length - 1, arg]:
+            arg = k
+    energies[chain] = messages[length - 1, arg]
+    labels[chain, length - 1] = arg
+    return arg
+
+
 @numba.njit(cache=True, nogil=True)
 def _chains_windows(
     base, scale, extra, sign, first, weight, slope, truncation, labels
@@ -111,12 +125,7 @@ def _chains_windows(
                 messages[x, k] = (
                     min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
                 )
-        arg = 0
-        for k in range(1, count):
-            if messages[length - 1, k] < messages[length - 1, arg]:
-                arg = k
-        energies[chain] = messages[length - 1, arg]
-        labels[chain, length - 1] = arg
+        arg = _chain_end(messages, chain, energies, labels)
         for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
             w = weight[chain, x - 1]
             offset = first[chain, x - 1] - first[chain, x] - arg  # label difference at j = 0
@@ -154,12 +163,7 @@ def _chains_general(
                     penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
                     value = min(value, messages[x - 1, j] + w * penalty)
                 messages[x, k] = value + scale * base[chain, x, k] + sign * extra[chain, x, k]
-        arg = 0
-        for k in range(1, count):
-            if messages[length - 1, k] < messages[length - 1, arg]:
-                arg = k
-        energies[chain] = messages[length - 1, arg]
-        labels[chain, length - 1] = arg
+        arg = _chain_end(messages, chain, energies, labels)
         for x in range(length - 1, 0, -1):
             w = weight[chain, x - 1]
             here = candidates[chain, x, arg]

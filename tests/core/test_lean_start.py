@@ -26,13 +26,19 @@ sys.exit(code)
 """
 
 
-def test_match_with_exact_imports_neither_dimod_nor_networkx(tmp_path):
-    scene = make_scene(20, 28, max_disparity=4, seed=0)
+def _write_views(folder: Path, seed: int) -> list[str]:
+    """A small synthetic pair as 8-bit PNGs in ``folder``: the paths ``qhsm match`` is given."""
+    scene = make_scene(20, 28, max_disparity=4, seed=seed)
     views = []
     for name, view in (("left", scene.left), ("right", scene.right)):
-        path = tmp_path / f"{name}.png"
+        path = folder / f"{name}.png"
         cv2.imwrite(str(path), np.round(np.clip(view, 0, 1) * 255).astype(np.uint8))
         views.append(str(path))
+    return views
+
+
+def test_match_with_exact_imports_neither_dimod_nor_networkx(tmp_path):
+    views = _write_views(tmp_path, seed=0)
     output = tmp_path / "d.pfm"
     done = subprocess.run(
         [sys.executable, "-c", PROBE, "match", *views, "-o", str(output), "--max-disparity", "4"],
@@ -52,12 +58,7 @@ def test_match_with_compiled_kernels_imports_no_numba_and_gives_the_same_map(tmp
     imported, and the map is the just-in-time one's, byte for byte."""
     from shared.kernel_build import build
 
-    scene = make_scene(20, 28, max_disparity=4, seed=1)
-    views = []
-    for name, view in (("left", scene.left), ("right", scene.right)):
-        path = tmp_path / f"{name}.png"
-        cv2.imwrite(str(path), np.round(np.clip(view, 0, 1) * 255).astype(np.uint8))
-        views.append(str(path))
+    views = _write_views(tmp_path, seed=1)
     probe = PROBE.replace('"dwave", ', '"dwave", "numba", "scipy", ')
     assert probe != PROBE
     maps = []
