@@ -19,6 +19,14 @@ RUN pip install ".[gurobi,monitoring]" -c constraints.txt \
     && useradd --create-home --uid 10001 qhsm \
     && mkdir -p /data \
     && chown qhsm /data
+# The matcher's kernels compiled ahead of time (`qhsm build-kernels`, into the qhsm user's cache),
+# so that processes start without numba's set-up. The compiler goes again; should the build fail,
+# the image still works with the kernels just-in-time (the same maps).
+RUN apt-get update -qq \
+    && apt-get install -y -qq --no-install-recommends gcc libc6-dev \
+    && (su qhsm -c "qhsm build-kernels" || echo "qhsm build-kernels failed: kernels stay just-in-time") \
+    && apt-get purge -y -qq gcc libc6-dev && apt-get autoremove -y -qq \
+    && rm -rf /var/lib/apt/lists/*
 
 USER qhsm
 VOLUME ["/data"]
