@@ -12,6 +12,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from shared.config import LevelConfig
 from shared.synthetic import make_scene
+from workers.app import make_celery
 from workers.quota import QuotaLedger
 from workers.telemetry import Telemetry
 
@@ -33,22 +34,27 @@ def value(samples, name: str, **labels) -> float:
     return samples.get((name, tuple(sorted(labels.items()))), 0.0)
 
 
-def quiet_scrape(client, seconds: float = 3.0, limit: float = 30.0) -> dict:
-    """A scrape once no ``exact`` bundle has been solved for ``seconds``: the session's workers
-    may still be finishing an earlier test's (e.g. cancelled) job, whose bundles would count."""
+def quiet_scrape(client, settings, workers, seconds: float = 3.0, limit: float = 60.0) -> dict:
+    """A scrape once the session's workers run no task and no ``exact`` bundle has been solved
+    for ``seconds``: they may still be finishing an earlier test's (e.g. cancelled) job, whose
+    bundles would count (on a loaded machine one chunk can outlast any fixed quiet period)."""
+    inspect = make_celery(settings, with_tasks=False).control.inspect(
+        destination=[worker.hostname for worker in workers.values()], timeout=1.0
+    )
     deadline = time.monotonic() + limit
     samples = scrape(client)
     while time.monotonic() < deadline:
         time.sleep(seconds)
         again = scrape(client)
         key = ("qhsm_bundles_solved_total", (("solver", "exact"),))
-        if again.get(key) == samples.get(key):
+        idle = not any((inspect.active() or {}).values())
+        if idle and again.get(key) == samples.get(key):
             return again
         samples = again
     return samples
 
 
-def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
+def test_metrics_follow_jobs_queues_usage_and_resends(client, settings, workers):
     scene = make_scene(16, 24, max_disparity=4, seed=8)
     left, right = harness.png(scene.left), harness.png(scene.right)
     level = {
@@ -56,7 +62,7 @@ def test_metrics_follow_jobs_queues_usage_and_resends(client, settings):
         "levels": [LevelConfig(downsample=1, candidates=4).model_dump()],
         "max_disparity": 4,
     }
-    before = quiet_scrape(client)
+    before = quiet_scrape(client, settings, workers)
 
     done = harness.submit(client, left, right, {**level, "solver": "exact"})
     assert harness.wait_for(client, done)["state"] == "succeeded"
