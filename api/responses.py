@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 from fastapi import APIRouter
 from fastapi import status as http
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 
 from api.deps import Responses
 from api.schemas import JobSummary, Links
@@ -37,6 +39,15 @@ def upload_route(
         status_code=http.HTTP_202_ACCEPTED,
         response_model=model,
         responses={**UPLOAD_ERRORS, **errors},
+    )
+
+
+def accepted(body: BaseModel, location: str) -> JSONResponse:
+    """An upload route's answer: 202 with ``body``, and in ``Location`` where to poll it."""
+    return JSONResponse(
+        body.model_dump(mode="json"),
+        status_code=http.HTTP_202_ACCEPTED,
+        headers={"Location": location},
     )
 
 

@@ -12,15 +12,17 @@ use so that matching needs nothing of the service) submits jobs to ``qhsm serve`
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ParamSpec
 
 import numpy as np
 
 from shared.config import MatchConfig
+from shared.ground_truth import Evaluation, evaluate_ground_truth
 from shared.images import load_pair, save_disparity
-from shared.metrics import BAD_PIXEL_THRESHOLD
 from shared.pipeline import MatchResult
 from shared.provenance import provenance, qhsm_version
 
@@ -31,6 +33,7 @@ __all__ = ["Client", "MatchConfig", "Result", "evaluate", "load_pair", "match"]
 __version__ = qhsm_version()
 
 PathOrArray = str | Path | np.ndarray
+P = ParamSpec("P")
 
 
 @dataclass
@@ -83,38 +86,29 @@ def match(
     return Result(**vars(result), provenance=provenance(config))
 
 
-def evaluate(
-    disparity: PathOrArray,
-    ground_truth: PathOrArray,
-    *,
-    scale: float | None = None,
-    border: int | None = None,
-    mask: np.ndarray | None = None,
-    nonocc: np.ndarray | None = None,
-    foreground: np.ndarray | None = None,
-    threshold: float = BAD_PIXEL_THRESHOLD,
-) -> dict[str, Any]:
-    """Score a map against a ground truth: ``qhsm eval --json``'s dict (rmse, avgerr, bad_0_5,
-    bad_1, bad_2, bad_4, d1, bpp at ``threshold``, ``regions``, the scale and its source).
+def _reporting(score: Callable[P, Evaluation]) -> Callable[P, dict[str, Any]]:
+    """``score`` answering its evaluation's :meth:`~shared.ground_truth.Evaluation.report`: the
+    facade takes the very parameters of the function it wraps (one signature, one place)."""
 
-    A ground-truth file's scale comes from its format or scene folder when not given (with a
-    warning when a given one contradicts it); an array holds disparities times ``scale`` (1).
-    """
-    from shared.ground_truth import evaluate_ground_truth
-    from shared.images import load_disparity
+    def evaluate(*args: P.args, **kwargs: P.kwargs) -> dict[str, Any]:
+        """Score a map (a file or an array) against a ground truth: ``qhsm eval --json``'s dict
+        (rmse, avgerr, bad_0_5, bad_1, bad_2, bad_4, d1, bpp at ``threshold``, ``regions``, the
+        scale and its source); the parameters are
+        :func:`shared.ground_truth.evaluate_ground_truth`'s.
 
-    if not isinstance(disparity, np.ndarray):
-        disparity = load_disparity(disparity)
-    return evaluate_ground_truth(
-        disparity,
-        ground_truth,
-        scale=scale,
-        border=border,
-        mask=mask,
-        nonocc=nonocc,
-        foreground=foreground,
-        threshold=threshold,
-    ).report()
+        A ground-truth file's scale comes from its format or scene folder when not given (with
+        a warning when a given one contradicts it); an array holds disparities times ``scale``
+        (1).
+        """
+        return score(*args, **kwargs).report()
+
+    signature = inspect.signature(score).replace(return_annotation="dict[str, Any]")
+    evaluate.__signature__ = signature  # type: ignore[attr-defined]  # what help() shows
+    evaluate.__qualname__ = "evaluate"
+    return evaluate
+
+
+evaluate = _reporting(evaluate_ground_truth)
 
 
 def __getattr__(name: str) -> Any:

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from shared.disparity_range import QuickMatch, quick_match
-from shared.images import is_pfm, load_disparity_values
+from shared.images import is_pfm, load_disparity, load_disparity_values
 from shared.metrics import BAD_PIXEL_THRESHOLD, Scores, evaluate_regions
 
 if TYPE_CHECKING:
@@ -179,7 +179,7 @@ class Evaluation:
 
 
 def evaluate_ground_truth(
-    disparity: np.ndarray,
+    disparity: str | Path | np.ndarray,
     ground_truth: str | Path | np.ndarray,
     *,
     scale: float | None = None,
@@ -189,10 +189,12 @@ def evaluate_ground_truth(
     foreground: np.ndarray | None = None,
     threshold: float = BAD_PIXEL_THRESHOLD,
 ) -> Evaluation:
-    """Score ``disparity`` against a ground-truth file (its scale from :func:`resolve_gt_scale`,
-    its border and non-occluded pixels from its scene when recognised) or array (disparities
-    times ``scale``, 1 by default): every pixel within ``mask``, ``nonocc`` and, with KITTI's
-    object map as ``foreground``, ``bg`` / ``fg``."""
+    """Score ``disparity`` (a map or its file) against a ground-truth file (its scale from
+    :func:`resolve_gt_scale`, its border and non-occluded pixels from its scene when recognised)
+    or array (disparities times ``scale``, 1 by default): every pixel within ``mask``,
+    ``nonocc`` and, with KITTI's object map as ``foreground``, ``bg`` / ``fg``."""
+    if not isinstance(disparity, np.ndarray):
+        disparity = load_disparity(disparity)
     scene = None
     notes: list[str] = []
     if isinstance(ground_truth, np.ndarray):

@@ -5,13 +5,11 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, File, Form, UploadFile
-from fastapi import status as http
-from fastapi.responses import JSONResponse
 
 from api import batch_service
 from api.batch_service import BatchForm
 from api.deps import ParamsForm, PrincipalDep, Responses, ServicesDep, UsersDep
-from api.responses import links, summary_of, upload_route
+from api.responses import accepted, links, summary_of, upload_route
 from api.schemas import Batch, BatchCreated, BatchJob, BatchProgress, JobCreated
 from api.uploads import MAX_TAGS
 
@@ -72,11 +70,7 @@ def create_batch(
         ],
         links={"self": f"/v1/batches/{batch.id}"},
     )
-    return JSONResponse(
-        body.model_dump(mode="json"),
-        status_code=http.HTTP_202_ACCEPTED,
-        headers={"Location": body.links["self"]},
-    )
+    return accepted(body, body.links["self"])
 
 
 @router.get(

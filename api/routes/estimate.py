@@ -3,7 +3,7 @@ computed on a pricing worker and polled at /v1/estimates/{id}."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
 from api import estimate_service
@@ -16,7 +16,7 @@ from api.deps import (
     ServicesDep,
     UsersDep,
 )
-from api.responses import upload_route
+from api.responses import accepted, upload_route
 from api.schemas import EstimateStatus
 
 router = APIRouter(tags=["jobs"])
@@ -49,11 +49,7 @@ def estimate(
     that earlier jobs have embedded are estimated with their actual embedding."""
     record = estimate_service.request_estimate(params, left, right, principal.name, svc)
     body = estimate_service.status_of(record, svc, users)
-    return JSONResponse(
-        body.model_dump(mode="json"),
-        status_code=status.HTTP_202_ACCEPTED,
-        headers={"Location": body.links["self"]},
-    )
+    return accepted(body, body.links["self"])
 
 
 @router.get("/estimates/{estimate_id}", response_model=EstimateStatus, responses=NOT_FOUND)

@@ -10,8 +10,7 @@ from typing import Annotated, Literal
 import cv2
 import numpy as np
 from fastapi import APIRouter, File, Form, Query, Request, UploadFile
-from fastapi import status as http
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 
 from api import job_service
 from api.auth import can_see
@@ -30,6 +29,7 @@ from api.job_service import JobForm, find_job, finished_result
 from api.responses import (
     NOT_FOUND,
     SCALE_HEADER,
+    accepted,
     charged_seconds,
     display_max,
     links,
@@ -160,11 +160,7 @@ def create_job(
     body = JobCreated(
         id=record.id, state=record.state, links=links(record), warnings=record.warnings
     )
-    return JSONResponse(
-        body.model_dump(mode="json"),
-        status_code=http.HTTP_202_ACCEPTED,
-        headers={"Location": body.links.self},
-    )
+    return accepted(body, body.links.self)
 
 
 @router.get("", response_model=JobPage)

@@ -10,6 +10,9 @@ from api.schemas import SolverInfo
 
 router = APIRouter(prefix="/solvers", tags=["solvers"])
 
+#: What a :class:`SolverInfo` repeats of the registry's ``SolverSpec``, under the same names.
+SPEC_FACTS = ("name", "description", "offline", "metered", "uses_qpu_time", "row_solver")
+
 
 @router.get("", response_model=list[SolverInfo])
 def list_solvers(svc: ServicesDep):
@@ -22,15 +25,10 @@ def list_solvers(svc: ServicesDep):
         workers = None if consumers is None else sorted(consumers.get(record.queue_name, []))
         infos.append(
             SolverInfo(
-                name=solver.name,
-                description=record.description,
+                **{fact: getattr(record, fact) for fact in SPEC_FACTS},
                 available=availability.ok or bool(workers),
                 available_here=availability.ok,
                 reason=availability.reason,
-                offline=record.offline,
-                metered=record.metered,
-                uses_qpu_time=record.uses_qpu_time,
-                row_solver=record.row_solver,
                 queue=record.queue_name,
                 workers=workers,
             )

@@ -4,7 +4,7 @@
 
 import { onUnauthorized, releaseImages, session } from "./api.js";
 import { showCompare } from "./compare.js";
-import { $, toast } from "./dom.js";
+import { $, addErrorSlots, toast } from "./dom.js";
 import { setUpSubmitForm, showSubmit } from "./form.js";
 import { userText } from "./format.js";
 import { showJob } from "./job.js";
@@ -43,6 +43,7 @@ async function route() {
 
 setRouter(route);
 onUnauthorized(signOut);
+addErrorSlots();
 setUpSignIn();
 setUpSubmitForm();
 setUpJobList();

@@ -33,6 +33,16 @@ export function toast(message) {
   toastTimer = setTimeout(() => { box.hidden = true; }, 4000);
 }
 
+/** The slot each field of the page's forms shows its errors in (``data-field``: the name of the
+ * field's control, as the API's errors name it), made here once for every field rather than
+ * written beside each control of index.html. */
+export function addErrorSlots(root = document) {
+  for (const field of root.querySelectorAll(".field, .drop")) {
+    const control = field.querySelector("[name]");
+    if (control) field.append(el("p", { class: "field-error", "data-field": control.name, role: "alert" }));
+  }
+}
+
 export function clearErrors(form) {
   for (const node of form.querySelectorAll(".field-error")) node.textContent = "";
   for (const node of form.querySelectorAll("[aria-invalid]")) node.removeAttribute("aria-invalid");

@@ -6,9 +6,6 @@ import { $, clearErrors, el, showFieldError } from "./dom.js";
 import { fmt, seconds } from "./format.js";
 import { showView } from "./views.js";
 
-const FIELD_NAMES = ["left", "right", "preset", "solver", "encoding", "max_disparity",
-  "solver_params", "ground_truth", "gt_scale", "gt_border", "label", "tags"];
-
 /** The schemas of /openapi.json, fetched once. */
 let apiSchemas = null;
 /** The server's solvers by name (GET /v1/solvers), for the note under the choice. */
@@ -74,12 +71,13 @@ function describeSolver() {
 
 /** Which form field an API error is about: FastAPI's loc, or the field the message starts with. */
 function fieldOfError(detail) {
+  const isField = (name) => [...$("#submit-form").elements].some((control) => control.name === name);
   if (Array.isArray(detail)) {
     return detail.map((item) => [String(item.loc?.at(-1) ?? "form"), item.msg]);
   }
   const text = String(detail);
   const param = text.match(/^params: ([a-z_]+)/);
-  if (param && FIELD_NAMES.includes(param[1])) return [[param[1], text]];
+  if (param && isField(param[1])) return [[param[1], text]];
   if (/^params: unknown solver/.test(text)) return [["solver", text]];
   if (param) return [["solver_params", text]];
   if (/^solver /.test(text)) return [["solver", text]];
@@ -209,9 +207,12 @@ async function showThumbnail(zone, file) {
   }
 }
 
+/** Each `.drop` of the page takes its file by a drop too, and shows the file's thumbnail: the
+ * hint and the thumbnail are made here, with the behaviour they belong to. */
 function setUpDropZones() {
   for (const zone of document.querySelectorAll(".drop")) {
     const input = $(`#${zone.dataset.input}`);
+    input.after(el("p", { class: "hint" }, "or drop a file here"), el("img", { class: "thumb", alt: "", hidden: true }));
     const show = () => showThumbnail(zone, input.files[0]);
     input.addEventListener("change", show);
     zone.addEventListener("dragover", (event) => { event.preventDefault(); zone.classList.add("over"); });

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
-from typing import Protocol
 
 from shared.assembly import BundleResult, LevelSolution, assemble
 from shared.bundles import Bundle
@@ -23,107 +22,49 @@ BundleProgress = Callable[[int, int], None]
 """``(units done, units total)`` within a level: bundles (rows for a row solver)."""
 
 
-class LevelInference(Protocol):
-    """How one level's MRF is cut into bundles and minimised.
+class LevelInference:
+    """How one level's MRF is cut into bundles and minimised: the interface and its defaults in
+    one class. A strategy subclasses it and writes :meth:`width_setting`, :meth:`plan` and
+    :meth:`_solve`; the other methods are defaults it may override.
 
     ``plan`` runs once per level where the level is planned (in process, the service's control
     worker, or the solver's queue when ``plans_with_solver``), ``solve`` wherever bundles are
     solved (any process, any share of them), ``assemble`` once per level on all the results.
     """
 
-    @property
-    def name(self) -> str:
-        """The strategy's name (logs, tests)."""
-        ...
-
-    @property
-    def plans_with_solver(self) -> bool:
-        """Planning asks the sampler (its QPU graph: the widest segment that embeds, each
-        shape's embedding): a service plans the level on the solver's queue, where its
-        credentials are."""
-        ...
-
-    @property
-    def splits(self) -> bool:
-        """The level's bundles may be spread over worker processes (False: the strategy is
-        vectorised over the level already, or sends the level as one problem)."""
-        ...
-
-    def width_setting(self, config: MatchConfig) -> int | str | None:
-        """The run's ``bundle_width`` with the default filled in (None: whole rows), or a
-        ``ValueError`` saying what to change."""
-        ...
-
-    def prepare(self, inputs: LevelInputs, config: MatchConfig) -> str | None:
-        """The host's work on the level before it is planned and its inputs are kept (the
-        service's control worker): what it did, for the log, or None when there is none."""
-        ...
-
-    def plan(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
-        """Every bundle of the level; records the plan in ``inputs.prepared``."""
-        ...
-
-    def planned(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
-        """The bundles :meth:`plan` chose, read back from ``inputs.prepared``."""
-        ...
-
-    def bundle_config(self, inputs: LevelInputs, config: MatchConfig) -> MatchConfig:
-        """The configuration a bundle is solved and estimated with."""
-        ...
-
-    def solve(
-        self,
-        inputs: LevelInputs,
-        config: MatchConfig,
-        bundles: Sequence[BundleSpec],
-        progress: BundleProgress | None = None,
-    ) -> list[BundleResult]:
-        """The given bundles (any share of the level), one result each in the given order."""
-        ...
-
-    def assemble(
-        self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
-    ) -> LevelSolution:
-        """The level from every bundle's result: labels, energy, bound and termination."""
-        ...
-
-
-class Termination:
-    """Why a level's minimisation stopped (``LevelSolution.termination``)."""
-
-    #: Every bundle's labels are proven optimal (a row's chain by dynamic programming, a view's
-    #: grid whose row and column chains agree).
-    OPTIMAL = "optimal"
-    #: A grid stopped once its relative gap to the bound reached ``dual_gap``.
-    GAP = "gap"
-    #: A grid stopped at ``dual_iterations`` with its chains still disagreeing.
-    ITERATIONS = "iterations"
-    #: The QUBO solver's answers (its reads), decoded and repaired.
-    SAMPLED = "sampled"
-    #: The host settled every pixel of the level: nothing was sent.
-    SETTLED = "settled"
-
-
-class Strategy:
-    """Defaults of a :class:`LevelInference`: no host step, the plan read back from
-    ``inputs.prepared`` (height and width), bundles solved with the run's configuration and
-    the level assembled from bundles that cover it once (:func:`shared.assembly.assemble`)."""
-
+    #: The strategy's name (logs, tests).
     name = ""
+    #: Planning asks the sampler (its QPU graph: the widest segment that embeds, each shape's
+    #: embedding): a service plans the level on the solver's queue, where its credentials are.
     plans_with_solver = False
+    #: The level's bundles may be spread over worker processes (False: the strategy is
+    #: vectorised over the level already, or sends the level as one problem).
     splits = False
     #: Its bundles are whole rows (a row solver's chains or grids): a row segment is refused.
     whole_rows = False
     #: ``LevelSolution.termination`` of the level (:class:`Termination`).
     termination: str | None = None
 
+    def width_setting(self, config: MatchConfig) -> int | str | None:
+        """The run's ``bundle_width`` with the default filled in (None: whole rows), or a
+        ``ValueError`` saying what to change."""
+        raise NotImplementedError
+
     def prepare(self, inputs: LevelInputs, config: MatchConfig) -> str | None:
+        """The host's work on the level before it is planned and its inputs are kept (the
+        service's control worker): what it did, for the log, or None when there is none."""
         return None
 
+    def plan(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+        """Every bundle of the level; records the plan in ``inputs.prepared``."""
+        raise NotImplementedError
+
     def planned(self, inputs: LevelInputs, config: MatchConfig) -> list[Bundle]:
+        """The bundles :meth:`plan` chose, read back from ``inputs.prepared``."""
         return inputs.planned_bundles(config)
 
     def bundle_config(self, inputs: LevelInputs, config: MatchConfig) -> MatchConfig:
+        """The configuration a bundle is solved and estimated with."""
         return config
 
     def solve(
@@ -133,9 +74,10 @@ class Strategy:
         bundles: Sequence[BundleSpec],
         progress: BundleProgress | None = None,
     ) -> list[BundleResult]:
-        """The strategy's :meth:`_solve` of the given bundles as :class:`Bundle` (none given:
-        nothing to do), progress reported as it goes; a ``ValueError`` when a strategy of
-        :attr:`whole_rows` is given a segment."""
+        """The given bundles (any share of the level), one result each in the given order: the
+        strategy's :meth:`_solve` of them as :class:`Bundle` (none given: nothing to do),
+        progress reported as it goes; a ``ValueError`` when a strategy of :attr:`whole_rows`
+        is given a segment."""
         if not bundles:
             return []
         items = [inputs.as_bundle(spec) for spec in bundles]
@@ -159,9 +101,26 @@ class Strategy:
     def assemble(
         self, inputs: LevelInputs, results: list[BundleResult], config: MatchConfig
     ) -> LevelSolution:
+        """The level from every bundle's result: labels, energy, bound and termination."""
         solution = assemble(inputs, results, config)
         solution.termination = self.termination
         return solution
+
+
+class Termination:
+    """Why a level's minimisation stopped (``LevelSolution.termination``)."""
+
+    #: Every bundle's labels are proven optimal (a row's chain by dynamic programming, a view's
+    #: grid whose row and column chains agree).
+    OPTIMAL = "optimal"
+    #: A grid stopped once its relative gap to the bound reached ``dual_gap``.
+    GAP = "gap"
+    #: A grid stopped at ``dual_iterations`` with its chains still disagreeing.
+    ITERATIONS = "iterations"
+    #: The QUBO solver's answers (its reads), decoded and repaired.
+    SAMPLED = "sampled"
+    #: The host settled every pixel of the level: nothing was sent.
+    SETTLED = "settled"
 
 
 def width_setting(solver: ResolvedSolver, config: MatchConfig) -> int | str | None:

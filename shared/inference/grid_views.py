@@ -17,7 +17,7 @@ from shared.config import MatchConfig
 from shared.grid import DualResult
 from shared.grid_inference import Minimiser
 from shared.inference.base import (
-    Strategy,
+    LevelInference,
     Termination,
     width_setting,
 )
@@ -36,7 +36,7 @@ GRID_STATE_BYTES = 2**30
 GRID_STATE_ARRAYS = 7
 
 
-class GridViews(Strategy):
+class GridViews(LevelInference):
     """Each view's whole grid, minimised by ``minimise`` (the views side by side in threads:
     the compiled chain kernels release the GIL)."""
 

@@ -18,7 +18,7 @@ from shared.bundles import Bundle, bundle_seed
 from shared.config import AUTO, MatchConfig
 from shared.encodings import get_codec
 from shared.energy import Costs, mrf_energy
-from shared.inference.base import Strategy, Termination, width_setting
+from shared.inference.base import LevelInference, Termination, width_setting
 from shared.level_inputs import LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.base import BatchSolver, ShapePlanner, SolveResult
@@ -43,7 +43,7 @@ class TileProblem:
     initial: np.ndarray | None
 
 
-class QuboStrategy(Strategy):
+class QuboStrategy(LevelInference):
     """A QUBO solver's level: :meth:`problems` (the strategy's own) sent to ``sampler()``.
 
     Parameters

@@ -15,7 +15,7 @@ from shared.bundles import Bundle
 from shared.config import MatchConfig
 from shared.energy import mrf_energy, row_energies
 from shared.inference.base import (
-    Strategy,
+    LevelInference,
     Termination,
     width_setting,
 )
@@ -31,7 +31,7 @@ from shared.threads import threads
 COST_BLOCK_BYTES = 32 * 2**20
 
 
-class RowChains(Strategy):
+class RowChains(LevelInference):
     """Blocks of rows solved by ``solver``'s :class:`RowSolver` (built on first use), in
     threads (numpy releases the GIL inside its loops: the blocks of both views overlap)."""
 

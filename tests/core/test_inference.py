@@ -209,7 +209,7 @@ def test_a_grids_termination_is_read_from_its_views():
 
 @pytest.mark.parametrize("name", ["grid-dd", "row-chains", "qubo-rows"])
 def test_solving_refuses_segments_to_whole_row_strategies_and_reports_each_bundle(name):
-    """:meth:`Strategy.solve`, shared by every strategy: a segment of a row goes to the QUBO
+    """:meth:`LevelInference.solve`, shared by every strategy: a segment of a row goes to the QUBO
     strategies only; nothing given, nothing solved or reported; otherwise (done, given) after
     each unit of work, ending at all of them."""
     options, _, _ = CASES[name]
