@@ -285,9 +285,14 @@ def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:
     """
     if bin_width == 1:
         return volume
-    # strided minima: the same values as np.minimum.reduceat, 10-20x faster on (D + 1, h, w)
-    binned = volume[::bin_width].copy()
-    for offset in range(1, bin_width):
+    # strided minima: the same values as np.minimum.reduceat, 10-20x faster on (D + 1, h, w);
+    # the first two sub-bins straight into the result (no copy of the first, ~1/4 of the time)
+    lowest = volume[::bin_width]
+    binned = np.empty_like(lowest)
+    second = volume[1::bin_width]
+    np.minimum(lowest[: len(second)], second, out=binned[: len(second)])
+    binned[len(second) :] = lowest[len(second) :]
+    for offset in range(2, bin_width):
         part = volume[offset::bin_width]
         np.minimum(binned[: len(part)], part, out=binned[: len(part)])
     return binned
@@ -310,6 +315,55 @@ def gather(per_label: np.ndarray, candidates: np.ndarray, dtype: type = np.float
     numpy.ndarray
         Costs (n, w, K), ``dtype``.
     """
-    return np.take_along_axis(
-        np.moveaxis(per_label, 0, -1), candidates.astype(np.intp), axis=2
-    ).astype(dtype, copy=False)
+    flat, plane, offsets = _flat_offsets(per_label)
+    index = candidates.astype(np.intp) * plane
+    index += offsets[:, :, None]
+    return flat.take(index).astype(dtype, copy=False)
+
+
+def gather_window(
+    per_label: np.ndarray, first: np.ndarray, count: int, dtype: type = np.float64
+) -> np.ndarray:
+    """:func:`gather` of the candidates ``first, first + 1, ..., first + count - 1`` (a bin
+    level's window), from each pixel's first label alone: no (n, w, K) candidate array.
+
+    Parameters
+    ----------
+    per_label : numpy.ndarray
+        Costs (labels, n, w) of every label.
+    first : numpy.ndarray
+        Each pixel's first candidate label (n, w).
+    count : int
+        Candidates per pixel.
+    dtype : type, optional
+        Of the result.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (n, w, count), ``dtype``.
+    """
+    flat, plane, offsets = _flat_offsets(per_label)
+    start = first.astype(np.intp) * plane
+    start += offsets
+    index = start[:, :, None] + plane * np.arange(count, dtype=np.intp)
+    return flat.take(index).astype(dtype, copy=False)
+
+
+def _flat_offsets(per_label: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+    """A 1-D view of the memory of ``per_label`` (labels, n, w), the step ``plane`` between two
+    labels and each pixel's offset (n, w) in it, in elements: a label's cost is
+    ``flat[label * plane + offset]``. Indices into one flat array gather 1.5-2x faster than
+    ``take_along_axis`` over the label axis moved last, and a block of rows of a view's volume
+    (a strided slice) needs no copy."""
+    items = [stride // per_label.itemsize for stride in per_label.strides]
+    if any(stride < 0 or stride % per_label.itemsize for stride in per_label.strides):
+        per_label = np.ascontiguousarray(per_label)
+        items = [stride // per_label.itemsize for stride in per_label.strides]
+    span = sum((size - 1) * step for size, step in zip(per_label.shape, items, strict=True)) + 1
+    flat = np.lib.stride_tricks.as_strided(
+        per_label, shape=(span,), strides=(per_label.itemsize,), writeable=False
+    )
+    _, rows, columns = per_label.shape
+    offsets = np.arange(rows, dtype=np.intp)[:, None] * items[1]
+    return flat, items[0], offsets + np.arange(columns, dtype=np.intp) * items[2]

@@ -204,9 +204,13 @@ def prepare_level(
     """
     left_k, right_k, views = level_views(left, right, config, plan)
     shape = left_k.shape[:2]
+    first = None
     if previous is None:
         candidates = pyramid.initial_candidates(shape, plan.candidates, plan.max_label)
         initial = None
+        values = candidates[0, 0]  # the same at every pixel; consecutive when bins <= K
+        if np.all(np.diff(values) == 1):
+            first = np.full(shape, values[0], dtype=np.int32)
     else:
         if config.pyramid is PyramidKind.IMAGE:
             candidates = pyramid.refined_candidates(
@@ -216,10 +220,9 @@ def prepare_level(
             initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
         else:
             candidates = pyramid.refined_bins(previous, plan.candidates, plan.max_label)
+            first = np.ascontiguousarray(candidates[:, :, 0])
             # the lower child of the coarser bin, among consecutive candidates
-            initial = pyramid.nearest_in_window(
-                2.0 * previous, candidates[:, :, 0], plan.candidates
-            )
+            initial = pyramid.nearest_in_window(2.0 * previous, first, plan.candidates)
     return LevelInputs(
         plan=plan,
         left=left_k,
@@ -227,6 +230,7 @@ def prepare_level(
         candidates=candidates,
         initial_labels=initial,
         views=views,
+        first=first,
     )
 
 
