@@ -154,6 +154,8 @@ class GridMRF:
         numpy.ndarray
             (h, w) int32.
         """
+        if self.first is not None:  # a window: no gather over the (h, w, K) candidates
+            return self.first + labels.astype(np.int32, copy=False)
         return np.take_along_axis(self.candidates, labels[:, :, None].astype(np.intp), axis=2)[
             :, :, 0
         ]
