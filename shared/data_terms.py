@@ -315,10 +315,7 @@ def gather(per_label: np.ndarray, candidates: np.ndarray, dtype: type = np.float
     numpy.ndarray
         Costs (n, w, K), ``dtype``.
     """
-    flat, plane, offsets = _flat_offsets(per_label)
-    index = candidates.astype(np.intp) * plane
-    index += offsets[:, :, None]
-    return flat.take(index).astype(dtype, copy=False)
+    return _take(per_label, candidates.astype(np.intp)).astype(dtype, copy=False)
 
 
 def gather_window(
@@ -343,27 +340,27 @@ def gather_window(
     numpy.ndarray
         Costs (n, w, count), ``dtype``.
     """
-    flat, plane, offsets = _flat_offsets(per_label)
-    start = first.astype(np.intp) * plane
-    start += offsets
-    index = start[:, :, None] + plane * np.arange(count, dtype=np.intp)
-    return flat.take(index).astype(dtype, copy=False)
+    index = np.empty((*first.shape, count), dtype=np.intp)
+    np.add(first[:, :, None], np.arange(count, dtype=np.intp), out=index)
+    return _take(per_label, index).astype(dtype, copy=False)
 
 
-def _flat_offsets(per_label: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
-    """A 1-D view of the memory of ``per_label`` (labels, n, w), the step ``plane`` between two
-    labels and each pixel's offset (n, w) in it, in elements: a label's cost is
-    ``flat[label * plane + offset]``. Indices into one flat array gather 1.5-2x faster than
-    ``take_along_axis`` over the label axis moved last, and a block of rows of a view's volume
-    (a strided slice) needs no copy."""
-    items = [stride // per_label.itemsize for stride in per_label.strides]
+def _take(per_label: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The costs (n, w, K) of the labels ``index`` (n, w, K) intp, which become indices in
+    place: the label's cost is ``flat[label * plane + row * row_step + column * column_step]``
+    in a 1-D view of the memory of ``per_label`` (labels, n, w). One flat array gathers 1.5-2x
+    faster than ``take_along_axis`` over the label axis moved last; a block of rows of a view's
+    volume (a strided slice) needs no copy, and the pixels' offsets are added by broadcasting
+    (no (n, w) offset arrays: 64 MB at 2000 x 2000)."""
     if any(stride < 0 or stride % per_label.itemsize for stride in per_label.strides):
         per_label = np.ascontiguousarray(per_label)
-        items = [stride // per_label.itemsize for stride in per_label.strides]
-    span = sum((size - 1) * step for size, step in zip(per_label.shape, items, strict=True)) + 1
+    plane, row_step, column_step = (stride // per_label.itemsize for stride in per_label.strides)
+    labels, rows, columns = per_label.shape
+    span = (labels - 1) * plane + (rows - 1) * row_step + (columns - 1) * column_step + 1
     flat = np.lib.stride_tricks.as_strided(
         per_label, shape=(span,), strides=(per_label.itemsize,), writeable=False
     )
-    _, rows, columns = per_label.shape
-    offsets = np.arange(rows, dtype=np.intp)[:, None] * items[1]
-    return flat, items[0], offsets + np.arange(columns, dtype=np.intp) * items[2]
+    index *= plane
+    index += (np.arange(rows, dtype=np.intp) * row_step)[:, None, None]
+    index += (np.arange(columns, dtype=np.intp) * column_step)[None, :, None]
+    return flat.take(index)
