@@ -285,9 +285,14 @@ def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:
     """
     if bin_width == 1:
         return volume
-    # strided minima: the same values as np.minimum.reduceat, 10-20x faster on (D + 1, h, w)
-    binned = volume[::bin_width].copy()
-    for offset in range(1, bin_width):
+    # strided minima: the same values as np.minimum.reduceat, 10-20x faster on (D + 1, h, w);
+    # the first two sub-bins straight into the result (no copy of the first, ~1/4 of the time)
+    lowest = volume[::bin_width]
+    binned = np.empty_like(lowest)
+    second = volume[1::bin_width]
+    np.minimum(lowest[: len(second)], second, out=binned[: len(second)])
+    binned[len(second) :] = lowest[len(second) :]
+    for offset in range(2, bin_width):
         part = volume[offset::bin_width]
         np.minimum(binned[: len(part)], part, out=binned[: len(part)])
     return binned
@@ -310,6 +315,52 @@ def gather(per_label: np.ndarray, candidates: np.ndarray, dtype: type = np.float
     numpy.ndarray
         Costs (n, w, K), ``dtype``.
     """
-    return np.take_along_axis(
-        np.moveaxis(per_label, 0, -1), candidates.astype(np.intp), axis=2
-    ).astype(dtype, copy=False)
+    return _take(per_label, candidates.astype(np.intp)).astype(dtype, copy=False)
+
+
+def gather_window(
+    per_label: np.ndarray, first: np.ndarray, count: int, dtype: type = np.float64
+) -> np.ndarray:
+    """:func:`gather` of the candidates ``first, first + 1, ..., first + count - 1`` (a bin
+    level's window), from each pixel's first label alone: no (n, w, K) candidate array.
+
+    Parameters
+    ----------
+    per_label : numpy.ndarray
+        Costs (labels, n, w) of every label.
+    first : numpy.ndarray
+        Each pixel's first candidate label (n, w).
+    count : int
+        Candidates per pixel.
+    dtype : type, optional
+        Of the result.
+
+    Returns
+    -------
+    numpy.ndarray
+        Costs (n, w, count), ``dtype``.
+    """
+    index = np.empty((*first.shape, count), dtype=np.intp)
+    np.add(first[:, :, None], np.arange(count, dtype=np.intp), out=index)
+    return _take(per_label, index).astype(dtype, copy=False)
+
+
+def _take(per_label: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The costs (n, w, K) of the labels ``index`` (n, w, K) intp, which become indices in
+    place: the label's cost is ``flat[label * plane + row * row_step + column * column_step]``
+    in a 1-D view of the memory of ``per_label`` (labels, n, w). One flat array gathers 1.5-2x
+    faster than ``take_along_axis`` over the label axis moved last; a block of rows of a view's
+    volume (a strided slice) needs no copy, and the pixels' offsets are added by broadcasting
+    (no (n, w) offset arrays: 64 MB at 2000 x 2000)."""
+    if any(stride < 0 or stride % per_label.itemsize for stride in per_label.strides):
+        per_label = np.ascontiguousarray(per_label)
+    plane, row_step, column_step = (stride // per_label.itemsize for stride in per_label.strides)
+    labels, rows, columns = per_label.shape
+    span = (labels - 1) * plane + (rows - 1) * row_step + (columns - 1) * column_step + 1
+    flat = np.lib.stride_tricks.as_strided(
+        per_label, shape=(span,), strides=(per_label.itemsize,), writeable=False
+    )
+    index *= plane
+    index += (np.arange(rows, dtype=np.intp) * row_step)[:, None, None]
+    index += (np.arange(columns, dtype=np.intp) * column_step)[None, :, None]
+    return flat.take(index)

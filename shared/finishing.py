@@ -34,8 +34,7 @@ def finish_level(inputs: LevelInputs, solution: LevelSolution, config: MatchConf
     numpy.ndarray
         The level map (views * h, w), float32.
     """
-    picked = np.take_along_axis(inputs.candidates, solution.labels[:, :, None], axis=2)[:, :, 0]
-    level_map = picked.astype(np.float32)
+    level_map = inputs.picked(solution.labels).astype(np.float32)
     if config.median:
         height = inputs.view_height
         for view in range(inputs.views):
@@ -63,7 +62,7 @@ def level_stages(inputs: LevelInputs, solution: LevelSolution, level_map: np.nda
     numpy.ndarray
         uint8 (views * h, w).
     """
-    picked = np.take_along_axis(inputs.candidates, solution.labels[:, :, None], axis=2)[:, :, 0]
+    picked = inputs.picked(solution.labels)
     stages = (
         pm.filled(level_map.shape, pm.Stage.HOST) if solution.stages is None else solution.stages
     )

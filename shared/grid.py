@@ -154,6 +154,8 @@ class GridMRF:
         numpy.ndarray
             (h, w) int32.
         """
+        if self.first is not None:  # a window: no gather over the (h, w, K) candidates
+            return self.first + labels.astype(np.int32, copy=False)
         return np.take_along_axis(self.candidates, labels[:, :, None].astype(np.intp), axis=2)[
             :, :, 0
         ]
@@ -272,6 +274,7 @@ def grid_mrf(
     guide: np.ndarray,
     level: LevelConfig,
     regularizer: Regularizer,
+    first: np.ndarray | None = None,
 ) -> GridMRF:
     """A view's grid MRF: edge weights from its gray ``guide``, per axis (m where the gray step
     between the two pixels exceeds the threshold, 1 elsewhere), as :func:`shared.energy.smoothness`.
@@ -288,6 +291,9 @@ def grid_mrf(
         Slope, truncation, edge threshold and factor.
     regularizer : Regularizer
         ``truncated``, ``linear`` (no truncation, no edge weights) or ``none``.
+    first : numpy.ndarray, optional
+        (h, w) each pixel's first candidate when the candidates are known to be consecutive
+        windows (``LevelInputs.first``); otherwise :func:`consecutive` finds out.
 
     Returns
     -------
@@ -304,10 +310,12 @@ def grid_mrf(
         truncation = math.inf
         slope = 0.0 if regularizer is Regularizer.NONE else slope
     candidates = np.ascontiguousarray(candidates, dtype=np.int32)
+    if first is None and consecutive(candidates):
+        first = candidates[:, :, 0]
     return GridMRF(
         unary=np.ascontiguousarray(unary, dtype=np.float32),
         candidates=candidates,
-        first=np.ascontiguousarray(candidates[:, :, 0]) if consecutive(candidates) else None,
+        first=None if first is None else np.ascontiguousarray(first, dtype=np.int32),
         weight_h=np.ascontiguousarray(weight_h, dtype=np.float64),
         weight_v=np.ascontiguousarray(weight_v, dtype=np.float64),
         slope=float(slope),
@@ -425,8 +433,9 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
     turned = mrf.transposed(candidates=False)  # its energy is never taken: no candidates
     # each copy's unary is half the MRF's (scaled inside the kernels: x 0.5 is exact, and two
     # fewer (h, w, K) arrays per view)
-    multipliers = np.zeros_like(mrf.unary)
-    multipliers_turned = np.zeros_like(turned.unary)
+    # np.zeros, not zeros_like: calloc's pages come zeroed (zeros_like writes every byte)
+    multipliers = np.zeros(mrf.unary.shape, dtype=mrf.unary.dtype)
+    multipliers_turned = np.zeros(turned.unary.shape, dtype=turned.unary.dtype)
     best_labels, best_energy = np.zeros(mrf.shape, dtype=np.int32), math.inf
     bound, gamma, stalled = -math.inf, 1.0, 0
     disagreeing, done = -1, 0

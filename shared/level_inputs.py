@@ -11,7 +11,7 @@ import numpy as np
 
 from shared.bundles import Bundle, bundle_rows, segment_columns
 from shared.config import DataTerm, LevelConfig, MatchConfig
-from shared.data_terms import bin_minimum, cost_volume, gather, squared_difference
+from shared.data_terms import bin_minimum, cost_volume, gather, gather_window, squared_difference
 from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
@@ -36,7 +36,10 @@ class LevelInputs:
     rows [h, 2h) the right view's as the mirrored pair (both images flipped, roles swapped).
     Bundles, tasks and progress therefore treat the right view as more rows of the same level;
     costs never mix the two. ``initial_labels`` (rows, w) is the coarser level's estimate as
-    labels, for warm starts; ``None`` on the coarsest level.
+    labels, for warm starts; ``None`` on the coarsest level. ``first`` (rows, w) int32 is each
+    pixel's first candidate when its candidates are consecutive labels (a bin level's window:
+    ``candidates == first[..., None] + arange(K)``), else ``None``: costs, the grid and the
+    picked labels then read it instead of the (rows, w, K) array.
     """
 
     plan: LevelPlan
@@ -51,6 +54,8 @@ class LevelInputs:
     #: The bin width of ``volumes``: a level whose width is a multiple reads its bins from them
     #: (a bin's minimum is the minimum of its sub-bins' minima: the very values).
     volume_bin_width: int = 1
+    #: Each pixel's first candidate when the candidates are consecutive windows (class doc).
+    first: np.ndarray | None = None
     #: What planning the bundles did (``LevelInference.plan``): segment width, embeddings.
     prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
@@ -212,6 +217,30 @@ class LevelInputs:
             for v in range(self.views)
         ]
 
+    def picked(self, labels: np.ndarray) -> np.ndarray:
+        """The label each pixel's candidate index stands for.
+
+        Parameters
+        ----------
+        labels : numpy.ndarray
+            Candidate index (rows, w) of every pixel (all views).
+
+        Returns
+        -------
+        numpy.ndarray
+            (rows, w) int32.
+        """
+        if self.first is not None:
+            return self.first + labels.astype(np.int32, copy=False)
+        return np.take_along_axis(self.candidates, labels[:, :, None], axis=2)[:, :, 0]
+
+    def _window(self, view: int, first: int, last: int) -> np.ndarray | None:
+        """``first`` of rows [first, last) of one view, or None."""
+        if self.first is None:
+            return None
+        base = view * self.view_height
+        return self.first[base + first : base + last]
+
     def _cached(self) -> bool:
         """Whether this level's bin costs come from the cached ``volumes``."""
         return self.volumes is not None and self.plan.bin_width % self.volume_bin_width == 0
@@ -238,14 +267,20 @@ class LevelInputs:
         (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
         257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
         volume's own precision: exact) halves the view's costs."""
+        window = self._window(view, first, last)
+        count = candidates.shape[2]
+
+        def pick(per_label: np.ndarray, rows: slice) -> np.ndarray:
+            if window is None:
+                return gather(per_label, candidates[rows], dtype)
+            return gather_window(per_label, window[rows], count, dtype)
+
         if self._cached():
-            return gather(self._bin_costs(data_term, view, first, last), candidates, dtype)
+            return pick(self._bin_costs(data_term, view, first, last), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
         for start, stop in self._volume_blocks(first, last):
-            costs[start - first : stop - first] = gather(
-                self._bin_costs(data_term, view, start, stop),
-                candidates[start - first : stop - first],
-            )
+            rows = slice(start - first, stop - first)
+            costs[rows] = pick(self._bin_costs(data_term, view, start, stop), rows)
         return costs
 
     def _volume_blocks(self, first: int, last: int) -> list[tuple[int, int]]:
@@ -360,7 +395,8 @@ class LevelInputs:
         if len(parts) != 1:
             raise ValueError(f"rows [{start}, {stop}) span both views; a grid is one view's")
         unary, candidates, guide = self.view_unary(config, *parts[0], dtype=np.float32)
-        return grid_mrf(unary, candidates, guide, self.level, config.regularizer)
+        window = self._window(*parts[0])
+        return grid_mrf(unary, candidates, guide, self.level, config.regularizer, window)
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
         """Costs of rows [start, stop) (a block that spans both views has no edge between).

@@ -182,6 +182,7 @@ def prepare_level(
     config: MatchConfig,
     plan: LevelPlan,
     previous: np.ndarray | None = None,
+    coarser: LevelInputs | None = None,
 ) -> LevelInputs:
     """Inputs of one level from the :func:`match_views` of the pair; ``previous`` is the coarser
     level's finished map (:func:`finish_level`).
@@ -196,17 +197,27 @@ def prepare_level(
         The level to prepare.
     previous : numpy.ndarray, optional
         The coarser level's finished map; ``None`` at the coarsest level.
+    coarser : LevelInputs, optional
+        The coarser level's inputs: their images are this level's when both have the same
+        downsampling (every level of a bin pyramid: the stacked views are built once).
 
     Returns
     -------
     LevelInputs
         Images, candidates and warm-start labels (``None`` at the coarsest level) of the level.
     """
-    left_k, right_k, views = level_views(left, right, config, plan)
+    if coarser is not None and coarser.plan.downsample == plan.downsample:
+        left_k, right_k, views = coarser.left, coarser.right, coarser.views
+    else:
+        left_k, right_k, views = level_views(left, right, config, plan)
     shape = left_k.shape[:2]
+    first = None
     if previous is None:
         candidates = pyramid.initial_candidates(shape, plan.candidates, plan.max_label)
         initial = None
+        values = candidates[0, 0]  # the same at every pixel; consecutive when bins <= K
+        if np.all(np.diff(values) == 1):
+            first = np.full(shape, values[0], dtype=np.int32)
     else:
         if config.pyramid is PyramidKind.IMAGE:
             candidates = pyramid.refined_candidates(
@@ -215,11 +226,10 @@ def prepare_level(
             target = pyramid.upsample_disparity(previous, shape)
             initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
         else:
-            candidates = pyramid.refined_bins(previous, plan.candidates, plan.max_label)
+            first = pyramid.window_starts(previous, plan.candidates, plan.max_label)
+            candidates = first[:, :, None] + np.arange(plan.candidates, dtype=np.int32)
             # the lower child of the coarser bin, among consecutive candidates
-            initial = pyramid.nearest_in_window(
-                2.0 * previous, candidates[:, :, 0], plan.candidates
-            )
+            initial = pyramid.nearest_in_window(2.0 * previous, first, plan.candidates)
     return LevelInputs(
         plan=plan,
         left=left_k,
@@ -227,6 +237,7 @@ def prepare_level(
         candidates=candidates,
         initial_labels=initial,
         views=views,
+        first=first,
     )
 
 
@@ -320,7 +331,7 @@ def run_pipeline(
     inputs: LevelInputs | None = None
     for plan in plans:
         level_started = time.perf_counter()
-        inputs = prepare_level(left, right, config, plan, level_map)
+        inputs = prepare_level(left, right, config, plan, level_map, inputs)
         if plan.index == 0:
             volumes, volume_bin_width = _cached_volumes(inputs, config, plans)
         elif plan.bin_width < volume_bin_width:

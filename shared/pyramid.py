@@ -157,9 +157,14 @@ def refined_bins(coarse_bins: np.ndarray, count: int, max_bin: int) -> np.ndarra
     numpy.ndarray
         Consecutive candidate bins (h, w, count), int32, within [0, max_bin].
     """
+    return window_starts(coarse_bins, count, max_bin)[:, :, None] + np.arange(count, dtype=np.int32)
+
+
+def window_starts(coarse_bins: np.ndarray, count: int, max_bin: int) -> np.ndarray:
+    """Each pixel's first candidate bin (h, w) int32 of :func:`refined_bins`: the whole window
+    of a bin level in one label per pixel (``LevelInputs.first``)."""
     start = 2 * np.rint(coarse_bins).astype(np.int32) - (count // 2 - 1)
-    start = np.clip(start, 0, max(0, max_bin + 1 - count))
-    return start[:, :, None] + np.arange(count, dtype=np.int32)
+    return np.clip(start, 0, max(0, max_bin + 1 - count))
 
 
 def nearest_in_window(target: np.ndarray, start: np.ndarray, count: int) -> np.ndarray:

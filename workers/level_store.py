@@ -55,7 +55,10 @@ class LevelStorage(StoreBase):
             "prepared": json.dumps(inputs.prepared).encode(),
             "images": str(inputs.plan.downsample).encode(),
         }
-        arrays = {"candidates": inputs.candidates}
+        # a bin level's windows travel as each pixel's first candidate (K times smaller)
+        arrays = (
+            {"candidates": inputs.candidates} if inputs.first is None else {"first": inputs.first}
+        )
         if inputs.initial_labels is not None:
             arrays["initial_labels"] = inputs.initial_labels
         for name, array in arrays.items():
@@ -87,12 +90,19 @@ class LevelStorage(StoreBase):
         if not fields:
             raise LevelInputsMissingError(f"job {job_id}: inputs of level {index} are gone")
         left, right = self._level_images(job_id, fields)
+        plan = LevelPlan.model_validate_json(fields[b"plan"])
+        first = array_from(fields, "first") if b"first" in fields else None
         inputs = LevelInputs(
-            plan=LevelPlan.model_validate_json(fields[b"plan"]),
+            plan=plan,
             views=int(fields[b"views"]),
             left=left,
             right=right,
-            candidates=array_from(fields, "candidates"),
+            candidates=(
+                array_from(fields, "candidates")
+                if first is None
+                else first[:, :, None] + np.arange(plan.candidates, dtype=np.int32)
+            ),
+            first=first,
             initial_labels=(
                 array_from(fields, "initial_labels") if b"initial_labels" in fields else None
             ),
