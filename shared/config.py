@@ -259,7 +259,7 @@ class MatchConfig(BaseModel):
         "from the chosen one), so a wrong coarse choice can be undone (0: off)",
     )
     second_bins_radius: int = Field(
-        4, ge=0, le=64, description="The box radius, pixels, of second_bins' averaged costs"
+        8, ge=0, le=64, description="The box radius, pixels, of second_bins' averaged costs"
     )
     bundle_height: int = Field(
         ge=1,

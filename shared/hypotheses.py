@@ -7,6 +7,8 @@ at least two away from the chosen one (its neighbours' children are in the windo
 of the lowest coarse data term box-averaged over ``second_bins_radius`` pixels, so that the
 runner-up is a region's, not one noisy pixel's. The finer level's MRF then decides between the
 two; the candidates are no longer one consecutive window (the grid's general message path).
+An option under trial (off by default; docs/benchmarks.md, issue 28): the coarser level's bins
+are built again from the views, not read from the pipeline's cached volumes.
 """
 
 from __future__ import annotations
