@@ -250,6 +250,17 @@ class MatchConfig(BaseModel):
     max_coarse_bins: int = Field(
         8, ge=2, le=64, description="Bin pyramid: bins of the coarsest level, at most"
     )
+    second_bins: int = Field(
+        0,
+        ge=0,
+        le=16,
+        description="Bin pyramid: levels, coarsest first, whose finer level also takes the "
+        "children of each pixel's second-best bin (box-averaged data term, at least two bins "
+        "from the chosen one), so a wrong coarse choice can be undone (0: off)",
+    )
+    second_bins_radius: int = Field(
+        8, ge=0, le=64, description="The box radius, pixels, of second_bins' averaged costs"
+    )
     bundle_height: int = Field(
         ge=1,
         le=64,

@@ -26,7 +26,7 @@ from functools import partial
 
 import numpy as np
 
-from shared import filters, provenance_map, pyramid
+from shared import filters, hypotheses, provenance_map, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, MatchConfig, PyramidKind
 from shared.data_terms import cost_volume
@@ -230,7 +230,7 @@ def prepare_level(
             candidates = first[:, :, None] + np.arange(plan.candidates, dtype=np.int32)
             # the lower child of the coarser bin, among consecutive candidates
             initial = pyramid.nearest_in_window(2.0 * previous, first, plan.candidates)
-    return LevelInputs(
+    inputs = LevelInputs(
         plan=plan,
         left=left_k,
         right=right_k,
@@ -239,6 +239,16 @@ def prepare_level(
         views=views,
         first=first,
     )
+    if (
+        previous is not None
+        and config.pyramid is PyramidKind.BINS
+        and plan.index <= config.second_bins
+    ):
+        inputs.candidates = hypotheses.with_second_bins(
+            inputs, previous, config.data_term, config.second_bins_radius
+        )
+        inputs.first = None  # no longer one window
+    return inputs
 
 
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:
