@@ -287,24 +287,26 @@ def _subgradient_step(
 def _send(
     source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
 ):  # pragma: no cover - jit
-    """``out[k] = min_j source[j] + w min(T, s |L_p(j) - L_q(k)|) - c``, c its minimum (returned):
-    the message from pixel p to its neighbour q; O(K) distance transform for windows."""
+    """``out[k] = min_j source[j] + w min(T, s |L_p(j) - L_q(k)|)`` and c, its minimum (returned):
+    the message from pixel p to its neighbour q is ``out - c``; O(K) distance transform for
+    windows."""
     count = source.shape[0]
     lowest = source[0]
-    for j in range(1, count):
-        lowest = min(lowest, source[j])
-    ceiling = lowest + w * truncation
-    if windows:
+    if windows:  # the minimum and the envelope's forward pass in one loop
         step = w * slope
         running = source[0]
         envelope[0] = running
         for j in range(1, count):
-            running = min(source[j], running + step)
+            value = source[j]
+            lowest = min(lowest, value)
+            running = min(value, running + step)
             envelope[j] = running
+        ceiling = lowest + w * truncation
         for j in range(count - 2, -1, -1):
             running = min(envelope[j], running + step)
             envelope[j] = running
         shift = first[yq, xq] - first[yp, xp]
+        smallest = 0.0
         for k in range(count):
             t = k + shift
             if t < 0:
@@ -314,7 +316,12 @@ def _send(
             else:
                 value = envelope[t]
             out[k] = min(value, ceiling)
+            smallest = out[k] if k == 0 else min(smallest, out[k])  # out's minimum, in order
+        return smallest
     else:
+        for j in range(1, count):
+            lowest = min(lowest, source[j])
+        ceiling = lowest + w * truncation
         for k in range(count):
             here = candidates[yq, xq, k]
             value = ceiling
@@ -325,8 +332,6 @@ def _send(
     smallest = out[0]
     for k in range(1, count):
         smallest = min(smallest, out[k])
-    for k in range(count):
-        out[k] -= smallest
     return smallest
 
 
@@ -344,7 +349,7 @@ def _pass_on(half, back, sent, yp, xp, yq, xq, w, edges, buffers):  # pragma: no
         source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
     )
     for k in range(count):
-        sent[yq, xq, k] = out[k]
+        sent[yq, xq, k] = out[k] - constant
     return constant
 
 
