@@ -103,32 +103,18 @@ def _window_message(
     """``messages[x]``: the cone envelope of ``messages[x - 1]`` (``envelope``) at the window's
     labels (``shift`` apart), capped at ``ceiling``, plus the unary of (chain, x)."""
     count = envelope.shape[0]
-    for k in range(count):
-        t = k + shift
-        if t < 0:
-            value = envelope[0] - step * t
-        elif t >= count:
-            value = envelope[count - 1] + step * (t - count + 1)
-        else:
-            value = envelope[t]
+    # t = k + shift below 0, inside the window, beyond it: three loops without a branch
+    low = min(max(-shift, 0), count)
+    high = max(min(count - shift, count), low)
+    for k in range(low):
+        value = envelope[0] - step * (k + shift)
         messages[x, k] = min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _read_back(messages, chain, first, weight, table, reach, labels, arg):  # pragma: no cover - jit
-    """The labels of the chain from its last (``arg``) back: each the predecessor that gave
-    the message its value (the first of equal ones)."""
-    length, count = messages.shape
-    for x in range(length - 1, 0, -1):
-        w = weight[chain, x - 1]
-        offset = first[chain, x - 1] - first[chain, x] - arg + reach  # the table's index at j = 0
-        best = np.inf
-        for j in range(count):
-            value = messages[x - 1, j] + w * table[offset + j]
-            if value < best:
-                best = value
-                arg = j
-        labels[chain, x - 1] = arg
+    for k in range(low, high):
+        value = envelope[k + shift]
+        messages[x, k] = min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
+    for k in range(high, count):
+        value = envelope[count - 1] + step * (k + shift - count + 1)
+        messages[x, k] = min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -172,8 +158,21 @@ def _chains_windows(
             ca, cb = la + wa * truncation, lb + wb * truncation
             _window_message(ma, x, ea, sa, ca, shift_a, base, scale, extra, sign, a)
             _window_message(mb, x, eb, sb, cb, shift_b, base, scale, extra, sign, b)
-        _read_back(ma, a, first, weight, table, reach, labels, _chain_end(ma, a, energies, labels))
-        _read_back(mb, b, first, weight, table, reach, labels, _chain_end(mb, b, energies, labels))
+        arg_a, arg_b = _chain_end(ma, a, energies, labels), _chain_end(mb, b, energies, labels)
+        for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
+            wa, wb = weight[a, x - 1], weight[b, x - 1]
+            # the table's index of the label difference at j = 0
+            offset_a = first[a, x - 1] - first[a, x] - arg_a + reach
+            offset_b = first[b, x - 1] - first[b, x] - arg_b + reach
+            best_a, best_b = np.inf, np.inf
+            for j in range(count):  # the first of equal values
+                value_a = ma[x - 1, j] + wa * table[offset_a + j]
+                value_b = mb[x - 1, j] + wb * table[offset_b + j]
+                if value_a < best_a:
+                    best_a, arg_a = value_a, j
+                if value_b < best_b:
+                    best_b, arg_b = value_b, j
+            labels[a, x - 1], labels[b, x - 1] = arg_a, arg_b
     return energies
 
 
