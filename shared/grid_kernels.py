@@ -417,8 +417,9 @@ def _trws_pass(
                 lowest = min(lowest, half[k])
                 # the label: the messages from ahead, the pairwise terms to the labels behind
                 here = _label(candidates, first, windows, y, x, k)
-                score = unary[y, x, k]
-                score += back_h[y, x, k] + back_v[y, x, k]
+                # float32 up to here, then float64: spelt out, for numba types a variable
+                # assigned float32 then float64 differently just in time and ahead of time
+                score = np.float64(unary[y, x, k] + (back_h[y, x, k] + back_v[y, x, k]))
                 if has_xb:
                     score += w_x * _tabled(table, here - there_x, slope, truncation)
                 if has_yb:

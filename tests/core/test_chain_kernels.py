@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from shared import grid_kernels
 from shared.config import LevelConfig, Regularizer
 from shared.grid import GridMRF, grid_mrf, solve_chains
 from shared.grid_inference import trws
@@ -56,3 +57,33 @@ def test_trws_window_messages_are_the_general_messages_whatever_the_shift(seed, 
     windowed, brute = trws(mrf, iterations=3), trws(general, iterations=3)
     assert windowed.lower_bound == pytest.approx(brute.lower_bound, rel=1e-9)
     assert windowed.energy == pytest.approx(brute.energy, rel=1e-9)
+
+
+def test_a_trws_label_scores_its_unary_and_messages_from_ahead_in_float32():
+    """What numba's just-in-time typing made of the kernel (the maps' digests pin it), spelt out
+    so that an ahead-of-time build computes it too (the one that typed the score float64 from
+    the start chose other labels at near-ties): candidate 0's 1 + 2^-24 and candidate 1's
+    1 + 2^-26 both round to 1 in float32, a tie the first candidate wins."""
+    tiny = np.float32(2.0**-25)
+    one_pixel = (1, 1, 2)
+    unary = np.ones(one_pixel, dtype=np.float32)
+    from_right = np.array([[[tiny, tiny / 2]]], dtype=np.float32)  # forward: from ahead
+    from_down = np.array([[[tiny, 0.0]]], dtype=np.float32)
+    labels = np.full((1, 1), -1, dtype=np.int32)
+    grid_kernels._trws_pass(
+        unary,
+        np.array([[[0, 1]]], dtype=np.int32),
+        np.zeros((1, 1), dtype=np.int32),
+        True,
+        np.zeros((1, 0)),
+        np.zeros((0, 1)),
+        0.2,
+        0.4,
+        np.zeros(one_pixel, dtype=np.float32),
+        from_right,
+        np.zeros(one_pixel, dtype=np.float32),
+        from_down,
+        True,
+        labels,
+    )
+    assert labels[0, 0] == 0
