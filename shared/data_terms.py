@@ -172,7 +172,7 @@ def ad_census_volume(
         ad = cv2.absdiff(left_rows, right_rows[:, columns])
         if ad.ndim == 3:
             ad = cv2.transform(ad, channel_mean)
-        return cv2.exp(ad * np.float32(-1.0 / AD_SCALE))
+        return cv2.exp(np.multiply(ad, np.float32(-1.0 / AD_SCALE), out=ad))
 
     return _census_and(census_left, census_right, ad_term, max_disparity, stop - start)
 
@@ -199,7 +199,7 @@ def census_gradient_volume(
             cv2.absdiff(gradients_left[0], gradients_right[0][:, columns]),
             cv2.absdiff(gradients_left[1], gradients_right[1][:, columns]),
         )
-        return cv2.exp(gradient * np.float32(-1.0 / GRADIENT_SCALE))
+        return cv2.exp(np.multiply(gradient, np.float32(-1.0 / GRADIENT_SCALE), out=gradient))
 
     return _census_and(census_left, census_right, gradient_term, max_disparity, stop - start)
 
@@ -223,9 +223,13 @@ def _census_and(
     box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
     reach = AGGREGATION_WINDOW // 2
     volume = np.empty((max_disparity + 1, rows, width), dtype=np.float32)
+    # scratch for the codes' differing bits and their count, reused at every disparity
+    differing = np.empty(census_left.shape, dtype=census_left.dtype)
+    hamming = np.empty(census_left.shape, dtype=np.uint8)
     for d in range(max_disparity + 1):
         columns = slice(max_disparity - d, max_disparity - d + width)
-        hamming = np.bitwise_count(census_left ^ census_right[:, columns]).astype(np.uint8)
+        np.bitwise_xor(census_left, census_right[:, columns], out=differing)
+        np.bitwise_count(differing, out=hamming)
         cost = cv2.scaleAdd(term(columns), -0.5, cv2.LUT(hamming, table))
         aggregated = cv2.boxFilter(cost, -1, box, borderType=cv2.BORDER_REPLICATE)
         volume[d] = aggregated[reach:-reach]

@@ -81,61 +81,98 @@ def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
 
 
 @numba.njit(cache=True, nogil=True)
+def _difference_table(first, count, slope, truncation):  # pragma: no cover - jit
+    """``_regulariser(|d|, 0)`` for every label difference d of two neighbours' window
+    candidates, at index ``d + reach`` (reach returned): the read-back's lookups without a branch
+    (the same floats as :func:`_tabled`)."""
+    chains, length = first.shape
+    reach = count
+    for chain in range(chains):
+        for x in range(1, length):
+            reach = max(reach, abs(first[chain, x] - first[chain, x - 1]) + count)
+    table = np.empty(2 * reach + 1)
+    for d in range(-reach, reach + 1):
+        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
+    return table, reach
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _window_message(
+    messages, x, envelope, step, ceiling, shift, base, scale, extra, sign, chain
+):  # pragma: no cover - jit
+    """``messages[x]``: the cone envelope of ``messages[x - 1]`` (``envelope``) at the window's
+    labels (``shift`` apart), capped at ``ceiling``, plus the unary of (chain, x)."""
+    count = envelope.shape[0]
+    # t = k + shift below 0, inside the window, beyond it: three loops without a branch
+    low = min(max(-shift, 0), count)
+    high = max(min(count - shift, count), low)
+    for k in range(low):
+        value = envelope[0] - step * (k + shift)
+        messages[x, k] = min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
+    for k in range(low, high):
+        value = envelope[k + shift]
+        messages[x, k] = min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
+    for k in range(high, count):
+        value = envelope[count - 1] + step * (k + shift - count + 1)
+        messages[x, k] = min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
+
+
+@numba.njit(cache=True, nogil=True)
 def _chains_windows(
     base, scale, extra, sign, first, weight, slope, truncation, labels
 ):  # pragma: no cover - jit
     """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``scale * base +
     sign * extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
     transform in O(K). The messages are kept and the labels read back from them (no
-    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum."""
+    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum.
+
+    Two chains at a time, a and b (the last alone repeats itself: the same floats): their
+    envelope passes, chains of dependent additions, interleaved in one loop."""
     chains, length, count = base.shape
     energies = np.empty(chains)
-    table = _regulariser_table(slope, truncation)
-    messages = np.empty((length, count))
-    envelope = np.empty(count)
-    for chain in range(chains):
+    table, reach = _difference_table(first, count, slope, truncation)
+    ma, mb = np.empty((length, count)), np.empty((length, count))
+    ea, eb = np.empty(count), np.empty(count)
+    for a in range(0, chains, 2):
+        b = min(a + 1, chains - 1)
         for k in range(count):
-            messages[0, k] = scale * base[chain, 0, k] + sign * extra[chain, 0, k]
+            ma[0, k] = scale * base[a, 0, k] + sign * extra[a, 0, k]
+            mb[0, k] = scale * base[b, 0, k] + sign * extra[b, 0, k]
         for x in range(1, length):
-            w = weight[chain, x - 1]
-            step = w * slope
-            lowest = messages[x - 1, 0]
-            # lower envelope of the cones s w |j - t|; the running value in a register, not
-            # read back from the array (the passes are latency-bound)
-            running = lowest
-            envelope[0] = running
+            wa, wb = weight[a, x - 1], weight[b, x - 1]
+            sa, sb = wa * slope, wb * slope
+            # lower envelope of the cones s w |j - t|; the running values in registers
+            la, lb = ma[x - 1, 0], mb[x - 1, 0]
+            ra, rb = la, lb
+            ea[0], eb[0] = ra, rb
             for j in range(1, count):
-                value = messages[x - 1, j]
-                lowest = min(lowest, value)
-                running = min(value, running + step)
-                envelope[j] = running
+                va, vb = ma[x - 1, j], mb[x - 1, j]
+                la, lb = min(la, va), min(lb, vb)
+                ra, rb = min(va, ra + sa), min(vb, rb + sb)
+                ea[j], eb[j] = ra, rb
             for j in range(count - 2, -1, -1):
-                running = min(envelope[j], running + step)
-                envelope[j] = running
-            ceiling = lowest + w * truncation
-            shift = first[chain, x] - first[chain, x - 1]
-            for k in range(count):
-                t = k + shift
-                if t < 0:
-                    value = envelope[0] - step * t
-                elif t >= count:
-                    value = envelope[count - 1] + step * (t - count + 1)
-                else:
-                    value = envelope[t]
-                messages[x, k] = (
-                    min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
-                )
-        arg = _chain_end(messages, chain, energies, labels)
+                ra, rb = min(ea[j], ra + sa), min(eb[j], rb + sb)
+                ea[j], eb[j] = ra, rb
+            shift_a = first[a, x] - first[a, x - 1]
+            shift_b = first[b, x] - first[b, x - 1]
+            ca, cb = la + wa * truncation, lb + wb * truncation
+            _window_message(ma, x, ea, sa, ca, shift_a, base, scale, extra, sign, a)
+            _window_message(mb, x, eb, sb, cb, shift_b, base, scale, extra, sign, b)
+        arg_a, arg_b = _chain_end(ma, a, energies, labels), _chain_end(mb, b, energies, labels)
         for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
-            w = weight[chain, x - 1]
-            offset = first[chain, x - 1] - first[chain, x] - arg  # label difference at j = 0
-            best = np.inf
-            for j in range(count):
-                value = messages[x - 1, j] + w * _tabled(table, offset + j, slope, truncation)
-                if value < best:
-                    best = value
-                    arg = j
-            labels[chain, x - 1] = arg
+            wa, wb = weight[a, x - 1], weight[b, x - 1]
+            # the table's index of the label difference at j = 0
+            offset_a = first[a, x - 1] - first[a, x] - arg_a + reach
+            offset_b = first[b, x - 1] - first[b, x] - arg_b + reach
+            best_a, best_b = np.inf, np.inf
+            for j in range(count):  # the first of equal values
+                value_a = ma[x - 1, j] + wa * table[offset_a + j]
+                value_b = mb[x - 1, j] + wb * table[offset_b + j]
+                if value_a < best_a:
+                    best_a, arg_a = value_a, j
+                if value_b < best_b:
+                    best_b, arg_b = value_b, j
+            labels[a, x - 1], labels[b, x - 1] = arg_a, arg_b
     return energies
 
 
@@ -249,24 +286,26 @@ def _subgradient_step(
 def _send(
     source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
 ):  # pragma: no cover - jit
-    """``out[k] = min_j source[j] + w min(T, s |L_p(j) - L_q(k)|) - c``, c its minimum (returned):
-    the message from pixel p to its neighbour q; O(K) distance transform for windows."""
+    """``out[k] = min_j source[j] + w min(T, s |L_p(j) - L_q(k)|)`` and c, its minimum (returned):
+    the message from pixel p to its neighbour q is ``out - c``; O(K) distance transform for
+    windows."""
     count = source.shape[0]
     lowest = source[0]
-    for j in range(1, count):
-        lowest = min(lowest, source[j])
-    ceiling = lowest + w * truncation
-    if windows:
+    if windows:  # the minimum and the envelope's forward pass in one loop
         step = w * slope
         running = source[0]
         envelope[0] = running
         for j in range(1, count):
-            running = min(source[j], running + step)
+            value = source[j]
+            lowest = min(lowest, value)
+            running = min(value, running + step)
             envelope[j] = running
+        ceiling = lowest + w * truncation
         for j in range(count - 2, -1, -1):
             running = min(envelope[j], running + step)
             envelope[j] = running
         shift = first[yq, xq] - first[yp, xp]
+        smallest = 0.0
         for k in range(count):
             t = k + shift
             if t < 0:
@@ -276,7 +315,12 @@ def _send(
             else:
                 value = envelope[t]
             out[k] = min(value, ceiling)
+            smallest = out[k] if k == 0 else min(smallest, out[k])  # out's minimum, in order
+        return smallest
     else:
+        for j in range(1, count):
+            lowest = min(lowest, source[j])
+        ceiling = lowest + w * truncation
         for k in range(count):
             here = candidates[yq, xq, k]
             value = ceiling
@@ -287,8 +331,6 @@ def _send(
     smallest = out[0]
     for k in range(1, count):
         smallest = min(smallest, out[k])
-    for k in range(count):
-        out[k] -= smallest
     return smallest
 
 
@@ -306,7 +348,7 @@ def _pass_on(half, back, sent, yp, xp, yq, xq, w, edges, buffers):  # pragma: no
         source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
     )
     for k in range(count):
-        sent[yq, xq, k] = out[k]
+        sent[yq, xq, k] = out[k] - constant
     return constant
 
 
@@ -356,6 +398,11 @@ def _trws_pass(
             xa, ya = (x + 1, y + 1) if forward else (x - 1, y - 1)
             has_xb, has_yb = 0 <= xb < width, 0 <= yb < height
             has_xa, has_ya = 0 <= xa < width, 0 <= ya < height
+            # the labels behind and their edges' weights, once per pixel (not per candidate)
+            there_x = _label(candidates, first, windows, y, xb, labels[y, xb]) if has_xb else 0
+            w_x = weight_h[y, min(x, xb)] if has_xb else 0.0
+            there_y = _label(candidates, first, windows, yb, x, labels[yb, x]) if has_yb else 0
+            w_y = weight_v[min(y, yb), x] if has_yb else 0.0
             lowest = np.inf
             best, arg = np.inf, 0
             for k in range(count):
@@ -370,16 +417,13 @@ def _trws_pass(
                 lowest = min(lowest, half[k])
                 # the label: the messages from ahead, the pairwise terms to the labels behind
                 here = _label(candidates, first, windows, y, x, k)
-                score = unary[y, x, k]
-                score += back_h[y, x, k] + back_v[y, x, k]
+                # float32 up to here, then float64: spelt out, for numba types a variable
+                # assigned float32 then float64 differently just in time and ahead of time
+                score = np.float64(unary[y, x, k] + (back_h[y, x, k] + back_v[y, x, k]))
                 if has_xb:
-                    there = _label(candidates, first, windows, y, xb, labels[y, xb])
-                    w = weight_h[y, min(x, xb)]
-                    score += w * _tabled(table, here - there, slope, truncation)
+                    score += w_x * _tabled(table, here - there_x, slope, truncation)
                 if has_yb:
-                    there = _label(candidates, first, windows, yb, x, labels[yb, x])
-                    w = weight_v[min(y, yb), x]
-                    score += w * _tabled(table, here - there, slope, truncation)
+                    score += w_y * _tabled(table, here - there_y, slope, truncation)
                 if score < best:
                     best, arg = score, k
             labels[y, x] = arg

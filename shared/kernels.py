@@ -10,7 +10,9 @@ in a millisecond.
 A compiled function converts its arguments without checking their types (a wrong dtype reads
 memory as another type), so each call is checked here against the signature it was compiled for
 (:data:`SIGNATURES`); any other call (strided views, other dtypes) goes to numba, which compiles
-what it needs. Both compile the same source with the same numba: the results are the same.
+what it needs. Both compile the same source with the same numba: the results are the same, as
+long as no variable changes type between assignments (numba's JIT and pycc typed one such
+variable differently: spell the types out, as ``_trws_pass``'s score does).
 """
 
 from __future__ import annotations
