@@ -157,7 +157,9 @@ def qhsm_serve(folder: Path, stub: SapiStub):
     with log.open("wb") as out:
         process = subprocess.Popen(command, env=env, stdout=out, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
-    with harness.interrupted_at_exit(process):
+    # SIGKILL at the end (serve's workers and Redis die with it): serve's orderly stop is
+    # test_serve.py's, and took 10-12 s here
+    with harness.killed_at_exit(process):
         deadline = time.monotonic() + 120
         while not re.search(r"web page: ", log.read_text()):
             assert process.poll() is None, log.read_text()[-3000:]
