@@ -166,7 +166,9 @@ def qhsm_serve(folder: Path, stub: SapiStub):
             assert time.monotonic() < deadline, log.read_text()[-3000:]
             time.sleep(0.2)
         key = (folder / "data" / "api-key").read_text().strip()
-        with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {key}"}) as client:
+        headers = {"Authorization": f"Bearer {key}"}
+        # 30 s, not httpx's 5: on a loaded machine a first /healthz took longer (a ReadTimeout)
+        with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
             while client.get("/healthz").status_code != 200:
                 time.sleep(0.2)
             yield client, log, folder / "data"
