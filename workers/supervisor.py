@@ -89,7 +89,7 @@ class WorkerProcess:
                 stderr=subprocess.STDOUT,
                 preexec_fn=die_with_parent,  # dies with serve, even on SIGKILL
                 # a group of its own: a terminal's Ctrl-C is serve's, which stops the workers
-                # in order (instead of each stopping itself and being restarted meanwhile)
+                # then Redis (instead of each stopping itself and being restarted meanwhile)
                 process_group=0,
             )
         return self
