@@ -89,7 +89,7 @@ class WorkerProcess:
                 stderr=subprocess.STDOUT,
                 preexec_fn=die_with_parent,  # dies with serve, even on SIGKILL
                 # a group of its own: a terminal's Ctrl-C is serve's, which stops the workers
-                # in order (instead of each stopping itself and being restarted meanwhile)
+                # then Redis (instead of each stopping itself and being restarted meanwhile)
                 process_group=0,
             )
         return self
@@ -113,16 +113,48 @@ class WorkerProcess:
 
     def stop(self, timeout: float = 15.0) -> None:
         """Warm shutdown (SIGTERM: finish running tasks), then SIGKILL after ``timeout``."""
-        if not self.process or self.process.poll() is not None:
-            return
+        stop_all([self], timeout)
+
+    def terminate(self) -> bool:
+        """Ask for a warm shutdown (SIGTERM: running tasks finish and are acked, messages it
+        holds unstarted go back to their queues); False if the worker is not running."""
+        if not self.alive:
+            return False
+        assert self.process is not None
         self.process.send_signal(signal.SIGTERM)
+        return True
+
+    def wait_until(self, deadline: float) -> bool:
+        """Wait for the worker to exit until ``deadline`` (``time.monotonic``); whether it
+        did."""
+        assert self.process is not None
         try:
-            self.process.wait(timeout)
+            self.process.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
-            for child in self.children():
-                kill_now(child)
-            self.process.kill()
-            self.process.wait()
+            return False
+        return True
+
+    def kill(self) -> None:
+        """SIGKILL the pool processes (their tasks' messages stay unacked: the watchdog puts
+        them back), then the main process; returns once it is gone."""
+        assert self.process is not None
+        for child in self.children():
+            kill_now(child)
+        self.process.kill()
+        self.process.wait()
+
+
+def stop_all(workers: list[WorkerProcess], timeout: float = 15.0) -> None:
+    """Warm shutdown of every worker at once: all get SIGTERM first, then all are waited for
+    with one deadline ``timeout`` s away, then whichever is still there is killed. Each worker
+    finishes its own running tasks (no task waits for another: ``workers/orchestration.py``),
+    so stopping them together loses nothing, and a stop takes the slowest worker's time
+    instead of the sum."""
+    stopping = [worker for worker in workers if worker.terminate()]
+    deadline = time.monotonic() + timeout
+    stuck = [worker for worker in stopping if not worker.wait_until(deadline)]
+    for worker in stuck:
+        worker.kill()
 
 
 def stop_on_sigterm() -> None:
@@ -355,8 +387,9 @@ class Stack:
     def stop(self) -> None:
         if self.supervisor is not None:
             self.supervisor.stop()
-        for worker in self.workers:
-            worker.stop()
+        # every worker at once; Redis only after the last (a warm shutdown acks finished tasks'
+        # messages and puts prefetched ones back in their queues, both in Redis)
+        stop_all(self.workers)
         self.workers.clear()
         if self.redis:
             self.redis.stop()
