@@ -87,9 +87,7 @@ def route_policy(route: APIRoute) -> RoutePolicy:
     dependencies (its router's included), uploads when a body parameter is a form field."""
     dependants = [route.dependant, *_dependencies(route.dependant)]
     admin = any(d.call is admin_user for d in dependants)
-    uploads = any(
-        isinstance(f.field_info, params.Form) for d in dependants for f in d.body_params
-    )
+    uploads = any(isinstance(f.field_info, params.Form) for d in dependants for f in d.body_params)
     return RoutePolicy(admin=admin, uploads=uploads)
 
 

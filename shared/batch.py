@@ -163,9 +163,7 @@ def run_batch(
                     warnings.simplefilter("always")
                     result = run_pipeline(left, right, run, solve_level, force=force)
                 output = save_disparity(result.disparity, out / f"{pair.name}.pfm")
-                maps = save_maps(
-                    result.validity, result.confidence, output, result.provenance_map
-                )
+                maps = save_maps(result.validity, result.confidence, output, result.provenance_map)
                 row |= {
                     "status": "ok",
                     "max_disparity": result.disparity_range.max_disparity,

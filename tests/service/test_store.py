@@ -221,8 +221,7 @@ def test_stored_arrays_come_back_bit_for_bit(values, kind):
     array = np.array(values, dtype=np.float32).astype(kind).reshape(-1, 1)
     for images in (False, True):
         fields = {
-            key.encode(): value
-            for key, value in array_fields("a", array, images=images).items()
+            key.encode(): value for key, value in array_fields("a", array, images=images).items()
         }
         back = array_from(fields, "a")
         assert back.dtype == array.dtype and back.shape == array.shape

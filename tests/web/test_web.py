@@ -223,9 +223,7 @@ def test_another_users_job_is_neither_listed_nor_reachable(page: Page, server, p
     expect(page.locator(f'tr[data-job="{job_id}"] .owner-col')).to_have_text("web-bob")
 
 
-def test_a_link_with_another_users_key_never_switches_a_signed_in_tab_silently(
-    page: Page, server
-):
+def test_a_link_with_another_users_key_never_switches_a_signed_in_tab_silently(page: Page, server):
     """Login CSRF: `/#key=<someone else's key>` used to switch the tab to that account, and
     the uploads then went there. The page now says whose key it is and asks."""
     with server.client() as api:
