@@ -30,6 +30,7 @@ from api.cli_client import KEY_OPTION, api_client
 from api.serve_cli import cmd_api, cmd_demo, cmd_serve
 from shared.cli_options import (
     CommandError,
+    add_calib_option,
     add_json_option,
     add_match_options,
     add_pair_arguments,
@@ -79,10 +80,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     submit.add_argument(
         "--tag", action="append", help="a tag for the job (repeatable); GET /v1/jobs?tag= lists"
     )
-    submit.add_argument(
-        "--calib",
-        help="Middlebury calib.txt or KITTI calibration: the job then serves depth and PLY",
-    )
+    add_calib_option(submit, "the job then serves depth and PLY")
     submit.add_argument("--ground-truth", help="left ground truth, to get RMSE and BPP back")
     submit.add_argument(
         "--gt-scale",
@@ -123,8 +121,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     )
     add_pair_arguments(estimate)
     add_match_options(estimate)
-    setting_option(estimate, "api_url", "--url")
-    estimate.add_argument("--key", help="API key (QHSM_API_KEY; default: the local admin key)")
+    _client_options(estimate, json=False)
     estimate.add_argument(
         "--local",
         action="store_true",

@@ -8,10 +8,11 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Annotated, Any
+from typing import Annotated, Any, NamedTuple
 
 from celery import Celery
-from fastapi import Depends, File, Form, Request, UploadFile
+from fastapi import Depends, Form, Request, UploadFile
+from pydantic import BaseModel, Field
 
 from api.auth import Principal, current_principal
 from api.users import User, UserStore, admin_user, user_store
@@ -84,12 +85,34 @@ UsersDep = Annotated[UserStore, Depends(user_store)]
 #: The caller when they are an admin (403 otherwise).
 AdminDep = Annotated[User, Depends(admin_user)]
 
-#: The upload form's fields shared by POST /v1/jobs and POST /v1/estimate (the same form).
-LeftView = Annotated[UploadFile, File(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")]
-RightView = Annotated[UploadFile, File(description="Right view, same size")]
-ParamsForm = Annotated[
-    str | None, Form(description='MatchConfig fields as JSON, e.g. {"solver": "qpu"}')
-]
+
+class Caller(NamedTuple):
+    """Who calls, and the app's services and user store they act through: what every job,
+    estimate and batch route takes (one parameter, not three per route)."""
+
+    svc: Services
+    principal: Principal
+    users: UserStore
+
+
+def caller(svc: ServicesDep, principal: PrincipalDep, users: UsersDep) -> Caller:
+    return Caller(svc, principal, users)
+
+
+CallerDep = Annotated[Caller, Depends(caller)]
+
+#: What the ``params`` form field holds (jobs, estimates and batches).
+PARAMS = 'MatchConfig fields as JSON, e.g. {"solver": "qpu"}'
+ParamsForm = Annotated[str | None, Form(description=PARAMS)]
+
+
+class UploadViews(BaseModel):
+    """The upload form of POST /v1/estimate: a stereo pair and its params (POST /v1/jobs's form
+    begins with the same fields)."""
+
+    left: UploadFile = Field(description="Left view (PNG, PPM/PGM, JPEG, PFM, TIFF)")
+    right: UploadFile = Field(description="Right view, same size")
+    params: str | None = Field(None, description=PARAMS)
 
 
 def load_solver(config: MatchConfig | str) -> tuple[ResolvedSolver, Availability]:

@@ -258,7 +258,13 @@ def cmd_datasets_list(args: argparse.Namespace) -> int:
 
 def _add_match(commands: argparse._SubParsersAction) -> None:
     """Add ``qhsm match`` to the command's sub-parsers."""
-    from shared.cli_options import add_match_options, add_pair_arguments, add_processes_option
+    from shared.cli_options import (
+        add_calib_option,
+        add_json_option,
+        add_match_options,
+        add_pair_arguments,
+        add_processes_option,
+    )
 
     match = commands.add_parser("match", help="match a stereo pair in this process")
     add_pair_arguments(match)
@@ -274,8 +280,8 @@ def _add_match(commands: argparse._SubParsersAction) -> None:
     match.add_argument(
         "--ply", help="also write a coloured point cloud (binary PLY; needs --calib)"
     )
-    match.add_argument("--calib", help="Middlebury calib.txt or KITTI calibration, for --ply")
-    match.add_argument("--json", action="store_true", help="print a JSON summary")
+    add_calib_option(match, "the cameras of --ply")
+    add_json_option(match, "a summary")
     add_processes_option(match)
     match.set_defaults(handler=cmd_match)
 

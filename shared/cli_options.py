@@ -248,6 +248,20 @@ def add_json_option(parser: argparse.ArgumentParser, what: str = "the result") -
     parser.add_argument("--json", action="store_true", help=f"print {what} as JSON")
 
 
+def add_calib_option(parser: argparse.ArgumentParser, use: str) -> None:
+    """``--calib``: a calibration file in one of the formats
+    :func:`shared.datasets.calibration.read_calibration` reads (every command names the same).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser.
+    use : str
+        What the command does with it, for the help text.
+    """
+    parser.add_argument("--calib", help=f"Middlebury calib.txt or KITTI calibration: {use}")
+
+
 def add_processes_option(parser: argparse.ArgumentParser) -> None:
     """``--processes``: local processes that solve the bundles (``qhsm match`` and ``bench``).
 

@@ -13,7 +13,12 @@ from shared.exit_codes import EXIT_FAILED
 
 def register(commands: argparse._SubParsersAction) -> None:
     """Add ``eval``, ``batch`` and ``depth`` to the ``qhsm`` command's sub-parsers."""
-    from shared.cli_options import add_json_option, add_match_options, add_processes_option
+    from shared.cli_options import (
+        add_calib_option,
+        add_json_option,
+        add_match_options,
+        add_processes_option,
+    )
 
     evaluate = commands.add_parser("eval", help="score a disparity map against ground truth")
     evaluate.add_argument("disparity", help="disparity map to score (.pfm, .png x256, .npy)")
@@ -67,7 +72,7 @@ def register(commands: argparse._SubParsersAction) -> None:
     depth.add_argument("--ply", help="write a coloured point cloud here (binary PLY)")
     depth.add_argument("--image", help="the left view: the points' colours")
     depth.add_argument("--valid", help="only these pixels (e.g. qhsm match's d.valid.png)")
-    depth.add_argument("--calib", help="Middlebury calib.txt or KITTI calibration file")
+    add_calib_option(depth, "the cameras (else --focal, --baseline, ...)")
     depth.add_argument("--focal", type=float, help="focal length, px (without --calib)")
     depth.add_argument("--baseline", type=float, help="baseline, in --unit (without --calib)")
     depth.add_argument("--doffs", type=float, default=0.0, help="cx(right) - cx(left), px")

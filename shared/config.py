@@ -15,7 +15,14 @@ import itertools
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Final, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 if TYPE_CHECKING:  # re-exported lazily (__getattr__): `qhsm match` needs no pydantic-settings
     from shared.settings import (  # noqa: F401 (re-exported: one import path for configuration)
@@ -184,6 +191,8 @@ PRESETS: dict[Preset, dict[str, Any]] = {
 }
 
 AUTO: Final = "auto"
+#: The integer fields that also take ``auto`` (``bundle_width`` also None): their ranges.
+AUTO_OR_WITHIN: Final = {"max_disparity": (1, 1024), "bundle_width": (8, 4096)}
 #: Rows of a QUBO solver's tile in ``grid`` inference when ``bundle_height`` is not given.
 GRID_TILE_ROWS: Final = 3
 
@@ -345,18 +354,13 @@ class MatchConfig(BaseModel):
             raise ValueError("median_size must be odd")
         return value
 
-    @field_validator("max_disparity")
+    @field_validator(*AUTO_OR_WITHIN)
     @classmethod
-    def _positive(cls, value: int | str) -> int | str:
-        if isinstance(value, int) and not 1 <= value <= 1024:
-            raise ValueError("max_disparity must be auto or an integer in 1..1024")
-        return value
-
-    @field_validator("bundle_width")
-    @classmethod
-    def _width(cls, value: int | str | None) -> int | str | None:
-        if isinstance(value, int) and not 8 <= value <= 4096:
-            raise ValueError("bundle_width must be auto or an integer in 8..4096")
+    def _auto_or_within(cls, value: int | str | None, info: ValidationInfo) -> int | str | None:
+        name = str(info.field_name)
+        low, high = AUTO_OR_WITHIN[name]
+        if isinstance(value, int) and not low <= value <= high:
+            raise ValueError(f"{name} must be auto or an integer in {low}..{high}")
         return value
 
     @model_validator(mode="after")

@@ -8,7 +8,7 @@ from fastapi import APIRouter, File, Form, UploadFile
 
 from api import batch_service
 from api.batch_service import BatchForm
-from api.deps import ParamsForm, PrincipalDep, Responses, ServicesDep, UsersDep
+from api.deps import CallerDep, ParamsForm, Responses
 from api.responses import accepted, links, summary_of, upload_route
 from api.schemas import Batch, BatchCreated, BatchJob, BatchProgress, JobCreated
 from api.uploads import MAX_TAGS
@@ -26,9 +26,7 @@ REFUSED: Responses = {
 
 @upload_route(router, "", BatchCreated, REFUSED)
 def create_batch(
-    svc: ServicesDep,
-    principal: PrincipalDep,
-    users: UsersDep,
+    caller: CallerDep,
     left: Annotated[list[UploadFile], File(description="Left views, one per pair, in order")],
     right: Annotated[list[UploadFile], File(description="Right views, in the same order")],
     params: ParamsForm = None,
@@ -62,6 +60,7 @@ def create_batch(
     views, params, ground truth, memory, QPU budget with the pairs before it, the active-job
     cap) is named in the 4xx and no job is created. Poll the ``Location`` it answers with."""
     form = BatchForm(left, right, params, ground_truth, calib, pairs, tags)
+    svc, principal, users = caller
     batch, records = batch_service.submit_batch(form, principal.name, svc, users)
     body = BatchCreated(
         id=batch.id,
@@ -78,10 +77,10 @@ def create_batch(
     response_model=Batch,
     responses={404: {"description": "No such batch (or it expired, or is someone else's)"}},
 )
-def get_batch(batch_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+def get_batch(batch_id: str, caller: CallerDep):
     """The batch's jobs in the order of its pairs, with their states, and its progress (jobs by
     state). Only its owner and admins see it."""
-    batch, records = batch_service.find_batch(batch_id, svc, principal)
+    batch, records = batch_service.find_batch(batch_id, caller.svc, caller.principal)
     return Batch(
         id=batch.id,
         owner=batch.owner,
@@ -92,7 +91,7 @@ def get_batch(batch_id: str, svc: ServicesDep, principal: PrincipalDep, users: U
                 pair=index,
                 name=entry.name,
                 id=entry.id,
-                job=None if record is None else summary_of(record, users),
+                job=None if record is None else summary_of(record, caller.users),
             )
             for index, (entry, record) in enumerate(zip(batch.jobs, records, strict=True))
         ],

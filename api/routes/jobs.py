@@ -9,21 +9,13 @@ from typing import Annotated, Literal
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, File, Form, Query, Request, UploadFile
+from fastapi import APIRouter, File, Query, Request, UploadFile
 from fastapi.responses import Response
+from pydantic import Field
 
 from api import job_service
 from api.auth import can_see
-from api.deps import (
-    LeftView,
-    ParamsForm,
-    PrincipalDep,
-    Responses,
-    RightView,
-    Services,
-    ServicesDep,
-    UsersDep,
-)
+from api.deps import Caller, CallerDep, PrincipalDep, Responses, Services, ServicesDep, UploadViews
 from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import (
@@ -75,7 +67,8 @@ def budget_warning(record: JobRecord, users: UserStore) -> list[str]:
     return [warning] if warning else []
 
 
-def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
+def status_of(record: JobRecord, caller: Caller) -> JobStatus:
+    svc, _, users = caller
     chunks = svc.store.chunks(record.id)
     progress = svc.store.progress(record, chunks)
     return JobStatus(
@@ -94,69 +87,64 @@ def status_of(record: JobRecord, svc: Services, users: UserStore) -> JobStatus:
     )
 
 
+class JobUpload(UploadViews):
+    """The form of POST /v1/jobs: the views and params, then the job's own fields."""
+
+    ground_truth: UploadFile | None = Field(
+        None, description="Left disparity ground truth (PNG/PGM/PFM/npy)"
+    )
+    gt_scale: float | None = Field(
+        None,
+        ge=GT_SCALE_RANGE[0],
+        le=GT_SCALE_RANGE[1],
+        allow_inf_nan=False,
+        description="Stored value per disparity pixel (e.g. 1, 4, 16, 256); not given: "
+        "inferred from the views, with a warning (422 when they do not tell)",
+    )
+    gt_border: int = Field(
+        GroundTruth.model_fields["border"].default,
+        ge=0,
+        le=MAX_GT_BORDER,
+        description="Ignored frame, pixels",
+    )
+    label: str | None = Field(
+        None, max_length=MAX_LABEL, description="Your name for the job, shown in job lists"
+    )
+    focal: float | None = Field(
+        None, gt=0, allow_inf_nan=False, description="Focal length, px (with baseline: depth)"
+    )
+    baseline: float | None = Field(
+        None,
+        gt=0,
+        allow_inf_nan=False,
+        description="Camera baseline (with focal: depth and a point cloud in its unit)",
+    )
+    doffs: float | None = Field(
+        None, allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"
+    )
+    calib: UploadFile | None = Field(
+        None, description="Calibration file (Middlebury calib.txt or KITTI's): depth and PLY"
+    )
+    tags: str | None = Field(
+        None,
+        max_length=MAX_TAGS * 41,
+        description=f"Comma-separated tags (at most {MAX_TAGS}: letters, digits, '.', '_', "
+        "'-'); GET /v1/jobs?tag= lists the jobs with one",
+    )
+
+    def form(self) -> JobForm:
+        """The job as submitted (its cameras read: a calibration file refused here is a 422)."""
+        cameras = cameras_of(self.focal, self.baseline, self.doffs, self.calib)
+        return JobForm(
+            self.left, self.right, self.params, self.ground_truth, self.gt_scale,
+            self.gt_border, self.label, cameras, self.tags,
+        )  # fmt: skip
+
+
 @upload_route(router, "", JobCreated, REFUSED)
-def create_job(
-    svc: ServicesDep,
-    principal: PrincipalDep,
-    users: UsersDep,
-    left: LeftView,
-    right: RightView,
-    params: ParamsForm = None,
-    ground_truth: Annotated[
-        UploadFile | None, File(description="Left disparity ground truth (PNG/PGM/PFM/npy)")
-    ] = None,
-    gt_scale: Annotated[
-        float | None,
-        Form(
-            ge=GT_SCALE_RANGE[0],
-            le=GT_SCALE_RANGE[1],
-            allow_inf_nan=False,
-            description="Stored value per disparity pixel (e.g. 1, 4, 16, 256); not given: "
-            "inferred from the views, with a warning (422 when they do not tell)",
-        ),
-    ] = None,
-    gt_border: Annotated[
-        int, Form(ge=0, le=MAX_GT_BORDER, description="Ignored frame, pixels")
-    ] = GroundTruth.model_fields["border"].default,
-    label: Annotated[
-        str | None,
-        Form(max_length=MAX_LABEL, description="Your name for the job, shown in job lists"),
-    ] = None,
-    focal: Annotated[
-        float | None,
-        Form(gt=0, allow_inf_nan=False, description="Focal length, px (with baseline: depth)"),
-    ] = None,
-    baseline: Annotated[
-        float | None,
-        Form(
-            gt=0,
-            allow_inf_nan=False,
-            description="Camera baseline (with focal: depth and a point cloud in its unit)",
-        ),
-    ] = None,
-    doffs: Annotated[
-        float | None,
-        Form(allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"),
-    ] = None,
-    calib: Annotated[
-        UploadFile | None,
-        File(description="Calibration file (Middlebury calib.txt or KITTI's): depth and PLY"),
-    ] = None,
-    tags: Annotated[
-        str | None,
-        Form(
-            max_length=MAX_TAGS * 41,
-            description=f"Comma-separated tags (at most {MAX_TAGS}: letters, digits, '.', '_', "
-            "'-'); GET /v1/jobs?tag= lists the jobs with one",
-        ),
-    ] = None,
-):
+def create_job(caller: CallerDep, upload: Annotated[JobUpload, File()]):
     """Queue a matching job; poll the ``Location`` it answers with."""
-    form = JobForm(
-        left, right, params, ground_truth, gt_scale, gt_border, label,
-        cameras_of(focal, baseline, doffs, calib), tags,
-    )  # fmt: skip
-    record = job_service.submit(form, principal.name, svc, users)
+    record = job_service.submit(upload.form(), caller.principal.name, caller.svc, caller.users)
     body = JobCreated(
         id=record.id, state=record.state, links=links(record), warnings=record.warnings
     )
@@ -166,9 +154,7 @@ def create_job(
 @router.get("", response_model=JobPage)
 def list_jobs(
     request: Request,
-    svc: ServicesDep,
-    principal: PrincipalDep,
-    users: UsersDep,
+    caller: CallerDep,
     offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
     tag: Annotated[
@@ -176,6 +162,7 @@ def list_jobs(
     ] = None,
 ):
     """Your jobs, newest first (admins: everyone's); ``?tag=`` only those with the tag."""
+    svc, principal, users = caller
     owner = None if principal.admin else principal.name
     records, total = svc.store.list_jobs(offset, limit, owner=owner, tag=tag)
     items = [summary_of(r, users) for r in records if can_see(principal, r)]
@@ -186,10 +173,10 @@ def list_jobs(
 
 
 @router.get("/{job_id}", response_model=JobStatus, responses=NOT_FOUND)
-def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+def get_job(job_id: str, caller: CallerDep):
     """State, progress, per-level timing, solver usage, metrics, warnings and errors of a
     job."""
-    return status_of(find_job(job_id, svc, principal), svc, users)
+    return status_of(find_job(job_id, caller.svc, caller.principal), caller)
 
 
 @router.delete(
@@ -197,10 +184,10 @@ def get_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Users
     response_model=JobStatus,
     responses={**NOT_FOUND, 409: {"description": "The job already finished"}},
 )
-def cancel_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+def cancel_job(job_id: str, caller: CallerDep):
     """Cancel a queued or running job: its running solver tasks are terminated and bundles
     not solved yet are not solved."""
-    return status_of(job_service.cancel(job_id, svc, principal), svc, users)
+    return status_of(job_service.cancel(job_id, caller.svc, caller.principal), caller)
 
 
 @router.get(
@@ -357,7 +344,8 @@ def get_points(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     return attachment(ply_bytes(points, colours), "application/octet-stream", f"{job_id}.ply")
 
 
-def pin(job_id: str, pinned: bool, svc: Services, principal) -> JobRecord:
+def pin(job_id: str, pinned: bool, caller: Caller) -> JobRecord:
+    svc, principal, _ = caller
     find_job(job_id, svc, principal)
     record = svc.store.pin(job_id, pinned)
     if record is None:  # expired between the two reads
@@ -366,16 +354,16 @@ def pin(job_id: str, pinned: bool, svc: Services, principal) -> JobRecord:
 
 
 @router.post("/{job_id}/pin", response_model=JobStatus, responses=NOT_FOUND)
-def pin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+def pin_job(job_id: str, caller: CallerDep):
     """Keep the job (record, result, maps, views) past the retention until it is unpinned."""
-    return status_of(pin(job_id, True, svc, principal), svc, users)
+    return status_of(pin(job_id, True, caller), caller)
 
 
 @router.delete("/{job_id}/pin", response_model=JobStatus, responses=NOT_FOUND)
-def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+def unpin_job(job_id: str, caller: CallerDep):
     """Let the job expire again: ``QHSM_RESULT_TTL_SECONDS`` after it finished (at once when
     that has passed)."""
-    return status_of(pin(job_id, False, svc, principal), svc, users)
+    return status_of(pin(job_id, False, caller), caller)
 
 
 @router.get(
@@ -383,12 +371,13 @@ def unpin_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: Use
     responses={**NOT_FOUND, 200: {"content": {"application/zip": {}}}},
     response_class=Response,
 )
-def export_job(job_id: str, svc: ServicesDep, principal: PrincipalDep, users: UsersDep):
+def export_job(job_id: str, caller: CallerDep):
     """The job in one zip: ``job.json`` (its status: config, version, levels, usage, metrics,
     charge) and the files it still has: ``disparity.pfm``, ``validity.png``,
     ``confidence.pfm``, ``provenance.png``, ``left.png``."""
+    svc, principal, _ = caller
     record = find_job(job_id, svc, principal)
-    files = {"job.json": status_of(record, svc, users).model_dump_json(indent=2).encode()}
+    files = {"job.json": status_of(record, caller).model_dump_json(indent=2).encode()}
     disparity = svc.store.load_result(job_id) if record.state is JobState.SUCCEEDED else None
     if disparity is not None:
         files["disparity.pfm"] = disparity_bytes(disparity, "pfm")

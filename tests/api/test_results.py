@@ -12,6 +12,7 @@ import pytest
 from api_helpers import LEFT, RIGHT, SCENE, post
 
 from api.users import UserStore
+from tests.calibration import middlebury_calib
 from workers.records import ACTIVE, JobRecord, JobState, now
 
 CAMERAS = {"focal": 100.0, "baseline": 0.5, "doffs": 1.0}
@@ -265,8 +266,7 @@ def test_submit_batch_sends_every_pair_under_one_tag(
     assert "no such directory" in capsys.readouterr().err
 
 
-CALIB = "cam0=[100 0 15.5; 0 100 11.5; 0 0 1]\ncam1=[100 0 16.5; 0 100 11.5; 0 0 1]\n"
-CALIB += "doffs=1\nbaseline=500\nwidth=32\nheight=24\nndisp=8\n"
+CALIB = middlebury_calib(100, (15.5, 16.5), 11.5, doffs=1, baseline=500, size=(32, 24), ndisp=8)
 
 
 def test_a_calibration_file_at_submit_gives_the_depth(api):

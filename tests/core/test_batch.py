@@ -15,15 +15,9 @@ from shared.batch import find_pairs
 from shared.cli import main
 from shared.datasets import load_scene
 from shared.synthetic import make_scene
+from tests.calibration import middlebury_calib
 
-CALIB = """cam0=[500 0 30; 0 500 20; 0 0 1]
-cam1=[500 0 32; 0 500 20; 0 0 1]
-doffs=2
-baseline=100
-width=64
-height=48
-ndisp=14
-"""
+CALIB = middlebury_calib(500, (30, 32), 20, doffs=2, baseline=100, size=(64, 48), ndisp=14)
 
 
 def write_views(folder: Path, names: tuple[str, str], seed: int, swapped: bool = False):

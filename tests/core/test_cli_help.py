@@ -50,7 +50,7 @@ def test_help_shows_defaults_and_nothing_for_unset_options():
         match
     )
     assert "(default: 0)" in match  # added by the formatter
-    assert "--json print a JSON summary --processes" in match  # a switch: no "(default: False)"
+    assert "--json print a summary as JSON --processes" in match  # a switch: no "(default: False)"
     assert "(default: exact)" in match
 
 

@@ -11,18 +11,13 @@ from shared.cli import main
 from shared.datasets.calibration import CalibrationError, read_calibration
 from shared.depth import point_cloud
 from shared.images import load_disparity, save_disparity
+from tests.calibration import middlebury_calib
 
-MIDDLEBURY = """cam0=[3979.911 0 1244.772; 0 3979.911 1019.507; 0 0 1]
-cam1=[3979.911 0 1369.115; 0 3979.911 1019.507; 0 0 1]
-doffs=124.343
-baseline=193.001
-width=2964
-height=1988
-ndisp=270
-isint=0
-vmin=23
-vmax=245
-"""
+#: A full-size Middlebury 2014 calib.txt, with the isint, vmin and vmax lines its files have.
+MIDDLEBURY = middlebury_calib(
+    3979.911, (1244.772, 1369.115), 1019.507, doffs=124.343, baseline=193.001,
+    size=(2964, 1988), ndisp=270, isint=0, vmin=23, vmax=245,
+)  # fmt: skip
 KITTI = (
     "P_rect_02: 7.215377e+02 0.000000e+00 6.095593e+02 4.485728e+01 0.000000e+00 "
     "7.215377e+02 1.728540e+02 2.163791e-01 0.000000e+00 0.000000e+00 1.000000e+00 "

@@ -1,6 +1,8 @@
 """Fake solvers for the service tests, registered through the ``qhsm.solvers`` entry-point
-group: ``qhsm_test_plugin-0.dist-info`` beside this file declares them, so any process with this
-folder on ``sys.path`` / ``PYTHONPATH`` (the API and workers of the tests) finds them.
+group: ``qhsm_test_plugin-0.dist-info`` beside this file names each class under its solver name
+(a sampler factory, registered under the entry point's name: the name is stated there only), so
+any process with this folder on ``sys.path`` / ``PYTHONPATH`` (the API and workers of the tests)
+finds them.
 
 They return the all-zero sample, which every codec decodes by repair to the cheapest label
 given no valid neighbour: deterministic, so distributed and in-process runs can be compared.
@@ -16,10 +18,10 @@ from typing import Any
 import dimod
 import numpy as np
 
-from shared.solvers import Availability, Sampler, SolverError, SolverSpec, TransientSolverError
+from shared.solvers import Availability, Sampler, SolverError, TransientSolverError
 
 
-class _Fake(Sampler):
+class Fake(Sampler):
     parameters: dict[str, list] = {"seed": []}  # noqa: RUF012
     properties: dict[str, Any] = {}  # noqa: RUF012
 
@@ -36,7 +38,7 @@ class _Fake(Sampler):
         pass
 
 
-class _Slow(_Fake):
+class Slow(Fake):
     """Sleeps per bundle; while solving, a file named after the process id marks it busy."""
 
     def act(self, seed: int | None) -> None:
@@ -52,7 +54,7 @@ class _Slow(_Fake):
                 marker.unlink(missing_ok=True)
 
 
-class _Flaky(_Fake):
+class Flaky(Fake):
     """Fails once per bundle seed with a transient error, then succeeds."""
 
     def act(self, seed: int | None) -> None:
@@ -62,19 +64,19 @@ class _Flaky(_Fake):
             raise TransientSolverError("fake-flaky: rate limited, try again later")
 
 
-class _Broken(_Fake):
+class Broken(Fake):
     def act(self, seed: int | None) -> None:
         raise SolverError("fake-broken: the device is on fire; use another solver")
 
 
-class _Sleepy(_Fake):
+class Sleepy(Fake):
     """Sleeps far longer than its task's time limit (interruptible: the soft limit stops it)."""
 
     def act(self, seed: int | None) -> None:
         time.sleep(600)
 
 
-class _Hung(_Fake):
+class Hung(Fake):
     """Like a solver stuck in native code: swallows the soft time limit and keeps going."""
 
     def act(self, seed: int | None) -> None:
@@ -86,7 +88,7 @@ class _Hung(_Fake):
                 continue
 
 
-class _Split(_Fake):
+class Split(Fake):
     """The first bundle ever sleeps (a busy marker names its process); every later one fails
     after a second: a job that fails while another of its tasks still runs."""
 
@@ -102,7 +104,7 @@ class _Split(_Fake):
         time.sleep(600)
 
 
-class _Hog(_Fake):
+class Hog(Fake):
     """Allocates and touches more memory than the test workers' ceiling (2 GiB, well within
     the machine's): only ``QHSM_TASK_MEMORY_LIMIT_MB`` stops it."""
 
@@ -111,21 +113,6 @@ class _Hog(_Fake):
         hog[-1] = seed or 0
 
 
-class _Unavailable(_Fake):
+class Unavailable(Fake):
     def available(self) -> Availability:
         return Availability(False, "fake-unavailable needs hardware this machine lacks")
-
-
-def _spec(name: str, kind: type[_Fake]) -> SolverSpec:
-    return SolverSpec(name, kind, description="test fake", offline=True)
-
-
-SLOW = _spec("fake-slow", _Slow)
-FLAKY = _spec("fake-flaky", _Flaky)
-BROKEN = _spec("fake-broken", _Broken)
-ROUTED = _spec("fake-routed", _Fake)
-SLEEPY = _spec("fake-sleepy", _Sleepy)
-HUNG = _spec("fake-hung", _Hung)
-SPLIT = _spec("fake-split", _Split)
-UNAVAILABLE = _spec("fake-unavailable", _Unavailable)
-HOG = _spec("fake-hog", _Hog)
