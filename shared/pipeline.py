@@ -26,9 +26,9 @@ from functools import partial
 
 import numpy as np
 
-from shared import filters, hypotheses, provenance_map, pyramid
+from shared import filters, hypotheses, kernels, provenance_map, pyramid
 from shared.assembly import LevelSolution
-from shared.config import DataTerm, MatchConfig, PyramidKind
+from shared.config import DataTerm, Inference, MatchConfig, PyramidKind
 from shared.data_terms import cost_volume
 from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
 from shared.finishing import finish_level, finish_maps, level_stages
@@ -329,6 +329,8 @@ def run_pipeline(
         The disparity, per-level reports, wall time and the disparity range used.
     """
     started = time.perf_counter()
+    if config.inference is Inference.GRID:
+        kernels.preload()  # numba's start beside the views' check and the volumes
     left, right = match_views(left, right, config)
     estimate, plans = plan_run(left, right, config)
     if estimate.warning and not force:
