@@ -214,7 +214,7 @@ def _load_jit() -> None:
     try:
         one = np.zeros((1, 1), dtype=np.int32)
         disagreements.jit()(one, one)
-    except Exception:  # noqa: BLE001 - the first real call raises it where it matters
+    except Exception:  # the first real call raises it where it matters
         return
 
 
