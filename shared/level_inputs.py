@@ -16,6 +16,7 @@ from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
+from shared.threads import beside
 
 #: Rows of a cost volume built at once for a bundle of many rows (a grid's whole view): the
 #: block's (D + 1) x rows x w float32 within this.
@@ -307,19 +308,21 @@ class LevelInputs:
             One (bins, view_height, w) array per view, of the data term's precision.
         """
         max_disparity = self.plan.max_disparity
-        binned = []
-        for left, right in self.view_images():
-            blocks = self._volume_blocks(0, self.view_height)
+
+        def binned(left: np.ndarray, right: np.ndarray) -> np.ndarray:
             view: np.ndarray | None = None
-            for start, stop in blocks:
+            for start, stop in self._volume_blocks(0, self.view_height):
                 volume = cost_volume(data_term, left, right, max_disparity, start, stop)
                 block = bin_minimum(volume, bin_width)
                 if view is None:
                     view = np.empty((len(block), self.view_height, self.shape[1]), block.dtype)
                 view[:, start:stop] = block
             assert view is not None  # a view has rows
-            binned.append(view)
-        return binned
+            return view
+
+        views = self.view_images()  # the other views on the spare core (a block each at a time)
+        later = [beside(binned, left, right) for left, right in views[1:]]
+        return [binned(*views[0]), *(view() for view in later)]
 
     def binned_volumes(self) -> list[np.ndarray]:
         """The cached volumes' bin minima per view at this level's width, built once (call before
