@@ -40,8 +40,10 @@ def cmd_match(args: argparse.Namespace) -> int:
     the disparity map to ``output`` (.pfm, .png or .npy), with the ``MatchConfig`` options,
     ``preview``, ``json`` and ``processes``; 0 on success. A solver not available here or an
     unsupported output suffix is a ``CommandError``."""
+    from shared import kernels
     from shared.activity import reporting
     from shared.cli_options import CommandError, config_from_args
+    from shared.config import Inference
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
     from shared.images import load_pair, preview_png, save_maps
     from shared.pipeline import run_pipeline
@@ -52,6 +54,8 @@ def cmd_match(args: argparse.Namespace) -> int:
     from shared.solvers.registry import resolve
 
     config = config_from_args(args)
+    if config.inference is Inference.GRID:
+        kernels.preload()  # numba's start beside reading the views and the first level's work
     solver = resolve(config)
     solver.bundle_width_setting()  # a width the solver cannot use: say so before any work
     # a row solver (exact) runs here on the CPU: no sampler built for it (that imports dimod)

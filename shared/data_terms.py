@@ -67,7 +67,12 @@ def squared_difference(left: np.ndarray, right: np.ndarray, candidates: np.ndarr
 
 
 def squared_volume(
-    left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+    left: np.ndarray,
+    right: np.ndarray,
+    max_disparity: int,
+    start: int,
+    stop: int,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """The squared difference of rows [start, stop) at every disparity 0..D, (D + 1, n, w)
     float64 (what the bin pyramid needs to take a bin's minimum; whole views in, gray or colour).
@@ -80,6 +85,8 @@ def squared_volume(
         Largest disparity D of the volume.
     start, stop : int
         The rows [start, stop) to cost.
+    out : numpy.ndarray, optional
+        Where to write them (see :func:`cost_volume`).
 
     Returns
     -------
@@ -93,7 +100,8 @@ def squared_volume(
         [
             (left_rows - right_rows[:, max_disparity - d : max_disparity - d + width]) ** 2
             for d in range(max_disparity + 1)
-        ]
+        ],
+        out=out,
     )
 
 
@@ -137,7 +145,12 @@ def _block_rows(view: np.ndarray, start: int, stop: int) -> np.ndarray:
 
 
 def ad_census_volume(
-    left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+    left: np.ndarray,
+    right: np.ndarray,
+    max_disparity: int,
+    start: int,
+    stop: int,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Aggregated AD-census costs (D + 1, stop - start, w) float32 of rows [start, stop).
 
@@ -152,6 +165,8 @@ def ad_census_volume(
         D: the volume holds the disparities 0..D.
     start, stop : int
         The block of rows costed.
+    out : numpy.ndarray, optional
+        Where to write the costs (see :func:`cost_volume`).
 
     Returns
     -------
@@ -174,11 +189,16 @@ def ad_census_volume(
             ad = cv2.transform(ad, channel_mean)
         return cv2.exp(np.multiply(ad, np.float32(-1.0 / AD_SCALE), out=ad))
 
-    return _census_and(census_left, census_right, ad_term, max_disparity, stop - start)
+    return _census_and(census_left, census_right, ad_term, max_disparity, stop - start, out)
 
 
 def census_gradient_volume(
-    left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+    left: np.ndarray,
+    right: np.ndarray,
+    max_disparity: int,
+    start: int,
+    stop: int,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Aggregated census + gradient costs (D + 1, stop - start, w) float32 of rows [start, stop).
 
@@ -201,7 +221,7 @@ def census_gradient_volume(
         )
         return cv2.exp(np.multiply(gradient, np.float32(-1.0 / GRADIENT_SCALE), out=gradient))
 
-    return _census_and(census_left, census_right, gradient_term, max_disparity, stop - start)
+    return _census_and(census_left, census_right, gradient_term, max_disparity, stop - start, out)
 
 
 def _census_and(
@@ -210,11 +230,12 @@ def _census_and(
     term: Callable[[slice], np.ndarray],
     max_disparity: int,
     rows: int,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """The volume 1/2 [(1 - exp(-H / 30)) + (1 - term)] of every disparity, 5x5 box-aggregated:
     H from the census codes (the right view's :func:`_shifted`), ``term(columns)`` the other
     term's exp(-x / scale) with the right view read at ``columns``; each has the block's rows
-    plus the aggregation's reach on both sides."""
+    plus the aggregation's reach on both sides; written into ``out`` when given."""
     width = census_left.shape[1]
     # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - term / 2
     table = np.zeros(256, dtype=np.float32)
@@ -222,7 +243,7 @@ def _census_and(
     table += 0.5
     box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
     reach = AGGREGATION_WINDOW // 2
-    volume = np.empty((max_disparity + 1, rows, width), dtype=np.float32)
+    volume = np.empty((max_disparity + 1, rows, width), np.float32) if out is None else out
     # scratch for the codes' differing bits and their count, reused at every disparity
     differing = np.empty(census_left.shape, dtype=census_left.dtype)
     hamming = np.empty(census_left.shape, dtype=np.uint8)
@@ -244,8 +265,8 @@ def _sobel(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-VolumeFunction = Callable[[np.ndarray, np.ndarray, int, int, int], np.ndarray]
-"""``(left, right, max_disparity, start, stop) -> (D + 1, stop - start, w)`` costs."""
+VolumeFunction = Callable[..., np.ndarray]
+"""``(left, right, max_disparity, start, stop, out=None) -> (D + 1, stop - start, w)`` costs."""
 
 #: Every data term as a cost volume over all disparities, by its ``MatchConfig.data_term`` name:
 #: a new data term is one function here and one name in :class:`shared.config.DataTerm`.
@@ -264,12 +285,25 @@ def window_reach(data_term: str) -> int:
 
 
 def cost_volume(
-    data_term: str, left: np.ndarray, right: np.ndarray, max_disparity: int, start: int, stop: int
+    data_term: str,
+    left: np.ndarray,
+    right: np.ndarray,
+    max_disparity: int,
+    start: int,
+    stop: int,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """The cost volume (D + 1, stop - start, w) of rows [start, stop) under the
     :class:`shared.config.DataTerm` named ``data_term`` (:data:`VOLUMES`); the other arguments
-    as in :func:`ad_census_volume`."""
-    return VOLUMES[data_term](left, right, max_disparity, start, stop)
+    as in :func:`ad_census_volume`. ``out`` (of the term's dtype, :func:`volume_dtype`; any
+    strides) receives the costs, which are returned: a buffer reused from block to block of
+    rows saves the page faults of a fresh 64 MiB array per block (5 % of an Art x3 run)."""
+    return VOLUMES[data_term](left, right, max_disparity, start, stop, out=out)
+
+
+def volume_dtype(data_term: str) -> type:
+    """The dtype of ``data_term``'s :func:`cost_volume`."""
+    return np.float64 if data_term == "squared" else np.float32
 
 
 def bin_minimum(volume: np.ndarray, bin_width: int) -> np.ndarray:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -189,3 +190,35 @@ neighbour_costs = Kernel("_neighbour_costs", _COMPILED)
 disagreements = Kernel("_disagreements", _COMPILED)
 subgradient_step = Kernel("_subgradient_step", _COMPILED)
 trws_pass = Kernel("_trws_pass", _COMPILED)
+
+
+_preloading: threading.Thread | None = None
+
+
+def preload() -> None:
+    """Load numba and the kernels' cache in a background thread, once per process, when some
+    kernel has no compiled module: numba's import and target set-up (0.7-0.9 s CPU, mostly
+    Python holding the GIL) then overlap the work before the first level's solve (reading the
+    views, their check, the cost volumes: OpenCV and NumPy release the GIL), instead of
+    following it. A kernel called meanwhile waits for the import and numba's compiler lock;
+    a failure here is left to that call to raise."""
+    global _preloading
+    if _preloading is not None or all(kernel.compiled is not None for kernel in _ALL):
+        return
+    _preloading = threading.Thread(target=_load_jit, name="qhsm-kernel-preload", daemon=True)
+    _preloading.start()
+
+
+def _load_jit() -> None:
+    """numba's set-up and one kernel's cached code (every later kernel then loads in ms)."""
+    try:
+        one = np.zeros((1, 1), dtype=np.int32)
+        disagreements.jit()(one, one)
+    except Exception:  # the first real call raises it where it matters
+        return
+
+
+_ALL = (
+    chains_windows, chains_general, grid_energy, neighbour_costs, disagreements,
+    subgradient_step, trws_pass,
+)  # fmt: skip

@@ -11,11 +11,19 @@ import numpy as np
 
 from shared.bundles import Bundle, bundle_rows, segment_columns
 from shared.config import DataTerm, LevelConfig, MatchConfig
-from shared.data_terms import bin_minimum, cost_volume, gather, gather_window, squared_difference
+from shared.data_terms import (
+    bin_minimum,
+    cost_volume,
+    gather,
+    gather_window,
+    squared_difference,
+    volume_dtype,
+)
 from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
+from shared.threads import beside
 
 #: Rows of a cost volume built at once for a bundle of many rows (a grid's whole view): the
 #: block's (D + 1) x rows x w float32 within this.
@@ -245,11 +253,21 @@ class LevelInputs:
         """Whether this level's bin costs come from the cached ``volumes``."""
         return self.volumes is not None and self.plan.bin_width % self.volume_bin_width == 0
 
-    def _bin_costs(self, data_term: DataTerm, view: int, first: int, last: int) -> np.ndarray:
-        """The data term of every label (bins, last - first, w) on rows of one view."""
+    def _bin_costs(
+        self,
+        data_term: DataTerm,
+        view: int,
+        first: int,
+        last: int,
+        scratch: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The data term of every label (bins, last - first, w) on rows of one view; the full
+        volume of the rows goes into ``scratch`` (:meth:`_scratch`) when given, so the result
+        may be a view of it."""
         if not self._cached():
             left, right = self.view_images()[view]
-            volume = cost_volume(data_term, left, right, self.plan.max_disparity, first, last)
+            out = None if scratch is None else scratch[:, : last - first]
+            volume = cost_volume(data_term, left, right, self.plan.max_disparity, first, last, out)
             return bin_minimum(volume, self.plan.bin_width)
         return self.binned_volumes()[view][:, first:last]
 
@@ -278,10 +296,21 @@ class LevelInputs:
         if self._cached():
             return pick(self._bin_costs(data_term, view, first, last), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
-        for start, stop in self._volume_blocks(first, last):
+        blocks = self._volume_blocks(first, last)
+        scratch = self._scratch(data_term, blocks)
+        for start, stop in blocks:
             rows = slice(start - first, stop - first)
-            costs[rows] = pick(self._bin_costs(data_term, view, start, stop), rows)
+            costs[rows] = pick(self._bin_costs(data_term, view, start, stop, scratch), rows)
         return costs
+
+    def _scratch(self, data_term: DataTerm, blocks: list[tuple[int, int]]) -> np.ndarray | None:
+        """One block's full volume, for every block of ``blocks`` in turn (None for one block):
+        a fresh array per block costs its page faults every time."""
+        if len(blocks) < 2:
+            return None
+        rows = blocks[0][1] - blocks[0][0]
+        shape = (self.plan.max_disparity + 1, rows, self.shape[1])
+        return np.empty(shape, dtype=volume_dtype(data_term))
 
     def _volume_blocks(self, first: int, last: int) -> list[tuple[int, int]]:
         """Rows [first, last) in blocks whose full cost volume fits :data:`VOLUME_BLOCK_BYTES`."""
@@ -307,19 +336,24 @@ class LevelInputs:
             One (bins, view_height, w) array per view, of the data term's precision.
         """
         max_disparity = self.plan.max_disparity
-        binned = []
-        for left, right in self.view_images():
-            blocks = self._volume_blocks(0, self.view_height)
+
+        def binned(left: np.ndarray, right: np.ndarray) -> np.ndarray:
             view: np.ndarray | None = None
+            blocks = self._volume_blocks(0, self.view_height)
+            scratch = self._scratch(data_term, blocks)
             for start, stop in blocks:
-                volume = cost_volume(data_term, left, right, max_disparity, start, stop)
+                out = None if scratch is None else scratch[:, : stop - start]
+                volume = cost_volume(data_term, left, right, max_disparity, start, stop, out)
                 block = bin_minimum(volume, bin_width)
                 if view is None:
                     view = np.empty((len(block), self.view_height, self.shape[1]), block.dtype)
                 view[:, start:stop] = block
             assert view is not None  # a view has rows
-            binned.append(view)
-        return binned
+            return view
+
+        views = self.view_images()  # the other views on the spare core (a block each at a time)
+        later = [beside(binned, left, right) for left, right in views[1:]]
+        return [binned(*views[0]), *(view() for view in later)]
 
     def binned_volumes(self) -> list[np.ndarray]:
         """The cached volumes' bin minima per view at this level's width, built once (call before

@@ -26,17 +26,23 @@ from functools import partial
 
 import numpy as np
 
-from shared import filters, hypotheses, provenance_map, pyramid
+from shared import filters, hypotheses, kernels, provenance_map, pyramid
 from shared.assembly import LevelSolution
-from shared.config import DataTerm, MatchConfig, PyramidKind
+from shared.config import DataTerm, Inference, MatchConfig, PyramidKind
 from shared.data_terms import cost_volume
-from shared.disparity_range import RangeEstimate, ViewsRefusedError, resolve_max_disparity
+from shared.disparity_range import (
+    RangeEstimate,
+    ViewsRefusedError,
+    ViewsWarning,
+    resolve_max_disparity,
+)
 from shared.finishing import finish_level, finish_maps, level_stages
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
 from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.level_report import LevelReport
 from shared.pyramid import LevelPlan
+from shared.threads import beside
 
 SolveLevel = Callable[..., LevelSolution]
 """``(inputs, config[, progress=shared.inference.BundleProgress]) -> LevelSolution``: one level."""
@@ -141,6 +147,30 @@ def plan_run(
     if warning:
         warnings.warn(warning, pyramid.RangeWarning, stacklevel=2)
     return estimate, pyramid.plan(config, estimate.max_disparity)
+
+
+def _plan_beside(
+    left: np.ndarray, right: np.ndarray, config: MatchConfig
+) -> tuple[Callable[[], RangeEstimate], list[LevelPlan]]:
+    """:func:`plan_run`, with the views' check left running in a thread when the range is
+    given (the plans do not depend on it; it costs about as much as the first level's volumes,
+    which it overlaps): a getter of the estimate, which issues the check's
+    :class:`~shared.disparity_range.ViewsWarning` when it has one, and the plans."""
+    if not isinstance(config.max_disparity, int):
+        estimate, plans = plan_run(left, right, config)
+        return lambda: estimate, plans
+    pending = beside(resolve_max_disparity, left, right, config.max_disparity, warn=False)
+    warning = pyramid.range_warning(config, config.max_disparity)
+    if warning:
+        warnings.warn(warning, pyramid.RangeWarning, stacklevel=3)
+
+    def checked() -> RangeEstimate:
+        estimate = pending()
+        if estimate.warning:
+            warnings.warn(estimate.warning, ViewsWarning, stacklevel=3)
+        return estimate
+
+    return checked, pyramid.plan(config, config.max_disparity)
 
 
 def level_views(
@@ -329,10 +359,11 @@ def run_pipeline(
         The disparity, per-level reports, wall time and the disparity range used.
     """
     started = time.perf_counter()
+    if config.inference is Inference.GRID:
+        kernels.preload()  # numba's start beside the views' check and the volumes
     left, right = match_views(left, right, config)
-    estimate, plans = plan_run(left, right, config)
-    if estimate.warning and not force:
-        raise ViewsRefusedError(estimate.warning)
+    checked, plans = _plan_beside(left, right, config)
+    estimate: RangeEstimate | None = None
     reports: list[LevelReport] = []
     level_map: np.ndarray | None = None
     stages: np.ndarray | None = None
@@ -344,6 +375,9 @@ def run_pipeline(
         inputs = prepare_level(left, right, config, plan, level_map, inputs)
         if plan.index == 0:
             volumes, volume_bin_width = _cached_volumes(inputs, config, plans)
+            estimate = checked()  # the views' check, done beside the volumes
+            if estimate.warning and not force:
+                raise ViewsRefusedError(estimate.warning)
         elif plan.bin_width < volume_bin_width:
             volumes = None  # finer than the cached bins: no later level reads them
         inputs.volumes, inputs.volume_bin_width = volumes, volume_bin_width
@@ -358,7 +392,8 @@ def run_pipeline(
         reports.append(report(inputs, solution, time.perf_counter() - level_started))
         if progress is not None:
             progress(plan.index + 1, len(plans), solution.bundles, solution.bundles)
-    assert level_map is not None and inputs is not None  # plan() gives at least one level
+    # plan() gives at least one level, the first index 0
+    assert level_map is not None and inputs is not None and estimate is not None
     left_volume = volumes[0] if volumes and volume_bin_width == 1 else None
     disparity, validity, provenance = finish_maps(
         level_map, left, right, config, plans[-1], inputs.views, left_volume, stages
@@ -414,9 +449,12 @@ def _cached_volumes(
         if bins * height * width * 4 * inputs.views > VOLUME_CACHE_BYTES:
             continue
         if bin_width == 1:  # the full volumes (the sub-pixel fit and the confidence read them)
-            return [
-                cost_volume(config.data_term, left, right, max_disparity, 0, height)
-                for left, right in inputs.view_images()
-            ], 1
+            views = inputs.view_images()  # the other views' volumes on the spare core
+            later = [
+                beside(cost_volume, config.data_term, left, right, max_disparity, 0, height)
+                for left, right in views[1:]
+            ]
+            first = cost_volume(config.data_term, *views[0], max_disparity, 0, height)
+            return [first, *(volume() for volume in later)], 1
         return inputs.binned_view_volumes(config.data_term, bin_width), bin_width
     return None, 1

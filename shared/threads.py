@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
 
 #: The environment variables the native thread pools read when they start.
 THREAD_VARIABLES = (
@@ -30,6 +32,8 @@ THREAD_VARIABLES = (
 #: Set by :func:`limit_threads` for the processes it starts: the user's own thread count ("" for
 #: none), so that the values it wrote into :data:`THREAD_VARIABLES` are not taken for the user's.
 USER_VARIABLE = "QHSM_USER_THREADS"
+
+T = TypeVar("T")
 
 _budget: int | None = None
 
@@ -159,3 +163,17 @@ def threads() -> int:
         At least 1.
     """
     return _budget if _budget is not None else thread_budget()
+
+
+def beside(function: Callable[..., T], *args: Any, **kwargs: Any) -> Callable[[], T]:
+    """Start ``function(*args, **kwargs)`` in a thread of its own when this process's budget
+    (:func:`threads`) has a core to spare, else call it now; the result is a getter that waits
+    for it (and raises what it raised). Why: NumPy and OpenCV release the GIL, so independent
+    steps of a run (the views' check, the other view's cost volume) take the idle core."""
+    if threads() < 2:
+        value = function(*args, **kwargs)
+        return lambda: value
+    pool = ThreadPoolExecutor(1, thread_name_prefix="qhsm-beside")
+    future = pool.submit(function, *args, **kwargs)
+    pool.shutdown(wait=False)  # the thread ends with the call
+    return future.result

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import filters, pipeline, pyramid
+from shared import filters, level_inputs, pipeline, pyramid
 from shared.config import MatchConfig, Preset
 from shared.data_terms import ad_census_volume, bin_minimum, census, window_reach
 from shared.disparity_range import estimate_max_disparity
@@ -107,6 +107,23 @@ def test_bins_of_bins_are_the_bins_of_the_volume(volume_width, bins, finer):
     np.testing.assert_array_equal(
         bin_minimum(bin_minimum(volume, 2**finer), 2**bins), bin_minimum(volume, width)
     )
+
+
+@pytest.mark.parametrize("block_bytes", [1, 25_000])  # rows 1 by 1; 5 blocks, the last shorter
+def test_the_cached_bins_built_in_blocks_are_the_whole_views_bins(monkeypatch, block_bytes):
+    """The coarse levels' cache is built a block of rows at a time, every block's volume in
+    one buffer reused: the very bins of each whole view's volume."""
+    scene = make_scene(24, 40, max_disparity=30, seed=2)
+    config = MatchConfig(max_disparity=30)
+    _, plans = plan_run(scene.left, scene.right, config)
+    inputs = prepare_level(scene.left, scene.right, config, plans[0])
+    monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", 2**40)
+    whole = inputs.binned_view_volumes(config.data_term, 2)
+    monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", block_bytes)
+    assert len(inputs._volume_blocks(0, inputs.view_height)) > 1
+    blocked = inputs.binned_view_volumes(config.data_term, 2)
+    for view, expected in zip(blocked, whole, strict=True):
+        np.testing.assert_array_equal(view, expected)
 
 
 @pytest.mark.parametrize(("cache_bytes", "cached"), [(0, None), (150_000, 2), (2**30, 1)])

@@ -89,3 +89,29 @@ def test_match_with_compiled_kernels_imports_no_numba_and_gives_the_same_map(tmp
         heavy = "HEAVY numba,scipy\n" if cache.name == "none" else "HEAVY \n"
         assert heavy in done.stdout
     assert maps[0] == maps[1]
+
+
+def test_preload_loads_the_jit_kernels_in_one_background_thread(tmp_path):
+    """Without a compiled module, ``kernels.preload`` imports numba and loads a kernel in a
+    thread of its own, once per process, so that the first level's solve finds them loaded."""
+    probe = """
+import sys
+from shared import kernels
+assert "shared.grid_kernels" not in sys.modules
+kernels.preload()
+started = kernels._preloading
+kernels.preload()
+assert kernels._preloading is started and started.daemon
+started.join(120)
+print("LOADED", "shared.grid_kernels" in sys.modules, kernels.disagreements._jit is not None)
+"""
+    done = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(tmp_path)},
+        timeout=180,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "LOADED True True" in done.stdout

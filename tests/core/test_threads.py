@@ -7,13 +7,17 @@ import json
 import os
 import subprocess
 import sys
+import threading
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+import shared.threads as threads_module
 from shared.threads import (
     THREAD_VARIABLES,
     USER_VARIABLE,
+    beside,
     cores,
     inherited_threads,
     thread_budget,
@@ -59,3 +63,24 @@ def test_limit_threads_sizes_opencv_and_numba_in_a_new_process():
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     assert json.loads(done.stdout) == [1, 1, 1]
+
+
+def _thread_name(fail: bool = False) -> str:
+    if fail:
+        raise ValueError("raised in the thread")
+    return threading.current_thread().name
+
+
+def test_beside_runs_on_a_spare_core_and_raises_there(monkeypatch):
+    monkeypatch.setattr(threads_module, "_budget", 2)
+    assert beside(_thread_name)() != threading.current_thread().name
+    failed = beside(_thread_name, fail=True)
+    with pytest.raises(ValueError, match="raised in the thread"):
+        failed()
+
+
+def test_beside_calls_now_without_a_spare_core(monkeypatch):
+    monkeypatch.setattr(threads_module, "_budget", 1)  # a worker's pool process: its core alone
+    assert beside(_thread_name)() == threading.current_thread().name
+    with pytest.raises(ValueError, match="raised in the thread"):
+        beside(_thread_name, fail=True)
