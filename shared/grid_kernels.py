@@ -253,28 +253,30 @@ def _neighbour_costs(
 
 
 @numba.njit(cache=True, nogil=True)
-def _disagreements(row_labels, column_labels_turned):  # pragma: no cover - jit
-    """Pixels whose row label differs from their column label (the latter stored transposed)."""
+def _disagreements(row_labels, column_labels):  # pragma: no cover - jit
+    """Pixels whose row label differs from their column label (both (h, w): read in the same
+    order; the transposed layout's strided reads cost more than the transpose)."""
     height, width = row_labels.shape
     count = 0
     for y in range(height):
         for x in range(width):
-            if row_labels[y, x] != column_labels_turned[x, y]:
+            if row_labels[y, x] != column_labels[y, x]:
                 count += 1
     return count
 
 
 @numba.njit(cache=True, nogil=True)
 def _subgradient_step(
-    multipliers, multipliers_turned, row_labels, column_labels_turned, step
+    multipliers, multipliers_turned, row_labels, column_labels, step
 ):  # pragma: no cover - jit
-    """Where row and column labels disagree: + step on the row label's multiplier, - step on the
-    column label's, in both copies of the multipliers (by rows, and transposed for the column
-    chains); float32 like numpy's in-place update."""
+    """Where row and column labels (both (h, w)) disagree: + step on the row label's
+    multiplier, - step on the column label's, in both copies of the multipliers (by rows, and
+    transposed for the column chains); float32 like numpy's in-place update. The labels are read
+    in row order; only the disagreeing pixels (a few %) touch the transposed copy."""
     height, width = row_labels.shape
     for y in range(height):
         for x in range(width):
-            here, there = row_labels[y, x], column_labels_turned[x, y]
+            here, there = row_labels[y, x], column_labels[y, x]
             if here != there:
                 multipliers[y, x, here] += step
                 multipliers[y, x, there] -= step
