@@ -220,7 +220,10 @@ def _neighbour_costs(
     candidates, first, windows, weight_h, weight_v, slope, truncation, labels, vertical, out
 ):  # pragma: no cover - jit
     """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
-    its vertical (or horizontal) neighbours."""
+    its vertical (or horizontal) neighbours (the one before, then the one after)."""
+    if windows:
+        _neighbour_costs_windows(first, weight_h, weight_v, slope, truncation, labels, vertical, out)
+        return
     height, width, count = out.shape
     table = _regulariser_table(slope, truncation)
     for y in range(height):
@@ -250,6 +253,44 @@ def _neighbour_costs(
                 if has_after:
                     total += weight_after * _tabled(table, here - after, slope, truncation)
                 out[y, x, k] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def _neighbour_costs_windows(
+    first, weight_h, weight_v, slope, truncation, labels, vertical, out
+):  # pragma: no cover - jit
+    """:func:`_neighbour_costs` of a window grid without a branch per candidate: candidate k's
+    label difference to a neighbour's label is d + k, its regulariser ``table[d + k + reach]``
+    over every difference the grid's labels allow (the same floats as :func:`_tabled`); a
+    missing neighbour is weight 0 (0 + w r and w r + 0 are the same floats: r is finite)."""
+    height, width, count = out.shape
+    lowest, highest = first[0, 0], first[0, 0]
+    for y in range(height):
+        for x in range(width):
+            lowest, highest = min(lowest, first[y, x]), max(highest, first[y, x])
+    reach = highest - lowest + count
+    table = np.empty(2 * reach + 1)
+    for d in range(-reach, reach + 1):
+        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
+    for y in range(height):
+        for x in range(width):
+            here = first[y, x]
+            before, after, weight_before, weight_after = here, here, 0.0, 0.0
+            if vertical:
+                if y > 0:
+                    before, weight_before = first[y - 1, x] + labels[y - 1, x], weight_v[y - 1, x]
+                if y + 1 < height:
+                    after, weight_after = first[y + 1, x] + labels[y + 1, x], weight_v[y, x]
+            else:
+                if x > 0:
+                    before, weight_before = first[y, x - 1] + labels[y, x - 1], weight_h[y, x - 1]
+                if x + 1 < width:
+                    after, weight_after = first[y, x + 1] + labels[y, x + 1], weight_h[y, x]
+            offset_before, offset_after = here - before + reach, here - after + reach
+            for k in range(count):
+                out[y, x, k] = (
+                    weight_before * table[offset_before + k] + weight_after * table[offset_after + k]
+                )
 
 
 @numba.njit(cache=True, nogil=True)
