@@ -133,6 +133,8 @@ class GridMRF:
         per_row = grid_energy(
             self.unary,
             self.candidates,
+            self.windows(),
+            self.first is not None,
             self.weight_h,
             self.weight_v,
             self.slope,

@@ -37,11 +37,62 @@ def _tabled(table, difference, slope, truncation):  # pragma: no cover - jit
     return _regulariser(distance, 0, slope, truncation)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
+    """The label candidate ``k`` of pixel (y, x) stands for."""
+    return first[y, x] + k if windows else candidates[y, x, k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _label_table(first, count, slope, truncation):  # pragma: no cover - jit
+    """``_regulariser(|d|, 0)`` at index ``d + reach`` for every difference d of two labels of a
+    window grid (reach returned): lookups without ``abs`` or a branch (the same floats as
+    :func:`_tabled`)."""
+    height, width = first.shape
+    lowest, highest = first[0, 0], first[0, 0]
+    for y in range(height):
+        for x in range(width):
+            lowest, highest = min(lowest, first[y, x]), max(highest, first[y, x])
+    reach = highest - lowest + count
+    table = np.empty(2 * reach + 1)
+    for d in range(-reach, reach + 1):
+        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
+    return table, reach
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_energy_windows(
+    unary, first, weight_h, weight_v, slope, truncation, labels
+):  # pragma: no cover - jit
+    """:func:`_grid_energy` of a window grid: labels from ``first`` (no gather over the
+    candidates), regularisers from :func:`_label_table`; each row summed in the same order
+    (unary, right edge, lower edge)."""
+    height, width, count = unary.shape
+    table, reach = _label_table(first, count, slope, truncation)
+    per_row = np.zeros(height)
+    for y in range(height):
+        total = 0.0
+        below = min(y + 1, height - 1)
+        lower = y + 1 < height
+        for x in range(width):
+            label = labels[y, x]
+            here = first[y, x] + label + reach
+            total += unary[y, x, label]
+            if x + 1 < width:
+                total += weight_h[y, x] * table[here - first[y, x + 1] - labels[y, x + 1]]
+            if lower:
+                total += weight_v[y, x] * table[here - first[below, x] - labels[below, x]]
+        per_row[y] = total
+    return per_row
+
+
 @numba.njit(cache=True, nogil=True)
 def _grid_energy(
-    unary, candidates, weight_h, weight_v, slope, truncation, labels
+    unary, candidates, first, windows, weight_h, weight_v, slope, truncation, labels
 ):  # pragma: no cover - jit
     """E(x) of a labelling: each row's unary, horizontal and downward vertical terms."""
+    if windows:
+        return _grid_energy_windows(unary, first, weight_h, weight_v, slope, truncation, labels)
     height, width, _ = unary.shape
     table = _regulariser_table(slope, truncation)
     per_row = np.zeros(height)
@@ -58,12 +109,6 @@ def _grid_energy(
                 total += weight_v[y, x] * _tabled(table, here - there, slope, truncation)
         per_row[y] = total
     return per_row
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
-    """The label candidate ``k`` of pixel (y, x) stands for."""
-    return first[y, x] + k if windows else candidates[y, x, k]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -261,17 +306,10 @@ def _neighbour_costs_windows(
 ):  # pragma: no cover - jit
     """:func:`_neighbour_costs` of a window grid without a branch per candidate: candidate k's
     label difference to a neighbour's label is d + k, its regulariser ``table[d + k + reach]``
-    over every difference the grid's labels allow (the same floats as :func:`_tabled`); a
+    (:func:`_label_table`); a
     missing neighbour is weight 0 (0 + w r and w r + 0 are the same floats: r is finite)."""
     height, width, count = out.shape
-    lowest, highest = first[0, 0], first[0, 0]
-    for y in range(height):
-        for x in range(width):
-            lowest, highest = min(lowest, first[y, x]), max(highest, first[y, x])
-    reach = highest - lowest + count
-    table = np.empty(2 * reach + 1)
-    for d in range(-reach, reach + 1):
-        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
+    table, reach = _label_table(first, count, slope, truncation)
     for y in range(height):
         for x in range(width):
             here = first[y, x]
