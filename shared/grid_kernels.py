@@ -45,14 +45,9 @@ def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
 
 @numba.njit(cache=True, nogil=True)
 def _label_table(first, count, slope, truncation):  # pragma: no cover - jit
-    """``_regulariser(|d|, 0)`` at index ``d + reach`` for every difference d of two labels of a
-    window grid (reach returned): lookups without ``abs`` or a branch (the same floats as
-    :func:`_tabled`)."""
-    height, width = first.shape
-    lowest, highest = first[0, 0], first[0, 0]
-    for y in range(height):
-        for x in range(width):
-            lowest, highest = min(lowest, first[y, x]), max(highest, first[y, x])
+    """``_regulariser(|d|, 0)`` at ``d + reach`` for every label difference d of a window grid
+    (reach returned): lookups without ``abs`` or a branch (:func:`_tabled`'s floats)."""
+    lowest, highest = (first.min(), first.max()) if first.size else (0, 0)
     reach = highest - lowest + count
     table = np.empty(2 * reach + 1)
     for d in range(-reach, reach + 1):
@@ -72,8 +67,7 @@ def _grid_energy_windows(
     per_row = np.zeros(height)
     for y in range(height):
         total = 0.0
-        below = min(y + 1, height - 1)
-        lower = y + 1 < height
+        below, lower = min(y + 1, height - 1), y + 1 < height
         for x in range(width):
             label = labels[y, x]
             here = first[y, x] + label + reach
@@ -125,22 +119,6 @@ def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
     return arg
 
 
-@numba.njit(cache=True, nogil=True)
-def _difference_table(first, count, slope, truncation):  # pragma: no cover - jit
-    """``_regulariser(|d|, 0)`` for every label difference d of two neighbours' window
-    candidates, at index ``d + reach`` (reach returned): the read-back's lookups without a branch
-    (the same floats as :func:`_tabled`)."""
-    chains, length = first.shape
-    reach = count
-    for chain in range(chains):
-        for x in range(1, length):
-            reach = max(reach, abs(first[chain, x] - first[chain, x - 1]) + count)
-    table = np.empty(2 * reach + 1)
-    for d in range(-reach, reach + 1):
-        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
-    return table, reach
-
-
 @numba.njit(cache=True, nogil=True, inline="always")
 def _window_message(
     messages, x, envelope, step, ceiling, shift, base, scale, extra, sign, chain
@@ -175,7 +153,7 @@ def _chains_windows(
     envelope passes, chains of dependent additions, interleaved in one loop."""
     chains, length, count = base.shape
     energies = np.empty(chains)
-    table, reach = _difference_table(first, count, slope, truncation)
+    table, reach = _label_table(first, count, slope, truncation)
     ma, mb = np.empty((length, count)), np.empty((length, count))
     ea, eb = np.empty(count), np.empty(count)
     for a in range(0, chains, 2):
@@ -267,7 +245,9 @@ def _neighbour_costs(
     """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
     its vertical (or horizontal) neighbours (the one before, then the one after)."""
     if windows:
-        _neighbour_costs_windows(first, weight_h, weight_v, slope, truncation, labels, vertical, out)
+        _neighbour_costs_windows(
+            first, weight_h, weight_v, slope, truncation, labels, vertical, out
+        )
         return
     height, width, count = out.shape
     table = _regulariser_table(slope, truncation)
@@ -326,9 +306,8 @@ def _neighbour_costs_windows(
                     after, weight_after = first[y, x + 1] + labels[y, x + 1], weight_h[y, x]
             offset_before, offset_after = here - before + reach, here - after + reach
             for k in range(count):
-                out[y, x, k] = (
-                    weight_before * table[offset_before + k] + weight_after * table[offset_after + k]
-                )
+                ahead = weight_after * table[offset_after + k]
+                out[y, x, k] = weight_before * table[offset_before + k] + ahead
 
 
 @numba.njit(cache=True, nogil=True)
