@@ -133,6 +133,8 @@ class GridMRF:
         per_row = grid_energy(
             self.unary,
             self.candidates,
+            self.windows(),
+            self.first is not None,
             self.weight_h,
             self.weight_v,
             self.slope,
@@ -440,7 +442,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
     bound, gamma, stalled = -math.inf, 1.0, 0
     disagreeing, done = -1, 0
     row_labels = np.zeros(mrf.shape, dtype=np.int32)
-    turned_labels = np.zeros(mrf.shape[::-1], dtype=np.int32)
+    column_labels = np.zeros(mrf.shape, dtype=np.int32)
 
     def consider(labels: np.ndarray) -> None:
         nonlocal best_labels, best_energy
@@ -459,7 +461,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
         consider(column_labels)
         if done % PRIMAL_EVERY == 0:
             consider(chain_primal(mrf, turned, column_labels))
-        disagreeing = disagreements(row_labels, turned_labels)
+        disagreeing = disagreements(row_labels, column_labels)
         if current > bound:
             bound, stalled = current, 0
         else:
@@ -469,14 +471,14 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
         if disagreeing == 0 or best_energy - bound <= gap * abs(best_energy):
             break
         step = np.float32(gamma * max(best_energy - current, 0.0) / (2 * disagreeing))
-        subgradient_step(multipliers, multipliers_turned, row_labels, turned_labels, step)
+        subgradient_step(multipliers, multipliers_turned, row_labels, column_labels, step)
     return DualResult(
         labels=best_labels,
         energy=float(best_energy),
         lower_bound=float(min(bound, best_energy)),
         iterations=done,
         disagreeing=disagreeing,
-        unsettled=row_labels != turned_labels.T,
+        unsettled=row_labels != column_labels,
     )
 
 

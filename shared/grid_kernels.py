@@ -37,11 +37,56 @@ def _tabled(table, difference, slope, truncation):  # pragma: no cover - jit
     return _regulariser(distance, 0, slope, truncation)
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
+    """The label candidate ``k`` of pixel (y, x) stands for."""
+    return first[y, x] + k if windows else candidates[y, x, k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _label_table(first, count, slope, truncation):  # pragma: no cover - jit
+    """``_regulariser(|d|, 0)`` at ``d + reach`` for every label difference d of a window grid
+    (reach returned): lookups without ``abs`` or a branch (:func:`_tabled`'s floats)."""
+    lowest, highest = (first.min(), first.max()) if first.size else (0, 0)
+    reach = highest - lowest + count
+    table = np.empty(2 * reach + 1)
+    for d in range(-reach, reach + 1):
+        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
+    return table, reach
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_energy_windows(
+    unary, first, weight_h, weight_v, slope, truncation, labels
+):  # pragma: no cover - jit
+    """:func:`_grid_energy` of a window grid: labels from ``first`` (no gather over the
+    candidates), regularisers from :func:`_label_table`; each row summed in the same order
+    (unary, right edge, lower edge)."""
+    height, width, count = unary.shape
+    table, reach = _label_table(first, count, slope, truncation)
+    per_row = np.zeros(height)
+    for y in range(height):
+        total = 0.0
+        below, lower = min(y + 1, height - 1), y + 1 < height
+        for x in range(width):
+            label = labels[y, x]
+            here = first[y, x] + label + reach
+            total += unary[y, x, label]
+            if x + 1 < width:
+                total += weight_h[y, x] * table[here - first[y, x + 1] - labels[y, x + 1]]
+            if lower:
+                total += weight_v[y, x] * table[here - first[below, x] - labels[below, x]]
+        per_row[y] = total
+    return per_row
+
+
 @numba.njit(cache=True, nogil=True)
 def _grid_energy(
-    unary, candidates, weight_h, weight_v, slope, truncation, labels
+    unary, candidates, first, windows, weight_h, weight_v, slope, truncation, labels
 ):  # pragma: no cover - jit
     """E(x) of a labelling: each row's unary, horizontal and downward vertical terms."""
+    if windows:
+        return _grid_energy_windows(unary, first, weight_h, weight_v, slope, truncation, labels)
     height, width, _ = unary.shape
     table = _regulariser_table(slope, truncation)
     per_row = np.zeros(height)
@@ -61,12 +106,6 @@ def _grid_energy(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
-    """The label candidate ``k`` of pixel (y, x) stands for."""
-    return first[y, x] + k if windows else candidates[y, x, k]
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
 def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
     """The chain's best last label (the first of equal messages), where both chain kernels'
     read-back starts: written to ``labels``, its message to ``energies`` as the optimum."""
@@ -78,22 +117,6 @@ def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
     energies[chain] = messages[length - 1, arg]
     labels[chain, length - 1] = arg
     return arg
-
-
-@numba.njit(cache=True, nogil=True)
-def _difference_table(first, count, slope, truncation):  # pragma: no cover - jit
-    """``_regulariser(|d|, 0)`` for every label difference d of two neighbours' window
-    candidates, at index ``d + reach`` (reach returned): the read-back's lookups without a branch
-    (the same floats as :func:`_tabled`)."""
-    chains, length = first.shape
-    reach = count
-    for chain in range(chains):
-        for x in range(1, length):
-            reach = max(reach, abs(first[chain, x] - first[chain, x - 1]) + count)
-    table = np.empty(2 * reach + 1)
-    for d in range(-reach, reach + 1):
-        table[d + reach] = _regulariser(abs(d), 0, slope, truncation)
-    return table, reach
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -130,7 +153,7 @@ def _chains_windows(
     envelope passes, chains of dependent additions, interleaved in one loop."""
     chains, length, count = base.shape
     energies = np.empty(chains)
-    table, reach = _difference_table(first, count, slope, truncation)
+    table, reach = _label_table(first, count, slope, truncation)
     ma, mb = np.empty((length, count)), np.empty((length, count))
     ea, eb = np.empty(count), np.empty(count)
     for a in range(0, chains, 2):
@@ -220,7 +243,12 @@ def _neighbour_costs(
     candidates, first, windows, weight_h, weight_v, slope, truncation, labels, vertical, out
 ):  # pragma: no cover - jit
     """``out[y, x, k]``: the cost of candidate k of (y, x) for its edges to the fixed labels of
-    its vertical (or horizontal) neighbours."""
+    its vertical (or horizontal) neighbours (the one before, then the one after)."""
+    if windows:
+        _neighbour_costs_windows(
+            first, weight_h, weight_v, slope, truncation, labels, vertical, out
+        )
+        return
     height, width, count = out.shape
     table = _regulariser_table(slope, truncation)
     for y in range(height):
@@ -253,28 +281,60 @@ def _neighbour_costs(
 
 
 @numba.njit(cache=True, nogil=True)
-def _disagreements(row_labels, column_labels_turned):  # pragma: no cover - jit
-    """Pixels whose row label differs from their column label (the latter stored transposed)."""
+def _neighbour_costs_windows(
+    first, weight_h, weight_v, slope, truncation, labels, vertical, out
+):  # pragma: no cover - jit
+    """:func:`_neighbour_costs` of a window grid without a branch per candidate: candidate k's
+    label difference to a neighbour's label is d + k, its regulariser ``table[d + k + reach]``
+    (:func:`_label_table`); a
+    missing neighbour is weight 0 (0 + w r and w r + 0 are the same floats: r is finite)."""
+    height, width, count = out.shape
+    table, reach = _label_table(first, count, slope, truncation)
+    for y in range(height):
+        for x in range(width):
+            here = first[y, x]
+            before, after, weight_before, weight_after = here, here, 0.0, 0.0
+            if vertical:
+                if y > 0:
+                    before, weight_before = first[y - 1, x] + labels[y - 1, x], weight_v[y - 1, x]
+                if y + 1 < height:
+                    after, weight_after = first[y + 1, x] + labels[y + 1, x], weight_v[y, x]
+            else:
+                if x > 0:
+                    before, weight_before = first[y, x - 1] + labels[y, x - 1], weight_h[y, x - 1]
+                if x + 1 < width:
+                    after, weight_after = first[y, x + 1] + labels[y, x + 1], weight_h[y, x]
+            offset_before, offset_after = here - before + reach, here - after + reach
+            for k in range(count):
+                ahead = weight_after * table[offset_after + k]
+                out[y, x, k] = weight_before * table[offset_before + k] + ahead
+
+
+@numba.njit(cache=True, nogil=True)
+def _disagreements(row_labels, column_labels):  # pragma: no cover - jit
+    """Pixels whose row label differs from their column label (both (h, w): read in the same
+    order; the transposed layout's strided reads cost more than the transpose)."""
     height, width = row_labels.shape
     count = 0
     for y in range(height):
         for x in range(width):
-            if row_labels[y, x] != column_labels_turned[x, y]:
+            if row_labels[y, x] != column_labels[y, x]:
                 count += 1
     return count
 
 
 @numba.njit(cache=True, nogil=True)
 def _subgradient_step(
-    multipliers, multipliers_turned, row_labels, column_labels_turned, step
+    multipliers, multipliers_turned, row_labels, column_labels, step
 ):  # pragma: no cover - jit
-    """Where row and column labels disagree: + step on the row label's multiplier, - step on the
-    column label's, in both copies of the multipliers (by rows, and transposed for the column
-    chains); float32 like numpy's in-place update."""
+    """Where row and column labels (both (h, w)) disagree: + step on the row label's
+    multiplier, - step on the column label's, in both copies of the multipliers (by rows, and
+    transposed for the column chains); float32 like numpy's in-place update. The labels are read
+    in row order; only the disagreeing pixels (a few %) touch the transposed copy."""
     height, width = row_labels.shape
     for y in range(height):
         for x in range(width):
-            here, there = row_labels[y, x], column_labels_turned[x, y]
+            here, there = row_labels[y, x], column_labels[y, x]
             if here != there:
                 multipliers[y, x, here] += step
                 multipliers[y, x, there] -= step

@@ -50,8 +50,8 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
     "_grid_energy": (
         "float64[::1]",
         (
-            ("float32", 3), ("int32", 3), ("float64", 2), ("float64", 2), "float64", "float64",
-            ("int32", 2),
+            ("float32", 3), ("int32", 3), ("int32", 2), "boolean", ("float64", 2),
+            ("float64", 2), "float64", "float64", ("int32", 2),
         ),
     ),
     "_neighbour_costs": (

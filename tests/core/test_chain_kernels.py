@@ -19,14 +19,21 @@ from shared.grid_inference import trws
 LEVEL = LevelConfig(slope=0.2, truncation=0.4, edge_threshold=0.3, edge_factor=0.3)
 
 
-def far_windows(seed: int, height: int, width: int, labels: int, spread: int) -> GridMRF:
+def far_windows(
+    seed: int,
+    height: int,
+    width: int,
+    labels: int,
+    spread: int,
+    regularizer: Regularizer = Regularizer.TRUNCATED,
+) -> GridMRF:
     """Consecutive windows whose first labels spread over 0..spread: neighbours' windows can
     overlap, touch or lie apart."""
     rng = np.random.default_rng(seed)
     unary = rng.random((height, width, labels)).astype(np.float32)
     first = rng.integers(0, spread + 1, (height, width))
     candidates = first[:, :, None] + np.arange(labels)
-    return grid_mrf(unary, candidates, rng.random((height, width)), LEVEL, Regularizer.TRUNCATED)
+    return grid_mrf(unary, candidates, rng.random((height, width)), LEVEL, regularizer)
 
 
 @settings(max_examples=40, deadline=None)
@@ -47,6 +54,30 @@ def test_window_chains_are_the_general_chains_optima_whatever_the_shift(
     expected_labels, expected = solve_chains(general, along_columns)
     np.testing.assert_allclose(energies, expected, rtol=1e-12, atol=1e-12)
     assert mrf.energy(found) == pytest.approx(general.energy(expected_labels), rel=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    height=st.integers(1, 5),
+    width=st.integers(1, 7),
+    labels=st.integers(1, 4),
+    spread=st.sampled_from([0, 6, 90]),  # 90: differences beyond the general path's table
+    regularizer=st.sampled_from([Regularizer.TRUNCATED, Regularizer.LINEAR]),
+    vertical=st.booleans(),
+)
+def test_window_energy_and_neighbour_costs_are_the_general_paths_floats(
+    seed, height, width, labels, spread, regularizer, vertical
+):
+    """The DD's energies and the chain primal's neighbour costs pick its labels: the window
+    paths (labels from ``first``, one difference table) must give the very same floats."""
+    mrf = far_windows(seed, height, width, labels, spread, regularizer)
+    assert mrf.first is not None
+    general = replace(mrf, first=None)
+    labelling = np.random.default_rng(seed + 1).integers(0, labels, (height, width))
+    assert mrf.energy(labelling) == general.energy(labelling)
+    costs = mrf.neighbour_unary(labelling, vertical)
+    assert costs.tobytes() == general.neighbour_unary(labelling, vertical).tobytes()
 
 
 @settings(max_examples=25, deadline=None)

@@ -23,12 +23,20 @@ def compiled(directory):
     return kernels.load_compiled(directory)
 
 
-def _energy_arguments(seed: int) -> tuple:
+def _energy_arguments(seed: int, windows: bool) -> tuple:
     rng = np.random.default_rng(seed)
     height, width, count = 5, 7, 4
+    first = rng.integers(0, 9, (height, width), dtype=np.int32)
+    candidates = (
+        first[:, :, None] + np.arange(count, dtype=np.int32)
+        if windows
+        else rng.integers(0, 9, (height, width, count), dtype=np.int32)
+    )
     return (
         rng.random((height, width, count), dtype=np.float32),
-        rng.integers(0, 9, (height, width, count), dtype=np.int32),
+        candidates,
+        first if windows else np.zeros((1, 1), dtype=np.int32),
+        windows,
         rng.random((height, width - 1)),
         rng.random((height - 1, width)),
         0.7,
@@ -40,8 +48,8 @@ def _energy_arguments(seed: int) -> tuple:
 def test_the_compiled_kernel_gives_numbas_floats(compiled):
     kernel = kernels.Kernel("_grid_energy", compiled)
     assert kernel.compiled is not None
-    for seed in range(3):
-        arguments = _energy_arguments(seed)
+    for seed, windows in zip(range(4), (False, True) * 2, strict=True):
+        arguments = _energy_arguments(seed, windows)
         assert np.array_equal(
             kernel.compiled(*arguments), shared.grid_kernels._grid_energy(*arguments)
         )
@@ -53,10 +61,10 @@ def test_calls_that_do_not_fit_the_signature_go_to_numba(compiled, monkeypatch):
     monkeypatch.setattr(kernel, "compiled", lambda *a: taken.append("compiled") or 0)
     monkeypatch.setattr(kernel, "_jit", lambda *a: taken.append("jit") or 0)
     rows = np.zeros((3, 4), dtype=np.int32)
-    kernel(rows, np.zeros((4, 3), dtype=np.int32))
-    kernel(rows, np.zeros((3, 4), dtype=np.int32).T)  # strided
-    kernel(rows, np.zeros((4, 3), dtype=np.int64))  # another dtype: would read garbage
-    kernel(rows.astype(np.float32), np.zeros((4, 3), dtype=np.int32))
+    kernel(rows, np.zeros((3, 4), dtype=np.int32))
+    kernel(rows, np.zeros((4, 3), dtype=np.int32).T)  # strided
+    kernel(rows, np.zeros((3, 4), dtype=np.int64))  # another dtype: would read garbage
+    kernel(rows.astype(np.float32), np.zeros((3, 4), dtype=np.int32))
     assert taken == ["compiled", "jit", "jit", "jit"]
 
 
