@@ -24,7 +24,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     from api.server import PortBusyError, bind_api_socket, once, stoppable_server
     from workers.embedded_redis import DataDirBusyError
-    from workers.supervisor import Stack
+    from workers.supervisor import Stack, WorkerStartError
 
     logging.basicConfig(
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
@@ -39,16 +39,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
     print("starting Redis and workers ...", file=sys.stderr)
     try:
         try:
-            stack.start()
-        except DataDirBusyError as error:
+            stack.launch()
+            settings = stack.settings
+            # the API is built (its imports, the app) while the workers boot, which takes
+            # longer; it serves only once they all answer
+            server = stoppable_server(settings, args.log_level, cleanup=stop)
+            stack.wait_ready()
+        except (DataDirBusyError, WorkerStartError) as error:
             raise CommandError(str(error)) from None
-        settings = stack.settings
         print(f"data directory: {settings.data_dir.resolve()} (QHSM_DATA_DIR)", file=sys.stderr)
         print(stack.describe(), file=sys.stderr)
         url = f"http://{settings.api_host}:{settings.api_port}"
         print(f"API on {url} (docs: /docs); Ctrl-C stops", file=sys.stderr)
         announce_web_page(settings, url)
-        stoppable_server(settings, args.log_level, cleanup=stop).run(sockets=[sock])
+        server.run(sockets=[sock])
     except KeyboardInterrupt:  # Ctrl-C is how serve is stopped (uvicorn re-raises it)
         print("qhsm serve: stopping the workers and Redis ...", file=sys.stderr)
     finally:
@@ -129,10 +133,12 @@ def _demo_scene(choice: str):
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    import importlib
+
     from api.client import Client, progress_bar, scores_text
     from api.server import ApiThread, PortBusyError, bind_api_socket
     from workers.embedded_redis import free_port
-    from workers.supervisor import Stack
+    from workers.supervisor import Stack, WorkerStartError
 
     settings = settings_from_args(args)
     if args.api_port is None:
@@ -149,7 +155,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     serving = False  # after the job with --keep-running: Ctrl-C is how one stops it
     print("starting Redis, workers and the API ...", file=sys.stderr)
     try:
-        stack.start()
+        stack.launch()
+        importlib.import_module("api.app")  # while the workers boot (ApiThread builds the app)
+        try:
+            stack.wait_ready()
+        except WorkerStartError as error:
+            raise CommandError(str(error)) from None
         print(stack.describe(), file=sys.stderr)
         api = ApiThread(stack.settings).start()
         key, new = _announce_key(stack.settings)

@@ -80,16 +80,19 @@ def stoppable_server(
 
 def stop_after(seconds: float, cleanup: Callable[[], object]) -> None:
     """In ``seconds`` (once per process, from a daemon thread): ``cleanup``, then exit at once,
-    whatever threads are still running (a normal exit before then makes this moot)."""
+    whatever threads are still running (a normal exit before then makes this moot). A cleanup
+    the main thread already began (``qhsm serve`` stopping its workers, up to their 15 s warm
+    shutdown) is not a stuck process: it is waited for, without the warning."""
     if _stopping.is_set():
         return
     _stopping.set()
 
     def stop() -> None:
         time.sleep(seconds)
-        log.warning("still running %g s after the stop signal: exiting now", seconds)
+        if not (isinstance(cleanup, Once) and cleanup.started.is_set()):
+            log.warning("still running %g s after the stop signal: exiting now", seconds)
         try:
-            cleanup()
+            cleanup()  # a run under way: returns once it has finished
         finally:
             logging.shutdown()
             os._exit(0)
@@ -97,20 +100,25 @@ def stop_after(seconds: float, cleanup: Callable[[], object]) -> None:
     threading.Thread(target=stop, name="qhsm-stop", daemon=True).start()
 
 
-def once(action: Callable[[], object]) -> Callable[[], None]:
+class Once:
     """``action`` that runs at most once whoever calls it (the main thread or the stop); a
-    second caller waits until the first one's run has finished."""
-    lock = threading.Lock()
-    done = False
+    second caller waits until the first one's run has finished; ``started`` once one began."""
 
-    def run() -> None:
-        nonlocal done
-        with lock:
-            if not done:
-                done = True
-                action()
+    def __init__(self, action: Callable[[], object]) -> None:
+        self.action = action
+        self.started = threading.Event()
+        self._lock = threading.Lock()
 
-    return run
+    def __call__(self) -> None:
+        with self._lock:
+            if not self.started.is_set():
+                self.started.set()
+                self.action()
+
+
+def once(action: Callable[[], object]) -> Once:
+    """:class:`Once` of ``action``."""
+    return Once(action)
 
 
 @dataclass

@@ -18,7 +18,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -183,8 +183,12 @@ def worker_env(settings: Settings, redis_url: str, *, dwave: bool) -> dict[str, 
     return env
 
 
-def wait_for_workers(celery, hostnames: list[str], timeout: float = 60.0) -> None:
-    """Block until every named worker answers ``inspect active_queues``."""
+def wait_for_workers(
+    celery, hostnames: list[str], timeout: float = 60.0, started: Sequence[WorkerProcess] = ()
+) -> None:
+    """Block until every named worker answers ``inspect active_queues`` (all of them booting
+    at once, one deadline for all). A worker of ``started`` that exits meanwhile fails the
+    wait at once, with the end of its log, instead of at the deadline."""
     deadline = time.monotonic() + timeout
     missing = set(hostnames)
     while time.monotonic() < deadline:
@@ -192,8 +196,26 @@ def wait_for_workers(celery, hostnames: list[str], timeout: float = 60.0) -> Non
         missing -= set(replies or {})
         if not missing:
             return
+        for worker in started:
+            if worker.hostname in missing and not worker.alive:
+                raise WorkerStartError(worker)
         time.sleep(0.2)
     raise RuntimeError(f"workers did not come up in {timeout:.0f} s: {sorted(missing)}")
+
+
+class WorkerStartError(RuntimeError):
+    """A worker exited before it was ready (an import error, a bad queue name, ...)."""
+
+    def __init__(self, worker: WorkerProcess, lines: int = 20) -> None:
+        assert worker.process is not None
+        try:
+            tail = worker.log_file.read_text(errors="replace").splitlines()[-lines:]
+        except OSError:
+            tail = []
+        super().__init__(
+            f"worker {worker.hostname} exited at start-up (exit code "
+            f"{worker.process.returncode}); the end of {worker.log_file}:\n" + "\n".join(tail)
+        )
 
 
 @dataclass
@@ -297,8 +319,19 @@ class Stack:
     supervisor: Supervisor | None = None
 
     def start(self, wait: bool = True) -> Stack:
-        from workers.app import make_celery
+        """Redis and every worker; with ``wait``, once all workers answer (else the supervisor
+        restarts whichever dies while they boot)."""
+        self.launch()
+        if wait:
+            self.wait_ready()
+        elif self.supervise:
+            self.supervisor = Supervisor(self).start()
+        return self
 
+    def launch(self) -> Stack:
+        """Start Redis (when embedded) and every worker without waiting for the workers to
+        boot (a few seconds of imports each, all at once): the caller builds what it needs
+        meanwhile (``qhsm serve`` its API) and then calls :meth:`wait_ready`."""
         stop_on_sigterm()
         settings = self.settings
         settings.data_dir.mkdir(parents=True, exist_ok=True)
@@ -354,9 +387,16 @@ class Stack:
         for name in DWAVE_SECRETS:  # the API process never needs the token
             os.environ.pop(name, None)
         self.settings = settings.model_copy(update={"dwave_api_token": None})
-        if wait:
-            celery = make_celery(settings, with_tasks=False)
-            wait_for_workers(celery, [worker.hostname for worker in self.workers])
+        return self
+
+    def wait_ready(self, timeout: float = 60.0) -> Stack:
+        """Wait for every launched worker with one shared deadline (``WorkerStartError`` at
+        once if one exits meanwhile), then start the supervisor."""
+        from workers.app import make_celery
+
+        celery = make_celery(self.settings, with_tasks=False)
+        hostnames = [worker.hostname for worker in self.workers]
+        wait_for_workers(celery, hostnames, timeout, started=self.workers)
         if self.supervise:
             self.supervisor = Supervisor(self).start()
         return self

@@ -70,3 +70,35 @@ def test_the_api_stops_within_seconds_of_a_signal_with_a_request_stuck(signum):
         if process.poll() is None:
             process.kill()
             process.communicate()
+
+
+#: The stop's backstop armed for 0.3 s; the main thread either stops the service itself (a
+#: cleanup of 1 s: `qhsm serve` stopping its workers) or is stuck.
+BACKSTOP = textwrap.dedent(
+    """
+    import logging, sys, time
+    from api.server import once, stop_after
+
+    logging.basicConfig(level=logging.INFO)
+    stop = once(lambda: (time.sleep(1.0), print("cleaned", flush=True)))
+    stop_after(0.3, stop)
+    if sys.argv[1] == "main-stops":
+        stop()
+    time.sleep(30)  # a thread that holds the process
+    """
+)
+
+
+@pytest.mark.parametrize("case", ["main-stops", "stuck"])
+def test_the_backstop_waits_for_a_stop_under_way_and_warns_only_when_stuck(case):
+    """A serve whose workers take longer to stop than the API's grace is not stuck: no
+    "still running" warning (it was the last line of serve's Ctrl-C); the stop runs once,
+    and the process exits 0 after it either way."""
+    started = time.monotonic()
+    got = subprocess.run(
+        [sys.executable, "-c", BACKSTOP, case], capture_output=True, text=True, timeout=20
+    )
+    assert got.returncode == 0, got.stderr
+    assert got.stdout.splitlines() == ["cleaned"]
+    assert ("still running 0.3 s after the stop signal" in got.stderr) == (case == "stuck")
+    assert time.monotonic() - started < 10

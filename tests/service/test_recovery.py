@@ -116,7 +116,10 @@ def test_watchdog_resends_lost_bundles_and_the_job_finishes_identically(
 
 
 def test_watchdog_fails_a_job_no_worker_can_run_with_a_reason(settings, workers, lose_chords):
-    store = JobStore.from_settings(settings)
+    # the watchdog asks the workers 11 times here (per re-send what they consume, run and
+    # hold), each ask waiting the whole inspect timeout: 0.5 s made it 5.5 s or more; a late
+    # reply changes nothing here (no worker consumes the queue, nothing of the job is in flight)
+    store = JobStore.from_settings(settings.model_copy(update={"inspect_timeout": 0.1}))
     job_id, *_ = started_job(store, "fake-unavailable")
     watchdog, _ = fast_watchdog(store)
     actions = []
