@@ -450,7 +450,7 @@ def solve_chunk(
     # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
     solver = job_solver(config)  # once for the task: the inference and the meter take it
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
-        if solver.metered and meter is not None:
+        if solver.spec.metered and meter is not None:
             results = solve_metered(
                 meter(),
                 record.owner or LOCAL_USER,
