@@ -127,7 +127,7 @@ def load_solver(config: MatchConfig | str) -> tuple[ResolvedSolver, Availability
     except UnknownSolverError:
         raise
     except Exception as error:  # a broken optional dependency must not take the API down
-        log.exception("solver %s failed to load", solver.name)
+        log.exception("solver %s failed to load", solver.spec.name)
         reason = f"its adapter failed to load here ({type(error).__name__})"
         return solver, Availability(False, reason)
     return solver, sampler.available()

@@ -107,7 +107,7 @@ def check_solver(config: MatchConfig, svc: Services) -> ResolvedSolver:
     if availability.ok:
         return solver
     consumers = svc.queues.consumers() or {}
-    queue = solver.queue
+    queue = solver.spec.queue_name
     if consumers.get(queue):
         return solver
     raise AdmissionError(

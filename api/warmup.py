@@ -99,7 +99,7 @@ def _solvers() -> None:
     """Every registered solver's adapter imported and its availability read (what
     ``check_solver`` does per request; one per process, kept by the registry)."""
     for solver in solver_catalog():
-        load_solver(solver.name)
+        load_solver(solver.spec.name)
 
 
 def _celery(svc: Services) -> None:

@@ -61,7 +61,7 @@ def measure(bundles: int, reads: list[int]) -> list[str]:
         for count in reads:
             gap = np.asarray(gaps[count])
             rows.append(
-                f"| {inputs.index} | {count} | {np.median(gap):.3%} | {gap.mean():.3%} "
+                f"| {inputs.plan.index} | {count} | {np.median(gap):.3%} | {gap.mean():.3%} "
                 f"| {np.quantile(gap, 0.9):.3%} | {np.mean(gap <= 1e-9):.0%} "
                 f"| {1e3 * np.mean(charge[count]):.1f} |"
             )

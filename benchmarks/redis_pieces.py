@@ -69,7 +69,7 @@ def bounded(store: JobStore, job_id: str, inputs: LevelInputs, sizes: list[int])
     try:
         store.save_level(job_id, inputs, started=0.0)
         store._images.clear()
-        loaded, _ = store.load_level(job_id, inputs.index)
+        loaded, _ = store.load_level(job_id, inputs.plan.index)
         assert loaded.candidates.shape == inputs.candidates.shape
     finally:
         store.redis.execute_command = send  # type: ignore[method-assign]

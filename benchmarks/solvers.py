@@ -127,7 +127,7 @@ def gurobi_segments(levels, config, rows: int) -> list[dict]:
                 energy = mrf_energy(segment, codec.decode(segment, result.sample).labels)
                 out.append(
                     {
-                        "level": inputs.index,
+                        "level": inputs.plan.index,
                         "encoding": encoding,
                         "width": width,
                         "gap": (energy - optimum) / abs(optimum) * 100,
@@ -317,8 +317,8 @@ def main(argv: list[str] | None = None) -> int:
                 tick = time.perf_counter()
                 exact = reference_energy(costs, args.tall_reference)
                 if exact is not None:
-                    references[(height, inputs.index, number)] = exact
-                seed = bundle_seed(config.seed, inputs.index, start)
+                    references[(height, inputs.plan.index, number)] = exact
+                seed = bundle_seed(config.seed, inputs.plan.index, start)
                 for label, name, solver_params in solvers:
                     encodings = ENCODINGS if name in BOTH_ENCODINGS else ("domain-wall",)
                     for encoding in encodings:
@@ -330,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
                                 label,
                                 encoding,
                                 height,
-                                inputs.index,
+                                inputs.plan.index,
                                 number,
                                 energy,
                                 repaired,
@@ -343,12 +343,12 @@ def main(argv: list[str] | None = None) -> int:
                     found = [
                         o.energy
                         for o in outcomes
-                        if (o.height, o.level, o.bundle) == (height, inputs.index, number)
+                        if (o.height, o.level, o.bundle) == (height, inputs.plan.index, number)
                         and o.energy is not None
                     ]
-                    references[(height, inputs.index, number)] = min(found)
+                    references[(height, inputs.plan.index, number)] = min(found)
                 print(
-                    f"h={height} level {inputs.index} bundle {number} rows {start}-{stop} "
+                    f"h={height} level {inputs.plan.index} bundle {number} rows {start}-{stop} "
                     f"({time.perf_counter() - tick:.1f} s)",
                     file=sys.stderr,
                 )

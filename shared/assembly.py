@@ -129,7 +129,7 @@ def assemble(
         missing = sorted({int(y) for y in np.flatnonzero((covered == 0).any(axis=1))})
         doubled = sorted({int(y) for y in np.flatnonzero((covered > 1).any(axis=1))})
         raise ValueError(
-            f"level {inputs.index}: rows missing {missing[:10]}, rows solved twice "
+            f"level {inputs.plan.index}: rows missing {missing[:10]}, rows solved twice "
             f"{doubled[:10]} (counting rows with any such pixel)"
         )
     bounds = [r.lower_bound for r in results]

@@ -59,7 +59,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     solver = resolve(config)
     solver.bundle_width_setting()  # a width the solver cannot use: say so before any work
     # a row solver (exact) runs here on the CPU: no sampler built for it (that imports dimod)
-    availability = Availability(True) if solver.row_solver else solver.sampler.available()
+    availability = Availability(True) if solver.spec.row_solver else solver.sampler.available()
     if not availability.ok:
         raise CommandError(f"solver {config.solver} is not available: {availability.reason}")
     if Path(args.output).suffix.lower() not in (".pfm", ".png", ".npy"):

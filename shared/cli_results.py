@@ -91,7 +91,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     or (``json``) JSON; ``error_map`` writes |d - gt|; 0."""
     from shared.ground_truth import evaluate_ground_truth
     from shared.images import load_disparity, load_mask
-    from shared.metrics import error_map
+    from shared.metrics import Truth
 
     disparity = load_disparity(args.disparity)
     mask = load_mask(args.mask) if args.mask else None
@@ -107,7 +107,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     )
     report = result.report()
     if args.error_map:
-        errors = error_map(disparity, result.gt_values, result.scale, result.border, mask)
+        errors = Truth(result.gt_values, result.scale, result.border, mask).error_map(disparity)
         report["error_map"] = write_error_map(errors, args.error_map, args.threshold)
     if args.json:
         print(json.dumps(report))

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from shared.bundles import Bundle, bundle_rows, segment_columns
-from shared.config import DataTerm, LevelConfig, MatchConfig
+from shared.config import DataTerm, MatchConfig
 from shared.data_terms import (
     bin_minimum,
     cost_volume,
@@ -67,14 +67,6 @@ class LevelInputs:
     #: What planning the bundles did (``LevelInference.plan``): segment width, embeddings.
     prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
-
-    @property
-    def index(self) -> int:
-        return self.plan.index
-
-    @property
-    def level(self) -> LevelConfig:
-        return self.plan.mrf
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -430,7 +422,7 @@ class LevelInputs:
             raise ValueError(f"rows [{start}, {stop}) span both views; a grid is one view's")
         unary, candidates, guide = self.view_unary(config, *parts[0], dtype=np.float32)
         window = self._window(*parts[0])
-        return grid_mrf(unary, candidates, guide, self.level, config.regularizer, window)
+        return grid_mrf(unary, candidates, guide, self.plan.mrf, config.regularizer, window)
 
     def costs(self, config: MatchConfig, start: int = 0, stop: int | None = None) -> Costs:
         """Costs of rows [start, stop) (a block that spans both views has no edge between).
@@ -458,7 +450,7 @@ class LevelInputs:
                     unary,
                     candidates,
                     guide,
-                    self.level,
+                    self.plan.mrf,
                     config.regularizer,
                     vertical=config.bundle_height > 1,
                 )

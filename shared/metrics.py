@@ -9,6 +9,7 @@ Conventions (see the scenes' PROVENANCE.md): stored ground-truth values are disp
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -50,40 +51,77 @@ class Scores(BaseModel):
         return self.model_dump()
 
 
-def evaluation_mask(
-    gt_values: np.ndarray, border: int = 0, mask: np.ndarray | None = None
-) -> np.ndarray:
-    """Pixels that count: known ground truth, outside the border, inside the mask.
+@dataclass(frozen=True)
+class Truth:
+    """Where and against what a map is scored: the stored ground truth ``values`` (h, w),
+    disparity x ``scale``, 0 where unknown; a frame of ``border`` pixels ignored; with a
+    ``mask`` (h, w), only its non-zero pixels count. The scores (:meth:`scores`) and the error
+    map (:meth:`error_map`) read the same pixels with the same formula."""
 
-    Parameters
-    ----------
-    gt_values : numpy.ndarray
-        Stored ground truth (h, w); 0 means unknown.
-    border : int, optional
-        Width of the ignored frame, pixels.
-    mask : numpy.ndarray, optional
-        (h, w); only its non-zero pixels count.
+    values: np.ndarray
+    #: Stored value per pixel of disparity.
+    scale: float = 1.0
+    #: Width of the ignored frame, pixels.
+    border: int = 0
+    mask: np.ndarray | None = None
 
-    Returns
-    -------
-    numpy.ndarray
-        (h, w) bool, True where a pixel is scored.
+    def kept(self) -> np.ndarray:
+        """(h, w) bool, True where a pixel is scored: known ground truth, outside the border,
+        inside the mask (``ValueError`` if the mask's shape is not the ground truth's)."""
+        keep = np.asarray(self.values) > 0
+        if self.border > 0:
+            frame = np.zeros_like(keep)
+            frame[self.border : -self.border, self.border : -self.border] = True
+            keep &= frame
+        if self.mask is not None:
+            if self.mask.shape != keep.shape:
+                raise ValueError(f"mask is {self.mask.shape}, ground truth is {keep.shape}")
+            keep &= self.mask.astype(bool)
+        return keep
 
-    Raises
-    ------
-    ValueError
-        If the mask's shape is not the ground truth's.
-    """
-    keep = np.asarray(gt_values) > 0
-    if border > 0:
-        frame = np.zeros_like(keep)
-        frame[border:-border, border:-border] = True
-        keep &= frame
-    if mask is not None:
-        if mask.shape != keep.shape:
-            raise ValueError(f"mask is {mask.shape}, ground truth is {keep.shape}")
-        keep &= mask.astype(bool)
-    return keep
+    def errors(self, disparity: np.ndarray, keep: np.ndarray, dtype=np.float64) -> np.ndarray:
+        """|d - gt| in pixels of the ``keep`` pixels (one formula for scores and error map)."""
+        truth = np.asarray(self.values)[keep].astype(dtype) / self.scale
+        return np.abs(np.asarray(disparity, dtype)[keep] - truth)
+
+    def scores(self, disparity: np.ndarray, threshold: float = BAD_PIXEL_THRESHOLD) -> Scores:
+        """Scores of ``disparity`` (h, w), px; ``threshold``: error above which a pixel is bad
+        (``ValueError`` if the shapes differ or no pixel is left to evaluate)."""
+        if np.shape(disparity) != np.shape(self.values):
+            raise ValueError(
+                f"disparity is {np.shape(disparity)[::-1]} (w x h), ground truth is "
+                f"{np.shape(self.values)[::-1]}"
+            )
+        keep = self.kept()
+        error = self.errors(disparity, keep)
+        if error.size == 0:
+            raise ValueError("no pixel left to evaluate (check border, mask and scale)")
+        truth = np.asarray(self.values)[keep].astype(np.float64) / self.scale
+
+        def percent(bad: np.ndarray) -> float:
+            return float(100.0 * np.mean(bad))
+
+        pixels, share = KITTI_D1
+        return Scores(
+            rmse=float(np.sqrt(np.mean(error**2))),
+            bpp=percent(error > threshold),
+            pixels=error.size,
+            threshold=threshold,
+            avgerr=float(np.mean(error)),
+            **{
+                f"bad_{limit:g}".replace(".", "_"): percent(error > limit)
+                for limit in MIDDLEBURY_THRESHOLDS
+            },
+            d1=percent((error > pixels) & (error > share * np.abs(truth))),
+        )
+
+    def error_map(self, disparity: np.ndarray) -> np.ndarray:
+        """|d - gt| in pixels where scored, NaN elsewhere (for error-map images): (h, w)
+        float32."""
+        keep = self.kept()
+        errors = np.full(keep.shape, np.nan, np.float32)
+        errors[keep] = self.errors(disparity, keep, np.float32)
+        return errors
 
 
 def evaluate(
@@ -94,7 +132,8 @@ def evaluate(
     mask: np.ndarray | None = None,
     threshold: float = BAD_PIXEL_THRESHOLD,
 ) -> Scores:
-    """Scores of ``disparity`` against stored ground truth ``gt_values`` (disparity x scale).
+    """Scores of ``disparity`` against stored ground truth ``gt_values`` (disparity x scale):
+    :meth:`Truth.scores` of ``Truth(gt_values, scale, border, mask)``.
 
     Parameters
     ----------
@@ -120,33 +159,7 @@ def evaluate(
     ValueError
         If the shapes differ or no pixel is left to evaluate.
     """
-    if np.shape(disparity) != np.shape(gt_values):
-        raise ValueError(
-            f"disparity is {np.shape(disparity)[::-1]} (w x h), ground truth is "
-            f"{np.shape(gt_values)[::-1]}"
-        )
-    keep = evaluation_mask(gt_values, border, mask)
-    error = _errors(disparity, gt_values, scale, keep)
-    if error.size == 0:
-        raise ValueError("no pixel left to evaluate (check border, mask and scale)")
-    truth = np.asarray(gt_values)[keep].astype(np.float64) / scale
-
-    def percent(bad: np.ndarray) -> float:
-        return float(100.0 * np.mean(bad))
-
-    pixels, share = KITTI_D1
-    return Scores(
-        rmse=float(np.sqrt(np.mean(error**2))),
-        bpp=percent(error > threshold),
-        pixels=error.size,
-        threshold=threshold,
-        avgerr=float(np.mean(error)),
-        **{
-            f"bad_{limit:g}".replace(".", "_"): percent(error > limit)
-            for limit in MIDDLEBURY_THRESHOLDS
-        },
-        d1=percent((error > pixels) & (error > share * np.abs(truth))),
-    )
+    return Truth(gt_values, scale, border, mask).scores(disparity, threshold)
 
 
 def evaluate_regions(
@@ -166,48 +179,7 @@ def evaluate_regions(
     for name, region in regions.items():
         if region is None:
             continue
-        inside = base & region.astype(bool)
-        if evaluation_mask(gt_values, border, inside).any():
-            scores[name] = evaluate(disparity, gt_values, scale, border, inside, threshold)
+        inside = Truth(gt_values, scale, border, base & region.astype(bool))
+        if inside.kept().any():
+            scores[name] = inside.scores(disparity, threshold)
     return scores
-
-
-def _errors(
-    disparity: np.ndarray, gt_values: np.ndarray, scale: float, keep: np.ndarray, dtype=np.float64
-) -> np.ndarray:
-    """|d - gt| in pixels of the kept pixels (one formula for the scores and the error map)."""
-    truth = np.asarray(gt_values)[keep].astype(dtype) / scale
-    return np.abs(np.asarray(disparity, dtype)[keep] - truth)
-
-
-def error_map(
-    disparity: np.ndarray,
-    gt_values: np.ndarray,
-    scale: float = 1.0,
-    border: int = 0,
-    mask: np.ndarray | None = None,
-) -> np.ndarray:
-    """|d - gt| in pixels where evaluated, NaN elsewhere (for error-map images).
-
-    Parameters
-    ----------
-    disparity : numpy.ndarray
-        The map (h, w), px.
-    gt_values : numpy.ndarray
-        Stored ground truth (h, w), disparity x ``scale``.
-    scale : float, optional
-        Stored value per pixel of disparity.
-    border : int, optional
-        Ignored frame, pixels.
-    mask : numpy.ndarray, optional
-        Pixels to show (non-zero).
-
-    Returns
-    -------
-    numpy.ndarray
-        (h, w) float32.
-    """
-    keep = evaluation_mask(gt_values, border, mask)
-    errors = np.full(keep.shape, np.nan, np.float32)
-    errors[keep] = _errors(disparity, gt_values, scale, keep, np.float32)
-    return errors

@@ -299,7 +299,7 @@ def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> Leve
     """
     height, width = inputs.view_height, inputs.shape[1]
     return LevelReport(
-        index=inputs.index,
+        index=inputs.plan.index,
         downsample=inputs.plan.downsample,
         bin_width=inputs.plan.bin_width,
         views=inputs.views,

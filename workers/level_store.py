@@ -63,11 +63,11 @@ class LevelStorage(StoreBase):
             arrays["initial_labels"] = inputs.initial_labels
         for name, array in arrays.items():
             fields.update(array_fields(name, array, piece=piece))
-        key = self.key("job", job_id, "level", inputs.index)
+        key = self.key("job", job_id, "level", inputs.plan.index)
         # a level's images depend on the job and the downsampling only (bin pyramid: one copy)
         images = self.key("job", job_id, "level", "views", inputs.plan.downsample)
         ttl = self.settings.task_visibility_timeout + LEVEL_INPUTS_GRACE
-        what = f"the inputs of level {inputs.index + 1}"
+        what = f"the inputs of level {inputs.plan.index + 1}"
         if not self.redis.exists(images):  # once per job and downsampling
             views = {
                 field: value

@@ -151,16 +151,16 @@ def launch_level(celery: Celery, store: JobStore, record: JobRecord, inputs: Lev
     remote = inference.plans_with_solver
     # the host's step (the residual design settles the level): its labels go with the inputs;
     # the strategy reports what it does as the level's phase (shared.activity)
-    with reporting(partial(store.set_phase, record.id, inputs.index)):
+    with reporting(partial(store.set_phase, record.id, inputs.plan.index)):
         done = inference.prepare(inputs, config)
         if done is not None:
-            log.info("job %s: level %d %s", record.id, inputs.index + 1, done)
+            log.info("job %s: level %d %s", record.id, inputs.plan.index + 1, done)
         if not remote:
             inference.plan(inputs, config)  # sets inputs.prepared: the bundles' width
     store.save_level(record.id, inputs, started=started)
     if remote:
-        if _advance(store, record.id, inputs.index):
-            send_plan(celery, store.settings, record.id, inputs.index, config.solver)
+        if _advance(store, record.id, inputs.plan.index):
+            send_plan(celery, store.settings, record.id, inputs.plan.index, config.solver)
         return
     _fan_out_planned(celery, store, record.id, inputs, launched_here=True)
 
@@ -189,13 +189,13 @@ def _fan_out_planned(
     config = record.config
     chunks = task_chunks(inputs, config, rows_per_task(store.settings, config.solver))
     total = sum(len(chunk) for chunk in chunks)
-    if _advance(store, job_id, inputs.index, total, launched_here=launched_here):
+    if _advance(store, job_id, inputs.plan.index, total, launched_here=launched_here):
         if not chunks:  # the host settled every pixel: nothing to send, the fan-in at once
             celery.signature(
-                LEVEL_DONE, args=([], job_id, inputs.index), queue=store.settings.control_queue
+                LEVEL_DONE, args=([], job_id, inputs.plan.index), queue=store.settings.control_queue
             ).apply_async()
             return
-        fan_out(celery, store, record, inputs.index, chunks)
+        fan_out(celery, store, record, inputs.plan.index, chunks)
 
 
 def send_plan(celery: Celery, settings: Settings, job_id: str, index: int, solver: str) -> None:
@@ -450,7 +450,7 @@ def solve_chunk(
     # every D-Wave problem labelled with the task, its id kept (shared.solvers.qpu.problems)
     solver = job_solver(config)  # once for the task: the inference and the meter take it
     with sent_problems(task_label(job_id, index, bundle_key(row_ranges[0]))) as problems:
-        if solver.metered and meter is not None:
+        if solver.spec.metered and meter is not None:
             results = solve_metered(
                 meter(),
                 record.owner or LOCAL_USER,

@@ -28,7 +28,7 @@ def job_solver(config: MatchConfig) -> ResolvedSolver:
 
 def solver_queue(solver: str) -> str:
     """The Celery queue of solver ``solver``'s bundles."""
-    return resolve(solver).queue
+    return resolve(solver).spec.queue_name
 
 
 def solver_queues() -> list[str]:
@@ -39,7 +39,7 @@ def solver_queues() -> list[str]:
 def token_queues() -> set[str]:
     """Queues of solvers that spend real D-Wave time: only their workers get the token."""
     solvers = [resolve(name) for name in solver_names()]
-    return {solver.queue for solver in solvers if solver.spec.uses_qpu_time}
+    return {solver.spec.queue_name for solver in solvers if solver.spec.uses_qpu_time}
 
 
 def local_queues() -> tuple[list[str], list[str]]:
@@ -55,7 +55,7 @@ def local_queues() -> tuple[list[str], list[str]]:
             log.warning("solver %s cannot load here: %s", name, error)
             continue
         if runs_here:
-            (dwave if solver.spec.uses_qpu_time else cpu).append(solver.queue)
+            (dwave if solver.spec.uses_qpu_time else cpu).append(solver.spec.queue_name)
     return cpu, dwave
 
 

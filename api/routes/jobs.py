@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import zipfile
 from datetime import timedelta
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import cv2
 import numpy as np
@@ -15,7 +16,7 @@ from pydantic import Field
 
 from api import job_service
 from api.auth import can_see
-from api.deps import Caller, CallerDep, PrincipalDep, Responses, Services, ServicesDep, UploadViews
+from api.deps import Caller, CallerDep, PrincipalDep, Responses, ServicesDep, UploadViews
 from api.errors import ExpiredError, JobNotFoundError, Refusal, ServiceError
 from api.job_service import JobForm, find_job, finished_result
 from api.responses import (
@@ -38,7 +39,7 @@ from shared.images import DisparityFormatError, disparity_bytes, preview_png
 from shared.solvers.meters.qpu_time import is_metered
 from workers.arrays import npy
 from workers.quota import LOCAL_USER
-from workers.records import GroundTruth, JobRecord, JobState
+from workers.records import Cameras, GroundTruth, JobRecord, JobState
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -87,6 +88,17 @@ def status_of(record: JobRecord, caller: Caller) -> JobStatus:
     )
 
 
+def _camera(name: str, description: str) -> Any:
+    """:class:`Cameras`' field ``name`` as an optional form field: the core's bounds (one
+    place for them), finite, described for the form."""
+    bounds = {
+        key: value
+        for constraint in Cameras.model_fields[name].metadata
+        for key, value in dataclasses.asdict(constraint).items()
+    }
+    return Field(None, allow_inf_nan=False, description=description, **bounds)
+
+
 class JobUpload(UploadViews):
     """The form of POST /v1/jobs: the views and params, then the job's own fields."""
 
@@ -110,18 +122,11 @@ class JobUpload(UploadViews):
     label: str | None = Field(
         None, max_length=MAX_LABEL, description="Your name for the job, shown in job lists"
     )
-    focal: float | None = Field(
-        None, gt=0, allow_inf_nan=False, description="Focal length, px (with baseline: depth)"
+    focal: float | None = _camera("focal", "Focal length, px (with baseline: depth)")
+    baseline: float | None = _camera(
+        "baseline", "Camera baseline (with focal: depth and a point cloud in its unit)"
     )
-    baseline: float | None = Field(
-        None,
-        gt=0,
-        allow_inf_nan=False,
-        description="Camera baseline (with focal: depth and a point cloud in its unit)",
-    )
-    doffs: float | None = Field(
-        None, allow_inf_nan=False, description="cx(right) - cx(left), px (Middlebury's doffs)"
-    )
+    doffs: float | None = _camera("doffs", "cx(right) - cx(left), px (Middlebury's doffs)")
     calib: UploadFile | None = Field(
         None, description="Calibration file (Middlebury calib.txt or KITTI's): depth and PLY"
     )
@@ -233,8 +238,9 @@ def get_preview(job_id: str, svc: ServicesDep, principal: PrincipalDep):
     )
 
 
-def finished_map(job_id: str, name: str, svc: Services, principal) -> tuple[JobRecord, np.ndarray]:
+def finished_map(job_id: str, name: str, caller: Caller) -> tuple[JobRecord, np.ndarray]:
     """A succeeded job's map saved beside its result (404 when the job has none)."""
+    svc, principal, _ = caller
     record, _ = finished_result(job_id, svc, principal)
     if name not in record.maps:
         raise ServiceError(
@@ -261,6 +267,17 @@ def attachment(data: bytes, media: str, filename: str) -> Response:
     )
 
 
+#: How a float map (confidence, depth) is served: PFM or npy.
+FloatFormat = Literal["pfm", "npy"]
+
+
+def float_map(values: np.ndarray, job_id: str, name: str, format: FloatFormat) -> Response:
+    """A float map as the attachment ``<job>.<name>.<format>``."""
+    return attachment(
+        disparity_bytes(values, format), DISPARITY_MEDIA[format], f"{job_id}.{name}.{format}"
+    )
+
+
 MAP_RESPONSES: dict = {
     **NOT_FOUND,
     409: {"description": "Not finished"},
@@ -270,36 +287,25 @@ MAP_RESPONSES: dict = {
 
 
 @router.get("/{job_id}/validity.png", responses=MAP_RESPONSES, response_class=Response)
-def get_validity(job_id: str, svc: ServicesDep, principal: PrincipalDep):
+def get_validity(job_id: str, caller: CallerDep):
     """Where the left-right check confirmed the disparity (255) before holes were filled (0)."""
-    _, valid = finished_map(job_id, "validity", svc, principal)
+    _, valid = finished_map(job_id, "validity", caller)
     image = np.where(valid, 255, 0).astype(np.uint8)
     return attachment(cv2.imencode(".png", image)[1].tobytes(), "image/png", f"{job_id}.valid.png")
 
 
 @router.get("/{job_id}/confidence", responses=MAP_RESPONSES, response_class=Response)
-def get_confidence(
-    job_id: str,
-    svc: ServicesDep,
-    principal: PrincipalDep,
-    format: Literal["pfm", "npy"] = "pfm",
-):
+def get_confidence(job_id: str, caller: CallerDep, format: FloatFormat = "pfm"):
     """Confidence of each disparity in [0, 1] (the cost margin; 0 where the check failed)."""
-    _, confidence = finished_map(job_id, "confidence", svc, principal)
-    return attachment(
-        disparity_bytes(confidence, format),
-        DISPARITY_MEDIA[format],
-        f"{job_id}.confidence.{format}",
-    )
+    _, confidence = finished_map(job_id, "confidence", caller)
+    return float_map(confidence, job_id, "confidence", format)
 
 
 @router.get("/{job_id}/provenance", responses=MAP_RESPONSES, response_class=Response)
-def get_provenance(
-    job_id: str, svc: ServicesDep, principal: PrincipalDep, format: Literal["png", "npy"] = "png"
-):
+def get_provenance(job_id: str, caller: CallerDep, format: Literal["png", "npy"] = "png"):
     """Which stage decided each pixel: a colour PNG, or the uint8 codes as npy (the legend:
     ``GET /v1/provenance-legend``; the pixels per stage are the status' ``provenance_counts``)."""
-    _, stages = finished_map(job_id, "provenance", svc, principal)
+    _, stages = finished_map(job_id, "provenance", caller)
     data = provenance_map.png(stages) if format == "png" else npy(stages)
     media = "image/png" if format == "png" else DISPARITY_MEDIA["npy"]
     return attachment(data, media, f"{job_id}.provenance.{format}")
@@ -316,18 +322,10 @@ def job_calibration(record: JobRecord) -> Calibration:
 
 
 @router.get("/{job_id}/depth", responses=MAP_RESPONSES, response_class=Response)
-def get_depth(
-    job_id: str,
-    svc: ServicesDep,
-    principal: PrincipalDep,
-    format: Literal["pfm", "npy"] = "pfm",
-):
+def get_depth(job_id: str, caller: CallerDep, format: FloatFormat = "pfm"):
     """Depth Z = focal x baseline / (d + doffs) in the baseline's unit; NaN: no depth."""
-    record, disparity = finished_result(job_id, svc, principal)
-    depth = job_calibration(record).depth(disparity)
-    return attachment(
-        disparity_bytes(depth, format), DISPARITY_MEDIA[format], f"{job_id}.depth.{format}"
-    )
+    record, disparity = finished_result(job_id, caller.svc, caller.principal)
+    return float_map(job_calibration(record).depth(disparity), job_id, "depth", format)
 
 
 @router.get("/{job_id}/points.ply", responses=MAP_RESPONSES, response_class=Response)

@@ -20,7 +20,7 @@ def list_solvers(svc: ServicesDep):
     consumers = svc.queues.consumers()
     infos = []
     for solver in solver_catalog():
-        _, availability = load_solver(solver.name)
+        _, availability = load_solver(solver.spec.name)
         record = solver.spec
         workers = None if consumers is None else sorted(consumers.get(record.queue_name, []))
         infos.append(

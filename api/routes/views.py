@@ -21,7 +21,7 @@ from api.schemas import LegendEntry
 from api.uploads import decode_view, read_upload
 from shared import provenance_map
 from shared.images import colorize
-from shared.metrics import BAD_PIXEL_THRESHOLD, error_map
+from shared.metrics import BAD_PIXEL_THRESHOLD, Truth
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 thumbnails = APIRouter(tags=["web"])
@@ -72,7 +72,8 @@ def errors_of(job_id: str, svc: Services, principal: Principal) -> np.ndarray:
     truth = svc.store.load_ground_truth(job_id)
     if truth is None:
         raise ExpiredError(job_id, "ground truth")
-    return error_map(disparity, truth, record.ground_truth.scale, record.ground_truth.border)
+    scored = Truth(truth, record.ground_truth.scale, record.ground_truth.border)
+    return scored.error_map(disparity)
 
 
 @router.get(

@@ -16,7 +16,7 @@ import numpy as np
 from shared.bench.scoring import Run
 from shared.datasets import Scene
 from shared.images import preview_png, save_disparity
-from shared.metrics import error_map
+from shared.metrics import Truth
 
 #: Errors above this many pixels saturate the error-map colours.
 ERROR_MAP_MAX = 4.0
@@ -103,7 +103,7 @@ def write_images(
     run.files = {"preview": _relative(preview, out), "disparity": _relative(raw, out)}
     if gt is not None:
         errors = folder / f"{stem}-error.png"
-        errors.write_bytes(error_map_png(error_map(disparity, gt, scene.scale, scene.border)))
+        errors.write_bytes(error_map_png(Truth(gt, scene.scale, scene.border).error_map(disparity)))
         run.files["error_map"] = _relative(errors, out)
 
 

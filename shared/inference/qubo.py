@@ -153,7 +153,7 @@ def encoded(
     start: np.ndarray | None,
 ) -> TileProblem:
     """A bundle's :class:`TileProblem` from its costs and starting labels (None: no warm start)."""
-    seed = bundle_seed(config.seed, inputs.index, bundle.row_start, bundle.col_start)
+    seed = bundle_seed(config.seed, inputs.plan.index, bundle.row_start, bundle.col_start)
     codec = get_codec(config.encoding)
     initial = None if start is None else codec.encode_labels(start, costs.num_labels)
     bqm = codec.encode(costs, config.rectifier)

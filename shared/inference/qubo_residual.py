@@ -51,7 +51,7 @@ class ResidualTiles(QuboTiles):
         if isinstance(solver, ShapePlanner) and bundles:
             log.info(
                 "level %d: embedding the %dx%d tile shape (%d tiles to send)",
-                inputs.index + 1, settle.TILE, settle.TILE, len(bundles),
+                inputs.plan.index + 1, settle.TILE, settle.TILE, len(bundles),
             )  # fmt: skip
             solver.embed_shapes(
                 encoding=config.encoding,

@@ -41,7 +41,7 @@ Key = tuple[Inference, bool, bool | None]
 
 def _run_config(solver: ResolvedSolver) -> MatchConfig:
     if solver.config is None:  # resolved from a name only
-        raise ValueError(f"{solver.name} was resolved without a configuration")
+        raise ValueError(f"{solver.spec.name} was resolved without a configuration")
     return solver.config
 
 
@@ -82,7 +82,7 @@ TABLE: list[Row] = [
 def _key(solver: ResolvedSolver) -> Key:
     """The run's facts the table is keyed on, from its resolved solver (``row_solver`` from its
     record: no sampler built, so no dimod import for ``exact``)."""
-    return (_run_config(solver).inference, solver.row_solver, solver.certifies_tiles)
+    return (_run_config(solver).inference, solver.spec.row_solver, solver.certifies_tiles)
 
 
 def row_of(config: MatchConfig | ResolvedSolver) -> Row:

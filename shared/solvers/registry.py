@@ -291,9 +291,9 @@ def resolve(config: MatchConfig | str) -> ResolvedSolver:
 
 
 def is_row_solver(name: str) -> bool:
-    """``resolve(name).row_solver``: whether the solver works on the MRF costs of whole rows
+    """``resolve(name).spec.row_solver``: whether the solver works on the MRF costs of whole rows
     (``exact``), read from its record without building the sampler."""
-    return resolve(name).row_solver
+    return resolve(name).spec.row_solver
 
 
 def uses_warm_start(config: MatchConfig) -> bool:

@@ -31,6 +31,8 @@ class ResolvedSolver:
     """The run's solver, resolved once: its record, its sampler (built on first use), its kind
     and what the run's configuration makes of it (warm start, certified tiles, bundle width).
 
+    The record's own facts (name, queue, meter, whether it is a row solver: declared there, so
+    read without building the sampler) are read from ``spec``; this class adds what is derived.
     ``config`` is None when only a name was resolved (then the run-dependent answers are not
     asked). Pickles without its sampler (a child process builds its own on first use).
     """
@@ -43,43 +45,18 @@ class ResolvedSolver:
     def __getstate__(self) -> dict[str, Any]:
         return {key: value for key, value in self.__dict__.items() if key != "sampler"}
 
-    @property
-    def name(self) -> str:
-        return self.spec.name
-
-    @property
-    def queue(self) -> str:
-        """The Celery queue its bundles go to."""
-        return self.spec.queue_name
-
-    @property
-    def meter(self) -> str | None:
-        """The name of the meter jobs on it are charged with (None: not metered)."""
-        return self.spec.meter
-
-    @property
-    def metered(self) -> bool:
-        return self.spec.metered
-
-    @property
-    def row_solver(self) -> bool:
-        """It works on the MRF costs of whole rows (:class:`RowSolver`). Read from the record,
-        where it is declared without building the sampler (no dimod for ``exact``'s grids);
-        the registry checks the sampler against it when it builds one."""
-        return self.spec.row_solver
-
     @cached_property
     def sampler(self) -> Any:
         """The sampler (built on first use; a row solver's is its :class:`RowSolver`)."""
         if self.factory is None:
-            raise ValueError(f"{self.name} was resolved without its sampler's factory")
+            raise ValueError(f"{self.spec.name} was resolved without its sampler's factory")
         return self.factory()
 
     @cached_property
     def kind(self) -> Kind:
         """``rows``, ``batch`` or ``qubo``: from the sampler's Protocols (a row solver's
         without building it)."""
-        if self.row_solver:
+        if self.spec.row_solver:
             return "rows"
         return "batch" if isinstance(self.sampler, BatchSolver) else "qubo"
 
@@ -88,11 +65,11 @@ class ResolvedSolver:
         """Whether a level's bundles are planned on the solver itself (a
         :class:`ShapePlanner`: the widest segment that embeds, each shape's embedding), so
         where its credentials are."""
-        return not self.row_solver and isinstance(self.sampler, ShapePlanner)
+        return not self.spec.row_solver and isinstance(self.sampler, ShapePlanner)
 
     def _config(self) -> MatchConfig:
         if self.config is None:
-            raise ValueError(f"{self.name} was resolved without a configuration")
+            raise ValueError(f"{self.spec.name} was resolved without a configuration")
         return self.config
 
     @property
@@ -110,7 +87,7 @@ class ResolvedSolver:
     def solves_grids(self) -> bool:
         """Whether a bundle is a whole view's grid, minimised by dual decomposition: ``grid``
         inference with a row solver (``exact``)."""
-        return self._config().inference is Inference.GRID and self.row_solver
+        return self._config().inference is Inference.GRID and self.spec.row_solver
 
     @property
     def certifies_tiles(self) -> bool:
@@ -118,7 +95,8 @@ class ResolvedSolver:
         decomposition (``certify_tiles``, ``grid`` inference, not a row solver): the residual
         design (:mod:`shared.settle`)."""
         config = self._config()
-        return config.certify_tiles and config.inference is Inference.GRID and not self.row_solver
+        grid = config.inference is Inference.GRID
+        return config.certify_tiles and grid and not self.spec.row_solver
 
     def bundle_width_setting(self) -> int | str | None:
         """The run's ``bundle_width`` with the solver's default filled in: unset is ``auto``
@@ -127,15 +105,15 @@ class ResolvedSolver:
         solver cannot use)."""
         config = self._config()
         width = config.bundle_width
-        if self.row_solver:
+        if self.spec.row_solver:
             if width is not None:
                 raise ValueError(
-                    f"{self.name} solves whole rows exactly; leave bundle_width unset "
+                    f"{self.spec.name} solves whole rows exactly; leave bundle_width unset "
                     "(or pick a QUBO solver such as sa to solve row segments)"
                 )
             if config.inference is Inference.ROWS and config.bundle_height != 1:
                 raise ValueError(
-                    f"{self.name} solves single-row bundles (rows inference) or each view's "
+                    f"{self.spec.name} solves single-row bundles (rows inference) or each view's "
                     f"whole grid (grid inference); bundle_height {config.bundle_height} sets "
                     "the tiles of QUBO solvers: leave it at 1, or pick a QUBO solver such as sa"
                 )
@@ -146,7 +124,7 @@ class ResolvedSolver:
         if width == AUTO and not planner:
             raise ValueError(
                 f"bundle_width auto finds the widest segment that embeds on a QPU graph; "
-                f"{self.name} has none: give a width in pixels or leave it unset"
+                f"{self.spec.name} has none: give a width in pixels or leave it unset"
             )
         return width
 
@@ -154,11 +132,11 @@ class ResolvedSolver:
         """The run's ``solver_params`` checked against the solver's schema
         (``InvalidSolverParamsError`` says why not), as :func:`shared.solvers.params.check`
         returns them."""
-        return schemas.check(self.spec.params, self.name, self._config().solver_params)
+        return schemas.check(self.spec.params, self.spec.name, self._config().solver_params)
 
     def rows(self) -> RowSolver:
         """The sampler as the :class:`RowSolver` it is (``TypeError`` for a QUBO solver)."""
         sampler = self.sampler
         if not isinstance(sampler, RowSolver):
-            raise TypeError(f"{self.name} is not a row solver")
+            raise TypeError(f"{self.spec.name} is not a row solver")
         return sampler

@@ -37,17 +37,28 @@ def _write_views(folder: Path, seed: int) -> list[str]:
     return views
 
 
-def test_match_with_exact_imports_neither_dimod_nor_networkx(tmp_path):
-    views = _write_views(tmp_path, seed=0)
-    output = tmp_path / "d.pfm"
-    done = subprocess.run(
-        [sys.executable, "-c", PROBE, "match", *views, "-o", str(output), "--max-disparity", "4"],
+def _python(
+    code: str, *args: str, timeout: int, cache: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    """``code`` run by a fresh interpreter with this tree on its path (and ``cache`` as its
+    cache folder): what it imports is what a fresh ``qhsm`` process would."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    if cache is not None:
+        env["XDG_CACHE_HOME"] = str(cache)
+    return subprocess.run(
+        [sys.executable, "-c", code, *args],
         capture_output=True,
         text=True,
         cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        timeout=120,
+        env=env,
+        timeout=timeout,
     )
+
+
+def test_match_with_exact_imports_neither_dimod_nor_networkx(tmp_path):
+    views = _write_views(tmp_path, seed=0)
+    output = tmp_path / "d.pfm"
+    done = _python(PROBE, "match", *views, "-o", str(output), "--max-disparity", "4", timeout=120)
     assert done.returncode == 0, done.stderr
     assert output.exists()
     assert "HEAVY \n" in done.stdout
@@ -66,24 +77,8 @@ def test_match_with_compiled_kernels_imports_no_numba_and_gives_the_same_map(tmp
         if cache.name == "built":
             build(cache / "qhsm" / "kernels")
         output = tmp_path / f"{cache.name}.pfm"
-        done = subprocess.run(
-            [
-                sys.executable,
-                "-c",
-                probe,
-                "match",
-                *views,
-                "-o",
-                str(output),
-                "--max-disparity",
-                "4",
-            ],
-            capture_output=True,
-            text=True,
-            cwd=ROOT,
-            env={**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(cache)},
-            timeout=300,
-        )
+        args = ("match", *views, "-o", str(output), "--max-disparity", "4")
+        done = _python(probe, *args, timeout=300, cache=cache)
         assert done.returncode == 0, done.stderr
         maps.append(output.read_bytes())
         heavy = "HEAVY numba,scipy\n" if cache.name == "none" else "HEAVY \n"
@@ -105,13 +100,6 @@ assert kernels._preloading is started and started.daemon
 started.join(120)
 print("LOADED", "shared.grid_kernels" in sys.modules, kernels.disagreements._jit is not None)
 """
-    done = subprocess.run(
-        [sys.executable, "-c", probe],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(tmp_path)},
-        timeout=180,
-    )
+    done = _python(probe, timeout=180, cache=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "LOADED True True" in done.stdout

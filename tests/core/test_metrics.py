@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shared.metrics import error_map, evaluate, evaluate_regions
+from shared.metrics import Truth, evaluate, evaluate_regions
 
 
 def test_rmse_and_bad_pixels_use_the_ground_truth_scale():
@@ -39,7 +39,7 @@ def test_exactly_one_pixel_off_is_not_bad():
 
 
 def test_error_map_is_nan_outside_the_evaluated_pixels():
-    errors = error_map(np.full((3, 3), 2.0), np.array([[1, 0, 1], [1, 1, 1], [1, 1, 1.0]]))
+    errors = Truth(np.array([[1, 0, 1], [1, 1, 1], [1, 1, 1.0]])).error_map(np.full((3, 3), 2.0))
     assert np.isnan(errors[0, 1]) and errors[0, 0] == pytest.approx(1.0)
 
 

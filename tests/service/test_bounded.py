@@ -74,7 +74,7 @@ def test_uploads_levels_bundles_and_results_travel_in_bounded_commands(store):
     rng = np.random.default_rng(2)
     inputs = level_inputs(rng)
     store.save_level(record.id, inputs, started=1.0)
-    loaded, _ = store.load_level(record.id, inputs.index)
+    loaded, _ = store.load_level(record.id, inputs.plan.index)
     for name in ("left", "right", "candidates", "initial_labels"):
         assert np.array_equal(getattr(loaded, name), getattr(inputs, name)), name
     # a whole view's labels (exact's bundle) are above a piece: they travel in pieces too

@@ -184,12 +184,12 @@ def test_a_large_levels_inputs_are_written_in_bounded_pieces(store):
         initial_labels=candidates[..., 0].astype(np.int32),
     )  # fmt: skip
     store.save_level(record.id, inputs, started=1.0)
-    level = store.key("job", record.id, "level", inputs.index)
+    level = store.key("job", record.id, "level", inputs.plan.index)
     images = store.key("job", record.id, "level", "views", plan.downsample)
     for key in (level, images):
         sizes = [store.redis.hstrlen(key, field) for field in store.redis.hkeys(key)]
         assert max(sizes) <= MAX_VALUE_BYTES
-    loaded, _ = store.load_level(record.id, inputs.index)
+    loaded, _ = store.load_level(record.id, inputs.plan.index)
     for name in ("left", "right", "candidates", "initial_labels"):
         ours, theirs = getattr(loaded, name), getattr(inputs, name)
         assert ours.dtype == theirs.dtype and np.array_equal(ours, theirs), name

@@ -22,9 +22,9 @@ def test_a_solver_resolves_to_its_kind_queue_and_meter():
     assert registry.resolve("hybrid-sim").kind == "batch"
     assert registry.resolve("qpu-sim").kind == "batch"  # packed calls
     sim = registry.resolve("qpu-sim")
-    assert (sim.queue, sim.meter, sim.metered) == ("qpu-sim", "qpu", True)
+    assert (sim.spec.queue_name, sim.spec.meter, sim.spec.metered) == ("qpu-sim", "qpu", True)
     assert sim.plans_with_solver and not registry.resolve("hybrid-sim").plans_with_solver
-    assert (registry.resolve("sa").meter, registry.resolve("sa").metered) == (None, False)
+    assert (registry.resolve("sa").spec.meter, registry.resolve("sa").spec.metered) == (None, False)
 
 
 def test_exacts_grids_resolve_without_building_a_sampler():
@@ -33,7 +33,7 @@ def test_exacts_grids_resolve_without_building_a_sampler():
 
     config = MatchConfig(solver="exact", max_disparity=6)
     solver = ResolvedSolver(registry.spec("exact"), config, never)
-    assert solver.row_solver and solver.kind == "rows" and solver.solves_grids
+    assert solver.spec.row_solver and solver.kind == "rows" and solver.solves_grids
     assert not solver.certifies_tiles and not solver.plans_with_solver
     assert solver.bundle_width_setting() is None
 

@@ -46,7 +46,7 @@ def test_capabilities_are_declared_once_in_the_registry():
     assert is_metered("qpu-sim") and not get_solver("qpu-sim").uses_qpu_time
     assert get_solver("qpu").uses_qpu_time and not is_metered(SD)
     assert [n for n in registry.solver_names() if registry.spec(n).row_solver] == ["exact"]
-    assert registry.resolve(SD).queue == "dimod" and "dimod" in registry.queue_names()
+    assert registry.resolve(SD).spec.queue_name == "dimod" and "dimod" in registry.queue_names()
     assert get_solver("sa").description == registry.spec("sa").description
 
 
@@ -225,7 +225,7 @@ def test_plugins_register_through_the_entry_point_group(tmp_path, monkeypatch):
     assert registry.spec("probe") == SolverSpec(
         "probe", registry.spec("probe").factory, description="probe", queue="probe-queue"
     )
-    assert registry.resolve("probe").queue == "probe-queue"
+    assert registry.resolve("probe").spec.queue_name == "probe-queue"
     assert isinstance(get_solver("probe"), dimod.Sampler)
 
 

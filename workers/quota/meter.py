@@ -139,7 +139,7 @@ def solve_metered(
     assert config is not None, "solve_metered needs the solver resolved with the job's config"
     inference = inference_for(solver)  # the task's resolution, not a second one
     sent = inference.bundle_config(inputs, config)  # as the bundles are solved (tiles: 4 rows)
-    kind = meter_for(solver.name)
+    kind = meter_for(solver.spec.name)
     charged_seconds = kind.charged_seconds if kind is not None else (lambda timing: 0.0)
     if solver.kind == "batch":  # one slot, one reservation
         if not still_running():

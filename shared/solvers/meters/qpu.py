@@ -178,7 +178,7 @@ class QpuAccessMeter(Meter):
         calls = -(-load.sent // together)
         qubits_per_call = min(MAX_QUBITS, together * qubits)
         call = BundleCall(
-            solver.name, load.variables, params, qubits_per_call, None, live,
+            solver.spec.name, load.variables, params, qubits_per_call, None, live,
             schema_defaults(solver.spec.params),
         )  # fmt: skip
         seconds = calls * self.bundle_seconds(call)

@@ -323,7 +323,7 @@ def job_seconds(
 
 def _config(solver: ResolvedSolver) -> MatchConfig:
     if solver.config is None:
-        raise ValueError(f"{solver.name} was resolved without the job's configuration")
+        raise ValueError(f"{solver.spec.name} was resolved without the job's configuration")
     return solver.config
 
 
