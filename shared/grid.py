@@ -190,12 +190,11 @@ class GridMRF:
         """The grid's edges as every grid kernel takes them, in one place: candidates, ``first``
         (a placeholder when the candidates are not consecutive windows), whether they are
         windows, the weights, slope and truncation."""
-        windowed = self.first is not None
-        first = self.first if windowed else np.zeros((1, 1), dtype=np.int32)
+        first = self.first if self.first is not None else np.zeros((1, 1), dtype=np.int32)
         return (
             self.candidates,
             first,
-            windowed,
+            self.first is not None,
             self.weight_h,
             self.weight_v,
             self.slope,
