@@ -27,6 +27,8 @@ not the image) and blocks can be computed anywhere.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -41,6 +43,40 @@ CENSUS_WINDOW = 5
 AGGREGATION_WINDOW = 5
 #: Image rows a block of cost rows needs on each side (census reach + aggregation reach).
 HALO = CENSUS_WINDOW // 2 + AGGREGATION_WINDOW // 2
+
+
+@dataclass(frozen=True)
+class VolumeBlock:
+    """The part of a view's cost volume to build: disparities 0..``max_disparity`` of the rows
+    [``start``, ``stop``) (the views' other rows are context)."""
+
+    max_disparity: int
+    start: int
+    stop: int
+
+    @property
+    def rows(self) -> int:
+        """Rows of the block."""
+        return self.stop - self.start
+
+
+class VolumeFunction(Protocol):
+    """A data term as a cost volume: ``(left, right, block, out=None)`` -> costs
+    (D + 1, ``block.rows``, w) of the term's dtype (:func:`volume_dtype`).
+
+    ``left`` and ``right`` are whole views (h, w) gray or (h, w, 3) BGR in [0, 1] (rows outside
+    the block are context); ``out`` (the term's dtype, any strides) receives the costs, which
+    are returned: a buffer reused from block to block of rows saves the page faults of a fresh
+    64 MiB array per block (5 % of an Art x3 run).
+    """
+
+    def __call__(
+        self,
+        left: np.ndarray,
+        right: np.ndarray,
+        block: VolumeBlock,
+        out: np.ndarray | None = None,
+    ) -> np.ndarray: ...
 
 
 def squared_difference(left: np.ndarray, right: np.ndarray, candidates: np.ndarray) -> np.ndarray:
@@ -67,34 +103,13 @@ def squared_difference(left: np.ndarray, right: np.ndarray, candidates: np.ndarr
 
 
 def squared_volume(
-    left: np.ndarray,
-    right: np.ndarray,
-    max_disparity: int,
-    start: int,
-    stop: int,
-    out: np.ndarray | None = None,
+    left: np.ndarray, right: np.ndarray, block: VolumeBlock, out: np.ndarray | None = None
 ) -> np.ndarray:
-    """The squared difference of rows [start, stop) at every disparity 0..D, (D + 1, n, w)
-    float64 (what the bin pyramid needs to take a bin's minimum; whole views in, gray or colour).
-
-    Parameters
-    ----------
-    left, right : numpy.ndarray
-        Whole views (h, w) or (h, w, 3) in [0, 1].
-    max_disparity : int
-        Largest disparity D of the volume.
-    start, stop : int
-        The rows [start, stop) to cost.
-    out : numpy.ndarray, optional
-        Where to write them (see :func:`cost_volume`).
-
-    Returns
-    -------
-    numpy.ndarray
-        Costs (D + 1, stop - start, w), float64.
-    """
-    left_rows = to_gray(left[start:stop]).astype(np.float64)
-    right_rows = _shifted(to_gray(right[start:stop]).astype(np.float64), max_disparity)
+    """:class:`VolumeFunction` of the squared difference, float64, at every disparity (what the
+    bin pyramid needs to take a bin's minimum); colour views are turned gray."""
+    max_disparity, rows = block.max_disparity, slice(block.start, block.stop)
+    left_rows = to_gray(left[rows]).astype(np.float64)
+    right_rows = _shifted(to_gray(right[rows]).astype(np.float64), max_disparity)
     width = left_rows.shape[1]
     return np.stack(
         [
@@ -139,41 +154,18 @@ def _shifted(image: np.ndarray, max_disparity: int) -> np.ndarray:
     return np.pad(image, pad, mode="edge")
 
 
-def _block_rows(view: np.ndarray, start: int, stop: int) -> np.ndarray:
-    """Row numbers of the block [start, stop) and its HALO context, borders replicated."""
-    return np.clip(np.arange(start - HALO, stop + HALO), 0, view.shape[0] - 1)
+def _block_rows(view: np.ndarray, block: VolumeBlock) -> np.ndarray:
+    """Row numbers of the block and its HALO context, borders replicated."""
+    return np.clip(np.arange(block.start - HALO, block.stop + HALO), 0, view.shape[0] - 1)
 
 
 def ad_census_volume(
-    left: np.ndarray,
-    right: np.ndarray,
-    max_disparity: int,
-    start: int,
-    stop: int,
-    out: np.ndarray | None = None,
+    left: np.ndarray, right: np.ndarray, block: VolumeBlock, out: np.ndarray | None = None
 ) -> np.ndarray:
-    """Aggregated AD-census costs (D + 1, stop - start, w) float32 of rows [start, stop).
-
-    ``left`` and ``right`` are one whole view each (h, w) gray or (h, w, 3) colour in [0, 1];
-    rows outside [start, stop) are read as context.
-
-    Parameters
-    ----------
-    left, right : numpy.ndarray
-        Whole views, gray or BGR in [0, 1]; the rows around the block are context.
-    max_disparity : int
-        D: the volume holds the disparities 0..D.
-    start, stop : int
-        The block of rows costed.
-    out : numpy.ndarray, optional
-        Where to write the costs (see :func:`cost_volume`).
-
-    Returns
-    -------
-    numpy.ndarray
-        Costs (D + 1, stop - start, w), float32.
-    """
-    rows = _block_rows(left, start, stop)
+    """:class:`VolumeFunction` of the aggregated AD-census costs, float32 (colour differences
+    when the views are BGR)."""
+    max_disparity = block.max_disparity
+    rows = _block_rows(left, block)
     left_rows = left[rows].astype(np.float32) * np.float32(255.0)
     right_rows = right[rows].astype(np.float32) * np.float32(255.0)
     census_left = census(to_gray(left_rows))
@@ -189,23 +181,16 @@ def ad_census_volume(
             ad = cv2.transform(ad, channel_mean)
         return cv2.exp(np.multiply(ad, np.float32(-1.0 / AD_SCALE), out=ad))
 
-    return _census_and(census_left, census_right, ad_term, max_disparity, stop - start, out)
+    return _census_and(census_left, census_right, ad_term, block, out)
 
 
 def census_gradient_volume(
-    left: np.ndarray,
-    right: np.ndarray,
-    max_disparity: int,
-    start: int,
-    stop: int,
-    out: np.ndarray | None = None,
+    left: np.ndarray, right: np.ndarray, block: VolumeBlock, out: np.ndarray | None = None
 ) -> np.ndarray:
-    """Aggregated census + gradient costs (D + 1, stop - start, w) float32 of rows [start, stop).
-
-    Colour is not read (gray views in, or colour views turned gray); arguments and context rows
-    as in :func:`ad_census_volume`.
-    """
-    rows = _block_rows(left, start, stop)
+    """:class:`VolumeFunction` of the aggregated census + gradient costs, float32 (colour is
+    not read: colour views are turned gray)."""
+    max_disparity = block.max_disparity
+    rows = _block_rows(left, block)
     gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
     gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
     census_left = census(gray_left)
@@ -221,15 +206,14 @@ def census_gradient_volume(
         )
         return cv2.exp(np.multiply(gradient, np.float32(-1.0 / GRADIENT_SCALE), out=gradient))
 
-    return _census_and(census_left, census_right, gradient_term, max_disparity, stop - start, out)
+    return _census_and(census_left, census_right, gradient_term, block, out)
 
 
 def _census_and(
     census_left: np.ndarray,
     census_right: np.ndarray,
     term: Callable[[slice], np.ndarray],
-    max_disparity: int,
-    rows: int,
+    block: VolumeBlock,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
     """The volume 1/2 [(1 - exp(-H / 30)) + (1 - term)] of every disparity, 5x5 box-aggregated:
@@ -243,7 +227,8 @@ def _census_and(
     table += 0.5
     box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
     reach = AGGREGATION_WINDOW // 2
-    volume = np.empty((max_disparity + 1, rows, width), np.float32) if out is None else out
+    max_disparity = block.max_disparity
+    volume = np.empty((max_disparity + 1, block.rows, width), np.float32) if out is None else out
     # scratch for the codes' differing bits and their count, reused at every disparity
     differing = np.empty(census_left.shape, dtype=census_left.dtype)
     hamming = np.empty(census_left.shape, dtype=np.uint8)
@@ -265,9 +250,6 @@ def _sobel(gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-VolumeFunction = Callable[..., np.ndarray]
-"""``(left, right, max_disparity, start, stop, out=None) -> (D + 1, stop - start, w)`` costs."""
-
 #: Every data term as a cost volume over all disparities, by its ``MatchConfig.data_term`` name:
 #: a new data term is one function here and one name in :class:`shared.config.DataTerm`.
 VOLUMES: dict[str, VolumeFunction] = {
@@ -288,17 +270,12 @@ def cost_volume(
     data_term: str,
     left: np.ndarray,
     right: np.ndarray,
-    max_disparity: int,
-    start: int,
-    stop: int,
+    block: VolumeBlock,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The cost volume (D + 1, stop - start, w) of rows [start, stop) under the
-    :class:`shared.config.DataTerm` named ``data_term`` (:data:`VOLUMES`); the other arguments
-    as in :func:`ad_census_volume`. ``out`` (of the term's dtype, :func:`volume_dtype`; any
-    strides) receives the costs, which are returned: a buffer reused from block to block of
-    rows saves the page faults of a fresh 64 MiB array per block (5 % of an Art x3 run)."""
-    return VOLUMES[data_term](left, right, max_disparity, start, stop, out=out)
+    """The :class:`VolumeFunction` of the :class:`shared.config.DataTerm` named ``data_term``
+    (:data:`VOLUMES`) applied to the other arguments."""
+    return VOLUMES[data_term](left, right, block, out=out)
 
 
 def volume_dtype(data_term: str) -> type:

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from shared.data_terms import ad_census_volume
+from shared.data_terms import VolumeBlock, ad_census_volume
 from shared.images import to_gray
 
 TARGET_WIDTH = 256
@@ -144,8 +144,9 @@ def quick_match(left: np.ndarray, right: np.ndarray) -> QuickMatch:
         right = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
     rows, columns = left.shape
     search = max(1, int(SEARCH_SHARE * columns))
-    volume = ad_census_volume(left, right, search, 0, rows)
-    mirrored = ad_census_volume(right[:, ::-1], left[:, ::-1], search, 0, rows)
+    block = VolumeBlock(search, 0, rows)
+    volume = ad_census_volume(left, right, block)
+    mirrored = ad_census_volume(right[:, ::-1], left[:, ::-1], block)
     disparity = volume.argmin(axis=0)
     right_disparity = mirrored.argmin(axis=0)[:, ::-1]
     best = volume.min(axis=0)

@@ -11,7 +11,7 @@ from shared import filters, pyramid
 from shared import provenance_map as pm
 from shared.assembly import LevelSolution
 from shared.config import MatchConfig
-from shared.data_terms import cost_volume, window_reach
+from shared.data_terms import VolumeBlock, cost_volume, window_reach
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
 
@@ -123,7 +123,8 @@ def finish_maps(
     provenance = None if stages is None else pm.upsample(stages[:height], left.shape[:2])
     if config.subpixel:  # the cost of every disparity around the label
         if left_volume is None:
-            left_volume = cost_volume(config.data_term, left, right, last.max_disparity, 0, height)
+            block = VolumeBlock(last.max_disparity, 0, height)
+            left_volume = cost_volume(config.data_term, left, right, block)
         disparity = filters.subpixel(disparity, left_volume)
     if disparity.shape != left.shape[:2]:
         disparity = pyramid.upsample_disparity(disparity, left.shape[:2])

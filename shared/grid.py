@@ -44,6 +44,9 @@ from shared.kernels import (
     subgradient_step,
 )
 
+#: :meth:`GridMRF.edges`: candidates, first, windowed, weight_h, weight_v, slope, truncation.
+EdgeArguments = tuple[np.ndarray, np.ndarray, bool, np.ndarray, np.ndarray, float, float]
+
 #: The primal heuristic runs every this many dual iterations.
 PRIMAL_EVERY = 5
 #: Iterations without a higher bound after which the step factor gamma is halved.
@@ -131,15 +134,7 @@ class GridMRF:
         float
         """
         per_row = grid_energy(
-            self.unary,
-            self.candidates,
-            self.windows(),
-            self.first is not None,
-            self.weight_h,
-            self.weight_v,
-            self.slope,
-            self.truncation,
-            np.ascontiguousarray(labels, dtype=np.int32),
+            self.unary, *self.edges(), np.ascontiguousarray(labels, dtype=np.int32)
         )
         return float(per_row.sum())
 
@@ -191,9 +186,20 @@ class GridMRF:
             first=None if self.first is None else np.ascontiguousarray(self.first[rows, columns]),
         )
 
-    def windows(self) -> np.ndarray:
-        """``first``, or a placeholder when the candidates are not consecutive windows."""
-        return self.first if self.first is not None else np.zeros((1, 1), dtype=np.int32)
+    def edges(self) -> EdgeArguments:
+        """The grid's edges as every grid kernel takes them, in one place: candidates, ``first``
+        (a placeholder when the candidates are not consecutive windows), whether they are
+        windows, the weights, slope and truncation."""
+        first = self.first if self.first is not None else np.zeros((1, 1), dtype=np.int32)
+        return (
+            self.candidates,
+            first,
+            self.first is not None,
+            self.weight_h,
+            self.weight_v,
+            self.slope,
+            self.truncation,
+        )
 
     def neighbour_unary(self, labels: np.ndarray, vertical: bool = True) -> np.ndarray:
         """The edges' cost of every candidate given the labels of the pixels above and below
@@ -213,18 +219,8 @@ class GridMRF:
             (h, w, K) float32.
         """
         out = np.empty(self.unary.shape, dtype=np.float32)
-        neighbour_costs(
-            self.candidates,
-            self.windows(),
-            self.first is not None,
-            self.weight_h,
-            self.weight_v,
-            self.slope,
-            self.truncation,
-            np.ascontiguousarray(labels, dtype=np.int32),
-            vertical,
-            out,
-        )
+        labels = np.ascontiguousarray(labels, dtype=np.int32)
+        neighbour_costs(*self.edges(), labels, vertical, out)
         return out
 
 

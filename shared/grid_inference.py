@@ -53,22 +53,7 @@ def trws(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualResult:
     for iteration in range(1, iterations + 1):
         done = iteration
         for forward, labels in ((True, passes[0]), (False, passes[1])):
-            pass_bound = trws_pass(
-                mrf.unary,
-                mrf.candidates,
-                mrf.windows(),
-                mrf.first is not None,
-                mrf.weight_h,
-                mrf.weight_v,
-                mrf.slope,
-                mrf.truncation,
-                left,
-                right,
-                up,
-                down,
-                forward,
-                labels,
-            )
+            pass_bound = trws_pass(mrf.unary, *mrf.edges(), left, right, up, down, forward, labels)
             bound = max(bound, float(pass_bound))
             energy = mrf.energy(labels)
             if energy < best_energy:

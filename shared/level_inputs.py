@@ -12,6 +12,7 @@ import numpy as np
 from shared.bundles import Bundle, bundle_rows, segment_columns
 from shared.config import DataTerm, MatchConfig
 from shared.data_terms import (
+    VolumeBlock,
     bin_minimum,
     cost_volume,
     gather,
@@ -249,19 +250,18 @@ class LevelInputs:
         self,
         data_term: DataTerm,
         view: int,
-        first: int,
-        last: int,
+        block: VolumeBlock,
         scratch: np.ndarray | None = None,
     ) -> np.ndarray:
-        """The data term of every label (bins, last - first, w) on rows of one view; the full
+        """The data term of every label (bins, block rows, w) on a block of one view; the full
         volume of the rows goes into ``scratch`` (:meth:`_scratch`) when given, so the result
         may be a view of it."""
         if not self._cached():
             left, right = self.view_images()[view]
-            out = None if scratch is None else scratch[:, : last - first]
-            volume = cost_volume(data_term, left, right, self.plan.max_disparity, first, last, out)
+            out = None if scratch is None else scratch[:, : block.rows]
+            volume = cost_volume(data_term, left, right, block, out)
             return bin_minimum(volume, self.plan.bin_width)
-        return self.binned_volumes()[view][:, first:last]
+        return self.binned_volumes()[view][:, block.start : block.stop]
 
     def _candidate_costs(
         self,
@@ -286,29 +286,32 @@ class LevelInputs:
             return gather_window(per_label, window[rows], count, dtype)
 
         if self._cached():
-            return pick(self._bin_costs(data_term, view, first, last), slice(None))
+            whole = VolumeBlock(self.plan.max_disparity, first, last)
+            return pick(self._bin_costs(data_term, view, whole), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
         blocks = self._volume_blocks(first, last)
         scratch = self._scratch(data_term, blocks)
-        for start, stop in blocks:
-            rows = slice(start - first, stop - first)
-            costs[rows] = pick(self._bin_costs(data_term, view, start, stop, scratch), rows)
+        for block in blocks:
+            rows = slice(block.start - first, block.stop - first)
+            costs[rows] = pick(self._bin_costs(data_term, view, block, scratch), rows)
         return costs
 
-    def _scratch(self, data_term: DataTerm, blocks: list[tuple[int, int]]) -> np.ndarray | None:
+    def _scratch(self, data_term: DataTerm, blocks: list[VolumeBlock]) -> np.ndarray | None:
         """One block's full volume, for every block of ``blocks`` in turn (None for one block):
         a fresh array per block costs its page faults every time."""
         if len(blocks) < 2:
             return None
-        rows = blocks[0][1] - blocks[0][0]
-        shape = (self.plan.max_disparity + 1, rows, self.shape[1])
+        shape = (self.plan.max_disparity + 1, blocks[0].rows, self.shape[1])
         return np.empty(shape, dtype=volume_dtype(data_term))
 
-    def _volume_blocks(self, first: int, last: int) -> list[tuple[int, int]]:
+    def _volume_blocks(self, first: int, last: int) -> list[VolumeBlock]:
         """Rows [first, last) in blocks whose full cost volume fits :data:`VOLUME_BLOCK_BYTES`."""
-        row_bytes = 4 * (self.plan.max_disparity + 1) * self.shape[1]
-        step = max(1, VOLUME_BLOCK_BYTES // row_bytes)
-        return [(start, min(start + step, last)) for start in range(first, last, step)]
+        max_disparity = self.plan.max_disparity
+        step = max(1, VOLUME_BLOCK_BYTES // (4 * (max_disparity + 1) * self.shape[1]))
+        return [
+            VolumeBlock(max_disparity, start, min(start + step, last))
+            for start in range(first, last, step)
+        ]
 
     def binned_view_volumes(self, data_term: DataTerm, bin_width: int) -> list[np.ndarray]:
         """Every view's cost volume binned at ``bin_width`` (bins, view_height, w), built a block
@@ -327,19 +330,17 @@ class LevelInputs:
         list of numpy.ndarray
             One (bins, view_height, w) array per view, of the data term's precision.
         """
-        max_disparity = self.plan.max_disparity
 
         def binned(left: np.ndarray, right: np.ndarray) -> np.ndarray:
             view: np.ndarray | None = None
             blocks = self._volume_blocks(0, self.view_height)
             scratch = self._scratch(data_term, blocks)
-            for start, stop in blocks:
-                out = None if scratch is None else scratch[:, : stop - start]
-                volume = cost_volume(data_term, left, right, max_disparity, start, stop, out)
-                block = bin_minimum(volume, bin_width)
+            for block in blocks:
+                out = None if scratch is None else scratch[:, : block.rows]
+                costs = bin_minimum(cost_volume(data_term, left, right, block, out), bin_width)
                 if view is None:
-                    view = np.empty((len(block), self.view_height, self.shape[1]), block.dtype)
-                view[:, start:stop] = block
+                    view = np.empty((len(costs), self.view_height, self.shape[1]), costs.dtype)
+                view[:, block.start : block.stop] = costs
             assert view is not None  # a view has rows
             return view
 

@@ -29,7 +29,7 @@ import numpy as np
 from shared import filters, hypotheses, kernels, provenance_map, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, Inference, MatchConfig, PyramidKind
-from shared.data_terms import cost_volume
+from shared.data_terms import VolumeBlock, cost_volume
 from shared.disparity_range import (
     RangeEstimate,
     ViewsRefusedError,
@@ -425,7 +425,8 @@ def confidence_map(
     if left_volume is None or left_volume.shape[1:] != (height, width):
         if (last.max_disparity + 1) * height * width * 4 > VOLUME_CACHE_BYTES:
             return None
-        left_volume = cost_volume(config.data_term, left, right, last.max_disparity, 0, height)
+        block = VolumeBlock(last.max_disparity, 0, height)
+        left_volume = cost_volume(config.data_term, left, right, block)
     confidence = filters.cost_confidence(left_volume, disparity)
     return confidence if validity is None else np.where(validity, confidence, 0.0)
 
@@ -450,11 +451,12 @@ def _cached_volumes(
             continue
         if bin_width == 1:  # the full volumes (the sub-pixel fit and the confidence read them)
             views = inputs.view_images()  # the other views' volumes on the spare core
+            whole = VolumeBlock(max_disparity, 0, height)
             later = [
-                beside(cost_volume, config.data_term, left, right, max_disparity, 0, height)
+                beside(cost_volume, config.data_term, left, right, whole)
                 for left, right in views[1:]
             ]
-            first = cost_volume(config.data_term, *views[0], max_disparity, 0, height)
+            first = cost_volume(config.data_term, *views[0], whole)
             return [first, *(volume() for volume in later)], 1
         return inputs.binned_view_volumes(config.data_term, bin_width), bin_width
     return None, 1

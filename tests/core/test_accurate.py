@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from shared import filters, level_inputs, pipeline, pyramid
 from shared.config import MatchConfig, Preset
-from shared.data_terms import ad_census_volume, bin_minimum, census, window_reach
+from shared.data_terms import VolumeBlock, ad_census_volume, bin_minimum, census, window_reach
 from shared.disparity_range import estimate_max_disparity
 from shared.finishing import finish_level
 from shared.images import load_pair
@@ -54,7 +54,7 @@ def test_ad_census_volume_is_the_formula_aggregated_over_5x5():
     # the library takes Rec. 709 luma for census; give it views whose gray is the channel mean
     left[:] = left.mean(axis=2, keepdims=True)
     right[:] = right.mean(axis=2, keepdims=True)
-    volume = ad_census_volume(left, right, 3, 0, 7)
+    volume = ad_census_volume(left, right, VolumeBlock(3, 0, 7))
     for y, x, d in [(0, 0, 0), (3, 4, 2), (6, 8, 3), (2, 1, 3), (5, 7, 1)]:
         expected = np.mean(
             [
@@ -69,7 +69,7 @@ def test_ad_census_volume_is_the_formula_aggregated_over_5x5():
 def test_constant_images_cost_only_their_colour_difference():
     left = np.full((8, 10), 0.5, np.float32)
     right = np.full((8, 10), 0.3, np.float32)
-    volume = ad_census_volume(left, right, 4, 0, 8)
+    volume = ad_census_volume(left, right, VolumeBlock(4, 0, 8))
     assert np.allclose(volume, 0.5 * (1 - np.exp(-51.0 / 10.0)), atol=1e-5)  # H = 0
 
 
@@ -83,10 +83,11 @@ def test_census_bit_is_set_where_the_neighbour_is_darker():
 
 def test_cost_blocks_equal_the_whole_image_rows():
     scene = make_scene(30, 40, max_disparity=8, seed=1)
-    whole = ad_census_volume(scene.left, scene.right, 8, 0, 30)
+    whole = ad_census_volume(scene.left, scene.right, VolumeBlock(8, 0, 30))
     for start, stop in [(0, 1), (5, 12), (29, 30)]:
         np.testing.assert_array_equal(
-            ad_census_volume(scene.left, scene.right, 8, start, stop), whole[:, start:stop]
+            ad_census_volume(scene.left, scene.right, VolumeBlock(8, start, stop)),
+            whole[:, start:stop],
         )
 
 
@@ -271,7 +272,7 @@ def test_the_squared_difference_volume_matches_it_at_the_candidates():
     from shared.data_terms import squared_difference, squared_volume
 
     scene = make_scene(20, 30, max_disparity=6, seed=4)
-    volume = squared_volume(scene.left, scene.right, 6, 3, 9)
+    volume = squared_volume(scene.left, scene.right, VolumeBlock(6, 3, 9))
     candidates = np.broadcast_to(np.arange(7, dtype=np.int32), (6, 30, 7))
     expected = squared_difference(scene.left[3:9], scene.right[3:9], candidates)
     np.testing.assert_allclose(np.moveaxis(volume, 0, -1), expected)
