@@ -176,6 +176,8 @@ def redis_url(request, tmp_path_factory) -> Iterator[str]:
     127.0.0.1 port, a password)."""
     choice = _redis_choice(request.config)
     if choice.error is not None:
+        if os.environ.get(XDIST_WORKER_ENV):  # pytest.exit in a worker: xdist's INTERNALERROR
+            pytest.fail(choice.error, pytrace=False)
         pytest.exit(choice.error, returncode=pytest.ExitCode.USAGE_ERROR)
     if choice.url is not None:
         yield choice.url
