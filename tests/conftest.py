@@ -4,12 +4,14 @@ prefix), a temporary data directory, and Ctrl-C as a terminal sends it."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,14 +22,23 @@ from shared.energy import Costs
 from shared.synthetic import SyntheticScene, make_scene
 
 _TEMPORARY_DATA_DIR: str | None = None
+#: Set by pytest-xdist in each of its worker processes (gw0, gw1, ...); absent in a plain run.
+XDIST_WORKER_ENV = "PYTEST_XDIST_WORKER"
 
 
 def pytest_configure(config) -> None:
     """Nothing a test runs writes to the user's own data folder (the default QHSM_DATA_DIR):
     unless QHSM_DATA_DIR is set, it is a temporary folder (subprocesses inherit it), removed at
-    the end."""
+    the end. Under pytest-xdist the controller makes it and each worker takes a folder of its
+    own inside it (``gw0``, ...): two workers' ``qhsm serve`` or embedding store never share
+    a data directory, its lock or its embedded Redis."""
     global _TEMPORARY_DATA_DIR
-    if "QHSM_DATA_DIR" not in os.environ:
+    worker = os.environ.get(XDIST_WORKER_ENV)
+    if worker:
+        own = Path(os.environ["QHSM_DATA_DIR"]) / worker
+        own.mkdir(parents=True, exist_ok=True)
+        os.environ["QHSM_DATA_DIR"] = str(own)
+    elif "QHSM_DATA_DIR" not in os.environ:
         import tempfile
 
         _TEMPORARY_DATA_DIR = tempfile.mkdtemp(prefix="qhsm-test-data-")
@@ -104,13 +115,31 @@ def _why_not(url: str) -> str | None:
     return None
 
 
+#: Key of :class:`RedisChoice` in pytest-xdist's ``workerinput``: the controller's choice.
+_WORKER_INPUT_KEY = "qhsm_test_redis"
+
+
 def _redis_choice(config: pytest.Config) -> RedisChoice:
     """Decided once per session: ``QHSM_TEST_REDIS_URL`` when set (a URL that must answer, or
     ``embedded``), else the local Redis when it answers, else the embedded redis-server (a
-    laptop without Redis)."""
+    laptop without Redis). Under pytest-xdist the controller decides and its workers take its
+    choice (:func:`pytest_configure_node`), so the header it prints names what they use."""
     if _REDIS_CHOICE not in config.stash:
-        config.stash[_REDIS_CHOICE] = _choose_redis(os.environ.get(TEST_REDIS_ENV, "").strip())
+        given = getattr(config, "workerinput", {}).get(_WORKER_INPUT_KEY)
+        config.stash[_REDIS_CHOICE] = (
+            RedisChoice(**given)
+            if given is not None
+            else _choose_redis(os.environ.get(TEST_REDIS_ENV, "").strip())
+        )
     return config.stash[_REDIS_CHOICE]
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """pytest-xdist, in the controller, for each worker it starts: pass the Redis choice on.
+    An embedded choice (``url`` None) means a redis-server per worker (:func:`redis_url`)."""
+    choice = _redis_choice(node.config)
+    node.workerinput[_WORKER_INPUT_KEY] = dataclasses.asdict(choice)
 
 
 def _choose_redis(wanted: str) -> RedisChoice:
@@ -147,6 +176,8 @@ def redis_url(request, tmp_path_factory) -> Iterator[str]:
     127.0.0.1 port, a password)."""
     choice = _redis_choice(request.config)
     if choice.error is not None:
+        if os.environ.get(XDIST_WORKER_ENV):  # pytest.exit in a worker: xdist's INTERNALERROR
+            pytest.fail(choice.error, pytrace=False)
         pytest.exit(choice.error, returncode=pytest.ExitCode.USAGE_ERROR)
     if choice.url is not None:
         yield choice.url

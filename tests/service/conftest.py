@@ -40,6 +40,8 @@ MAIN_QUEUES = [
     "dimod",
 ]
 ROUTED_QUEUES = ["gurobi", "fake-routed"]
+#: Seconds the session's workers get to answer (serve's own deadline is 60 s).
+WORKERS_START_TIMEOUT = 180.0
 
 
 @pytest.fixture(scope="session")
@@ -99,8 +101,11 @@ def workers(settings, markers, service_dir):
         ).start(),
     }
     try:
+        # pytest-xdist's workers start their own at once: allow for a busy machine
         wait_for_workers(
-            make_celery(settings, with_tasks=False), [w.hostname for w in started.values()]
+            make_celery(settings, with_tasks=False),
+            [w.hostname for w in started.values()],
+            timeout=WORKERS_START_TIMEOUT,
         )
         yield started
     finally:

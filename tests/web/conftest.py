@@ -32,7 +32,7 @@ import harness  # noqa: E402
 
 #: Seconds the fake-slow solver sleeps per bundle: a job that takes long enough to cancel.
 SLOW_SECONDS = 0.5
-START_TIMEOUT = 90.0
+START_TIMEOUT = 180.0  # two test processes, each starting deployments, on a busy machine
 
 
 @dataclass
