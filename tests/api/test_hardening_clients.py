@@ -9,6 +9,7 @@ import pytest
 from api_helpers import LEFT
 
 from api.client import Client, ClientError
+from tests.fresh_thread import in_fresh_thread
 
 # --- 13. a wrong key's message says where the key came from -----------------------------------
 
@@ -89,15 +90,18 @@ def test_swagger_ui_renders_with_the_internet_blocked(live_api):
             outside.append(route.request.url)
             route.abort()
 
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM)
-        try:
-            page = browser.new_page()
-            page.route("**/*", only_local)
-            page.goto(f"{live_api.url}/docs")
-            page.wait_for_selector(".opblock", timeout=15_000)
-            operations = page.locator(".opblock-summary-path").all_inner_texts()
-        finally:
-            browser.close()
+    def swagger_operations() -> list[str]:
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=CHROMIUM)
+            try:
+                page = browser.new_page()
+                page.route("**/*", only_local)
+                page.goto(f"{live_api.url}/docs")
+                page.wait_for_selector(".opblock", timeout=15_000)
+                return page.locator(".opblock-summary-path").all_inner_texts()
+            finally:
+                browser.close()
+
+    operations = in_fresh_thread(swagger_operations)
     assert "/v1/jobs/{job_id}/disparity" in [text.replace("\u200b", "") for text in operations]
     assert outside == []

@@ -15,6 +15,8 @@ import httpx
 import pytest
 from api_helpers import LEFT
 
+from tests.fresh_thread import in_fresh_thread
+
 MiB = 2**20
 
 
@@ -52,7 +54,7 @@ def call_asgi(
     async def send(message: dict) -> None:
         messages.append(message)
 
-    asyncio.run(asyncio.wait_for(app(scope, receive, send), 60))
+    in_fresh_thread(lambda: asyncio.run(asyncio.wait_for(app(scope, receive, send), 60)))
     status = next(m["status"] for m in messages if m["type"] == "http.response.start")
     body = b"".join(m.get("body", b"") for m in messages if m["type"] == "http.response.body")
     return status, json.loads(body), consumed
