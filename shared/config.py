@@ -270,6 +270,16 @@ class MatchConfig(BaseModel):
     second_bins_radius: int = Field(
         8, ge=0, le=64, description="The box radius, pixels, of second_bins' averaged costs"
     )
+    coarse_grid: int = Field(
+        1,
+        ge=1,
+        le=16,
+        description="Bin pyramid: run the coarse levels on a smaller grid, a level of bin width "
+        "w downsampled by min(coarse_grid, w / 2) (widths 2 and 1 stay at full resolution): "
+        "its data term the full-resolution bin costs averaged over each block, its smoothness "
+        "divided by the factor, its map upsampled (nearest) to centre the finer level's "
+        "windows (1: every level at full resolution)",
+    )
     bundle_height: int = Field(
         ge=1,
         le=64,
