@@ -175,6 +175,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
         "lr_check": True,
         "weighted_median": True,
         "warm_start": None,
+        "coarse_grid": 4,
     },
     Preset.PAPER: {
         "levels": paper_levels,
@@ -187,6 +188,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
         "lr_check": False,
         "weighted_median": False,
         "warm_start": False,
+        "coarse_grid": 1,
     },
 }
 
@@ -271,14 +273,13 @@ class MatchConfig(BaseModel):
         8, ge=0, le=64, description="The box radius, pixels, of second_bins' averaged costs"
     )
     coarse_grid: int = Field(
-        1,
         ge=1,
         le=16,
         description="Bin pyramid: run the coarse levels on a smaller grid, a level of bin width "
         "w downsampled by min(coarse_grid, w / 2) (widths 2 and 1 stay at full resolution): "
         "its data term the full-resolution bin costs averaged over each block, its smoothness "
         "divided by the factor, its map upsampled (nearest) to centre the finer level's "
-        "windows (1: every level at full resolution)",
+        "windows (1: every level at full resolution) (from preset: accurate 4)",
     )
     bundle_height: int = Field(
         ge=1,

@@ -27,7 +27,7 @@ def test_a_levels_cells_stay_within_half_its_bin(width, cap):
 
 
 def test_the_plan_downsamples_the_coarse_levels_and_divides_their_smoothness():
-    plain = pyramid.plan(MatchConfig(), 106)
+    plain = pyramid.plan(MatchConfig(coarse_grid=1), 106)
     plans = pyramid.plan(MatchConfig(coarse_grid=4), 106)
     assert [p.bin_width for p in plans] == [16, 8, 4, 2, 1]
     assert [p.downsample for p in plans] == [4, 4, 2, 1, 1]
@@ -122,13 +122,21 @@ def test_the_views_do_not_mix_when_upsampled():
     assert up.shape == (14, 9) and (up[:7] == 1).all() and (up[7:] == 5).all()
 
 
+def test_the_accurate_preset_runs_its_coarse_levels_at_up_to_a_quarter_the_paper_never():
+    assert MatchConfig().coarse_grid == 4
+    assert MatchConfig(preset="paper").coarse_grid == 1
+    assert MatchConfig(coarse_grid=2).coarse_grid == 2
+    paper = pyramid.plan(MatchConfig(preset="paper"), 20)
+    assert [p.downsample for p in paper] == [4, 2, 1]  # its image pyramid, as it was
+
+
 def _digest(disparity: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(disparity, np.float32).tobytes()).hexdigest()[:16]
 
 
 def test_the_option_changes_nothing_where_no_bin_is_wider_than_two(scene):
     """Widths 2 and 1 (a 12 px range) keep the full grid whatever the cap: the very map."""
-    base = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=12))
+    base = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=12, coarse_grid=1))
     capped = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=12, coarse_grid=8))
     assert [level.downsample for level in capped.levels] == [1, 1]
     assert _digest(capped.disparity) == _digest(base.disparity)
