@@ -211,8 +211,9 @@ class MatchConfig(BaseModel):
 
     preset: Preset = Field(
         Preset.ACCURATE,
-        description="accurate: the 2D grid MRF of a disparity-bin pyramid at full resolution, "
-        "census + gradient cost, both views with a left-right check, weighted median, "
+        description="accurate: the 2D grid MRF of a disparity-bin pyramid (its coarse levels on "
+        "a smaller grid, the two finest at full resolution), census + gradient cost, both "
+        "views with a left-right check, weighted median, "
         "domain-wall bundles; paper: the publication's image pyramid, independent rows, squared "
         "difference, median + bilateral, one-hot bundles",
     )

@@ -142,6 +142,17 @@ def test_the_option_changes_nothing_where_no_bin_is_wider_than_two(scene):
     assert _digest(capped.disparity) == _digest(base.disparity)
 
 
+def test_the_default_map_on_a_coarse_grid_is_pinned(scene):
+    """The accurate preset's map where its coarse level runs at half size (24 px: widths 4, 2,
+    1), pinned when coarse_grid 4 became its default (every level on the full grid, as before:
+    d228d16d961c7448); the older digests' scenes (ranges <= 8 px) keep every level full size."""
+    result = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=24))
+    assert [level.downsample for level in result.levels] == [2, 1, 1]
+    assert _digest(result.disparity) == "5c48002881241418"
+    full = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=24, coarse_grid=1))
+    assert _digest(full.disparity) == "d228d16d961c7448"
+
+
 @pytest.mark.parametrize("solver", ["exact", "sa", "steepest-descent"])
 def test_every_solver_works_on_a_coarse_grid_and_reports_its_levels(scene, solver):
     config = MatchConfig(max_disparity=24, coarse_grid=2, solver=solver, seed=1)
