@@ -287,8 +287,12 @@ def prepare_level(
         and config.pyramid is PyramidKind.BINS
         and plan.index <= config.second_bins
     ):
+        coarse = None
+        if fine is not None and plan.downsample > 1:  # the coarser bins pooled as this level's
+            wider = plan.model_copy(update={"bin_width": 2 * plan.bin_width})
+            coarse = list(coarse_grid.pooled_costs(fine, wider, config.data_term, view_shape))
         inputs.candidates = hypotheses.with_second_bins(
-            inputs, previous, config.data_term, config.second_bins_radius
+            inputs, previous, config.data_term, config.second_bins_radius, coarse
         )
         inputs.first = None  # no longer one window
     return inputs

@@ -166,3 +166,29 @@ def test_every_solver_works_on_a_coarse_grid_and_reports_its_levels(scene, solve
     nonocc = scene.disparity > 0
     bad = np.abs(result.disparity - scene.disparity)[nonocc] > 1
     assert bad.mean() < 0.15
+
+
+def test_second_bins_on_a_coarse_grid_read_the_pooled_coarser_bins():
+    from shared.hypotheses import with_second_bins
+
+    scene = make_scene(40, 61, max_disparity=40, slanted=False, layers=2, seed=1)
+    config = MatchConfig(max_disparity=40, second_bins=3, second_bins_radius=2)
+    left, right = match_views(scene.left, scene.right, config)
+    plans = plan_run(left, right, config)[1]
+    assert [p.downsample for p in plans] == [4, 2, 1, 1]  # widths 8, 4, 2, 1
+    coarse = prepare_level(left, right, config, plans[0])
+    previous = np.full(coarse.shape, 2.0, dtype=np.float32)
+    level = prepare_level(left, right, config, plans[1], previous, coarse)
+    assert level.candidates.shape == (*level.shape, plans[1].candidates + 2)
+    fine = fine_views(left, right, config, plans[1])
+    wider = plans[1].model_copy(update={"bin_width": 8})
+    pooled = list(pooled_costs(fine, wider, config.data_term, (level.view_height, level.shape[1])))
+    window = level.candidates[:, :, :-2]
+    plain = prepare_level(left, right, config.model_copy(update={"second_bins": 0}), plans[1],
+                          previous, coarse)  # fmt: skip
+    assert (window == plain.candidates).all()
+    upsampled = pyramid.upsample_labels(previous, 2, (level.view_height, level.shape[1]))
+    expected = with_second_bins(plain, upsampled, config.data_term, 2, pooled)
+    np.testing.assert_array_equal(level.candidates, expected)
+    own = with_second_bins(plain, upsampled, config.data_term, 2)  # the level's own views' bins
+    assert not np.array_equal(own, expected)  # so the level did not build its own
