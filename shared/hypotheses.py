@@ -8,7 +8,8 @@ of the lowest coarse data term box-averaged over ``second_bins_radius`` pixels, 
 runner-up is a region's, not one noisy pixel's. The finer level's MRF then decides between the
 two; the candidates are no longer one consecutive window (the grid's general message path).
 An option under trial (off by default; docs/benchmarks.md, issue 28): the coarser level's bins
-are built again from the views, not read from the pipeline's cached volumes.
+are built again from the views, not read from the pipeline's cached volumes (on a coarse grid's
+level, :mod:`shared.coarse_grid`, they are the pooled full-resolution bins).
 """
 
 from __future__ import annotations
