@@ -308,6 +308,7 @@ MATCH_OPTIONS = (
     "dual_iterations",
     "dual_gap",
     "certify_tiles",
+    "coarse_grid",
     "median",
     "bilateral",
     "lr_check",

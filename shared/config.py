@@ -175,6 +175,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
         "lr_check": True,
         "weighted_median": True,
         "warm_start": None,
+        "coarse_grid": 4,
     },
     Preset.PAPER: {
         "levels": paper_levels,
@@ -187,6 +188,7 @@ PRESETS: dict[Preset, dict[str, Any]] = {
         "lr_check": False,
         "weighted_median": False,
         "warm_start": False,
+        "coarse_grid": 1,
     },
 }
 
@@ -209,8 +211,9 @@ class MatchConfig(BaseModel):
 
     preset: Preset = Field(
         Preset.ACCURATE,
-        description="accurate: the 2D grid MRF of a disparity-bin pyramid at full resolution, "
-        "census + gradient cost, both views with a left-right check, weighted median, "
+        description="accurate: the 2D grid MRF of a disparity-bin pyramid (its coarse levels on "
+        "a smaller grid, the two finest at full resolution), census + gradient cost, both "
+        "views with a left-right check, weighted median, "
         "domain-wall bundles; paper: the publication's image pyramid, independent rows, squared "
         "difference, median + bilateral, one-hot bundles",
     )
@@ -269,6 +272,15 @@ class MatchConfig(BaseModel):
     )
     second_bins_radius: int = Field(
         8, ge=0, le=64, description="The box radius, pixels, of second_bins' averaged costs"
+    )
+    coarse_grid: int = Field(
+        ge=1,
+        le=16,
+        description="Bin pyramid: run the coarse levels on a smaller grid, a level of bin width "
+        "w downsampled by min(coarse_grid, w / 2) (widths 2 and 1 stay at full resolution): "
+        "its data term the full-resolution bin costs averaged over each block, its smoothness "
+        "divided by the factor, its map upsampled (nearest) to centre the finer level's "
+        "windows (1: every level at full resolution) (from preset: accurate 4)",
     )
     bundle_height: int = Field(
         ge=1,

@@ -8,7 +8,8 @@ of the lowest coarse data term box-averaged over ``second_bins_radius`` pixels, 
 runner-up is a region's, not one noisy pixel's. The finer level's MRF then decides between the
 two; the candidates are no longer one consecutive window (the grid's general message path).
 An option under trial (off by default; docs/benchmarks.md, issue 28): the coarser level's bins
-are built again from the views, not read from the pipeline's cached volumes.
+are built again from the views, not read from the pipeline's cached volumes (on a coarse grid's
+level, :mod:`shared.coarse_grid`, they are the pooled full-resolution bins).
 """
 
 from __future__ import annotations
@@ -51,7 +52,11 @@ def second_bins(costs: np.ndarray, chosen: np.ndarray, radius: int) -> np.ndarra
 
 
 def with_second_bins(
-    inputs: LevelInputs, previous: np.ndarray, data_term: DataTerm, radius: int
+    inputs: LevelInputs,
+    previous: np.ndarray,
+    data_term: DataTerm,
+    radius: int,
+    coarse: list[np.ndarray] | None = None,
 ) -> np.ndarray:
     """The level's candidates (rows, w, K + 2): its window plus the two children of each pixel's
     :func:`second_bins` at the coarser level (bins of twice this level's width).
@@ -66,6 +71,10 @@ def with_second_bins(
         The run's data term.
     radius : int
         :func:`second_bins`' box radius.
+    coarse : list of numpy.ndarray, optional
+        Each view's coarser bin costs on this level's grid (bins, h, w); default: built from
+        the level's views (a coarse grid's level passes its pooled ones,
+        :mod:`shared.coarse_grid`).
 
     Returns
     -------
@@ -73,7 +82,8 @@ def with_second_bins(
         int32 candidates, the window's first.
     """
     height = inputs.view_height
-    coarse = inputs.binned_view_volumes(data_term, 2 * inputs.plan.bin_width)
+    if coarse is None:
+        coarse = inputs.binned_view_volumes(data_term, 2 * inputs.plan.bin_width)
     extra = np.empty((*inputs.candidates.shape[:2], 2), dtype=np.int32)
     for view, costs in enumerate(coarse):
         rows = slice(view * height, (view + 1) * height)

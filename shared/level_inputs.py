@@ -65,6 +65,9 @@ class LevelInputs:
     volume_bin_width: int = 1
     #: Each pixel's first candidate when the candidates are consecutive windows (class doc).
     first: np.ndarray | None = None
+    #: A coarse grid's bin costs (views, bins, view_height, w): the full-resolution ones
+    #: averaged over each block (:mod:`shared.coarse_grid`); they replace the level's own.
+    pooled: np.ndarray | None = None
     #: What planning the bundles did (``LevelInference.plan``): segment width, embeddings.
     prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
@@ -243,7 +246,9 @@ class LevelInputs:
         return self.first[base + first : base + last]
 
     def _cached(self) -> bool:
-        """Whether this level's bin costs come from the cached ``volumes``."""
+        """Whether this level's bin costs come from ``pooled`` or the cached ``volumes``."""
+        if self.pooled is not None:
+            return True
         return self.volumes is not None and self.plan.bin_width % self.volume_bin_width == 0
 
     def _bin_costs(
@@ -348,6 +353,13 @@ class LevelInputs:
         later = [beside(binned, left, right) for left, right in views[1:]]
         return [binned(*views[0]), *(view() for view in later)]
 
+    def level_bin_costs(self, data_term: DataTerm) -> list[np.ndarray]:
+        """Every view's bin costs at this level's width (bins, view_height, w): from the cached
+        volumes when they serve it, else built a block of rows at a time."""
+        if self._cached():
+            return self.binned_volumes()
+        return self.binned_view_volumes(data_term, self.plan.bin_width)
+
     def binned_volumes(self) -> list[np.ndarray]:
         """The cached volumes' bin minima per view at this level's width, built once (call before
         sharing the inputs between threads).
@@ -358,6 +370,8 @@ class LevelInputs:
             (bins, view_height, w) per view; empty without cached volumes of a width dividing
             this level's.
         """
+        if self.pooled is not None:
+            return list(self.pooled)
         if self._binned is None and self.volumes is not None and self._cached():
             ratio = self.plan.bin_width // self.volume_bin_width
             self._binned = [bin_minimum(v, ratio) for v in self.volumes]

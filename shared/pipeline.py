@@ -26,7 +26,7 @@ from functools import partial
 
 import numpy as np
 
-from shared import filters, hypotheses, kernels, provenance_map, pyramid
+from shared import coarse_grid, filters, hypotheses, kernels, provenance_map, pyramid
 from shared.assembly import LevelSolution
 from shared.config import DataTerm, Inference, MatchConfig, PyramidKind
 from shared.data_terms import VolumeBlock, cost_volume
@@ -213,6 +213,7 @@ def prepare_level(
     plan: LevelPlan,
     previous: np.ndarray | None = None,
     coarser: LevelInputs | None = None,
+    fine: LevelInputs | None = None,
 ) -> LevelInputs:
     """Inputs of one level from the :func:`match_views` of the pair; ``previous`` is the coarser
     level's finished map (:func:`finish_level`).
@@ -230,6 +231,9 @@ def prepare_level(
     coarser : LevelInputs, optional
         The coarser level's inputs: their images are this level's when both have the same
         downsampling (every level of a bin pyramid: the stacked views are built once).
+    fine : LevelInputs, optional
+        The full-resolution views (:func:`shared.coarse_grid.fine_inputs`) with the run's
+        cached volumes: a coarse-grid level's costs are pooled from them (built here if None).
 
     Returns
     -------
@@ -241,6 +245,14 @@ def prepare_level(
     else:
         left_k, right_k, views = level_views(left, right, config, plan)
     shape = left_k.shape[:2]
+    pooled = None
+    if config.pyramid is PyramidKind.BINS and plan.downsample > 1:
+        if fine is None:
+            fine = fine_views(left, right, config, plan)
+        view_shape = (shape[0] // views, shape[1])
+        pooled = coarse_grid.pooled_costs(fine, plan, config.data_term, view_shape)
+    if previous is not None and config.pyramid is PyramidKind.BINS:
+        previous = pyramid.upsample_labels(previous, views, (shape[0] // views, shape[1]))
     first = None
     if previous is None:
         candidates = pyramid.initial_candidates(shape, plan.candidates, plan.max_label)
@@ -268,17 +280,31 @@ def prepare_level(
         initial_labels=initial,
         views=views,
         first=first,
+        pooled=pooled,
     )
     if (
         previous is not None
         and config.pyramid is PyramidKind.BINS
         and plan.index <= config.second_bins
     ):
+        coarse = None
+        if fine is not None and plan.downsample > 1:  # the coarser bins pooled as this level's
+            wider = plan.model_copy(update={"bin_width": 2 * plan.bin_width})
+            coarse = list(coarse_grid.pooled_costs(fine, wider, config.data_term, view_shape))
         inputs.candidates = hypotheses.with_second_bins(
-            inputs, previous, config.data_term, config.second_bins_radius
+            inputs, previous, config.data_term, config.second_bins_radius, coarse
         )
         inputs.first = None  # no longer one window
     return inputs
+
+
+def fine_views(
+    left: np.ndarray, right: np.ndarray, config: MatchConfig, plan: LevelPlan
+) -> LevelInputs:
+    """The full-resolution views as :func:`shared.coarse_grid.fine_inputs` (the run's volumes
+    and a coarse grid's pooled costs are built from them)."""
+    fine = plan.model_copy(update={"downsample": 1})
+    return coarse_grid.fine_inputs(*level_views(left, right, config, fine), fine)
 
 
 def report(inputs: LevelInputs, solution: LevelSolution, seconds: float) -> LevelReport:
@@ -370,16 +396,21 @@ def run_pipeline(
     volumes: list[np.ndarray] | None = None
     volume_bin_width = 1
     inputs: LevelInputs | None = None
+    fine: LevelInputs | None = None
     for plan in plans:
         level_started = time.perf_counter()
-        inputs = prepare_level(left, right, config, plan, level_map, inputs)
-        if plan.index == 0:
-            volumes, volume_bin_width = _cached_volumes(inputs, config, plans)
+        if plan.index == 0:  # the full-resolution views and their volumes, before any level
+            fine = fine_views(left, right, config, plan)
+            volumes, volume_bin_width = _cached_volumes(fine, config, plans)
             estimate = checked()  # the views' check, done beside the volumes
             if estimate.warning and not force:
                 raise ViewsRefusedError(estimate.warning)
         elif plan.bin_width < volume_bin_width:
             volumes = None  # finer than the cached bins: no later level reads them
+        assert fine is not None  # set at index 0
+        fine.volumes, fine.volume_bin_width = volumes, volume_bin_width
+        coarser = inputs if inputs is not None else fine
+        inputs = prepare_level(left, right, config, plan, level_map, coarser, fine)
         inputs.volumes, inputs.volume_bin_width = volumes, volume_bin_width
         if progress is None:
             solution = solve_level(inputs, config)

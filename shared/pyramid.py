@@ -8,9 +8,11 @@ image (the paper)
     each finer level looks at the window {2d-2, ..., 2d+1} around the upsampled coarser
     estimate d, shifted (not cropped) so that the whole window stays inside [0, max disparity].
 bins (accurate)
-    Every level works on the full-resolution grid; labels are disparity bins
-    b = {b w, ..., b w + w - 1} of width w. The coarsest width is the smallest power of two
-    giving at most ``max_coarse_bins`` bins over 0..D, and the width halves each level down to 1
+    Every level works on the full-resolution grid (with ``coarse_grid``, the coarse levels on
+    a grid downsampled by :func:`grid_factor`, costs pooled from the full-resolution bins);
+    labels are disparity bins b = {b w, ..., b w + w - 1} of width w. The coarsest width is
+    the smallest power of two giving at most ``max_coarse_bins`` bins over 0..D, and the width
+    halves each level down to 1
     (16-20 px: widths 4, 2, 1; 60 px: 8, 4, 2, 1). The coarsest level takes every bin; a finer
     level takes ``K`` consecutive bins starting ``K/2 - 1`` below the lower child 2b of the
     coarser estimate b (for K = 6: {2b-2, ..., 2b+3}), shifted to stay in range, so both
@@ -31,7 +33,8 @@ from shared.config import LevelConfig, MatchConfig, PyramidKind
 class LevelPlan(BaseModel):
     """What level ``index`` of a run is: its image scale, label width and MRF parameters.
 
-    ``downsample`` > 1 only in the image pyramid, ``bin_width`` > 1 only in the bin pyramid.
+    ``downsample`` > 1 in the image pyramid, and in the bin pyramid's coarse levels with
+    ``coarse_grid`` (:func:`grid_factor`); ``bin_width`` > 1 only in the bin pyramid.
     ``max_label`` is the largest label of the level (a disparity in level pixels, or a bin);
     ``max_disparity`` is the run's, in full-resolution pixels.
     """
@@ -84,10 +87,15 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
         mrf = template
         if template.coarse_slope is not None and index < template.coarse_levels:
             mrf = template.model_copy(update={"slope": template.coarse_slope})
+        factor = grid_factor(width, config.coarse_grid)
+        if factor > 1:  # a block's mean cost against its f boundary pairs: the fine energy / f^2
+            mrf = mrf.model_copy(
+                update={"slope": mrf.slope / factor, "truncation": mrf.truncation / factor}
+            )
         plans.append(
             LevelPlan(
                 index=index,
-                downsample=1,
+                downsample=factor,
                 bin_width=width,
                 candidates=count,
                 max_label=bins - 1,
@@ -96,6 +104,61 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
             )
         )
     return plans
+
+
+def grid_factor(bin_width: int, coarse_grid: int) -> int:
+    """The spatial downsampling of a bin level (``MatchConfig.coarse_grid``): half its bin
+    width, at most ``coarse_grid``, so a level's cells stay finer than its labels (a bin of w
+    disparities places a surface within w px; cells of w / 2 px keep its edges within a bin).
+
+    Parameters
+    ----------
+    bin_width : int
+        Disparities per bin of the level.
+    coarse_grid : int
+        The largest factor (1: full resolution).
+
+    Returns
+    -------
+    int
+        The factor, at least 1: 1 for widths 1 and 2.
+    """
+    return max(1, min(coarse_grid, bin_width // 2))
+
+
+def upsample_labels(level_map: np.ndarray, views: int, shape: tuple[int, int]) -> np.ndarray:
+    """A coarser level's map (views * h', w') on the finer grid (views * h, w), view by view
+    (no block straddles the seam of the stacked views), nearest neighbour: bin labels count
+    disparities, not pixels, so their values are kept.
+
+    Parameters
+    ----------
+    level_map : numpy.ndarray
+        The coarser level's map, ``views`` views stacked.
+    views : int
+        1 or 2.
+    shape : tuple of int
+        (height, width) of one view of the finer level.
+
+    Returns
+    -------
+    numpy.ndarray
+        (views * height, width), the map's dtype.
+    """
+    height, width = shape
+    if level_map.shape == (views * height, width):
+        return level_map
+    coarse = level_map.shape[0] // views
+    return np.concatenate(
+        [
+            cv2.resize(
+                level_map[view * coarse : (view + 1) * coarse],
+                (width, height),
+                interpolation=cv2.INTER_NEAREST,
+            )
+            for view in range(views)
+        ]
+    )
 
 
 def bin_widths(max_disparity: int, max_coarse_bins: int) -> list[int]:

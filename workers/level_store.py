@@ -61,6 +61,8 @@ class LevelStorage(StoreBase):
         )
         if inputs.initial_labels is not None:
             arrays["initial_labels"] = inputs.initial_labels
+        if inputs.pooled is not None:  # a coarse grid's costs (shared.coarse_grid)
+            arrays["pooled"] = inputs.pooled
         for name, array in arrays.items():
             fields.update(array_fields(name, array, piece=piece))
         key = self.key("job", job_id, "level", inputs.plan.index)
@@ -107,6 +109,7 @@ class LevelStorage(StoreBase):
                 array_from(fields, "initial_labels") if b"initial_labels" in fields else None
             ),
             prepared=json.loads(fields.get(b"prepared", b"{}")),
+            pooled=array_from(fields, "pooled") if b"pooled" in fields else None,
         )
         return inputs, float(fields[b"started"])
 

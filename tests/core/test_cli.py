@@ -130,7 +130,7 @@ def test_bundle_width_from_the_command_line(pair, scene):
     every tile is sent (``--no-certify-tiles``; the residual design sends 4x4 tiles instead)."""
     argv = ["match", str(pair / "left.png"), str(pair / "right.png"), "-o", "d.npy"]
     argv += ["--max-disparity", "16", "--solver", "sa", "--param", "num_reads=2"]
-    argv += ["--no-certify-tiles"]
+    argv += ["--no-certify-tiles", "--coarse-grid", "1"]  # the coarse level on the full grid
     config = config_from_args(build_parser().parse_args([*argv, "--bundle-width", "48",
                                                          "--bundle-margin", "8"]))  # fmt: skip
     left, right = match_views(scene.left, scene.right, config)

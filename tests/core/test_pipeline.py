@@ -37,7 +37,7 @@ def test_default_pipeline_recovers_the_synthetic_ground_truth(scene):
     assert scores.bpp < 4.0
     assert scores.rmse < 1.5
     assert [level.bin_width for level in result.levels] == [4, 2, 1]
-    assert [level.downsample for level in result.levels] == [1, 1, 1]
+    assert [level.downsample for level in result.levels] == [2, 1, 1]  # coarse_grid 4: w / 2
     # grid inference with exact: one bundle per view (its whole grid), with a lower bound
     assert [level.bundles for level in result.levels] == [2] * 3
     assert all(level.lower_bound <= level.energy for level in result.levels)
@@ -112,7 +112,7 @@ def test_assemble_refuses_missing_or_doubled_rows(scene):
 
 
 def test_bundles_never_span_the_two_views(scene):
-    config = MatchConfig(max_disparity=16, bundle_height=5)
+    config = MatchConfig(max_disparity=16, bundle_height=5, coarse_grid=1)  # 96 rows a view
     inputs = _level(scene, config, 0)
     rows = inputs.bundle_rows(5)
     assert all(stop <= 96 or start >= 96 for start, stop in rows)
@@ -221,7 +221,8 @@ def _check_progress(events, result):
 def test_progress_reports_bundles_from_inside_each_level(scene, solver):
     from shared.process_pool import ProcessPoolLevelSolver
 
-    config = MatchConfig(max_disparity=16, solver=solver, encoding="domain-wall")
+    # every level on the full grid: the coarse one at half size leaves too few tiles to report
+    config = MatchConfig(max_disparity=16, solver=solver, encoding="domain-wall", coarse_grid=1)
     small = scene.left[:32, :48], scene.right[:32, :48]
     events: list[tuple[int, int, int, int]] = []
     result = run_pipeline(*small, config, progress=lambda *event: events.append(event))

@@ -91,6 +91,19 @@ def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
         store.load_level(record.id, 1)
 
 
+def test_a_coarse_grids_pooled_costs_travel_with_its_level(store, pair_arrays):
+    record = new_job(store, JobState.RUNNING)
+    left, right = pair_arrays
+    config = MatchConfig(max_disparity=24, coarse_grid=2)  # widths 4, 2, 1: the first at 1/2
+    _, plans = plan_run(left, right, config)
+    coarse = prepare_level(left, right, config, plans[0])
+    assert coarse.pooled is not None and coarse.shape == (32, 24)
+    store.save_level(record.id, coarse, started=1.0)
+    loaded, _ = store.load_level(record.id, 0)
+    assert loaded.pooled is not None and np.array_equal(loaded.pooled, coarse.pooled)
+    assert np.array_equal(loaded.costs(config).unary, coarse.costs(config).unary)
+
+
 def test_the_levels_of_a_bin_pyramid_share_one_copy_of_their_images(store, settings, pair_arrays):
     """A bin pyramid's levels all read the full-resolution views: they are written to Redis
     once per job, and each process reads them once (read-only, shared by the levels)."""
