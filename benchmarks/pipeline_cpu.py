@@ -34,6 +34,7 @@ def main() -> None:
     parser.add_argument("--pair", action="append", type=parse_pair, required=True)
     parser.add_argument("--variant", action="append", type=parse_variant, default=[])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--levels", action="store_true", help="per-level solver seconds, gaps")
     args = parser.parse_args()
     configs = {"default": {"preset": Preset.ACCURATE}}
     configs |= {
@@ -42,6 +43,7 @@ def main() -> None:
     for name, left_path, right_path, max_disparity in args.pair:
         left, right = load_pair(left_path, right_path)
         seconds: dict[str, list[float]] = {variant: [] for variant in configs}
+        levels: dict[str, list[list[tuple[float, float]]]] = {variant: [] for variant in configs}
         for variant in configs:  # warm: the kernels each configuration uses loaded once
             run_pipeline(left, right, MatchConfig(max_disparity=max_disparity, **configs[variant]))
         for repeat in range(args.repeats):
@@ -49,13 +51,25 @@ def main() -> None:
             for variant in order:
                 config = MatchConfig(max_disparity=max_disparity, **configs[variant])
                 started = time.process_time()
-                run_pipeline(left, right, config)
+                result = run_pipeline(left, right, config)
                 seconds[variant].append(time.process_time() - started)
+                levels[variant].append([(r.solver_seconds, r.gap or 0.0) for r in result.levels])
         medians = {variant: statistics.median(times) for variant, times in seconds.items()}
         for variant, times in seconds.items():
             ratio = medians[variant] / medians["default"]
             runs = " ".join(f"{t:.2f}" for t in times)
             print(f"{name} {variant}: {runs} s, median {medians[variant]:.2f} s, {ratio:.2f}x")
+            if args.levels:
+                print(f"  {name} {variant} levels: {level_cells(levels[variant])}")
+
+
+def level_cells(runs: list[list[tuple[float, float]]]) -> str:
+    """Each level's median solver seconds and worst gap over the runs, coarsest first."""
+    cells = []
+    for level in zip(*runs, strict=True):
+        median = statistics.median(s for s, _ in level)
+        cells.append(f"{median:.2f} s ({100 * max(g for _, g in level):.2f} %)")
+    return " | ".join(cells)
 
 
 if __name__ == "__main__":
