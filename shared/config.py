@@ -277,7 +277,7 @@ class MatchConfig(BaseModel):
         ge=1,
         le=16,
         description="Bin pyramid: run the coarse levels on a smaller grid, a level of bin width "
-        "w downsampled by min(coarse_grid, w / 2) (widths 2 and 1 stay at full resolution): "
+        "w downsampled by min(coarse_grid, w / 4) (widths 4, 2 and 1 stay at full resolution): "
         "its data term the full-resolution bin costs averaged over each block, its smoothness "
         "divided by the factor, its map upsampled (nearest) to centre the finer level's "
         "windows (1: every level at full resolution) (from preset: accurate 4)",

@@ -19,24 +19,24 @@ from shared.synthetic import make_scene
 
 
 @given(width=st.sampled_from([1, 2, 4, 8, 16, 32, 64]), cap=st.integers(1, 16))
-def test_a_levels_cells_stay_within_half_its_bin(width, cap):
+def test_a_levels_cells_stay_within_a_quarter_of_its_bin(width, cap):
     factor = pyramid.grid_factor(width, cap)
     assert 1 <= factor <= cap
-    assert factor == 1 or 2 * factor <= width
-    assert factor == min(cap, max(1, width // 2))
+    assert factor == 1 or 4 * factor <= width
+    assert factor == min(cap, max(1, width // 4))
 
 
 def test_the_plan_downsamples_the_coarse_levels_and_divides_their_smoothness():
     plain = pyramid.plan(MatchConfig(coarse_grid=1), 106)
     plans = pyramid.plan(MatchConfig(coarse_grid=4), 106)
     assert [p.bin_width for p in plans] == [16, 8, 4, 2, 1]
-    assert [p.downsample for p in plans] == [4, 4, 2, 1, 1]
+    assert [p.downsample for p in plans] == [4, 2, 1, 1, 1]
     for before, after in zip(plain, plans, strict=True):
         factor = after.downsample
         assert after.mrf.slope == pytest.approx(before.mrf.slope / factor)
         assert after.mrf.truncation == pytest.approx(before.mrf.truncation / factor)
         assert (after.candidates, after.max_label) == (before.candidates, before.max_label)
-    assert plans[-2:] == plain[-2:]
+    assert plans[-3:] == plain[-3:]
 
 
 @settings_(max_examples=30, deadline=None)
@@ -61,14 +61,14 @@ def scene():
 
 
 def test_a_coarse_levels_grid_and_costs(scene):
-    config = MatchConfig(max_disparity=24, coarse_grid=2)
+    config = MatchConfig(max_disparity=40, coarse_grid=2)
     left, right = match_views(scene.left, scene.right, config)
     plans = plan_run(left, right, config)[1]
-    assert [p.downsample for p in plans] == [2, 1, 1]  # widths 4, 2, 1
+    assert [p.downsample for p in plans] == [2, 1, 1, 1]  # widths 8, 4, 2, 1
     level = prepare_level(left, right, config, plans[0])
     height, width = pyramid.level_shape(left.shape[:2], 2)
     assert level.shape == (2 * height, width) and level.views == 2
-    assert level.pooled is not None and level.pooled.shape == (2, 7, height, width)
+    assert level.pooled is not None and level.pooled.shape == (2, 6, height, width)
     grid = level.grid(config, 0, height)  # the exact solver's grid is the pooled costs'
     assert grid.unary.shape[:2] == (height, width)
     expected = pooled_costs(
@@ -78,21 +78,21 @@ def test_a_coarse_levels_grid_and_costs(scene):
 
 
 def test_the_pooled_costs_are_the_same_from_cached_volumes(scene):
-    config = MatchConfig(max_disparity=24, coarse_grid=2)
+    config = MatchConfig(max_disparity=40, coarse_grid=2)
     left, right = match_views(scene.left, scene.right, config)
     plans = plan_run(left, right, config)[1]
     fine = fine_views(left, right, config, plans[0])
     built = pooled_costs(fine, plans[0], config.data_term, (20, 30))
-    full = fine.level_bin_costs(config.data_term)  # width 4 from the cached width-1 volumes
+    full = fine.level_bin_costs(config.data_term)  # width 8 from the cached width-1 volumes
     fine.volumes = [
-        np.repeat(v, 4, axis=0)[: plans[0].max_disparity + 1] for v in full
+        np.repeat(v, 8, axis=0)[: plans[0].max_disparity + 1] for v in full
     ]  # every disparity of a bin at the bin's cost: its bins are the very values
     fine.volume_bin_width = 1
     np.testing.assert_array_equal(pooled_costs(fine, plans[0], config.data_term, (20, 30)), built)
 
 
 def test_the_coarse_labels_centre_the_finer_windows_view_by_view(scene):
-    config = MatchConfig(max_disparity=24, coarse_grid=2)
+    config = MatchConfig(max_disparity=40, coarse_grid=2)
     left, right = match_views(scene.left, scene.right, config)
     plans = plan_run(left, right, config)[1]
     coarse = prepare_level(left, right, config, plans[0])
@@ -135,27 +135,27 @@ def _digest(disparity: np.ndarray) -> str:
 
 
 def test_the_option_changes_nothing_where_no_bin_is_wider_than_two(scene):
-    """Widths 2 and 1 (a 12 px range) keep the full grid whatever the cap: the very map."""
-    base = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=12, coarse_grid=1))
-    capped = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=12, coarse_grid=8))
-    assert [level.downsample for level in capped.levels] == [1, 1]
+    """Widths 4, 2 and 1 (a 24 px range) keep the full grid whatever the cap: the very map."""
+    base = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=24, coarse_grid=1))
+    capped = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=24, coarse_grid=8))
+    assert [level.downsample for level in capped.levels] == [1, 1, 1]
     assert _digest(capped.disparity) == _digest(base.disparity)
 
 
 def test_the_default_map_on_a_coarse_grid_is_pinned(scene):
-    """The accurate preset's map where its coarse level runs at half size (24 px: widths 4, 2,
-    1), pinned when coarse_grid 4 became its default (every level on the full grid, as before:
-    d228d16d961c7448); the older digests' scenes (ranges <= 8 px) keep every level full size."""
-    result = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=24))
-    assert [level.downsample for level in result.levels] == [2, 1, 1]
-    assert _digest(result.disparity) == "5c48002881241418"
-    full = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=24, coarse_grid=1))
+    """The accurate preset's map where its coarse level runs at half size (40 px: widths 8, 4,
+    2, 1), pinned when coarse_grid 4 became its default (every level on the full grid, as
+    before: d228d16d961c7448); the older digests' scenes (ranges <= 8 px) keep every level full size."""
+    result = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=40))
+    assert [level.downsample for level in result.levels] == [2, 1, 1, 1]
+    assert _digest(result.disparity) == "b4e13c445a466b11"
+    full = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=40, coarse_grid=1))
     assert _digest(full.disparity) == "d228d16d961c7448"
 
 
 @pytest.mark.parametrize("solver", ["exact", "sa", "steepest-descent"])
 def test_every_solver_works_on_a_coarse_grid_and_reports_its_levels(scene, solver):
-    config = MatchConfig(max_disparity=24, coarse_grid=2, solver=solver, seed=1)
+    config = MatchConfig(max_disparity=40, coarse_grid=2, solver=solver, seed=1)
     result = run_pipeline(scene.left, scene.right, config)
     coarse = result.levels[0]
     assert (coarse.downsample, coarse.height, coarse.width) == (2, 20, 30)
@@ -171,17 +171,17 @@ def test_every_solver_works_on_a_coarse_grid_and_reports_its_levels(scene, solve
 def test_second_bins_on_a_coarse_grid_read_the_pooled_coarser_bins():
     from shared.hypotheses import with_second_bins
 
-    scene = make_scene(40, 61, max_disparity=40, slanted=False, layers=2, seed=1)
-    config = MatchConfig(max_disparity=40, second_bins=3, second_bins_radius=2)
+    scene = make_scene(40, 97, max_disparity=64, slanted=False, layers=2, seed=1)
+    config = MatchConfig(max_disparity=64, second_bins=3, second_bins_radius=2)
     left, right = match_views(scene.left, scene.right, config)
     plans = plan_run(left, right, config)[1]
-    assert [p.downsample for p in plans] == [4, 2, 1, 1]  # widths 8, 4, 2, 1
+    assert [p.downsample for p in plans] == [4, 2, 1, 1, 1]  # widths 16, 8, 4, 2, 1
     coarse = prepare_level(left, right, config, plans[0])
     previous = np.full(coarse.shape, 2.0, dtype=np.float32)
     level = prepare_level(left, right, config, plans[1], previous, coarse)
     assert level.candidates.shape == (*level.shape, plans[1].candidates + 2)
     fine = fine_views(left, right, config, plans[1])
-    wider = plans[1].model_copy(update={"bin_width": 8})
+    wider = plans[1].model_copy(update={"bin_width": 16})
     pooled = list(pooled_costs(fine, wider, config.data_term, (level.view_height, level.shape[1])))
     window = level.candidates[:, :, :-2]
     plain = prepare_level(left, right, config.model_copy(update={"second_bins": 0}), plans[1],

@@ -37,7 +37,7 @@ def test_default_pipeline_recovers_the_synthetic_ground_truth(scene):
     assert scores.bpp < 4.0
     assert scores.rmse < 1.5
     assert [level.bin_width for level in result.levels] == [4, 2, 1]
-    assert [level.downsample for level in result.levels] == [2, 1, 1]  # coarse_grid 4: w / 2
+    assert [level.downsample for level in result.levels] == [1, 1, 1]  # coarse_grid 4: w / 4
     # grid inference with exact: one bundle per view (its whole grid), with a lower bound
     assert [level.bundles for level in result.levels] == [2] * 3
     assert all(level.lower_bound <= level.energy for level in result.levels)

@@ -38,17 +38,17 @@ def reference(pair, params: dict) -> np.ndarray:
 
 
 def test_a_coarse_grid_job_gives_the_in_process_map(client, pair):
-    """The accurate preset's coarse level at half size (24 px: widths 4, 2, 1): the workers pool
+    """The accurate preset's coarse level at half size (40 px: widths 8, 4, 2, 1): the workers pool
     its costs from the views block by block, the process from its cached volumes; one map."""
     left, right, left_view, right_view, _ = pair
-    params = {"solver": "exact", "max_disparity": 24, "seed": 5}
+    params = {"solver": "exact", "max_disparity": 40, "seed": 5}
     job_id = harness.submit(client, left, right, params)
     status = harness.wait_for(client, job_id)
     assert status["state"] == "succeeded", status["error"]
     local = run_pipeline(left_view, right_view, MatchConfig.model_validate(params))
     assert np.array_equal(harness.download(client, job_id), local.disparity)
     levels = [(level["downsample"], level["height"]) for level in status["levels"]]
-    assert levels == [(2, 16), (1, 32), (1, 32)]
+    assert levels == [(2, 16), (1, 32), (1, 32), (1, 32)]
     assert [level["energy"] for level in status["levels"]] == [
         level.energy for level in local.levels
     ]

@@ -94,7 +94,7 @@ def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
 def test_a_coarse_grids_pooled_costs_travel_with_its_level(store, pair_arrays):
     record = new_job(store, JobState.RUNNING)
     left, right = pair_arrays
-    config = MatchConfig(max_disparity=24, coarse_grid=2)  # widths 4, 2, 1: the first at 1/2
+    config = MatchConfig(max_disparity=40, coarse_grid=2)  # widths 8, 4, 2, 1: the first at 1/2
     _, plans = plan_run(left, right, config)
     coarse = prepare_level(left, right, config, plans[0])
     assert coarse.pooled is not None and coarse.shape == (32, 24)
