@@ -145,7 +145,8 @@ def test_the_option_changes_nothing_where_no_bin_is_wider_than_two(scene):
 def test_the_default_map_on_a_coarse_grid_is_pinned(scene):
     """The accurate preset's map where its coarse level runs at half size (40 px: widths 8, 4,
     2, 1), pinned when coarse_grid 4 became its default (every level on the full grid, as
-    before: d228d16d961c7448); the older digests' scenes (ranges <= 8 px) keep every level full size."""
+    before: d228d16d961c7448); the older digests' scenes (ranges <= 8 px) keep every level
+    full size."""
     result = run_pipeline(scene.left, scene.right, MatchConfig(max_disparity=40))
     assert [level.downsample for level in result.levels] == [2, 1, 1, 1]
     assert _digest(result.disparity) == "b4e13c445a466b11"
