@@ -41,6 +41,12 @@ GRADIENT_SCALE = 10.0
 CENSUS_SCALE = 30.0
 CENSUS_WINDOW = 5
 AGGREGATION_WINDOW = 5
+#: Volumes (of a block) of at least this many bytes are built by compiled kernels
+#: (:func:`_fused_census_gradient`: the same floats); smaller ones by OpenCV and NumPy, which
+#: spares a small pair numba's import.
+FUSED_VOLUME_BYTES = 16 * 2**20
+#: Disparities whose gradient terms go through OpenCV's exp in one call.
+FUSED_DISPARITIES = 8
 #: Image rows a block of cost rows needs on each side (census reach + aggregation reach).
 HALO = CENSUS_WINDOW // 2 + AGGREGATION_WINDOW // 2
 
@@ -198,6 +204,10 @@ def census_gradient_volume(
     reach = CENSUS_WINDOW // 2
     gradients_left = [g[reach:-reach] for g in _sobel(gray_left)]
     gradients_right = [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)]
+    if (max_disparity + 1) * block.rows * census_left.shape[1] * 4 >= FUSED_VOLUME_BYTES:
+        return _fused_census_gradient(
+            census_left, census_right, gradients_left, gradients_right, block, out
+        )
 
     def gradient_term(columns: slice) -> np.ndarray:
         gradient = cv2.add(
@@ -207,6 +217,46 @@ def census_gradient_volume(
         return cv2.exp(np.multiply(gradient, np.float32(-1.0 / GRADIENT_SCALE), out=gradient))
 
     return _census_and(census_left, census_right, gradient_term, block, out)
+
+
+def _census_table() -> np.ndarray:
+    """table[H] = 1/2 (1 - exp(-H / 30)) + 1/2 (float32), so that cost = table[H] - term / 2."""
+    table = np.zeros(256, dtype=np.float32)
+    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
+    table += 0.5
+    return table
+
+
+def _fused_census_gradient(
+    census_left: np.ndarray,
+    census_right: np.ndarray,
+    gradients_left: list[np.ndarray],
+    gradients_right: list[np.ndarray],
+    block: VolumeBlock,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`_census_and` of the gradient term by the compiled kernels of
+    :mod:`shared.volume_kernels` (the same floats: see there), :data:`FUSED_DISPARITIES` at a
+    time: their exponents, OpenCV's exp of all of them in one call, then costs and box means
+    written straight into the volume (no plane copied)."""
+    from shared import volume_kernels  # numba: imported only for a volume worth it
+
+    max_disparity = block.max_disparity
+    rows, width = census_left.shape
+    volume = np.empty((max_disparity + 1, block.rows, width), np.float32) if out is None else out
+    table = _census_table()
+    terms = np.empty((min(FUSED_DISPARITIES, max_disparity + 1), rows, width), np.float32)
+    for first in range(0, max_disparity + 1, FUSED_DISPARITIES):
+        chunk = terms[: min(FUSED_DISPARITIES, max_disparity + 1 - first)]
+        volume_kernels.gradient_exponents(
+            *gradients_left, *gradients_right, max_disparity, first, chunk
+        )
+        flat = chunk.reshape(-1, width)
+        cv2.exp(flat, dst=flat)
+        volume_kernels.census_aggregate(
+            census_left, census_right, chunk, table, max_disparity, first, volume
+        )
+    return volume
 
 
 def _census_and(
@@ -221,10 +271,7 @@ def _census_and(
     term's exp(-x / scale) with the right view read at ``columns``; each has the block's rows
     plus the aggregation's reach on both sides; written into ``out`` when given."""
     width = census_left.shape[1]
-    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - term / 2
-    table = np.zeros(256, dtype=np.float32)
-    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
-    table += 0.5
+    table = _census_table()
     box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
     reach = AGGREGATION_WINDOW // 2
     max_disparity = block.max_disparity

@@ -1,0 +1,89 @@
+"""Compiled kernels of the census + gradient cost volume (:mod:`shared.data_terms`): the
+per-disparity NumPy/OpenCV passes (XOR, bit count, table, two absolute differences, sum, scale,
+exp, scale-add, 5x5 box filter, copy: a dozen passes over each disparity's plane, 23-52 % of a
+large pair's run, issue 28) fused into two loops per disparity, with OpenCV's ``exp`` between
+them (its float32 ``exp`` is its own approximation: it is called, not imitated).
+
+Why the results are OpenCV's bit for bit: every cost before aggregation is
+``table[H] - exp_term / 2`` with ``table[H]`` in [0.5, 1) and ``exp_term`` in [0, 1] (float32),
+so it is a multiple of 2^-26 in [0, 1): sums of 25 of them are exact in float64 in any order,
+and ``cv2.boxFilter`` (float64 row and column sums, then ``sum * (1/25)`` rounded to float32)
+gives ``float32(exact_sum * (1/25))``, as here. The element-wise float32 steps (absolute
+differences, their sum, the scale by -1/10, ``exp_term * -0.5 + table[H]``, exact products)
+round as OpenCV's do. ``nogil``: the views' volumes are built in threads side by side.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: Rows of the aggregation window, whose row sums are kept in a ring.
+WINDOW = 5
+
+
+@numba.njit(cache=True, nogil=True)
+def gradient_exponents(
+    left_x, left_y, right_x, right_y, max_disparity, first, out
+):  # pragma: no cover - jit
+    """``out[k]`` = -(|dxL - dxR| + |dyL - dyR|) / 10 (float32, as OpenCV's absdiff, add and
+    multiply round) at disparity ``first + k``: the right view's (shifted) gradients read at
+    column ``max_disparity - d + x``."""
+    count, rows, width = out.shape
+    scale = np.float32(-0.1)
+    for k in range(count):
+        shift = max_disparity - (first + k)
+        for y in range(rows):
+            for x in range(width):
+                a = abs(left_x[y, x] - right_x[y, shift + x])
+                b = abs(left_y[y, x] - right_y[y, shift + x])
+                out[k, y, x] = (a + b) * scale
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bits(value):  # pragma: no cover - jit
+    """Set bits of a 32-bit code."""
+    v = np.uint32(value)
+    v = v - ((v >> np.uint32(1)) & np.uint32(0x55555555))
+    v = (v & np.uint32(0x33333333)) + ((v >> np.uint32(2)) & np.uint32(0x33333333))
+    v = (v + (v >> np.uint32(4))) & np.uint32(0x0F0F0F0F)
+    return ((v * np.uint32(0x01010101)) >> np.uint32(24)) & np.uint32(0xFF)
+
+
+@numba.njit(cache=True, nogil=True)
+def census_aggregate(
+    census_left, census_right, terms, table, max_disparity, first, volume
+):  # pragma: no cover - jit
+    """``volume[first + k]`` = the 5x5 box mean (columns replicated) of
+    ``table[H] - terms[k] / 2`` over the block: H the Hamming distance of the left codes and
+    the right (shifted) codes at disparity ``first + k``; ``terms`` (count, rows + 4, w) and
+    the codes have the aggregation's two rows of context above and below."""
+    count, rows, width = terms.shape
+    reach = WINDOW // 2
+    cost = np.empty(width + 2 * reach, np.float32)
+    ring = np.empty((WINDOW, width), np.float64)
+    half = np.float32(-0.5)
+    mean = 1.0 / (WINDOW * WINDOW)
+    for k in range(count):
+        d = first + k
+        shift = max_disparity - d
+        for y in range(rows):
+            for x in range(width):
+                bits = _bits(census_left[y, x] ^ census_right[y, shift + x])
+                cost[reach + x] = terms[k, y, x] * half + table[bits]
+            for j in range(reach):
+                cost[j] = cost[reach]
+                cost[reach + width + j] = cost[reach + width - 1]
+            slot = ring[y % WINDOW]
+            for x in range(width):
+                s = np.float64(cost[x])
+                s += np.float64(cost[x + 1])
+                s += np.float64(cost[x + 2])
+                s += np.float64(cost[x + 3])
+                s += np.float64(cost[x + 4])
+                slot[x] = s
+            if y >= WINDOW - 1:
+                out = volume[d, y - (WINDOW - 1)]
+                for x in range(width):
+                    s = ring[0, x] + ring[1, x] + ring[2, x] + ring[3, x] + ring[4, x]
+                    out[x] = np.float32(s * mean)
