@@ -57,33 +57,34 @@ def census_aggregate(
     """``volume[first + k]`` = the 5x5 box mean (columns replicated) of
     ``table[H] - terms[k] / 2`` over the block: H the Hamming distance of the left codes and
     the right (shifted) codes at disparity ``first + k``; ``terms`` (count, rows + 4, w) and
-    the codes have the aggregation's two rows of context above and below."""
+    the codes have the aggregation's two rows of context above and below. The costs are summed
+    as integers (units of 2^-26: exact, see the module's doc)."""
     count, rows, width = terms.shape
     reach = WINDOW // 2
-    cost = np.empty(width + 2 * reach, np.float32)
-    ring = np.empty((WINDOW, width), np.float64)
+    cost = np.empty(width + 2 * reach, np.int32)
+    ring = np.zeros((WINDOW, width), np.int32)
+    column = np.empty(width, np.int32)
     half = np.float32(-0.5)
-    mean = 1.0 / (WINDOW * WINDOW)
+    unit = np.float32(2.0**26)
+    mean = 2.0**-26 / (WINDOW * WINDOW)
     for k in range(count):
         d = first + k
         shift = max_disparity - d
+        column[:] = 0
+        ring[:] = 0
         for y in range(rows):
             for x in range(width):
                 bits = _bits(census_left[y, x] ^ census_right[y, shift + x])
-                cost[reach + x] = terms[k, y, x] * half + table[bits]
+                cost[reach + x] = np.int32((terms[k, y, x] * half + table[bits]) * unit)
             for j in range(reach):
                 cost[j] = cost[reach]
                 cost[reach + width + j] = cost[reach + width - 1]
             slot = ring[y % WINDOW]
             for x in range(width):
-                s = np.float64(cost[x])
-                s += np.float64(cost[x + 1])
-                s += np.float64(cost[x + 2])
-                s += np.float64(cost[x + 3])
-                s += np.float64(cost[x + 4])
+                s = cost[x] + cost[x + 1] + cost[x + 2] + cost[x + 3] + cost[x + 4]
+                column[x] += s - slot[x]
                 slot[x] = s
             if y >= WINDOW - 1:
                 out = volume[d, y - (WINDOW - 1)]
                 for x in range(width):
-                    s = ring[0, x] + ring[1, x] + ring[2, x] + ring[3, x] + ring[4, x]
-                    out[x] = np.float32(s * mean)
+                    out[x] = np.float32(np.float64(column[x]) * mean)
