@@ -241,6 +241,9 @@ def _fused_census_gradient(
     written straight into the volume (no plane copied)."""
     from shared import volume_kernels  # numba: imported only for a volume worth it
 
+    exponents: Callable[..., None] = volume_kernels.gradient_exponents
+    aggregate: Callable[..., None] = volume_kernels.census_aggregate
+
     max_disparity = block.max_disparity
     rows, width = census_left.shape
     volume = np.empty((max_disparity + 1, block.rows, width), np.float32) if out is None else out
@@ -248,14 +251,10 @@ def _fused_census_gradient(
     terms = np.empty((min(FUSED_DISPARITIES, max_disparity + 1), rows, width), np.float32)
     for first in range(0, max_disparity + 1, FUSED_DISPARITIES):
         chunk = terms[: min(FUSED_DISPARITIES, max_disparity + 1 - first)]
-        volume_kernels.gradient_exponents(
-            *gradients_left, *gradients_right, max_disparity, first, chunk
-        )
+        exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
         flat = chunk.reshape(-1, width)
         cv2.exp(flat, dst=flat)
-        volume_kernels.census_aggregate(
-            census_left, census_right, chunk, table, max_disparity, first, volume
-        )
+        aggregate(census_left, census_right, chunk, table, max_disparity, first, volume)
     return volume
 
 
