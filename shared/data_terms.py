@@ -190,24 +190,42 @@ def ad_census_volume(
     return _census_and(census_left, census_right, ad_term, block, out)
 
 
+CensusGradientInputs = tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]
+
+
+def _census_gradient_inputs(
+    left: np.ndarray, right: np.ndarray, block: VolumeBlock
+) -> CensusGradientInputs:
+    """The census codes and Sobel gradients of the block's rows and context (the right view's
+    :func:`_shifted`): what every disparity's census + gradient cost reads."""
+    max_disparity = block.max_disparity
+    rows = _block_rows(left, block)
+    gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
+    gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
+    reach = CENSUS_WINDOW // 2
+    return (
+        census(gray_left),
+        _shifted(census(gray_right), max_disparity),
+        [g[reach:-reach] for g in _sobel(gray_left)],
+        [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)],
+    )
+
+
+def _fused(block: VolumeBlock, width: int) -> bool:
+    """Whether the block's volume is large enough for the compiled kernels."""
+    return (block.max_disparity + 1) * block.rows * width * 4 >= FUSED_VOLUME_BYTES
+
+
 def census_gradient_volume(
     left: np.ndarray, right: np.ndarray, block: VolumeBlock, out: np.ndarray | None = None
 ) -> np.ndarray:
     """:class:`VolumeFunction` of the aggregated census + gradient costs, float32 (colour is
     not read: colour views are turned gray)."""
-    max_disparity = block.max_disparity
-    rows = _block_rows(left, block)
-    gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
-    gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
-    census_left = census(gray_left)
-    census_right = _shifted(census(gray_right), max_disparity)
-    reach = CENSUS_WINDOW // 2
-    gradients_left = [g[reach:-reach] for g in _sobel(gray_left)]
-    gradients_right = [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)]
-    if (max_disparity + 1) * block.rows * census_left.shape[1] * 4 >= FUSED_VOLUME_BYTES:
-        return _fused_census_gradient(
-            census_left, census_right, gradients_left, gradients_right, block, out
-        )
+    census_left, census_right, gradients_left, gradients_right = inputs = _census_gradient_inputs(
+        left, right, block
+    )
+    if _fused(block, left.shape[1]):
+        return _fused_census_gradient(inputs, block, 1, out)
 
     def gradient_term(columns: slice) -> np.ndarray:
         gradient = cv2.add(
@@ -219,6 +237,27 @@ def census_gradient_volume(
     return _census_and(census_left, census_right, gradient_term, block, out)
 
 
+def binned_cost_volume(
+    data_term: str,
+    left: np.ndarray,
+    right: np.ndarray,
+    block: VolumeBlock,
+    bin_width: int,
+    scratch: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`bin_minimum` of :func:`cost_volume` (``scratch``: a buffer of the full volume's
+    shape, which the result may be a view of). A large census + gradient block goes straight
+    into its bins by the compiled kernels: the full volume is neither written nor read again
+    (the same floats: the least of the same costs)."""
+    if data_term == "census-gradient" and bin_width > 1 and _fused(block, left.shape[1]):
+        bins = block.max_disparity // bin_width + 1
+        out = None if scratch is None else scratch[:bins]
+        return _fused_census_gradient(
+            _census_gradient_inputs(left, right, block), block, bin_width, out
+        )
+    return bin_minimum(cost_volume(data_term, left, right, block, scratch), bin_width)
+
+
 def _census_table() -> np.ndarray:
     """table[H] = 1/2 (1 - exp(-H / 30)) + 1/2 (float32), so that cost = table[H] - term / 2."""
     table = np.zeros(256, dtype=np.float32)
@@ -228,25 +267,25 @@ def _census_table() -> np.ndarray:
 
 
 def _fused_census_gradient(
-    census_left: np.ndarray,
-    census_right: np.ndarray,
-    gradients_left: list[np.ndarray],
-    gradients_right: list[np.ndarray],
+    inputs: CensusGradientInputs,
     block: VolumeBlock,
+    bin_width: int,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`_census_and` of the gradient term by the compiled kernels of
-    :mod:`shared.volume_kernels` (the same floats: see there), :data:`FUSED_DISPARITIES` at a
-    time: their exponents, OpenCV's exp of all of them in one call, then costs and box means
-    written straight into the volume (no plane copied)."""
+    :mod:`shared.volume_kernels` (the same floats: see there), binned at ``bin_width``
+    (:func:`bin_minimum`), :data:`FUSED_DISPARITIES` at a time: their exponents, OpenCV's exp
+    of all of them in one call, then costs and box means written straight into ``out`` (or a
+    new array) of shape (bins, block rows, w)."""
     from shared import volume_kernels  # numba: imported only for a volume worth it
 
     exponents: Callable[..., None] = volume_kernels.gradient_exponents
     aggregate: Callable[..., None] = volume_kernels.census_aggregate
-
+    census_left, census_right, gradients_left, gradients_right = inputs
     max_disparity = block.max_disparity
     rows, width = census_left.shape
-    volume = np.empty((max_disparity + 1, block.rows, width), np.float32) if out is None else out
+    shape = (max_disparity // bin_width + 1, block.rows, width)
+    volume = np.empty(shape, np.float32) if out is None else out
     table = _census_table()
     terms = np.empty((min(FUSED_DISPARITIES, max_disparity + 1), rows, width), np.float32)
     for first in range(0, max_disparity + 1, FUSED_DISPARITIES):
@@ -254,7 +293,7 @@ def _fused_census_gradient(
         exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
         flat = chunk.reshape(-1, width)
         cv2.exp(flat, dst=flat)
-        aggregate(census_left, census_right, chunk, table, max_disparity, first, volume)
+        aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width, volume)
     return volume
 
 

@@ -14,7 +14,7 @@ from shared.config import DataTerm, MatchConfig
 from shared.data_terms import (
     VolumeBlock,
     bin_minimum,
-    cost_volume,
+    binned_cost_volume,
     gather,
     gather_window,
     squared_difference,
@@ -264,8 +264,7 @@ class LevelInputs:
         if not self._cached():
             left, right = self.view_images()[view]
             out = None if scratch is None else scratch[:, : block.rows]
-            volume = cost_volume(data_term, left, right, block, out)
-            return bin_minimum(volume, self.plan.bin_width)
+            return binned_cost_volume(data_term, left, right, block, self.plan.bin_width, out)
         return self.binned_volumes()[view][:, block.start : block.stop]
 
     def _candidate_costs(
@@ -342,7 +341,7 @@ class LevelInputs:
             scratch = self._scratch(data_term, blocks)
             for block in blocks:
                 out = None if scratch is None else scratch[:, : block.rows]
-                costs = bin_minimum(cost_volume(data_term, left, right, block, out), bin_width)
+                costs = binned_cost_volume(data_term, left, right, block, bin_width, out)
                 if view is None:
                     view = np.empty((len(costs), self.view_height, self.shape[1]), costs.dtype)
                 view[:, block.start : block.stop] = costs

@@ -17,6 +17,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 #: Rows of the aggregation window, whose row sums are kept in a ring.
 WINDOW = 5
@@ -40,21 +43,25 @@ def gradient_exponents(
                 out[k, y, x] = (a + b) * scale
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _bits(value):  # pragma: no cover - jit
-    """Set bits of a 32-bit code."""
-    v = np.uint32(value)
-    v = v - ((v >> np.uint32(1)) & np.uint32(0x55555555))
-    v = (v & np.uint32(0x33333333)) + ((v >> np.uint32(2)) & np.uint32(0x33333333))
-    v = (v + (v >> np.uint32(4))) & np.uint32(0x0F0F0F0F)
-    return ((v * np.uint32(0x01010101)) >> np.uint32(24)) & np.uint32(0xFF)
+@intrinsic
+def _bits(typingctx, code):  # pragma: no cover - compiled
+    """Set bits of a 32-bit code: LLVM's ``ctpop`` (a shift-and-mask count is 2.5x slower and
+    not vectorised)."""
+    signature = types.uint32(types.uint32)
+
+    def codegen(context, builder, signature, arguments):
+        count = builder.module.declare_intrinsic("llvm.ctpop", [ir.IntType(32)])
+        return builder.call(count, arguments)
+
+    return signature, codegen
 
 
 @numba.njit(cache=True, nogil=True)
 def census_aggregate(
-    census_left, census_right, terms, table, max_disparity, first, volume
+    census_left, census_right, terms, table, max_disparity, first, bin_width, volume
 ):  # pragma: no cover - jit
-    """``volume[first + k]`` = the 5x5 box mean (columns replicated) of
+    """``volume[(first + k) // bin_width]`` = the least over its bin's disparities (width 1: the
+    disparity's own) of the 5x5 box mean (columns replicated) of
     ``table[H] - terms[k] / 2`` over the block: H the Hamming distance of the left codes and
     the right (shifted) codes at disparity ``first + k``; ``terms`` (count, rows + 4, w) and
     the codes have the aggregation's two rows of context above and below. The costs are summed
@@ -74,7 +81,8 @@ def census_aggregate(
         ring[:] = 0
         for y in range(rows):
             for x in range(width):
-                bits = _bits(census_left[y, x] ^ census_right[y, shift + x])
+                code = np.uint32(census_left[y, x] ^ census_right[y, shift + x])
+                bits = _bits(code)  # type: ignore[call-arg,var-annotated]  # numba types it
                 cost[reach + x] = np.int32((terms[k, y, x] * half + table[bits]) * unit)
             for j in range(reach):
                 cost[j] = cost[reach]
@@ -85,6 +93,10 @@ def census_aggregate(
                 column[x] += s - slot[x]
                 slot[x] = s
             if y >= WINDOW - 1:
-                out = volume[d, y - (WINDOW - 1)]
-                for x in range(width):
-                    out[x] = np.float32(np.float64(column[x]) * mean)
+                out = volume[d // bin_width, y - (WINDOW - 1)]
+                if d % bin_width == 0:  # a bin's first disparity
+                    for x in range(width):
+                        out[x] = np.float32(np.float64(column[x]) * mean)
+                else:
+                    for x in range(width):
+                        out[x] = min(out[x], np.float32(np.float64(column[x]) * mean))

@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared import data_terms
-from shared.data_terms import VolumeBlock, census_gradient_volume
+from shared.data_terms import VolumeBlock, bin_minimum, binned_cost_volume, census_gradient_volume
 from shared.synthetic import make_scene
-from shared.volume_kernels import _bits
+from shared.volume_kernels import census_aggregate, gradient_exponents
 
 
 def both(left, right, block, out=None):
@@ -58,6 +58,48 @@ def test_the_compiled_volume_of_a_scene_fills_a_strided_buffer():
     np.testing.assert_array_equal(fused, reference)
 
 
-@pytest.mark.parametrize("code", [0, 1, 0b1011, 0xFFFFFF, 0xFFFFFFFF, 0x80000001])
-def test_bits_counts_the_set_bits(code):
-    assert _bits(np.uint32(code)) == bin(code).count("1")
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    max_disparity=st.integers(1, 40),
+    bin_width=st.integers(2, 9),
+    scratch=st.booleans(),
+)
+def test_the_compiled_bins_are_the_bins_of_opencvs_volume(seed, max_disparity, bin_width, scratch):
+    """Bins built straight by the kernels (into a full volume's scratch or a new array) are
+    :func:`bin_minimum` of OpenCV's volume; the last bin may be narrower."""
+    scene = make_scene(48, 20, max_disparity=max_disparity, seed=seed)
+    block = VolumeBlock(max_disparity, 3, 17)
+    reference, _ = both(scene.left, scene.right, block)
+    shape = (max_disparity + 1, block.rows, scene.left.shape[1])
+    buffer = np.empty(shape, np.float32) if scratch else None
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        binned = binned_cost_volume(
+            "census-gradient", scene.left, scene.right, block, bin_width, buffer
+        )
+    np.testing.assert_array_equal(binned, bin_minimum(reference, bin_width))
+
+
+def test_the_hamming_distance_is_the_count_of_differing_bits():
+    """Codes differing in 0, 1, ... 24 and 32 bits (a zero gradient term: cost = table[H])."""
+    distances = np.array([0, 1, 2, 3, 7, 12, 24, 32])
+    left = np.zeros((5, len(distances)), np.uint32)
+    right = np.zeros((5, len(distances)), np.uint32)
+    right[:] = (np.uint64(1) << distances.astype(np.uint64)) - np.uint64(1)
+    table = np.arange(256, dtype=np.float32) / 256 + np.float32(0.5)
+    terms = np.zeros((1, 5, len(distances)), np.float32)
+    volume = np.empty((1, 1, len(distances)), np.float32)
+    census_aggregate(left, right, terms, table, 0, 0, 1, volume)
+    # the box mean of a row of distinct costs: its 5 columns around (edges replicated)
+    costs = np.pad(table[distances].astype(np.float64), 2, mode="edge")
+    expected = np.convolve(costs, np.ones(5), mode="valid") * 5 / 25
+    np.testing.assert_allclose(volume[0, 0], expected, rtol=1e-6)
+
+
+def test_the_gradient_exponent_reads_the_right_view_shifted():
+    left = np.arange(6, dtype=np.float32)[None].repeat(2, 0)
+    right = np.zeros((2, 6 + 2), np.float32)  # two padded columns: disparities 0..2
+    out = np.empty((3, 2, 6), np.float32)
+    gradient_exponents(left, left, right, right, 2, 0, out)
+    np.testing.assert_array_equal(out[1], np.float32(-0.1) * (2 * left))
