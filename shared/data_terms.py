@@ -33,6 +33,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from shared import kernels
 from shared.images import to_gray
 
 #: AD-census constants: the exponential scales of the terms and the window sizes.
@@ -45,6 +46,9 @@ AGGREGATION_WINDOW = 5
 #: (:func:`_fused_census_gradient`: the same floats); smaller ones by OpenCV and NumPy, which
 #: spares a small pair numba's import.
 FUSED_VOLUME_BYTES = 16 * 2**20
+#: A view whose whole volume is at least this large takes the compiled kernels even before
+#: numba is loaded (:func:`_fused`).
+FUSED_VIEW_BYTES = 2**30
 #: Disparities whose gradient terms go through OpenCV's exp in one call.
 FUSED_DISPARITIES = 8
 #: Image rows a block of cost rows needs on each side (census reach + aggregation reach).
@@ -211,9 +215,14 @@ def _census_gradient_inputs(
     )
 
 
-def _fused(block: VolumeBlock, width: int) -> bool:
-    """Whether the block's volume is large enough for the compiled kernels."""
-    return (block.max_disparity + 1) * block.rows * width * 4 >= FUSED_VOLUME_BYTES
+def _fused(block: VolumeBlock, view: np.ndarray) -> bool:
+    """Whether the block of ``view``'s volume goes to the compiled kernels: a large block, when
+    numba is loaded already or the view's volume is so large (built in blocks, level after
+    level) that numba's import (0.7-0.9 s CPU) is worth it; else OpenCV (the same floats)."""
+    volume_bytes = (block.max_disparity + 1) * view.shape[1] * 4
+    if volume_bytes * block.rows < FUSED_VOLUME_BYTES:
+        return False
+    return volume_bytes * view.shape[0] >= FUSED_VIEW_BYTES or kernels.jit_ready()
 
 
 def census_gradient_volume(
@@ -224,7 +233,7 @@ def census_gradient_volume(
     census_left, census_right, gradients_left, gradients_right = inputs = _census_gradient_inputs(
         left, right, block
     )
-    if _fused(block, left.shape[1]):
+    if _fused(block, left):
         return _fused_census_gradient(inputs, block, 1, out)
 
     def gradient_term(columns: slice) -> np.ndarray:
@@ -249,7 +258,7 @@ def binned_cost_volume(
     shape, which the result may be a view of). A large census + gradient block goes straight
     into its bins by the compiled kernels: the full volume is neither written nor read again
     (the same floats: the least of the same costs)."""
-    if data_term == "census-gradient" and bin_width > 1 and _fused(block, left.shape[1]):
+    if data_term == "census-gradient" and bin_width > 1 and _fused(block, left):
         bins = block.max_disparity // bin_width + 1
         out = None if scratch is None else scratch[:bins]
         return _fused_census_gradient(

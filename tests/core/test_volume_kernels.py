@@ -19,6 +19,7 @@ def both(left, right, block, out=None):
         patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 2**62)
         reference = census_gradient_volume(left, right, block)
         patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
         return reference, census_gradient_volume(left, right, block, out)
 
 
@@ -75,6 +76,7 @@ def test_the_compiled_bins_are_the_bins_of_opencvs_volume(seed, max_disparity, b
     buffer = np.empty(shape, np.float32) if scratch else None
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
         binned = binned_cost_volume(
             "census-gradient", scene.left, scene.right, block, bin_width, buffer
         )
@@ -103,3 +105,20 @@ def test_the_gradient_exponent_reads_the_right_view_shifted():
     out = np.empty((3, 2, 6), np.float32)
     gradient_exponents(left, left, right, right, 2, 0, out)
     np.testing.assert_array_equal(out[1], np.float32(-0.1) * (2 * left))
+
+
+@pytest.mark.parametrize(
+    ("rows", "width", "ready", "fused"),
+    [
+        (4, 100, True, False),  # a small block: OpenCV, numba loaded or not
+        (400, 1000, True, True),  # a large block, numba loaded
+        (400, 1000, False, False),  # the same before numba is loaded: no wait for its import
+        (2000, 2000, False, True),  # a view volume beyond FUSED_VIEW_BYTES: worth the import
+    ],
+)
+def test_the_kernels_take_large_blocks_without_waiting_for_numba(
+    monkeypatch, rows, width, ready, fused
+):
+    monkeypatch.setattr(data_terms.kernels, "jit_ready", lambda: ready)
+    view = np.empty((rows, width), np.float32)
+    assert data_terms._fused(VolumeBlock(128, 0, min(rows, 64)), view) is fused
