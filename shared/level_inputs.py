@@ -275,12 +275,14 @@ class LevelInputs:
         last: int,
         candidates: np.ndarray,
         dtype: type = np.float64,
+        workers: int = 1,
     ) -> np.ndarray:
         """(last - first, w, K) costs of the candidates, built from the cost volume a block of
         :data:`VOLUME_BLOCK_BYTES` at a time when no volume is cached: a whole view's volume
         (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
         257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
-        volume's own precision: exact) halves the view's costs."""
+        volume's own precision: exact) halves the view's costs. ``workers`` > 1: the blocks
+        dealt to that many threads (each its own scratch; :func:`shared.threads.beside`)."""
         window = self._window(view, first, last)
         count = candidates.shape[2]
 
@@ -293,11 +295,19 @@ class LevelInputs:
             whole = VolumeBlock(self.plan.max_disparity, first, last)
             return pick(self._bin_costs(data_term, view, whole), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
+
+        def fill(blocks: list[VolumeBlock]) -> None:
+            scratch = self._scratch(data_term, blocks)
+            for block in blocks:
+                rows = slice(block.start - first, block.stop - first)
+                costs[rows] = pick(self._bin_costs(data_term, view, block, scratch), rows)
+
         blocks = self._volume_blocks(first, last)
-        scratch = self._scratch(data_term, blocks)
-        for block in blocks:
-            rows = slice(block.start - first, block.stop - first)
-            costs[rows] = pick(self._bin_costs(data_term, view, block, scratch), rows)
+        shares = [blocks[i :: max(1, workers)] for i in range(min(max(1, workers), len(blocks)))]
+        later = [beside(fill, share) for share in shares[1:]]
+        fill(shares[0])
+        for done in later:
+            done()
         return costs
 
     def _scratch(self, data_term: DataTerm, blocks: list[VolumeBlock]) -> np.ndarray | None:
@@ -377,7 +387,13 @@ class LevelInputs:
         return self._binned or []
 
     def view_unary(
-        self, config: MatchConfig, view: int, first: int, last: int, dtype: type = np.float64
+        self,
+        config: MatchConfig,
+        view: int,
+        first: int,
+        last: int,
+        dtype: type = np.float64,
+        workers: int = 1,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The data term of rows [first, last) of one view at its candidates.
 
@@ -391,6 +407,8 @@ class LevelInputs:
             Rows within the view.
         dtype : type, optional
             Of the costs: float64 (the row matcher's arithmetic) or float32 (a grid's).
+        workers : int, optional
+            Threads that build the costs' blocks (:meth:`_candidate_costs`).
 
         Returns
         -------
@@ -409,10 +427,12 @@ class LevelInputs:
             # the paper's path: evaluated at the candidates only
             unary = squared_difference(guide, to_gray(right[first:last]), candidates)
         else:
-            unary = self._candidate_costs(config.data_term, view, first, last, candidates, dtype)
+            unary = self._candidate_costs(
+                config.data_term, view, first, last, candidates, dtype, workers
+            )
         return unary, candidates, guide
 
-    def grid(self, config: MatchConfig, start: int, stop: int) -> GridMRF:
+    def grid(self, config: MatchConfig, start: int, stop: int, workers: int = 1) -> GridMRF:
         """The grid MRF of rows [start, stop) of one view (``grid`` inference).
 
         Parameters
@@ -421,6 +441,8 @@ class LevelInputs:
             The run's configuration.
         start, stop : int
             Rows of the stacked views, within one view.
+        workers : int, optional
+            Threads that build its costs (the grids minimised one at a time: a core spare).
 
         Returns
         -------
@@ -434,7 +456,7 @@ class LevelInputs:
         parts = self.view_parts(start, stop)
         if len(parts) != 1:
             raise ValueError(f"rows [{start}, {stop}) span both views; a grid is one view's")
-        unary, candidates, guide = self.view_unary(config, *parts[0], dtype=np.float32)
+        unary, candidates, guide = self.view_unary(config, *parts[0], np.float32, workers)
         window = self._window(*parts[0])
         return grid_mrf(unary, candidates, guide, self.plan.mrf, config.regularizer, window)
 

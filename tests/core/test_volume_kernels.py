@@ -7,8 +7,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import data_terms
+from shared import data_terms, level_inputs, pipeline, threads
+from shared.config import MatchConfig
 from shared.data_terms import VolumeBlock, bin_minimum, binned_cost_volume, census_gradient_volume
+from shared.inference import grid_views
+from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
 from shared.volume_kernels import census_aggregate, gradient_exponents
 
@@ -122,3 +125,30 @@ def test_the_kernels_take_large_blocks_without_waiting_for_numba(
     monkeypatch.setattr(data_terms.kernels, "jit_ready", lambda: ready)
     view = np.empty((rows, width), np.float32)
     assert data_terms._fused(VolumeBlock(128, 0, min(rows, 64)), view) is fused
+
+
+def test_the_map_is_the_same_with_the_kernels_and_the_costs_in_two_threads(monkeypatch):
+    """Costs per block at every level (no cache), several blocks per view, grids one at a time
+    (their blocks dealt to two threads) and the compiled kernels: main's map bit for bit."""
+    scene = make_scene(24, 40, max_disparity=30, seed=2)
+    config = MatchConfig(max_disparity=30)
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", 0)
+    monkeypatch.setattr(data_terms, "FUSED_VOLUME_BYTES", 2**62)
+    reference = run_pipeline(scene.left, scene.right, config).disparity
+    monkeypatch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+    monkeypatch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+    monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", 25_000)
+    monkeypatch.setattr(grid_views, "GRID_STATE_BYTES", 0)
+    monkeypatch.setattr(grid_views, "threads", lambda: 2)
+    monkeypatch.setattr(threads, "threads", lambda: 2)
+    dealt = []
+    original = level_inputs.LevelInputs._candidate_costs
+
+    def recorded(self, *args):
+        dealt.append(args[-1])
+        return original(self, *args)
+
+    monkeypatch.setattr(level_inputs.LevelInputs, "_candidate_costs", recorded)
+    disparity = run_pipeline(scene.left, scene.right, config).disparity
+    assert dealt and set(dealt) == {2}
+    np.testing.assert_array_equal(disparity, reference)
