@@ -49,8 +49,6 @@ FUSED_VOLUME_BYTES = 16 * 2**20
 #: A view whose whole volume is at least this large takes the compiled kernels even before
 #: numba is loaded (:func:`_fused`).
 FUSED_VIEW_BYTES = 2**30
-#: Disparities whose gradient terms go through OpenCV's exp in one call.
-FUSED_DISPARITIES = 8
 #: Image rows a block of cost rows needs on each side (census reach + aggregation reach).
 HALO = CENSUS_WINDOW // 2 + AGGREGATION_WINDOW // 2
 
@@ -281,29 +279,37 @@ def _fused_census_gradient(
     bin_width: int,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """:func:`_census_and` of the gradient term by the compiled kernels of
-    :mod:`shared.volume_kernels` (the same floats: see there), binned at ``bin_width``
-    (:func:`bin_minimum`), :data:`FUSED_DISPARITIES` at a time: their exponents, OpenCV's exp
-    of all of them in one call, then costs and box means written straight into ``out`` (or a
-    new array) of shape (bins, block rows, w)."""
+    """:func:`_census_and` of the gradient term binned at ``bin_width`` (:func:`bin_minimum`)
+    by the compiled kernels (:func:`shared.volume_kernels.build`: the same floats), into
+    ``out`` (or a new array) of shape (bins, block rows, w)."""
     from shared import volume_kernels  # numba: imported only for a volume worth it
 
-    exponents: Callable[..., None] = volume_kernels.gradient_exponents
-    aggregate: Callable[..., None] = volume_kernels.census_aggregate
-    census_left, census_right, gradients_left, gradients_right = inputs
-    max_disparity = block.max_disparity
-    rows, width = census_left.shape
-    shape = (max_disparity // bin_width + 1, block.rows, width)
-    volume = np.empty(shape, np.float32) if out is None else out
     table = _census_table()
-    terms = np.empty((min(FUSED_DISPARITIES, max_disparity + 1), rows, width), np.float32)
-    for first in range(0, max_disparity + 1, FUSED_DISPARITIES):
-        chunk = terms[: min(FUSED_DISPARITIES, max_disparity + 1 - first)]
-        exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
-        flat = chunk.reshape(-1, width)
-        cv2.exp(flat, dst=flat)
-        aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width, volume)
-    return volume
+    return volume_kernels.build(inputs, block.rows, block.max_disparity, bin_width, table, out)
+
+
+def window_costs(
+    data_term: str,
+    left: np.ndarray,
+    right: np.ndarray,
+    block: VolumeBlock,
+    bin_width: int,
+    lowest: np.ndarray,
+    count: int,
+) -> np.ndarray | None:
+    """(block rows, w, ``count``) float32 costs of each pixel's bins ``lowest`` ..
+    ``lowest + count - 1`` (:func:`gather_window` of :func:`binned_cost_volume`, the same
+    floats) straight from the compiled kernels, which skip the disparities outside every
+    window; None when the kernels do not build this block (the caller gathers)."""
+    if data_term != "census-gradient" or not _fused(block, left):
+        return None
+    from shared import volume_kernels
+
+    inputs = _census_gradient_inputs(left, right, block)
+    table = _census_table()
+    return volume_kernels.build(
+        inputs, block.rows, block.max_disparity, bin_width, table, lowest=lowest, count=count
+    )
 
 
 def _census_and(

@@ -19,6 +19,7 @@ from shared.data_terms import (
     gather_window,
     squared_difference,
     volume_dtype,
+    window_costs,
 )
 from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
@@ -296,11 +297,19 @@ class LevelInputs:
             return pick(self._bin_costs(data_term, view, whole), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
 
+        left, right = self.view_images()[view]
+        width = self.plan.bin_width
+
         def fill(blocks: list[VolumeBlock]) -> None:
             scratch = self._scratch(data_term, blocks)
             for block in blocks:
                 rows = slice(block.start - first, block.stop - first)
-                costs[rows] = pick(self._bin_costs(data_term, view, block, scratch), rows)
+                direct = None
+                if window is not None:  # the kernels' window costs: no volume, no gather
+                    direct = window_costs(data_term, left, right, block, width, window[rows], count)
+                if direct is None:
+                    direct = pick(self._bin_costs(data_term, view, block, scratch), rows)
+                costs[rows] = direct
 
         blocks = self._volume_blocks(first, last)
         shares = [blocks[i :: max(1, workers)] for i in range(min(max(1, workers), len(blocks)))]

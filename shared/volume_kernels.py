@@ -15,6 +15,9 @@ round as OpenCV's do. ``nogil``: the views' volumes are built in threads side by
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+import cv2
 import numba
 import numpy as np
 from llvmlite import ir
@@ -23,6 +26,8 @@ from numba.extending import intrinsic
 
 #: Rows of the aggregation window, whose row sums are kept in a ring.
 WINDOW = 5
+#: Disparities whose gradient terms go through OpenCV's exp in one call.
+CHUNK = 8
 
 
 @numba.njit(cache=True, nogil=True)
@@ -56,6 +61,34 @@ def _bits(typingctx, code):  # pragma: no cover - compiled
     return signature, codegen
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _slide(
+    census_left, census_right, terms, table, k, y, shift, cost, ring, column
+):  # pragma: no cover - jit
+    """Row ``y``'s costs at the disparity of ``terms[k]`` into ``column``: each column's sum
+    over the last :data:`WINDOW` rows of 5-column sums (units of 2^-26: exact, module doc)."""
+    width = column.shape[0]
+    reach = WINDOW // 2
+    half = np.float32(-0.5)
+    unit = np.float32(2.0**26)
+    for x in range(width):
+        code = np.uint32(census_left[y, x] ^ census_right[y, shift + x])
+        bits = _bits(code)  # type: ignore[call-arg,var-annotated]  # numba types it
+        cost[reach + x] = np.int32((terms[k, y, x] * half + table[bits]) * unit)
+    for j in range(reach):
+        cost[j] = cost[reach]
+        cost[reach + width + j] = cost[reach + width - 1]
+    slot = ring[y % WINDOW]
+    for x in range(width):
+        s = cost[x] + cost[x + 1] + cost[x + 2] + cost[x + 3] + cost[x + 4]
+        column[x] += s - slot[x]
+        slot[x] = s
+
+
+#: The box mean of a column sum in units of 2^-26: what ``cv2.boxFilter`` rounds.
+MEAN = 2.0**-26 / (WINDOW * WINDOW)
+
+
 @numba.njit(cache=True, nogil=True)
 def census_aggregate(
     census_left, census_right, terms, table, max_disparity, first, bin_width, volume
@@ -64,39 +97,108 @@ def census_aggregate(
     disparity's own) of the 5x5 box mean (columns replicated) of
     ``table[H] - terms[k] / 2`` over the block: H the Hamming distance of the left codes and
     the right (shifted) codes at disparity ``first + k``; ``terms`` (count, rows + 4, w) and
-    the codes have the aggregation's two rows of context above and below. The costs are summed
-    as integers (units of 2^-26: exact, see the module's doc)."""
+    the codes have the aggregation's two rows of context above and below."""
     count, rows, width = terms.shape
-    reach = WINDOW // 2
-    cost = np.empty(width + 2 * reach, np.int32)
+    cost = np.empty(width + WINDOW - 1, np.int32)
     ring = np.zeros((WINDOW, width), np.int32)
     column = np.empty(width, np.int32)
-    half = np.float32(-0.5)
-    unit = np.float32(2.0**26)
-    mean = 2.0**-26 / (WINDOW * WINDOW)
     for k in range(count):
         d = first + k
-        shift = max_disparity - d
         column[:] = 0
         ring[:] = 0
         for y in range(rows):
-            for x in range(width):
-                code = np.uint32(census_left[y, x] ^ census_right[y, shift + x])
-                bits = _bits(code)  # type: ignore[call-arg,var-annotated]  # numba types it
-                cost[reach + x] = np.int32((terms[k, y, x] * half + table[bits]) * unit)
-            for j in range(reach):
-                cost[j] = cost[reach]
-                cost[reach + width + j] = cost[reach + width - 1]
-            slot = ring[y % WINDOW]
-            for x in range(width):
-                s = cost[x] + cost[x + 1] + cost[x + 2] + cost[x + 3] + cost[x + 4]
-                column[x] += s - slot[x]
-                slot[x] = s
+            _slide(
+                census_left, census_right, terms, table, k, y, max_disparity - d, cost, ring, column
+            )
             if y >= WINDOW - 1:
                 out = volume[d // bin_width, y - (WINDOW - 1)]
                 if d % bin_width == 0:  # a bin's first disparity
                     for x in range(width):
-                        out[x] = np.float32(np.float64(column[x]) * mean)
+                        out[x] = np.float32(np.float64(column[x]) * MEAN)
                 else:
                     for x in range(width):
-                        out[x] = min(out[x], np.float32(np.float64(column[x]) * mean))
+                        out[x] = min(out[x], np.float32(np.float64(column[x]) * MEAN))
+
+
+@numba.njit(cache=True, nogil=True)
+def census_window(
+    census_left, census_right, terms, table, max_disparity, first, bin_width, lowest, costs
+):  # pragma: no cover - jit
+    """:func:`census_aggregate`'s bins, kept only at each pixel's window: ``costs[y, x, j]``
+    is bin ``lowest[y, x] + j`` (``costs`` (rows, w, K)); no volume is written or gathered."""
+    count, rows, width = terms.shape
+    slots = costs.shape[2]
+    cost = np.empty(width + WINDOW - 1, np.int32)
+    ring = np.zeros((WINDOW, width), np.int32)
+    column = np.empty(width, np.int32)
+    for k in range(count):
+        d = first + k
+        label = d // bin_width
+        starts = d % bin_width == 0
+        column[:] = 0
+        ring[:] = 0
+        for y in range(rows):
+            _slide(
+                census_left, census_right, terms, table, k, y, max_disparity - d, cost, ring, column
+            )
+            if y >= WINDOW - 1:
+                row = y - (WINDOW - 1)
+                for x in range(width):
+                    j = label - lowest[row, x]
+                    if 0 <= j < slots:
+                        value = np.float32(np.float64(column[x]) * MEAN)
+                        if starts:
+                            costs[row, x, j] = value
+                        else:
+                            costs[row, x, j] = min(costs[row, x, j], value)
+
+
+def build(
+    inputs: tuple,
+    block_rows: int,
+    max_disparity: int,
+    bin_width: int,
+    table: np.ndarray,
+    volume: np.ndarray | None = None,
+    lowest: np.ndarray | None = None,
+    count: int = 0,
+) -> np.ndarray:
+    """The block's volume binned at ``bin_width`` into ``volume`` (or a new array), or with
+    ``lowest`` (rows, w) the (rows, w, ``count``) costs of each pixel's window of bins only
+    (the disparities outside every window skipped): the kernels :data:`CHUNK` disparities at a
+    time, their exponents through OpenCV's exp in one call between them."""
+    exponents: Callable[..., None] = gradient_exponents  # numba's dispatchers, untyped
+    aggregate: Callable[..., None] = census_aggregate
+    windowed: Callable[..., None] = census_window
+    census_left, census_right, gradients_left, gradients_right = inputs
+    rows, width = census_left.shape
+    start, stop = 0, max_disparity + 1
+    if lowest is not None:
+        out = np.empty((*lowest.shape, count), np.float32)
+        start = int(lowest.min()) * bin_width
+        stop = min(stop, (int(lowest.max()) + count) * bin_width)
+    elif volume is None:
+        out = np.empty((max_disparity // bin_width + 1, block_rows, width), np.float32)
+    else:
+        out = volume
+    terms = np.empty((min(CHUNK, max(stop - start, 1)), rows, width), np.float32)
+    for first in range(start, stop, CHUNK):
+        chunk = terms[: min(CHUNK, stop - first)]
+        exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
+        flat = chunk.reshape(-1, width)
+        cv2.exp(flat, dst=flat)
+        if lowest is None:
+            aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width, out)
+        else:
+            windowed(
+                census_left,
+                census_right,
+                chunk,
+                table,
+                max_disparity,
+                first,
+                bin_width,
+                lowest,
+                out,
+            )
+    return out

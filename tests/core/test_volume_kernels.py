@@ -9,7 +9,14 @@ from hypothesis import strategies as st
 
 from shared import data_terms, level_inputs, pipeline, threads
 from shared.config import MatchConfig
-from shared.data_terms import VolumeBlock, bin_minimum, binned_cost_volume, census_gradient_volume
+from shared.data_terms import (
+    VolumeBlock,
+    bin_minimum,
+    binned_cost_volume,
+    census_gradient_volume,
+    gather_window,
+    window_costs,
+)
 from shared.inference import grid_views
 from shared.pipeline import run_pipeline
 from shared.synthetic import make_scene
@@ -84,6 +91,38 @@ def test_the_compiled_bins_are_the_bins_of_opencvs_volume(seed, max_disparity, b
             "census-gradient", scene.left, scene.right, block, bin_width, buffer
         )
     np.testing.assert_array_equal(binned, bin_minimum(reference, bin_width))
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    max_disparity=st.integers(1, 40),
+    bin_width=st.integers(1, 5),
+    count=st.integers(1, 6),
+    data=st.data(),
+)
+def test_the_window_costs_are_the_gathered_bins(seed, max_disparity, bin_width, count, data):
+    """Each pixel's window of bins from the kernels (disparities outside every window skipped)
+    is :func:`gather_window` of OpenCV's binned volume."""
+    scene = make_scene(48, 20, max_disparity=max_disparity, seed=seed)
+    block = VolumeBlock(max_disparity, 2, 15)
+    bins = max_disparity // bin_width + 1
+    count = min(count, bins)
+    rng = np.random.default_rng(seed)
+    top = data.draw(st.integers(0, bins - count))
+    lowest = rng.integers(
+        data.draw(st.integers(0, top)), top + 1, (block.rows, scene.left.shape[1])
+    )
+    lowest = lowest.astype(np.int32)
+    reference = bin_minimum(both(scene.left, scene.right, block)[0], bin_width)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+        costs = window_costs(
+            "census-gradient", scene.left, scene.right, block, bin_width, lowest, count
+        )
+    assert costs is not None
+    np.testing.assert_array_equal(costs, gather_window(reference, lowest, count, np.float32))
 
 
 def test_the_hamming_distance_is_the_count_of_differing_bits():
