@@ -6,11 +6,12 @@ them (its float32 ``exp`` is its own approximation: it is called, not imitated).
 
 Why the results are OpenCV's bit for bit: every cost before aggregation is
 ``table[H] - exp_term / 2`` with ``table[H]`` in [0.5, 1) and ``exp_term`` in [0, 1] (float32),
-so it is a multiple of 2^-26 in [0, 1): sums of 25 of them are exact in float64 in any order,
-and ``cv2.boxFilter`` (float64 row and column sums, then ``sum * (1/25)`` rounded to float32)
-gives ``float32(exact_sum * (1/25))``, as here. The element-wise float32 steps (absolute
-differences, their sum, the scale by -1/10, ``exp_term * -0.5 + table[H]``, exact products)
-round as OpenCV's do. ``nogil``: the views' volumes are built in threads side by side.
+so it is a multiple of 2^-26 in [0, 1): sums of 25 of them are exact in any order (here int32
+in units of 2^-26, < 25 * 2^26), and ``cv2.boxFilter`` (float64 row and column sums, then
+``sum * (1/25)`` rounded to float32) gives ``float32(exact_sum * (1/25))``, as here. The
+element-wise float32 steps (absolute differences, their sum, the scale by -1/10,
+``exp_term * -0.5 + table[H]``, exact products) round as OpenCV's do. ``nogil``: the views'
+volumes are built in threads side by side.
 """
 
 from __future__ import annotations
