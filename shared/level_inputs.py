@@ -279,11 +279,10 @@ class LevelInputs:
         workers: int = 1,
     ) -> np.ndarray:
         """(last - first, w, K) costs of the candidates, built from the cost volume a block of
-        :data:`VOLUME_BLOCK_BYTES` at a time when no volume is cached: a whole view's volume
-        (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
+        :data:`VOLUME_BLOCK_BYTES` at a time (blocks dealt to ``workers`` threads) when no volume
+        is cached: a view's volume holds every disparity of every pixel (4 GB at 2000 x 2000 x
         257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
-        volume's own precision: exact) halves the view's costs. ``workers`` > 1: the blocks
-        dealt to that many threads (each its own scratch; :func:`shared.threads.beside`)."""
+        volume's own precision: exact) halves the view's costs."""
         window = self._window(view, first, last)
         count = candidates.shape[2]
 
@@ -296,9 +295,7 @@ class LevelInputs:
             whole = VolumeBlock(self.plan.max_disparity, first, last)
             return pick(self._bin_costs(data_term, view, whole), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
-
-        left, right = self.view_images()[view]
-        width = self.plan.bin_width
+        (left, right), width = self.view_images()[view], self.plan.bin_width
 
         def fill(blocks: list[VolumeBlock]) -> None:
             scratch = self._scratch(data_term, blocks)
