@@ -33,6 +33,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from shared import kernels
 from shared.images import to_gray
 
 #: AD-census constants: the exponential scales of the terms and the window sizes.
@@ -41,6 +42,13 @@ GRADIENT_SCALE = 10.0
 CENSUS_SCALE = 30.0
 CENSUS_WINDOW = 5
 AGGREGATION_WINDOW = 5
+#: Volumes (of a block) of at least this many bytes are built by compiled kernels
+#: (:func:`_fused_census_gradient`: the same floats); smaller ones by OpenCV and NumPy, which
+#: spares a small pair numba's import.
+FUSED_VOLUME_BYTES = 16 * 2**20
+#: A view whose whole volume is at least this large takes the compiled kernels even before
+#: numba is loaded (:func:`_fused`).
+FUSED_VIEW_BYTES = 2**30
 #: Image rows a block of cost rows needs on each side (census reach + aggregation reach).
 HALO = CENSUS_WINDOW // 2 + AGGREGATION_WINDOW // 2
 
@@ -184,20 +192,47 @@ def ad_census_volume(
     return _census_and(census_left, census_right, ad_term, block, out)
 
 
+CensusGradientInputs = tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]
+
+
+def _census_gradient_inputs(
+    left: np.ndarray, right: np.ndarray, block: VolumeBlock
+) -> CensusGradientInputs:
+    """The census codes and Sobel gradients of the block's rows and context (the right view's
+    :func:`_shifted`): what every disparity's census + gradient cost reads."""
+    max_disparity = block.max_disparity
+    rows = _block_rows(left, block)
+    gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
+    gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
+    reach = CENSUS_WINDOW // 2
+    return (
+        census(gray_left),
+        _shifted(census(gray_right), max_disparity),
+        [g[reach:-reach] for g in _sobel(gray_left)],
+        [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)],
+    )
+
+
+def _fused(block: VolumeBlock, view: np.ndarray) -> bool:
+    """Whether the block of ``view``'s volume goes to the compiled kernels: a large block, when
+    numba is loaded already or the view's volume is so large (built in blocks, level after
+    level) that numba's import (0.7-0.9 s CPU) is worth it; else OpenCV (the same floats)."""
+    volume_bytes = (block.max_disparity + 1) * view.shape[1] * 4
+    if volume_bytes * block.rows < FUSED_VOLUME_BYTES:
+        return False
+    return volume_bytes * view.shape[0] >= FUSED_VIEW_BYTES or kernels.jit_ready()
+
+
 def census_gradient_volume(
     left: np.ndarray, right: np.ndarray, block: VolumeBlock, out: np.ndarray | None = None
 ) -> np.ndarray:
     """:class:`VolumeFunction` of the aggregated census + gradient costs, float32 (colour is
     not read: colour views are turned gray)."""
-    max_disparity = block.max_disparity
-    rows = _block_rows(left, block)
-    gray_left = to_gray(left[rows]).astype(np.float32) * np.float32(255.0)
-    gray_right = to_gray(right[rows]).astype(np.float32) * np.float32(255.0)
-    census_left = census(gray_left)
-    census_right = _shifted(census(gray_right), max_disparity)
-    reach = CENSUS_WINDOW // 2
-    gradients_left = [g[reach:-reach] for g in _sobel(gray_left)]
-    gradients_right = [_shifted(g[reach:-reach], max_disparity) for g in _sobel(gray_right)]
+    census_left, census_right, gradients_left, gradients_right = inputs = _census_gradient_inputs(
+        left, right, block
+    )
+    if _fused(block, left):
+        return _fused_census_gradient(inputs, block, 1, out)
 
     def gradient_term(columns: slice) -> np.ndarray:
         gradient = cv2.add(
@@ -207,6 +242,74 @@ def census_gradient_volume(
         return cv2.exp(np.multiply(gradient, np.float32(-1.0 / GRADIENT_SCALE), out=gradient))
 
     return _census_and(census_left, census_right, gradient_term, block, out)
+
+
+def binned_cost_volume(
+    data_term: str,
+    left: np.ndarray,
+    right: np.ndarray,
+    block: VolumeBlock,
+    bin_width: int,
+    scratch: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`bin_minimum` of :func:`cost_volume` (``scratch``: a buffer of the full volume's
+    shape, which the result may be a view of). A large census + gradient block goes straight
+    into its bins by the compiled kernels: the full volume is neither written nor read again
+    (the same floats: the least of the same costs)."""
+    if data_term == "census-gradient" and bin_width > 1 and _fused(block, left):
+        bins = block.max_disparity // bin_width + 1
+        out = None if scratch is None else scratch[:bins]
+        return _fused_census_gradient(
+            _census_gradient_inputs(left, right, block), block, bin_width, out
+        )
+    return bin_minimum(cost_volume(data_term, left, right, block, scratch), bin_width)
+
+
+def _census_table() -> np.ndarray:
+    """table[H] = 1/2 (1 - exp(-H / 30)) + 1/2 (float32), so that cost = table[H] - term / 2."""
+    table = np.zeros(256, dtype=np.float32)
+    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
+    table += 0.5
+    return table
+
+
+def _fused_census_gradient(
+    inputs: CensusGradientInputs,
+    block: VolumeBlock,
+    bin_width: int,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """:func:`_census_and` of the gradient term binned at ``bin_width`` (:func:`bin_minimum`)
+    by the compiled kernels (:func:`shared.volume_kernels.build`: the same floats), into
+    ``out`` (or a new array) of shape (bins, block rows, w)."""
+    from shared import volume_kernels  # numba: imported only for a volume worth it
+
+    table = _census_table()
+    return volume_kernels.build(inputs, block.rows, block.max_disparity, bin_width, table, out)
+
+
+def window_costs(
+    data_term: str,
+    left: np.ndarray,
+    right: np.ndarray,
+    block: VolumeBlock,
+    bin_width: int,
+    lowest: np.ndarray,
+    count: int,
+) -> np.ndarray | None:
+    """(block rows, w, ``count``) float32 costs of each pixel's bins ``lowest`` ..
+    ``lowest + count - 1`` (:func:`gather_window` of :func:`binned_cost_volume`, the same
+    floats) straight from the compiled kernels, which skip the disparities outside every
+    window; None when the kernels do not build this block (the caller gathers)."""
+    if data_term != "census-gradient" or not _fused(block, left):
+        return None
+    from shared import volume_kernels
+
+    inputs = _census_gradient_inputs(left, right, block)
+    table = _census_table()
+    return volume_kernels.build(
+        inputs, block.rows, block.max_disparity, bin_width, table, lowest=lowest, count=count
+    )
 
 
 def _census_and(
@@ -221,10 +324,7 @@ def _census_and(
     term's exp(-x / scale) with the right view read at ``columns``; each has the block's rows
     plus the aggregation's reach on both sides; written into ``out`` when given."""
     width = census_left.shape[1]
-    # table[H] = 1/2 (1 - exp(-H / 30)) + 1/2, so that cost = table[H] - term / 2
-    table = np.zeros(256, dtype=np.float32)
-    table[: CENSUS_WINDOW**2] = 0.5 * (1.0 - np.exp(-np.arange(CENSUS_WINDOW**2) / CENSUS_SCALE))
-    table += 0.5
+    table = _census_table()
     box = (AGGREGATION_WINDOW, AGGREGATION_WINDOW)
     reach = AGGREGATION_WINDOW // 2
     max_disparity = block.max_disparity

@@ -209,6 +209,15 @@ def preload() -> None:
     _preloading.start()
 
 
+def jit_ready() -> bool:
+    """Whether numba is loaded in this process (the preload done, or imported otherwise): a
+    caller with a NumPy path as good (:mod:`shared.volume_kernels`) takes numba's only then,
+    rather than wait for its import."""
+    if _preloading is not None and _preloading.is_alive():
+        return False
+    return "numba" in sys.modules
+
+
 def _load_jit() -> None:
     """numba's set-up and one kernel's cached code (every later kernel then loads in ms)."""
     try:

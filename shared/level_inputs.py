@@ -14,11 +14,12 @@ from shared.config import DataTerm, MatchConfig
 from shared.data_terms import (
     VolumeBlock,
     bin_minimum,
-    cost_volume,
+    binned_cost_volume,
     gather,
     gather_window,
     squared_difference,
     volume_dtype,
+    window_costs,
 )
 from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
@@ -264,8 +265,7 @@ class LevelInputs:
         if not self._cached():
             left, right = self.view_images()[view]
             out = None if scratch is None else scratch[:, : block.rows]
-            volume = cost_volume(data_term, left, right, block, out)
-            return bin_minimum(volume, self.plan.bin_width)
+            return binned_cost_volume(data_term, left, right, block, self.plan.bin_width, out)
         return self.binned_volumes()[view][:, block.start : block.stop]
 
     def _candidate_costs(
@@ -276,10 +276,11 @@ class LevelInputs:
         last: int,
         candidates: np.ndarray,
         dtype: type = np.float64,
+        workers: int = 1,
     ) -> np.ndarray:
         """(last - first, w, K) costs of the candidates, built from the cost volume a block of
-        :data:`VOLUME_BLOCK_BYTES` at a time when no volume is cached: a whole view's volume
-        (a grid's bundle) holds every disparity of every pixel (4 GB a view at 2000 x 2000 x
+        :data:`VOLUME_BLOCK_BYTES` at a time (blocks dealt to ``workers`` threads) when no volume
+        is cached: a view's volume holds every disparity of every pixel (4 GB at 2000 x 2000 x
         257). The same values either way: costs are row-local. ``dtype`` float32 for a grid (the
         volume's own precision: exact) halves the view's costs."""
         window = self._window(view, first, last)
@@ -294,11 +295,25 @@ class LevelInputs:
             whole = VolumeBlock(self.plan.max_disparity, first, last)
             return pick(self._bin_costs(data_term, view, whole), slice(None))
         costs: np.ndarray = np.empty(candidates.shape, dtype=dtype)
+        (left, right), width = self.view_images()[view], self.plan.bin_width
+
+        def fill(blocks: list[VolumeBlock]) -> None:
+            scratch = self._scratch(data_term, blocks)
+            for block in blocks:
+                rows = slice(block.start - first, block.stop - first)
+                direct = None
+                if window is not None:  # the kernels' window costs: no volume, no gather
+                    direct = window_costs(data_term, left, right, block, width, window[rows], count)
+                if direct is None:
+                    direct = pick(self._bin_costs(data_term, view, block, scratch), rows)
+                costs[rows] = direct
+
         blocks = self._volume_blocks(first, last)
-        scratch = self._scratch(data_term, blocks)
-        for block in blocks:
-            rows = slice(block.start - first, block.stop - first)
-            costs[rows] = pick(self._bin_costs(data_term, view, block, scratch), rows)
+        shares = [blocks[i :: max(1, workers)] for i in range(min(max(1, workers), len(blocks)))]
+        later = [beside(fill, share) for share in shares[1:]]
+        fill(shares[0])
+        for done in later:
+            done()
         return costs
 
     def _scratch(self, data_term: DataTerm, blocks: list[VolumeBlock]) -> np.ndarray | None:
@@ -342,7 +357,7 @@ class LevelInputs:
             scratch = self._scratch(data_term, blocks)
             for block in blocks:
                 out = None if scratch is None else scratch[:, : block.rows]
-                costs = bin_minimum(cost_volume(data_term, left, right, block, out), bin_width)
+                costs = binned_cost_volume(data_term, left, right, block, bin_width, out)
                 if view is None:
                     view = np.empty((len(costs), self.view_height, self.shape[1]), costs.dtype)
                 view[:, block.start : block.stop] = costs
@@ -378,7 +393,13 @@ class LevelInputs:
         return self._binned or []
 
     def view_unary(
-        self, config: MatchConfig, view: int, first: int, last: int, dtype: type = np.float64
+        self,
+        config: MatchConfig,
+        view: int,
+        first: int,
+        last: int,
+        dtype: type = np.float64,
+        workers: int = 1,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The data term of rows [first, last) of one view at its candidates.
 
@@ -392,6 +413,8 @@ class LevelInputs:
             Rows within the view.
         dtype : type, optional
             Of the costs: float64 (the row matcher's arithmetic) or float32 (a grid's).
+        workers : int, optional
+            Threads that build the costs' blocks (:meth:`_candidate_costs`).
 
         Returns
         -------
@@ -410,10 +433,12 @@ class LevelInputs:
             # the paper's path: evaluated at the candidates only
             unary = squared_difference(guide, to_gray(right[first:last]), candidates)
         else:
-            unary = self._candidate_costs(config.data_term, view, first, last, candidates, dtype)
+            unary = self._candidate_costs(
+                config.data_term, view, first, last, candidates, dtype, workers
+            )
         return unary, candidates, guide
 
-    def grid(self, config: MatchConfig, start: int, stop: int) -> GridMRF:
+    def grid(self, config: MatchConfig, start: int, stop: int, workers: int = 1) -> GridMRF:
         """The grid MRF of rows [start, stop) of one view (``grid`` inference).
 
         Parameters
@@ -422,6 +447,8 @@ class LevelInputs:
             The run's configuration.
         start, stop : int
             Rows of the stacked views, within one view.
+        workers : int, optional
+            Threads that build its costs (the grids minimised one at a time: a core spare).
 
         Returns
         -------
@@ -435,7 +462,7 @@ class LevelInputs:
         parts = self.view_parts(start, stop)
         if len(parts) != 1:
             raise ValueError(f"rows [{start}, {stop}) span both views; a grid is one view's")
-        unary, candidates, guide = self.view_unary(config, *parts[0], dtype=np.float32)
+        unary, candidates, guide = self.view_unary(config, *parts[0], np.float32, workers)
         window = self._window(*parts[0])
         return grid_mrf(unary, candidates, guide, self.plan.mrf, config.regularizer, window)
 

@@ -62,9 +62,13 @@ class GridViews(LevelInference):
         row_ranges = [(b.row_start, b.row_stop) for b in items]
         inputs.binned_volumes()
 
+        at_once = grids_at_once(inputs, row_ranges)
+        # grids one at a time (2000 x 2000): the other core builds half of each grid's costs
+        workers = threads() if at_once == 1 else 1
+
         def solve(rows: tuple[int, int]) -> BundleResult:
             started = time.perf_counter()
-            grid = inputs.grid(config, *rows)
+            grid = inputs.grid(config, *rows, workers=workers)
             outcome = self.minimise(grid, config.dual_iterations, config.dual_gap)
             return BundleResult(
                 row_start=rows[0],
@@ -78,7 +82,7 @@ class GridViews(LevelInference):
                 stages=grid_stages(outcome),
             )
 
-        with ThreadPoolExecutor(grids_at_once(inputs, row_ranges)) as pool:
+        with ThreadPoolExecutor(at_once) as pool:
             for result in pool.map(solve, row_ranges):
                 yield [result]
 

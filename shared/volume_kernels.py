@@ -1,0 +1,205 @@
+"""Compiled kernels of the census + gradient cost volume (:mod:`shared.data_terms`): the
+per-disparity NumPy/OpenCV passes (XOR, bit count, table, two absolute differences, sum, scale,
+exp, scale-add, 5x5 box filter, copy: a dozen passes over each disparity's plane, 23-52 % of a
+large pair's run, issue 28) fused into two loops per disparity, with OpenCV's ``exp`` between
+them (its float32 ``exp`` is its own approximation: it is called, not imitated).
+
+Why the results are OpenCV's bit for bit: every cost before aggregation is
+``table[H] - exp_term / 2`` with ``table[H]`` in [0.5, 1) and ``exp_term`` in [0, 1] (float32),
+so it is a multiple of 2^-26 in [0, 1): sums of 25 of them are exact in any order (here int32
+in units of 2^-26, < 25 * 2^26), and ``cv2.boxFilter`` (float64 row and column sums, then
+``sum * (1/25)`` rounded to float32) gives ``float32(exact_sum * (1/25))``, as here. The
+element-wise float32 steps (absolute differences, their sum, the scale by -1/10,
+``exp_term * -0.5 + table[H]``, exact products) round as OpenCV's do. ``nogil``: the views'
+volumes are built in threads side by side.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import cv2
+import numba
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
+
+#: Rows of the aggregation window, whose row sums are kept in a ring.
+WINDOW = 5
+#: Disparities whose gradient terms go through OpenCV's exp in one call.
+CHUNK = 8
+
+
+@numba.njit(cache=True, nogil=True)
+def gradient_exponents(
+    left_x, left_y, right_x, right_y, max_disparity, first, out
+):  # pragma: no cover - jit
+    """``out[k]`` = -(|dxL - dxR| + |dyL - dyR|) / 10 (float32, as OpenCV's absdiff, add and
+    multiply round) at disparity ``first + k``: the right view's (shifted) gradients read at
+    column ``max_disparity - d + x``."""
+    count, rows, width = out.shape
+    scale = np.float32(-0.1)
+    for k in range(count):
+        shift = max_disparity - (first + k)
+        for y in range(rows):
+            for x in range(width):
+                a = abs(left_x[y, x] - right_x[y, shift + x])
+                b = abs(left_y[y, x] - right_y[y, shift + x])
+                out[k, y, x] = (a + b) * scale
+
+
+@intrinsic
+def _bits(typingctx, code):  # pragma: no cover - compiled
+    """Set bits of a 32-bit code: LLVM's ``ctpop`` (a shift-and-mask count is 2.5x slower and
+    not vectorised)."""
+    signature = types.uint32(types.uint32)
+
+    def codegen(context, builder, signature, arguments):
+        count = builder.module.declare_intrinsic("llvm.ctpop", [ir.IntType(32)])
+        return builder.call(count, arguments)
+
+    return signature, codegen
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _slide(
+    census_left, census_right, terms, table, k, y, shift, cost, ring, column
+):  # pragma: no cover - jit
+    """Row ``y``'s costs at the disparity of ``terms[k]`` into ``column``: each column's sum
+    over the last :data:`WINDOW` rows of 5-column sums (units of 2^-26: exact, module doc)."""
+    width = column.shape[0]
+    reach = WINDOW // 2
+    half = np.float32(-0.5)
+    unit = np.float32(2.0**26)
+    for x in range(width):
+        code = np.uint32(census_left[y, x] ^ census_right[y, shift + x])
+        bits = _bits(code)  # type: ignore[call-arg,var-annotated]  # numba types it
+        cost[reach + x] = np.int32((terms[k, y, x] * half + table[bits]) * unit)
+    for j in range(reach):
+        cost[j] = cost[reach]
+        cost[reach + width + j] = cost[reach + width - 1]
+    slot = ring[y % WINDOW]
+    for x in range(width):
+        s = cost[x] + cost[x + 1] + cost[x + 2] + cost[x + 3] + cost[x + 4]
+        column[x] += s - slot[x]
+        slot[x] = s
+
+
+#: The box mean of a column sum in units of 2^-26: what ``cv2.boxFilter`` rounds.
+MEAN = 2.0**-26 / (WINDOW * WINDOW)
+
+
+@numba.njit(cache=True, nogil=True)
+def census_aggregate(
+    census_left, census_right, terms, table, max_disparity, first, bin_width, volume
+):  # pragma: no cover - jit
+    """``volume[(first + k) // bin_width]`` = the least over its bin's disparities (width 1: the
+    disparity's own) of the 5x5 box mean (columns replicated) of
+    ``table[H] - terms[k] / 2`` over the block: H the Hamming distance of the left codes and
+    the right (shifted) codes at disparity ``first + k``; ``terms`` (count, rows + 4, w) and
+    the codes have the aggregation's two rows of context above and below."""
+    count, rows, width = terms.shape
+    cost = np.empty(width + WINDOW - 1, np.int32)
+    ring = np.zeros((WINDOW, width), np.int32)
+    column = np.empty(width, np.int32)
+    for k in range(count):
+        d = first + k
+        column[:] = 0
+        ring[:] = 0
+        for y in range(rows):
+            _slide(
+                census_left, census_right, terms, table, k, y, max_disparity - d, cost, ring, column
+            )
+            if y >= WINDOW - 1:
+                out = volume[d // bin_width, y - (WINDOW - 1)]
+                if d % bin_width == 0:  # a bin's first disparity
+                    for x in range(width):
+                        out[x] = np.float32(np.float64(column[x]) * MEAN)
+                else:
+                    for x in range(width):
+                        out[x] = min(out[x], np.float32(np.float64(column[x]) * MEAN))
+
+
+@numba.njit(cache=True, nogil=True)
+def census_window(
+    census_left, census_right, terms, table, max_disparity, first, bin_width, lowest, costs
+):  # pragma: no cover - jit
+    """:func:`census_aggregate`'s bins, kept only at each pixel's window: ``costs[y, x, j]``
+    is bin ``lowest[y, x] + j`` (``costs`` (rows, w, K)); no volume is written or gathered."""
+    count, rows, width = terms.shape
+    slots = costs.shape[2]
+    cost = np.empty(width + WINDOW - 1, np.int32)
+    ring = np.zeros((WINDOW, width), np.int32)
+    column = np.empty(width, np.int32)
+    for k in range(count):
+        d = first + k
+        label = d // bin_width
+        starts = d % bin_width == 0
+        column[:] = 0
+        ring[:] = 0
+        for y in range(rows):
+            _slide(
+                census_left, census_right, terms, table, k, y, max_disparity - d, cost, ring, column
+            )
+            if y >= WINDOW - 1:
+                row = y - (WINDOW - 1)
+                for x in range(width):
+                    j = label - lowest[row, x]
+                    if 0 <= j < slots:
+                        value = np.float32(np.float64(column[x]) * MEAN)
+                        if starts:
+                            costs[row, x, j] = value
+                        else:
+                            costs[row, x, j] = min(costs[row, x, j], value)
+
+
+def build(
+    inputs: tuple,
+    block_rows: int,
+    max_disparity: int,
+    bin_width: int,
+    table: np.ndarray,
+    volume: np.ndarray | None = None,
+    lowest: np.ndarray | None = None,
+    count: int = 0,
+) -> np.ndarray:
+    """The block's volume binned at ``bin_width`` into ``volume`` (or a new array), or with
+    ``lowest`` (rows, w) the (rows, w, ``count``) costs of each pixel's window of bins only
+    (the disparities outside every window skipped): the kernels :data:`CHUNK` disparities at a
+    time, their exponents through OpenCV's exp in one call between them."""
+    exponents: Callable[..., None] = gradient_exponents  # numba's dispatchers, untyped
+    aggregate: Callable[..., None] = census_aggregate
+    windowed: Callable[..., None] = census_window
+    census_left, census_right, gradients_left, gradients_right = inputs
+    rows, width = census_left.shape
+    start, stop = 0, max_disparity + 1
+    if lowest is not None:
+        out = np.empty((*lowest.shape, count), np.float32)
+        start = int(lowest.min()) * bin_width
+        stop = min(stop, (int(lowest.max()) + count) * bin_width)
+    elif volume is None:
+        out = np.empty((max_disparity // bin_width + 1, block_rows, width), np.float32)
+    else:
+        out = volume
+    terms = np.empty((min(CHUNK, max(stop - start, 1)), rows, width), np.float32)
+    for first in range(start, stop, CHUNK):
+        chunk = terms[: min(CHUNK, stop - first)]
+        exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
+        flat = chunk.reshape(-1, width)
+        cv2.exp(flat, dst=flat)
+        if lowest is None:
+            aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width, out)
+        else:
+            windowed(
+                census_left,
+                census_right,
+                chunk,
+                table,
+                max_disparity,
+                first,
+                bin_width,
+                lowest,
+                out,
+            )
+    return out

@@ -1,0 +1,193 @@
+"""The compiled census + gradient volume (shared/volume_kernels.py) is OpenCV's bit for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared import data_terms, level_inputs, pipeline, threads
+from shared.config import MatchConfig
+from shared.data_terms import (
+    VolumeBlock,
+    bin_minimum,
+    binned_cost_volume,
+    census_gradient_volume,
+    gather_window,
+    window_costs,
+)
+from shared.inference import grid_views
+from shared.pipeline import run_pipeline
+from shared.synthetic import make_scene
+from shared.volume_kernels import census_aggregate, gradient_exponents
+
+
+def both(left, right, block, out=None):
+    """The volume by OpenCV and NumPy, then by the compiled kernels."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 2**62)
+        reference = census_gradient_volume(left, right, block)
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+        return reference, census_gradient_volume(left, right, block, out)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    height=st.integers(6, 40),
+    width=st.integers(8, 60),
+    max_disparity=st.integers(0, 20),
+    colour=st.booleans(),
+    levels=st.sampled_from([2, 5, 256]),
+    data=st.data(),
+)
+def test_the_compiled_volume_is_opencvs_bit_for_bit(
+    seed, height, width, max_disparity, colour, levels, data
+):
+    """Random views (few grey levels too: many equal costs, zero gradients), any block of
+    rows, colour or grey."""
+    rng = np.random.default_rng(seed)
+    shape = (height, width, 3) if colour else (height, width)
+    left = (rng.integers(0, levels, shape) / (levels - 1)).astype(np.float32)
+    right = (rng.integers(0, levels, shape) / (levels - 1)).astype(np.float32)
+    start = data.draw(st.integers(0, height - 1))
+    stop = data.draw(st.integers(start + 1, height))
+    reference, fused = both(left, right, VolumeBlock(max_disparity, start, stop))
+    assert fused.dtype == np.float32
+    np.testing.assert_array_equal(fused, reference)
+
+
+def test_the_compiled_volume_of_a_scene_fills_a_strided_buffer():
+    """A scene, written into a block of a larger scratch buffer (as the blocks of a view are)."""
+    scene = make_scene(160, 90, max_disparity=24, seed=5)
+    block = VolumeBlock(24, 30, 70)
+    scratch = np.full((25, 50, scene.left.shape[1]), np.nan, np.float32)
+    reference, fused = both(scene.left, scene.right, block, scratch[:, : block.rows])
+    assert np.shares_memory(fused, scratch)
+    np.testing.assert_array_equal(fused, reference)
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    max_disparity=st.integers(1, 40),
+    bin_width=st.integers(2, 9),
+    scratch=st.booleans(),
+)
+def test_the_compiled_bins_are_the_bins_of_opencvs_volume(seed, max_disparity, bin_width, scratch):
+    """Bins built straight by the kernels (into a full volume's scratch or a new array) are
+    :func:`bin_minimum` of OpenCV's volume; the last bin may be narrower."""
+    scene = make_scene(48, 20, max_disparity=max_disparity, seed=seed)
+    block = VolumeBlock(max_disparity, 3, 17)
+    reference, _ = both(scene.left, scene.right, block)
+    shape = (max_disparity + 1, block.rows, scene.left.shape[1])
+    buffer = np.empty(shape, np.float32) if scratch else None
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+        binned = binned_cost_volume(
+            "census-gradient", scene.left, scene.right, block, bin_width, buffer
+        )
+    np.testing.assert_array_equal(binned, bin_minimum(reference, bin_width))
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    max_disparity=st.integers(1, 40),
+    bin_width=st.integers(1, 5),
+    count=st.integers(1, 6),
+    data=st.data(),
+)
+def test_the_window_costs_are_the_gathered_bins(seed, max_disparity, bin_width, count, data):
+    """Each pixel's window of bins from the kernels (disparities outside every window skipped)
+    is :func:`gather_window` of OpenCV's binned volume."""
+    scene = make_scene(48, 20, max_disparity=max_disparity, seed=seed)
+    block = VolumeBlock(max_disparity, 2, 15)
+    bins = max_disparity // bin_width + 1
+    count = min(count, bins)
+    rng = np.random.default_rng(seed)
+    top = data.draw(st.integers(0, bins - count))
+    lowest = rng.integers(
+        data.draw(st.integers(0, top)), top + 1, (block.rows, scene.left.shape[1])
+    )
+    lowest = lowest.astype(np.int32)
+    reference = bin_minimum(both(scene.left, scene.right, block)[0], bin_width)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+        costs = window_costs(
+            "census-gradient", scene.left, scene.right, block, bin_width, lowest, count
+        )
+    assert costs is not None
+    np.testing.assert_array_equal(costs, gather_window(reference, lowest, count, np.float32))
+
+
+def test_the_hamming_distance_is_the_count_of_differing_bits():
+    """Codes differing in 0, 1, ... 24 and 32 bits (a zero gradient term: cost = table[H])."""
+    distances = np.array([0, 1, 2, 3, 7, 12, 24, 32])
+    left = np.zeros((5, len(distances)), np.uint32)
+    right = np.zeros((5, len(distances)), np.uint32)
+    right[:] = (np.uint64(1) << distances.astype(np.uint64)) - np.uint64(1)
+    table = np.arange(256, dtype=np.float32) / 256 + np.float32(0.5)
+    terms = np.zeros((1, 5, len(distances)), np.float32)
+    volume = np.empty((1, 1, len(distances)), np.float32)
+    census_aggregate(left, right, terms, table, 0, 0, 1, volume)
+    # the box mean of a row of distinct costs: its 5 columns around (edges replicated)
+    costs = np.pad(table[distances].astype(np.float64), 2, mode="edge")
+    expected = np.convolve(costs, np.ones(5), mode="valid") * 5 / 25
+    np.testing.assert_allclose(volume[0, 0], expected, rtol=1e-6)
+
+
+def test_the_gradient_exponent_reads_the_right_view_shifted():
+    left = np.arange(6, dtype=np.float32)[None].repeat(2, 0)
+    right = np.zeros((2, 6 + 2), np.float32)  # two padded columns: disparities 0..2
+    out = np.empty((3, 2, 6), np.float32)
+    gradient_exponents(left, left, right, right, 2, 0, out)
+    np.testing.assert_array_equal(out[1], np.float32(-0.1) * (2 * left))
+
+
+@pytest.mark.parametrize(
+    ("rows", "width", "ready", "fused"),
+    [
+        (4, 100, True, False),  # a small block: OpenCV, numba loaded or not
+        (400, 1000, True, True),  # a large block, numba loaded
+        (400, 1000, False, False),  # the same before numba is loaded: no wait for its import
+        (2000, 2000, False, True),  # a view volume beyond FUSED_VIEW_BYTES: worth the import
+    ],
+)
+def test_the_kernels_take_large_blocks_without_waiting_for_numba(
+    monkeypatch, rows, width, ready, fused
+):
+    monkeypatch.setattr(data_terms.kernels, "jit_ready", lambda: ready)
+    view = np.empty((rows, width), np.float32)
+    assert data_terms._fused(VolumeBlock(128, 0, min(rows, 64)), view) is fused
+
+
+def test_the_map_is_the_same_with_the_kernels_and_the_costs_in_two_threads(monkeypatch):
+    """Costs per block at every level (no cache), several blocks per view, grids one at a time
+    (their blocks dealt to two threads) and the compiled kernels: main's map bit for bit."""
+    scene = make_scene(24, 40, max_disparity=30, seed=2)
+    config = MatchConfig(max_disparity=30)
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", 0)
+    monkeypatch.setattr(data_terms, "FUSED_VOLUME_BYTES", 2**62)
+    reference = run_pipeline(scene.left, scene.right, config).disparity
+    monkeypatch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+    monkeypatch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+    monkeypatch.setattr(level_inputs, "VOLUME_BLOCK_BYTES", 25_000)
+    monkeypatch.setattr(grid_views, "GRID_STATE_BYTES", 0)
+    monkeypatch.setattr(grid_views, "threads", lambda: 2)
+    monkeypatch.setattr(threads, "threads", lambda: 2)
+    dealt = []
+    original = level_inputs.LevelInputs._candidate_costs
+
+    def recorded(self, *args):
+        dealt.append(args[-1])
+        return original(self, *args)
+
+    monkeypatch.setattr(level_inputs.LevelInputs, "_candidate_costs", recorded)
+    disparity = run_pipeline(scene.left, scene.right, config).disparity
+    assert dealt and set(dealt) == {2}
+    np.testing.assert_array_equal(disparity, reference)
