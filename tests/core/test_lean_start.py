@@ -103,3 +103,22 @@ print("LOADED", "shared.grid_kernels" in sys.modules, kernels.disagreements._jit
     done = _python(probe, timeout=180, cache=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "LOADED True True" in done.stdout
+
+
+def test_numpy_gets_no_huge_page_hint_unless_the_environment_asks():
+    """``shared`` precedes numpy's import with NUMPY_MADVISE_HUGEPAGE=0 (the page faults of
+    MADV_HUGEPAGE arrays cost Aloe seconds of system time); a value already set wins."""
+    probe = "import shared, numpy; print(numpy._core.multiarray._get_madvise_hugepage())"
+    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    for given, expected in ((None, "False"), ("1", "True")):
+        extra = {} if given is None else {"NUMPY_MADVISE_HUGEPAGE": given}
+        done = subprocess.run(
+            [sys.executable, "-c", probe],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            env={**env, **extra, "PYTHONPATH": str(ROOT)},
+            timeout=60,
+        )
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.strip() == expected
