@@ -18,4 +18,15 @@ def interrupted() -> int:
     interpreter as it exits) cannot turn the status into a death by SIGINT and a traceback."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _forget_interrupt_in_exec()
     return EXIT_INTERRUPTED
+
+
+def _forget_interrupt_in_exec() -> None:
+    """CPython 3.11-3.13 remember a KeyboardInterrupt raised inside code that ``exec`` / ``eval``
+    run from a string (a dataclass's generated ``__init__`` while a module is imported lazily, say)
+    even once it was caught, and ``python -m`` then ends the process by SIGINT instead of with the
+    status returned (a -2 instead of 130 once in a few Ctrl-Cs of ``python -m shared.cli submit
+    --wait``). Running an empty string resets that flag (CPython's ``run_eval_code_obj``); 3.14
+    sets it only for an interrupt nobody caught (python/cpython#128130), where this is a no-op."""
+    exec("")  # a constant empty string, run for that side effect

@@ -157,6 +157,33 @@ def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_
     assert not (tmp_path / "d.pfm").exists()
 
 
+def test_ctrl_c_inside_generated_code_still_exits_130(tmp_path):
+    """A Ctrl-C that lands in code run by ``exec`` from a string (here a dataclass's generated
+    ``__init__``, as while ``qhsm submit --wait`` imports a module lazily) and is answered must
+    not turn ``python -m``'s status into a death by SIGINT (CPython 3.11-3.13 remember it)."""
+    (tmp_path / "answered.py").write_text(
+        "import sys\n"
+        "from shared.exit_codes import interrupted\n"
+        "def main():\n"
+        "    try:\n"
+        "        exec('raise KeyboardInterrupt')\n"
+        "    except KeyboardInterrupt:\n"
+        "        print('qhsm: interrupted', file=sys.stderr)\n"
+        "        return interrupted()\n"
+        "sys.exit(main())\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    got = subprocess.run(
+        [sys.executable, "-m", "answered"],
+        cwd=tmp_path,
+        env={"PYTHONPATH": f"{tmp_path}:{root}"},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (got.returncode, got.stderr) == (130, "qhsm: interrupted\n")
+
+
 def test_a_closed_stdout_ends_quietly(tmp_path):
     """`qhsm solvers | head -0`: the reader is gone before anything is written."""
     exe = shutil.which("qhsm")
