@@ -158,9 +158,10 @@ def test_ctrl_c_in_match_is_one_line_and_leaves_no_process(pair, tmp_path, ctrl_
 
 
 def test_ctrl_c_inside_generated_code_still_exits_130(tmp_path):
-    """A Ctrl-C that lands in code run by ``exec`` from a string (here a dataclass's generated
-    ``__init__``, as while ``qhsm submit --wait`` imports a module lazily) and is answered must
-    not turn ``python -m``'s status into a death by SIGINT (CPython 3.11-3.13 remember it)."""
+    """A Ctrl-C that lands in code run by ``exec`` from a string (in CI: a dataclass's generated
+    ``__init__`` while ``qhsm submit --wait`` imported a module lazily; here a plain ``exec``) and
+    is answered must not turn ``python -m``'s status into a death by SIGINT (CPython 3.11-3.13
+    remember it)."""
     (tmp_path / "answered.py").write_text(
         "import sys\n"
         "from shared.exit_codes import interrupted\n"
