@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import grid_kernels
+from shared import trws_kernels
 from shared.config import LevelConfig, Regularizer
 from shared.grid import GridMRF, grid_mrf, solve_chains
 from shared.grid_inference import trws
@@ -101,7 +101,7 @@ def test_a_trws_label_scores_its_unary_and_messages_from_ahead_in_float32():
     from_right = np.array([[[tiny, tiny / 2]]], dtype=np.float32)  # forward: from ahead
     from_down = np.array([[[tiny, 0.0]]], dtype=np.float32)
     labels = np.full((1, 1), -1, dtype=np.int32)
-    grid_kernels._trws_pass(
+    trws_kernels._trws_pass(
         unary,
         np.array([[[0, 1]]], dtype=np.int32),
         np.zeros((1, 1), dtype=np.int32),
