@@ -107,16 +107,27 @@ def _grid_energy(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
+def _put(labels, turned, chain, x, label):  # pragma: no cover - jit
+    """A chain kernel's label of (chain, x): at ``labels[chain, x]``, or ``labels[x, chain]``
+    when ``turned`` (a transposed grid's labels in the original layout, without a copy)."""
+    if turned:
+        labels[x, chain] = label
+    else:
+        labels[chain, x] = label
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _chain_end(messages, chain, energies, labels, turned):  # pragma: no cover - jit
     """The chain's best last label (the first of equal messages), where both chain kernels'
-    read-back starts: written to ``labels``, its message to ``energies`` as the optimum."""
+    read-back starts: written to ``labels`` (:func:`_put`), its message to ``energies`` as the
+    optimum."""
     length, count = messages.shape
     arg = 0
     for k in range(1, count):
         if messages[length - 1, k] < messages[length - 1, arg]:
             arg = k
     energies[chain] = messages[length - 1, arg]
-    labels[chain, length - 1] = arg
+    _put(labels, turned, chain, length - 1, arg)
     return arg
 
 
@@ -150,12 +161,13 @@ def _window_message(
 
 @numba.njit(cache=True, nogil=True)
 def _chains_windows(
-    base, scale, extra, sign, first, weight, slope, truncation, labels
+    base, scale, extra, sign, first, weight, slope, truncation, labels, turned
 ):  # pragma: no cover - jit
     """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``scale * base +
     sign * extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
     transform in O(K). The messages are kept and the labels read back from them (no
-    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum.
+    back-pointers in the hot loop). Writes ``labels`` (transposed when ``turned``:
+    :func:`_put`); returns each chain's optimum.
 
     Two chains at a time, a and b (the last alone repeats itself: the same floats): their
     envelope passes, chains of dependent additions, interleaved in one loop."""
@@ -189,7 +201,8 @@ def _chains_windows(
             ca, cb = la + wa * truncation, lb + wb * truncation
             _window_message(ma, x, ea, sa, ca, shift_a, base, scale, extra, sign, a)
             _window_message(mb, x, eb, sb, cb, shift_b, base, scale, extra, sign, b)
-        arg_a, arg_b = _chain_end(ma, a, energies, labels), _chain_end(mb, b, energies, labels)
+        arg_a = _chain_end(ma, a, energies, labels, turned)
+        arg_b = _chain_end(mb, b, energies, labels, turned)
         for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
             wa, wb = weight[a, x - 1], weight[b, x - 1]
             # the table's index of the label difference at j = 0
@@ -203,13 +216,14 @@ def _chains_windows(
                     best_a, arg_a = value_a, j
                 if value_b < best_b:
                     best_b, arg_b = value_b, j
-            labels[a, x - 1], labels[b, x - 1] = arg_a, arg_b
+            _put(labels, turned, a, x - 1, arg_a)
+            _put(labels, turned, b, x - 1, arg_b)
     return energies
 
 
 @numba.njit(cache=True, nogil=True)
 def _chains_general(
-    base, scale, extra, sign, candidates, weight, slope, truncation, labels
+    base, scale, extra, sign, candidates, weight, slope, truncation, labels, turned
 ):  # pragma: no cover - jit
     """:func:`_chains_windows` for any candidate labels: each message in O(K^2)."""
     chains, length, count = base.shape
@@ -231,7 +245,7 @@ def _chains_general(
                     penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
                     value = min(value, messages[x - 1, j] + w * penalty)
                 messages[x, k] = value + scale * base[chain, x, k] + sign * extra[chain, x, k]
-        arg = _chain_end(messages, chain, energies, labels)
+        arg = _chain_end(messages, chain, energies, labels, turned)
         for x in range(length - 1, 0, -1):
             w = weight[chain, x - 1]
             here = candidates[chain, x, arg]
@@ -242,7 +256,7 @@ def _chains_general(
                 if value < best:
                     best = value
                     arg = j
-            labels[chain, x - 1] = arg
+            _put(labels, turned, chain, x - 1, arg)
     return energies
 
 

@@ -38,14 +38,14 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
         "float64[::1]",
         (
             ("float32", 3), "float64", ("float32", 3), "float64", ("int32", 2),
-            ("float64", 2), "float64", "float64", ("int32", 2),
+            ("float64", 2), "float64", "float64", ("int32", 2), "boolean",
         ),
     ),
     "_chains_general": (
         "float64[::1]",
         (
             ("float32", 3), "float64", ("float32", 3), "float64", ("int32", 3),
-            ("float64", 2), "float64", "float64", ("int32", 2),
+            ("float64", 2), "float64", "float64", ("int32", 2), "boolean",
         ),
     ),
     "_grid_energy": (
