@@ -47,7 +47,8 @@ def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
 @numba.njit(cache=True, nogil=True)
 def _label_table(first, count, slope, truncation):  # pragma: no cover - jit
     """``_regulariser(|d|, 0)`` at ``d + reach`` for every label difference d of a window grid
-    (reach returned): lookups without ``abs`` or a branch (:func:`_tabled`'s floats)."""
+    (reach returned): lookups without ``abs`` or a branch (:func:`_tabled`'s floats). Callers
+    index it with ``np.uintp`` (d + reach >= 0): numba then skips its negative-index check."""
     lowest, highest = (first.min(), first.max()) if first.size else (0, 0)
     reach = highest - lowest + count
     table = np.empty(2 * reach + 1)
