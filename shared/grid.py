@@ -24,7 +24,8 @@ TRW-S over the same chains is the other minimiser ``exact`` may use (:mod:`share
 Each chain is one QUBO bundle like a row of the ``rows`` inference; ``exact`` solves all chains of
 an iteration at once with the compiled kernels of :mod:`shared.grid_kernels` (:func:`solve_chains`;
 dual decomposition runs the column chains as the rows of a transposed copy, contiguous in memory,
-and keeps its multipliers in both layouts).
+keeps its multipliers in both layouts, and has the kernels write each solve's labels in the layout
+the next step reads, with no transpose copies).
 """
 
 from __future__ import annotations
@@ -328,6 +329,7 @@ def solve_chains(
     sign: float = 1.0,
     base: np.ndarray | None = None,
     scale: float = 1.0,
+    transpose: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The exact optimum of every row (or column) of a grid MRF as an independent chain, with
     unary ``scale * base + sign * extra`` (default: the MRF's own).
@@ -346,16 +348,19 @@ def solve_chains(
         (h, w, K) float32 unary in place of the MRF's.
     scale : float, optional
         Factor of ``base`` (0.5: dual decomposition's half copies, without storing them).
+    transpose : bool, optional
+        Return the labels transposed, (w, h) and contiguous, written so by the kernels: a
+        transposed copy's chains give the original grid's labels without a transpose copy.
 
     Returns
     -------
     labels : numpy.ndarray
-        (h, w) int32 optimal candidate indices of every chain.
+        (h, w) int32 optimal candidate indices of every chain ((w, h) when ``transpose``).
     energies : numpy.ndarray
         Each chain's optimal energy (h or w values), float64.
     """
     base = mrf.unary if base is None else base
-    labels = np.zeros(mrf.shape, dtype=np.int32)
+    labels = np.zeros(mrf.shape[::-1] if transpose else mrf.shape, dtype=np.int32)
     if extra is None:
         extra, sign = base, 0.0
     # columns: the same kernels on transposed views (numba compiles them for strided arrays)
@@ -364,13 +369,11 @@ def solve_chains(
     weight = mrf.weight_v if along_columns else mrf.weight_h
     common = (turn(base), float(scale), turn(extra), float(sign))
     if mrf.first is not None:
-        energies = chains_windows(
-            *common, flip(mrf.first), flip(weight), mrf.slope, mrf.truncation, flip(labels)
-        )
+        edges = (flip(mrf.first), flip(weight), mrf.slope, mrf.truncation)
+        energies = chains_windows(*common, *edges, flip(labels), transpose)
     else:
-        energies = chains_general(
-            *common, turn(mrf.candidates), flip(weight), mrf.slope, mrf.truncation, flip(labels)
-        )
+        edges = (turn(mrf.candidates), flip(weight), mrf.slope, mrf.truncation)
+        energies = chains_general(*common, *edges, flip(labels), transpose)
     return labels, energies
 
 
@@ -448,11 +451,10 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
 
     for done in range(1, iterations + 1):
         row_labels, row_energies = solve_chains(mrf, False, multipliers, 1.0, scale=0.5)
-        turned_labels, column_energies = solve_chains(
-            turned, False, multipliers_turned, -1.0, scale=0.5
+        column_labels, column_energies = solve_chains(
+            turned, False, multipliers_turned, -1.0, scale=0.5, transpose=True
         )
         current = float(row_energies.sum() + column_energies.sum())
-        column_labels = np.ascontiguousarray(turned_labels.T)
         consider(row_labels)
         consider(column_labels)
         if done % PRIMAL_EVERY == 0:
@@ -481,6 +483,7 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
 def chain_primal(mrf: GridMRF, turned: GridMRF, column_labels: np.ndarray) -> np.ndarray:
     """A labelling by chains: rows given the column solution's vertical neighbours, then columns
     (as rows of the transposed grid ``turned``) given those rows' horizontal neighbours."""
-    rows, _ = solve_chains(mrf, False, mrf.neighbour_unary(column_labels, vertical=True))
-    refined, _ = solve_chains(turned, False, turned.neighbour_unary(rows.T, vertical=True))
-    return np.ascontiguousarray(refined.T)
+    # each solve writes its labels in the layout the next step reads (no transpose copies)
+    rows, _ = solve_chains(mrf, False, mrf.neighbour_unary(column_labels), transpose=True)
+    refined, _ = solve_chains(turned, False, turned.neighbour_unary(rows), transpose=True)
+    return refined

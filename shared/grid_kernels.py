@@ -1,6 +1,7 @@
 """The compiled kernels of :mod:`shared.grid`: chain min-sum DP, grid energy, neighbour costs
-and the dual decomposition's multiplier step. Serial on purpose (a numba-parallel launch costs
-more than it saves on small levels); ``nogil`` so that views run side by side in threads.
+and the dual decomposition's multiplier step (TRW-S's pass: :mod:`shared.trws_kernels`). Serial
+on purpose (a numba-parallel launch costs more than it saves on small levels); ``nogil`` so
+that views run side by side in threads.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ def _label(candidates, first, windows, y, x, k):  # pragma: no cover - jit
 @numba.njit(cache=True, nogil=True)
 def _label_table(first, count, slope, truncation):  # pragma: no cover - jit
     """``_regulariser(|d|, 0)`` at ``d + reach`` for every label difference d of a window grid
-    (reach returned): lookups without ``abs`` or a branch (:func:`_tabled`'s floats)."""
+    (reach returned): lookups without ``abs`` or a branch (:func:`_tabled`'s floats). Callers
+    index it with ``np.uintp`` (d + reach >= 0): numba then skips its negative-index check."""
     lowest, highest = (first.min(), first.max()) if first.size else (0, 0)
     reach = highest - lowest + count
     table = np.empty(2 * reach + 1)
@@ -73,9 +75,9 @@ def _grid_energy_windows(
             here = first[y, x] + label + reach
             total += unary[y, x, label]
             if x + 1 < width:
-                total += weight_h[y, x] * table[here - first[y, x + 1] - labels[y, x + 1]]
+                total += weight_h[y, x] * table[np.uintp(here - first[y, x + 1] - labels[y, x + 1])]
             if lower:
-                total += weight_v[y, x] * table[here - first[below, x] - labels[below, x]]
+                total += weight_v[y, x] * table[np.uintp(here - first[below, x] - labels[below, x])]
         per_row[y] = total
     return per_row
 
@@ -106,16 +108,27 @@ def _grid_energy(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _chain_end(messages, chain, energies, labels):  # pragma: no cover - jit
+def _put(labels, turned, chain, x, label):  # pragma: no cover - jit
+    """A chain kernel's label of (chain, x): at ``labels[chain, x]``, or ``labels[x, chain]``
+    when ``turned`` (a transposed grid's labels in the original layout, without a copy)."""
+    if turned:
+        labels[x, chain] = label
+    else:
+        labels[chain, x] = label
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _chain_end(messages, chain, energies, labels, turned):  # pragma: no cover - jit
     """The chain's best last label (the first of equal messages), where both chain kernels'
-    read-back starts: written to ``labels``, its message to ``energies`` as the optimum."""
+    read-back starts: written to ``labels`` (:func:`_put`), its message to ``energies`` as the
+    optimum."""
     length, count = messages.shape
     arg = 0
     for k in range(1, count):
         if messages[length - 1, k] < messages[length - 1, arg]:
             arg = k
     energies[chain] = messages[length - 1, arg]
-    labels[chain, length - 1] = arg
+    _put(labels, turned, chain, length - 1, arg)
     return arg
 
 
@@ -126,6 +139,13 @@ def _window_message(
     """``messages[x]``: the cone envelope of ``messages[x - 1]`` (``envelope``) at the window's
     labels (``shift`` apart), capped at ``ceiling``, plus the unary of (chain, x)."""
     count = envelope.shape[0]
+    if shift == 0:  # the same window (most positions): one loop LLVM compiles tighter
+        for k in range(count):
+            value = envelope[k]
+            messages[x, k] = (
+                min(value, ceiling) + scale * base[chain, x, k] + sign * extra[chain, x, k]
+            )
+        return
     # t = k + shift below 0, inside the window, beyond it: three loops without a branch
     low = min(max(-shift, 0), count)
     high = max(min(count - shift, count), low)
@@ -142,12 +162,13 @@ def _window_message(
 
 @numba.njit(cache=True, nogil=True)
 def _chains_windows(
-    base, scale, extra, sign, first, weight, slope, truncation, labels
+    base, scale, extra, sign, first, weight, slope, truncation, labels, turned
 ):  # pragma: no cover - jit
     """Min-sum DP of every chain ``[chain, position]`` of the arrays, unary ``scale * base +
     sign * extra``, candidates the consecutive windows ``first + 0..K-1``: each message a distance
     transform in O(K). The messages are kept and the labels read back from them (no
-    back-pointers in the hot loop). Writes ``labels``; returns each chain's optimum.
+    back-pointers in the hot loop). Writes ``labels`` (transposed when ``turned``:
+    :func:`_put`); returns each chain's optimum.
 
     Two chains at a time, a and b (the last alone repeats itself: the same floats): their
     envelope passes, chains of dependent additions, interleaved in one loop."""
@@ -181,7 +202,8 @@ def _chains_windows(
             ca, cb = la + wa * truncation, lb + wb * truncation
             _window_message(ma, x, ea, sa, ca, shift_a, base, scale, extra, sign, a)
             _window_message(mb, x, eb, sb, cb, shift_b, base, scale, extra, sign, b)
-        arg_a, arg_b = _chain_end(ma, a, energies, labels), _chain_end(mb, b, energies, labels)
+        arg_a = _chain_end(ma, a, energies, labels, turned)
+        arg_b = _chain_end(mb, b, energies, labels, turned)
         for x in range(length - 1, 0, -1):  # the predecessor that gave each message its value
             wa, wb = weight[a, x - 1], weight[b, x - 1]
             # the table's index of the label difference at j = 0
@@ -189,19 +211,20 @@ def _chains_windows(
             offset_b = first[b, x - 1] - first[b, x] - arg_b + reach
             best_a, best_b = np.inf, np.inf
             for j in range(count):  # the first of equal values
-                value_a = ma[x - 1, j] + wa * table[offset_a + j]
-                value_b = mb[x - 1, j] + wb * table[offset_b + j]
+                value_a = ma[x - 1, j] + wa * table[np.uintp(offset_a + j)]
+                value_b = mb[x - 1, j] + wb * table[np.uintp(offset_b + j)]
                 if value_a < best_a:
                     best_a, arg_a = value_a, j
                 if value_b < best_b:
                     best_b, arg_b = value_b, j
-            labels[a, x - 1], labels[b, x - 1] = arg_a, arg_b
+            _put(labels, turned, a, x - 1, arg_a)
+            _put(labels, turned, b, x - 1, arg_b)
     return energies
 
 
 @numba.njit(cache=True, nogil=True)
 def _chains_general(
-    base, scale, extra, sign, candidates, weight, slope, truncation, labels
+    base, scale, extra, sign, candidates, weight, slope, truncation, labels, turned
 ):  # pragma: no cover - jit
     """:func:`_chains_windows` for any candidate labels: each message in O(K^2)."""
     chains, length, count = base.shape
@@ -223,7 +246,7 @@ def _chains_general(
                     penalty = _regulariser(candidates[chain, x - 1, j], here, slope, truncation)
                     value = min(value, messages[x - 1, j] + w * penalty)
                 messages[x, k] = value + scale * base[chain, x, k] + sign * extra[chain, x, k]
-        arg = _chain_end(messages, chain, energies, labels)
+        arg = _chain_end(messages, chain, energies, labels, turned)
         for x in range(length - 1, 0, -1):
             w = weight[chain, x - 1]
             here = candidates[chain, x, arg]
@@ -234,7 +257,7 @@ def _chains_general(
                 if value < best:
                     best = value
                     arg = j
-            labels[chain, x - 1] = arg
+            _put(labels, turned, chain, x - 1, arg)
     return energies
 
 
@@ -306,8 +329,8 @@ def _neighbour_costs_windows(
                     after, weight_after = first[y, x + 1] + labels[y, x + 1], weight_h[y, x]
             offset_before, offset_after = here - before + reach, here - after + reach
             for k in range(count):
-                ahead = weight_after * table[offset_after + k]
-                out[y, x, k] = weight_before * table[offset_before + k] + ahead
+                ahead = weight_after * table[np.uintp(offset_after + k)]
+                out[y, x, k] = weight_before * table[np.uintp(offset_before + k)] + ahead
 
 
 @numba.njit(cache=True, nogil=True)
@@ -340,161 +363,3 @@ def _subgradient_step(
                 multipliers[y, x, there] -= step
                 multipliers_turned[x, y, here] += step
                 multipliers_turned[x, y, there] -= step
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _send(
-    source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
-):  # pragma: no cover - jit
-    """``out[k] = min_j source[j] + w min(T, s |L_p(j) - L_q(k)|)`` and c, its minimum (returned):
-    the message from pixel p to its neighbour q is ``out - c``; O(K) distance transform for
-    windows."""
-    count = source.shape[0]
-    lowest = source[0]
-    if windows:  # the minimum and the envelope's forward pass in one loop
-        step = w * slope
-        running = source[0]
-        envelope[0] = running
-        for j in range(1, count):
-            value = source[j]
-            lowest = min(lowest, value)
-            running = min(value, running + step)
-            envelope[j] = running
-        ceiling = lowest + w * truncation
-        for j in range(count - 2, -1, -1):
-            running = min(envelope[j], running + step)
-            envelope[j] = running
-        shift = first[yq, xq] - first[yp, xp]
-        smallest = 0.0
-        for k in range(count):
-            t = k + shift
-            if t < 0:
-                value = envelope[0] - step * t
-            elif t >= count:
-                value = envelope[count - 1] + step * (t - count + 1)
-            else:
-                value = envelope[t]
-            out[k] = min(value, ceiling)
-            smallest = out[k] if k == 0 else min(smallest, out[k])  # out's minimum, in order
-        return smallest
-    else:
-        for j in range(1, count):
-            lowest = min(lowest, source[j])
-        ceiling = lowest + w * truncation
-        for k in range(count):
-            here = candidates[yq, xq, k]
-            value = ceiling
-            for j in range(count):
-                penalty = _regulariser(candidates[yp, xp, j], here, slope, truncation)
-                value = min(value, source[j] + w * penalty)
-            out[k] = value
-    smallest = out[0]
-    for k in range(1, count):
-        smallest = min(smallest, out[k])
-    return smallest
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _pass_on(half, back, sent, yp, xp, yq, xq, w, edges, buffers):  # pragma: no cover - jit
-    """TRW-S's message from pixel p to its neighbour q ahead: p's ``half`` less what q sent back
-    (``back[p]``), through the edge (:func:`_send`; ``edges``: the grid's candidates and
-    regulariser, ``buffers``: scratch) into ``sent[q]``; returns its normalisation constant."""
-    candidates, first, windows, slope, truncation = edges
-    source, envelope, out = buffers
-    count = half.shape[0]
-    for k in range(count):
-        source[k] = half[k] - back[yp, xp, k]
-    constant = _send(
-        source, candidates, first, windows, yp, xp, yq, xq, w, slope, truncation, envelope, out
-    )
-    for k in range(count):
-        sent[yq, xq, k] = out[k] - constant
-    return constant
-
-
-@numba.njit(cache=True, nogil=True)
-def _trws_pass(
-    unary,
-    candidates,
-    first,
-    windows,
-    weight_h,
-    weight_v,
-    slope,
-    truncation,
-    from_left,
-    from_right,
-    from_up,
-    from_down,
-    forward,
-    labels,
-):  # pragma: no cover - jit
-    """One TRW-S pass (Kolmogorov 2006) over the row and column chains, each pixel in two chains
-    (rho = 1/2): in raster order (``forward``) every pixel sends its messages right and down,
-    else in reverse order left and up; ``from_*[y, x]`` is the message pixel (y, x) receives
-    from that side. Writes ``labels`` (each pixel's best candidate given the labels already
-    chosen in this pass and the messages from the others); returns the lower bound of the
-    chain decomposition the messages define after the pass: the normalisation constants sent
-    plus each chain's last min 1/2 theta-hat."""
-    height, width, count = unary.shape
-    table = _regulariser_table(slope, truncation)
-    half = np.empty(count)
-    source = np.empty(count)
-    out = np.empty(count)
-    envelope = np.empty(count)
-    # along each axis: what a pixel receives from ahead (sent back to it in the last pass) and
-    # where what it sends ahead arrives
-    back_h, sent_h = (from_right, from_left) if forward else (from_left, from_right)
-    back_v, sent_v = (from_down, from_up) if forward else (from_up, from_down)
-    edges = (candidates, first, windows, slope, truncation)
-    buffers = (source, envelope, out)
-    bound = 0.0
-    for step_y in range(height):
-        y = step_y if forward else height - 1 - step_y
-        for step_x in range(width):
-            x = step_x if forward else width - 1 - step_x
-            # the neighbours behind (labelled in this pass) and ahead along each axis
-            xb, yb = (x - 1, y - 1) if forward else (x + 1, y + 1)
-            xa, ya = (x + 1, y + 1) if forward else (x - 1, y - 1)
-            has_xb, has_yb = 0 <= xb < width, 0 <= yb < height
-            has_xa, has_ya = 0 <= xa < width, 0 <= ya < height
-            # the labels behind and their edges' weights, once per pixel (not per candidate)
-            there_x = _label(candidates, first, windows, y, xb, labels[y, xb]) if has_xb else 0
-            w_x = weight_h[y, min(x, xb)] if has_xb else 0.0
-            there_y = _label(candidates, first, windows, yb, x, labels[yb, x]) if has_yb else 0
-            w_y = weight_v[min(y, yb), x] if has_yb else 0.0
-            lowest = np.inf
-            best, arg = np.inf, 0
-            for k in range(count):
-                total = (
-                    unary[y, x, k]
-                    + from_left[y, x, k]
-                    + from_right[y, x, k]
-                    + from_up[y, x, k]
-                    + from_down[y, x, k]
-                )
-                half[k] = 0.5 * total
-                lowest = min(lowest, half[k])
-                # the label: the messages from ahead, the pairwise terms to the labels behind
-                here = _label(candidates, first, windows, y, x, k)
-                # float32 up to here, then float64: spelt out, for numba types a variable
-                # assigned float32 then float64 differently just in time and ahead of time
-                score = np.float64(unary[y, x, k] + (back_h[y, x, k] + back_v[y, x, k]))
-                if has_xb:
-                    score += w_x * _tabled(table, here - there_x, slope, truncation)
-                if has_yb:
-                    score += w_y * _tabled(table, here - there_y, slope, truncation)
-                if score < best:
-                    best, arg = score, k
-            labels[y, x] = arg
-            if has_xa:
-                w = weight_h[y, min(x, xa)]
-                bound += _pass_on(half, back_h, sent_h, y, x, y, xa, w, edges, buffers)
-            else:
-                bound += lowest  # the end of its row chain
-            if has_ya:
-                w = weight_v[min(y, ya), x]
-                bound += _pass_on(half, back_v, sent_v, y, x, ya, x, w, edges, buffers)
-            else:
-                bound += lowest  # the end of its column chain
-    return bound

@@ -1,7 +1,7 @@
-"""Compile the kernels of :mod:`shared.grid_kernels` ahead of time (numba's ``pycc``) into the
-module :mod:`shared.kernels` loads: ``qhsm build-kernels`` once after installing or upgrading
-(about a minute of CPU; needs a C compiler). Without it everything works, each process then
-compiles or loads the kernels through numba (issue 28, item 3).
+"""Compile the kernels of :mod:`shared.grid_kernels` and :mod:`shared.trws_kernels` ahead of
+time (numba's ``pycc``) into the module :mod:`shared.kernels` loads: ``qhsm build-kernels`` once
+after installing or upgrading (about a minute of CPU; needs a C compiler). Without it everything
+works, each process then compiles or loads the kernels through numba (issue 28, item 3).
 
 Numba 0.68 still ships ``numba.pycc`` (deprecated since 0.57 without a replacement); should it
 go, the build fails with that message and the kernels stay just-in-time.
@@ -15,7 +15,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from shared.kernels import SIGNATURES, cache_directory, module_name, pycc_signature
+from shared.kernels import SIGNATURES, cache_directory, dispatcher, module_name, pycc_signature
 
 
 def _releasing_gil(flags: type) -> type:
@@ -65,8 +65,8 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
         cc = CC(name, source_module=shared.grid_kernels)
         cc.output_dir = scratch
         for kernel in names or tuple(SIGNATURES):
-            dispatcher = getattr(shared.grid_kernels, kernel)
-            cc.export(kernel, pycc_signature(kernel))(dispatcher.py_func)
+            source = dispatcher(kernel).py_func  # type: ignore[attr-defined]
+            cc.export(kernel, pycc_signature(kernel))(source)
         cc.compile()
         built = next(Path(scratch).glob(f"{name}.*"))
         target = directory / built.name

@@ -1,6 +1,6 @@
-"""The kernels of :mod:`shared.grid_kernels` as the rest of the code calls them: from their
-ahead-of-time compiled module when one was built for this source (``qhsm build-kernels``,
-:mod:`shared.kernel_build`), else just in time by numba.
+"""The kernels of :mod:`shared.grid_kernels` and :mod:`shared.trws_kernels` as the rest of the
+code calls them: from their ahead-of-time compiled module when one was built for this source
+(``qhsm build-kernels``, :mod:`shared.kernel_build`), else just in time by numba.
 
 Why: a process that jit-calls a kernel pays numba's import (0.3 s CPU) and, at its first call,
 numba's target set-up with SciPy's import (0.4-0.5 s), even when the compiled code is cached;
@@ -18,6 +18,7 @@ variable differently: spell the types out, as ``_trws_pass``'s score does).
 from __future__ import annotations
 
 import hashlib
+import importlib
 import importlib.util
 import sys
 import threading
@@ -37,14 +38,14 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
         "float64[::1]",
         (
             ("float32", 3), "float64", ("float32", 3), "float64", ("int32", 2),
-            ("float64", 2), "float64", "float64", ("int32", 2),
+            ("float64", 2), "float64", "float64", ("int32", 2), "boolean",
         ),
     ),
     "_chains_general": (
         "float64[::1]",
         (
             ("float32", 3), "float64", ("float32", 3), "float64", ("int32", 3),
-            ("float64", 2), "float64", "float64", ("int32", 2),
+            ("float64", 2), "float64", "float64", ("int32", 2), "boolean",
         ),
     ),
     "_grid_energy": (
@@ -76,7 +77,9 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
     ),
 }  # fmt: skip
 
-SOURCE: Final = Path(__file__).with_name("grid_kernels.py")
+#: The modules that define the kernels, in the order :func:`dispatcher` looks them up.
+MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels")
+SOURCES: Final = tuple(Path(__file__).with_name(f"{m.rpartition('.')[2]}.py") for m in MODULES)
 BUILD: Final = Path(__file__).with_name("kernel_build.py")
 
 
@@ -91,7 +94,7 @@ def module_name() -> str:
     """The compiled module's name: a digest of what its code depends on (the kernels' source,
     the build, the signatures, numba's version, Python's), so that a stale module is never
     loaded."""
-    digest = hashlib.sha256(SOURCE.read_bytes())
+    digest = hashlib.sha256(b"".join(source.read_bytes() for source in SOURCES))
     digest.update(BUILD.read_bytes())  # how it was compiled
     digest.update(repr(SIGNATURES).encode())
     digest.update(sys.version.encode())
@@ -152,6 +155,15 @@ def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
     return type(value) is bool or isinstance(value, np.bool_)
 
 
+def dispatcher(name: str) -> Callable[..., Any]:
+    """Numba's dispatcher of kernel ``name``, from the first of :data:`MODULES` defining it."""
+    for module in MODULES:
+        found = getattr(importlib.import_module(module), name, None)
+        if found is not None:
+            return found
+    raise AttributeError(f"no kernel {name} in {', '.join(MODULES)}")
+
+
 class Kernel:
     """One kernel: compiled when the call fits its signature, else numba's dispatcher."""
 
@@ -166,9 +178,7 @@ class Kernel:
     def jit(self) -> Callable[..., Any]:
         """Numba's dispatcher of the kernel (imports numba on first use)."""
         if self._jit is None:
-            import shared.grid_kernels
-
-            self._jit = getattr(shared.grid_kernels, self.name)
+            self._jit = dispatcher(self.name)
         return self._jit
 
     def __call__(self, *args: Any) -> Any:

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import grid_kernels
+from shared import trws_kernels
 from shared.config import LevelConfig, Regularizer
 from shared.grid import GridMRF, grid_mrf, solve_chains
 from shared.grid_inference import trws
@@ -101,7 +101,7 @@ def test_a_trws_label_scores_its_unary_and_messages_from_ahead_in_float32():
     from_right = np.array([[[tiny, tiny / 2]]], dtype=np.float32)  # forward: from ahead
     from_down = np.array([[[tiny, 0.0]]], dtype=np.float32)
     labels = np.full((1, 1), -1, dtype=np.int32)
-    grid_kernels._trws_pass(
+    trws_kernels._trws_pass(
         unary,
         np.array([[[0, 1]]], dtype=np.int32),
         np.zeros((1, 1), dtype=np.int32),
@@ -118,3 +118,29 @@ def test_a_trws_label_scores_its_unary_and_messages_from_ahead_in_float32():
         labels,
     )
     assert labels[0, 0] == 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    height=st.integers(1, 5),
+    width=st.integers(1, 7),
+    windows=st.booleans(),
+    along_columns=st.booleans(),
+)
+def test_labels_written_transposed_are_the_same_labels_and_energies(
+    seed, height, width, windows, along_columns
+):
+    """``transpose``: the kernels write (chain, x) at ``labels[x, chain]``, the same optima
+    bit for bit (dual decomposition's column chains give the grid's layout without a copy)."""
+    mrf = far_windows(seed, height, width, labels=3, spread=4)
+    if not windows:
+        mrf = replace(mrf, first=None)
+    extra = np.random.default_rng(seed).standard_normal(mrf.unary.shape).astype(np.float32)
+    labels, energies = solve_chains(mrf, along_columns, extra, -1.0, scale=0.5)
+    turned, turned_energies = solve_chains(
+        mrf, along_columns, extra, -1.0, scale=0.5, transpose=True
+    )
+    assert turned.shape == (width, height) and turned.flags.c_contiguous
+    np.testing.assert_array_equal(turned.T, labels)
+    np.testing.assert_array_equal(turned_energies, energies)

@@ -70,10 +70,13 @@ def test_calls_that_do_not_fit_the_signature_go_to_numba(compiled, monkeypatch):
 
 def test_a_module_of_other_kernels_is_not_loaded(directory, compiled, tmp_path, monkeypatch):
     assert compiled is not None
-    changed = tmp_path / "grid_kernels.py"
-    changed.write_bytes(kernels.SOURCE.read_bytes() + b"\n# changed\n")
-    monkeypatch.setattr(kernels, "SOURCE", changed)
-    assert kernels.load_compiled(directory) is None
+    for index, source in enumerate(kernels.SOURCES):  # a change in any of the modules
+        changed = tmp_path / source.name
+        changed.write_bytes(source.read_bytes() + b"\n# changed\n")
+        sources = list(kernels.SOURCES)
+        sources[index] = changed
+        monkeypatch.setattr(kernels, "SOURCES", tuple(sources))
+        assert kernels.load_compiled(directory) is None
 
 
 def test_the_compiled_wrappers_release_the_gil(directory):
