@@ -33,7 +33,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from shared import kernels
+from shared import fused_volume, kernels
 from shared.images import to_gray
 
 #: AD-census constants: the exponential scales of the terms and the window sizes.
@@ -214,13 +214,16 @@ def _census_gradient_inputs(
 
 
 def _fused(block: VolumeBlock, view: np.ndarray) -> bool:
-    """Whether the block of ``view``'s volume goes to the compiled kernels: a large block, when
-    numba is loaded already or the view's volume is so large (built in blocks, level after
-    level) that numba's import (0.7-0.9 s CPU) is worth it; else OpenCV (the same floats)."""
+    """Whether the block of ``view``'s volume goes to the kernels: a large block, when they run
+    without waiting for numba's import (compiled ahead of time, or numba loaded already) or the
+    view's volume is so large (built in blocks, level after level) that numba's import (0.7-0.9
+    s CPU) is worth it; else OpenCV (the same floats)."""
     volume_bytes = (block.max_disparity + 1) * view.shape[1] * 4
     if volume_bytes * block.rows < FUSED_VOLUME_BYTES:
         return False
-    return volume_bytes * view.shape[0] >= FUSED_VIEW_BYTES or kernels.jit_ready()
+    return volume_bytes * view.shape[0] >= FUSED_VIEW_BYTES or kernels.ready(
+        kernels.gradient_exponents, kernels.census_aggregate, kernels.census_window
+    )
 
 
 def census_gradient_volume(
@@ -280,12 +283,10 @@ def _fused_census_gradient(
     out: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`_census_and` of the gradient term binned at ``bin_width`` (:func:`bin_minimum`)
-    by the compiled kernels (:func:`shared.volume_kernels.build`: the same floats), into
+    by the kernels (:func:`shared.fused_volume.build`: the same floats), into
     ``out`` (or a new array) of shape (bins, block rows, w)."""
-    from shared import volume_kernels  # numba: imported only for a volume worth it
-
     table = _census_table()
-    return volume_kernels.build(inputs, block.rows, block.max_disparity, bin_width, table, out)
+    return fused_volume.build(inputs, block.rows, block.max_disparity, bin_width, table, out)
 
 
 def window_costs(
@@ -303,11 +304,9 @@ def window_costs(
     window; None when the kernels do not build this block (the caller gathers)."""
     if data_term != "census-gradient" or not _fused(block, left):
         return None
-    from shared import volume_kernels
-
     inputs = _census_gradient_inputs(left, right, block)
     table = _census_table()
-    return volume_kernels.build(
+    return fused_volume.build(
         inputs, block.rows, block.max_disparity, bin_width, table, lowest=lowest, count=count
     )
 

@@ -1,6 +1,7 @@
-"""Compile the kernels of :mod:`shared.grid_kernels` and :mod:`shared.trws_kernels` ahead of
-time (numba's ``pycc``) into the module :mod:`shared.kernels` loads: ``qhsm build-kernels`` once
-after installing or upgrading (about a minute of CPU; needs a C compiler). Without it everything
+"""Compile the kernels of :mod:`shared.grid_kernels`, :mod:`shared.trws_kernels` and
+:mod:`shared.volume_kernels` ahead of time (numba's ``pycc``) into the module
+:mod:`shared.kernels` loads: ``qhsm build-kernels`` once after installing or upgrading (about
+15 s of CPU here; needs a C compiler). Without it everything
 works, each process then compiles or loads the kernels through numba (issue 28, item 3).
 
 Numba 0.68 still ships ``numba.pycc`` (deprecated since 0.57 without a replacement); should it

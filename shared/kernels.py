@@ -1,6 +1,7 @@
-"""The kernels of :mod:`shared.grid_kernels` and :mod:`shared.trws_kernels` as the rest of the
-code calls them: from their ahead-of-time compiled module when one was built for this source
-(``qhsm build-kernels``, :mod:`shared.kernel_build`), else just in time by numba.
+"""The kernels of :mod:`shared.grid_kernels`, :mod:`shared.trws_kernels` and
+:mod:`shared.volume_kernels` as the rest of the code calls them: from their ahead-of-time
+compiled module when one was built for this source (``qhsm build-kernels``,
+:mod:`shared.kernel_build`), else just in time by numba.
 
 Why: a process that jit-calls a kernel pays numba's import (0.3 s CPU) and, at its first call,
 numba's target set-up with SciPy's import (0.4-0.5 s), even when the compiled code is cached;
@@ -75,10 +76,29 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
             ("float32", 3), ("float32", 3), "boolean", ("int32", 2),
         ),
     ),
+    "gradient_exponents": (
+        "none",
+        (("float32", 2), ("float32", 2), ("float32", 2), ("float32", 2), "int64", "int64",
+         ("float32", 3)),
+    ),
+    "census_aggregate": (
+        "none",
+        (
+            ("uint32", 2), ("uint32", 2), ("float32", 3), ("float32", 1), "int64", "int64",
+            "int64", ("float32", 3),
+        ),
+    ),
+    "census_window": (
+        "none",
+        (
+            ("uint32", 2), ("uint32", 2), ("float32", 3), ("float32", 1), "int64", "int64",
+            "int64", ("int32", 2), ("float32", 3),
+        ),
+    ),
 }  # fmt: skip
 
 #: The modules that define the kernels, in the order :func:`dispatcher` looks them up.
-MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels")
+MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels", "shared.volume_kernels")
 SOURCES: Final = tuple(Path(__file__).with_name(f"{m.rpartition('.')[2]}.py") for m in MODULES)
 BUILD: Final = Path(__file__).with_name("kernel_build.py")
 
@@ -152,6 +172,8 @@ def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
         return isinstance(value, float)  # numba types np.float64 as float64 too
     if argument == "float32":
         return isinstance(value, np.float32)
+    if argument == "int64":  # pycc's wrapper takes any Python or NumPy integer
+        return isinstance(value, int | np.integer) and not isinstance(value, bool)
     return type(value) is bool or isinstance(value, np.bool_)
 
 
@@ -200,6 +222,9 @@ neighbour_costs = Kernel("_neighbour_costs", _COMPILED)
 disagreements = Kernel("_disagreements", _COMPILED)
 subgradient_step = Kernel("_subgradient_step", _COMPILED)
 trws_pass = Kernel("_trws_pass", _COMPILED)
+gradient_exponents = Kernel("gradient_exponents", _COMPILED)
+census_aggregate = Kernel("census_aggregate", _COMPILED)
+census_window = Kernel("census_window", _COMPILED)
 
 
 _preloading: threading.Thread | None = None
@@ -219,10 +244,16 @@ def preload() -> None:
     _preloading.start()
 
 
+def ready(*chosen: Kernel) -> bool:
+    """Whether the ``chosen`` kernels run now, without waiting for numba's import: compiled
+    ahead of time, or numba loaded (:func:`jit_ready`)."""
+    return all(kernel.compiled is not None for kernel in chosen) or jit_ready()
+
+
 def jit_ready() -> bool:
     """Whether numba is loaded in this process (the preload done, or imported otherwise): a
-    caller with a NumPy path as good (:mod:`shared.volume_kernels`) takes numba's only then,
-    rather than wait for its import."""
+    caller with a NumPy path as good (:func:`ready`) takes numba's only then, rather than wait
+    for its import."""
     if _preloading is not None and _preloading.is_alive():
         return False
     return "numba" in sys.modules
@@ -239,5 +270,5 @@ def _load_jit() -> None:
 
 _ALL = (
     chains_windows, chains_general, grid_energy, neighbour_costs, disagreements,
-    subgradient_step, trws_pass,
+    subgradient_step, trws_pass, gradient_exponents, census_aggregate, census_window,
 )  # fmt: skip

@@ -2,7 +2,9 @@
 per-disparity NumPy/OpenCV passes (XOR, bit count, table, two absolute differences, sum, scale,
 exp, scale-add, 5x5 box filter, copy: a dozen passes over each disparity's plane, 23-52 % of a
 large pair's run, issue 28) fused into two loops per disparity, with OpenCV's ``exp`` between
-them (its float32 ``exp`` is its own approximation: it is called, not imitated).
+them (its float32 ``exp`` is its own approximation: it is called, not imitated):
+:mod:`shared.fused_volume` drives them, through :mod:`shared.kernels` (compiled ahead of time
+or just in time).
 
 Why the results are OpenCV's bit for bit: every cost before aggregation is
 ``table[H] - exp_term / 2`` with ``table[H]`` in [0.5, 1) and ``exp_term`` in [0, 1] (float32),
@@ -16,9 +18,6 @@ volumes are built in threads side by side.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
-import cv2
 import numba
 import numpy as np
 from llvmlite import ir
@@ -27,8 +26,6 @@ from numba.extending import intrinsic
 
 #: Rows of the aggregation window, whose row sums are kept in a ring.
 WINDOW = 5
-#: Disparities whose gradient terms go through OpenCV's exp in one call.
-CHUNK = 8
 
 
 @numba.njit(cache=True, nogil=True)
@@ -152,54 +149,3 @@ def census_window(
                             costs[row, x, j] = value
                         else:
                             costs[row, x, j] = min(costs[row, x, j], value)
-
-
-def build(
-    inputs: tuple,
-    block_rows: int,
-    max_disparity: int,
-    bin_width: int,
-    table: np.ndarray,
-    volume: np.ndarray | None = None,
-    lowest: np.ndarray | None = None,
-    count: int = 0,
-) -> np.ndarray:
-    """The block's volume binned at ``bin_width`` into ``volume`` (or a new array), or with
-    ``lowest`` (rows, w) the (rows, w, ``count``) costs of each pixel's window of bins only
-    (the disparities outside every window skipped): the kernels :data:`CHUNK` disparities at a
-    time, their exponents through OpenCV's exp in one call between them."""
-    exponents: Callable[..., None] = gradient_exponents  # numba's dispatchers, untyped
-    aggregate: Callable[..., None] = census_aggregate
-    windowed: Callable[..., None] = census_window
-    census_left, census_right, gradients_left, gradients_right = inputs
-    rows, width = census_left.shape
-    start, stop = 0, max_disparity + 1
-    if lowest is not None:
-        out = np.empty((*lowest.shape, count), np.float32)
-        start = int(lowest.min()) * bin_width
-        stop = min(stop, (int(lowest.max()) + count) * bin_width)
-    elif volume is None:
-        out = np.empty((max_disparity // bin_width + 1, block_rows, width), np.float32)
-    else:
-        out = volume
-    terms = np.empty((min(CHUNK, max(stop - start, 1)), rows, width), np.float32)
-    for first in range(start, stop, CHUNK):
-        chunk = terms[: min(CHUNK, stop - first)]
-        exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
-        flat = chunk.reshape(-1, width)
-        cv2.exp(flat, dst=flat)
-        if lowest is None:
-            aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width, out)
-        else:
-            windowed(
-                census_left,
-                census_right,
-                chunk,
-                table,
-                max_disparity,
-                first,
-                bin_width,
-                lowest,
-                out,
-            )
-    return out

@@ -7,14 +7,17 @@ import numpy as np
 import pytest
 
 import shared.grid_kernels
+import shared.volume_kernels
 from shared import kernels
 from shared.kernel_build import build
+
+VOLUME_KERNELS = ("gradient_exponents", "census_aggregate", "census_window")
 
 
 @pytest.fixture(scope="module")
 def directory(tmp_path_factory):
     built = tmp_path_factory.mktemp("kernels")
-    build(built, names=("_disagreements", "_grid_energy"))
+    build(built, names=("_disagreements", "_grid_energy", *VOLUME_KERNELS))
     return built
 
 
@@ -55,6 +58,55 @@ def test_the_compiled_kernel_gives_numbas_floats(compiled):
         )
 
 
+def _volume_arguments(seed: int) -> dict[str, tuple]:
+    """Each volume kernel's arguments: random codes, gradients, exponent terms and windows."""
+    rng = np.random.default_rng(seed)
+    rows, width, top = 9, 13, 11
+    codes = rng.integers(0, 2**24, (rows, width), dtype=np.uint32)
+    shifted = rng.integers(0, 2**24, (rows, width + top), dtype=np.uint32)
+    gradients = [  # x and y of the left view, then of the (shifted) right view
+        rng.normal(0, 30, (rows - 4, columns)).astype(np.float32)
+        for columns in (width, width, width + top, width + top)
+    ]
+    terms = rng.random((4, rows, width), dtype=np.float32)
+    table = (0.5 + rng.random(256) / 2).astype(np.float32)
+    first, width_of_bins = int(rng.integers(0, top - 3)), int(rng.integers(1, 4))
+    volume = rng.random((top // width_of_bins + 1, rows - 4, width), dtype=np.float32)
+    lowest = rng.integers(0, 3, (rows - 4, width), dtype=np.int32)
+    window = rng.random((rows - 4, width, 3), dtype=np.float32)
+    return {
+        "gradient_exponents": (*gradients, top, first, np.zeros((4, rows - 4, width), np.float32)),
+        "census_aggregate": (codes, shifted, terms, table, top, first, width_of_bins, volume),
+        "census_window": (
+            codes, shifted, terms, table, top, first, width_of_bins, lowest, window,
+        ),
+    }  # fmt: skip
+
+
+@pytest.mark.parametrize("name", VOLUME_KERNELS)
+def test_the_compiled_volume_kernels_write_numbas_floats(compiled, name):
+    """The census + gradient kernels (an LLVM intrinsic among them) compile ahead of time and
+    write what numba's write, into the same starting arrays."""
+    kernel = kernels.Kernel(name, compiled)
+    assert kernel.compiled is not None
+    for seed in range(4):
+        ahead, just_in_time = _volume_arguments(seed)[name], _volume_arguments(seed)[name]
+        kernel(*ahead)  # fits the signature: the compiled code
+        getattr(shared.volume_kernels, name)(*just_in_time)
+        assert np.array_equal(ahead[-1], just_in_time[-1])
+        assert not np.array_equal(ahead[-1], _volume_arguments(seed)[name][-1])  # written
+
+
+def test_compiled_kernels_are_ready_without_numba(compiled, monkeypatch):
+    monkeypatch.setattr(kernels, "jit_ready", lambda: False)
+    built = kernels.Kernel("census_aggregate", compiled)
+    missing = kernels.Kernel("census_aggregate", None)
+    assert kernels.ready(built)
+    assert not kernels.ready(built, missing)  # one of them would wait for numba's import
+    monkeypatch.setattr(kernels, "jit_ready", lambda: True)
+    assert kernels.ready(built, missing)
+
+
 def test_calls_that_do_not_fit_the_signature_go_to_numba(compiled, monkeypatch):
     kernel = kernels.Kernel("_disagreements", compiled)
     taken = []
@@ -66,6 +118,11 @@ def test_calls_that_do_not_fit_the_signature_go_to_numba(compiled, monkeypatch):
     kernel(rows, np.zeros((3, 4), dtype=np.int64))  # another dtype: would read garbage
     kernel(rows.astype(np.float32), np.zeros((3, 4), dtype=np.int32))
     assert taken == ["compiled", "jit", "jit", "jit"]
+
+
+def test_integer_arguments_fit_int64_but_booleans_do_not():
+    assert kernels._fits(3, "int64") and kernels._fits(np.int32(3), "int64")
+    assert not kernels._fits(True, "int64") and not kernels._fits(3.0, "int64")
 
 
 def test_a_module_of_other_kernels_is_not_loaded(directory, compiled, tmp_path, monkeypatch):

@@ -153,7 +153,7 @@ def test_the_gradient_exponent_reads_the_right_view_shifted():
     ("rows", "width", "ready", "fused"),
     [
         (4, 100, True, False),  # a small block: OpenCV, numba loaded or not
-        (400, 1000, True, True),  # a large block, numba loaded
+        (400, 1000, True, True),  # a large block, the kernels compiled or numba loaded
         (400, 1000, False, False),  # the same before numba is loaded: no wait for its import
         (2000, 2000, False, True),  # a view volume beyond FUSED_VIEW_BYTES: worth the import
     ],
@@ -161,7 +161,7 @@ def test_the_gradient_exponent_reads_the_right_view_shifted():
 def test_the_kernels_take_large_blocks_without_waiting_for_numba(
     monkeypatch, rows, width, ready, fused
 ):
-    monkeypatch.setattr(data_terms.kernels, "jit_ready", lambda: ready)
+    monkeypatch.setattr(data_terms.kernels, "ready", lambda *chosen: ready)
     view = np.empty((rows, width), np.float32)
     assert data_terms._fused(VolumeBlock(128, 0, min(rows, 64)), view) is fused
 
