@@ -215,6 +215,11 @@ class Kernel:
 
 _COMPILED = load_compiled()
 
+
+def compiled_module() -> ModuleType | None:
+    """The compiled module this process loaded, if any (:mod:`shared.kernel_background`)."""
+    return _COMPILED
+
 chains_windows = Kernel("_chains_windows", _COMPILED)
 chains_general = Kernel("_chains_general", _COMPILED)
 grid_energy = Kernel("_grid_energy", _COMPILED)
@@ -261,9 +266,12 @@ def jit_ready() -> bool:
 
 def _load_jit() -> None:
     """numba's set-up and one kernel's cached code (every later kernel then loads in ms)."""
+    from shared.numba_start import without_scipy
+
     try:
-        one = np.zeros((1, 1), dtype=np.int32)
-        disagreements.jit()(one, one)
+        with without_scipy():  # 0.2 s of CPU for BLAS decisions no kernel needs
+            one = np.zeros((1, 1), dtype=np.int32)
+            disagreements.jit()(one, one)
     except Exception:  # the first real call raises it where it matters
         return
 
