@@ -200,6 +200,9 @@ class Kernel:
     def jit(self) -> Callable[..., Any]:
         """Numba's dispatcher of the kernel (imports numba on first use)."""
         if self._jit is None:
+            preloading = _preloading
+            if preloading is not None and preloading is not threading.current_thread():
+                preloading.join()  # numba's set-up there, without SciPy (shared.numba_start)
             self._jit = dispatcher(self.name)
         return self._jit
 
@@ -219,6 +222,7 @@ _COMPILED = load_compiled()
 def compiled_module() -> ModuleType | None:
     """The compiled module this process loaded, if any (:mod:`shared.kernel_background`)."""
     return _COMPILED
+
 
 chains_windows = Kernel("_chains_windows", _COMPILED)
 chains_general = Kernel("_chains_general", _COMPILED)
