@@ -50,7 +50,10 @@ def c_compiler(environ: Mapping[str, str] = os.environ) -> str | None:
 
 def interactive() -> bool:
     """Whether someone is watching: stdin and stderr are terminals."""
-    return all(stream is not None and stream.isatty() for stream in (sys.stdin, sys.stderr))
+    try:
+        return all(stream is not None and stream.isatty() for stream in (sys.stdin, sys.stderr))
+    except ValueError:  # a closed stream
+        return False
 
 
 def reason_not_to_build(
@@ -123,13 +126,17 @@ def start(directory: Path, stream: IO[str] | None = None) -> subprocess.Popen[by
 
 
 def start_if_missing() -> subprocess.Popen[bytes] | None:
-    """:func:`start` when this process has no compiled module and nothing says not to."""
+    """:func:`start` when this process has no compiled module and nothing says not to; a
+    cache folder it cannot write is no reason to fail the match."""
     if kernels.compiled_module() is not None:
         return None
     directory = kernels.cache_directory()
     if reason_not_to_build(directory, terminal=interactive()) is not None:
         return None
-    return start(directory)
+    try:
+        return start(directory)
+    except OSError:
+        return None
 
 
 def build_recording_failure(directory: Path | None = None) -> Path:

@@ -57,7 +57,7 @@ def test_a_failed_build_of_this_source_is_not_retried_but_another_source_is(
     assert kernel_background.reason_not_to_build(tmp_path, terminal=True, environ=READY) is None
 
 
-def test_the_compiler_is_setuptools_choice(monkeypatch):
+def test_the_compiler_is_setuptools_choice():
     assert kernel_background.c_compiler({"CC": "sh -c"}) is not None  # the command's first word
     assert kernel_background.c_compiler({"CC": "no-such-compiler-here"}) is None
 
@@ -99,6 +99,17 @@ def test_no_second_build_while_one_holds_the_lock(tmp_path, monkeypatch):
     (tmp_path / f"{kernels.module_name()}.cpython-311-x86_64-linux-gnu.so").write_bytes(b"")
     assert kernel_background.start(tmp_path, io.StringIO()) is None
     assert not spawned.calls
+
+
+def test_an_unwritable_cache_does_not_fail_the_match(tmp_path, auto, monkeypatch):
+    monkeypatch.setattr(kernel_background, "interactive", lambda: True)
+    monkeypatch.setattr(kernels, "compiled_module", lambda: None)
+    monkeypatch.setenv("CC", sys.executable)
+    monkeypatch.delenv("CI", raising=False)
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    monkeypatch.setattr(kernels, "cache_directory", lambda: blocked / "kernels")
+    assert kernel_background.start_if_missing() is None
 
 
 def test_a_process_with_compiled_kernels_starts_nothing(monkeypatch):
