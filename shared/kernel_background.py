@@ -1,6 +1,6 @@
 """``qhsm match`` in a terminal without compiled kernels builds them in the background, once:
 ``qhsm build-kernels`` (:mod:`shared.kernel_build`) in a detached process at the lowest
-priority, so that the next runs start about a second of CPU sooner (Aloe: 3.6 s instead of
+priority, so that the next runs start about a second of CPU sooner (Aloe: 3.8 s instead of
 4.7 s; docs/benchmarks.md).
 
 Never in scripts, CI or the service (stdin or stderr not a terminal, ``CI`` set,
