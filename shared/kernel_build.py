@@ -1,8 +1,9 @@
 """Compile the kernels of :mod:`shared.grid_kernels`, :mod:`shared.trws_kernels` and
 :mod:`shared.volume_kernels` ahead of time (numba's ``pycc``) into the module
 :mod:`shared.kernels` loads: ``qhsm build-kernels`` once after installing or upgrading (about
-15 s of CPU here; needs a C compiler). Without it everything
-works, each process then compiles or loads the kernels through numba (issue 28, item 3).
+15 s of CPU here; needs a C compiler), or ``qhsm match`` in a terminal in the background
+(:mod:`shared.kernel_background`). Without it everything works, each process then compiles or
+loads the kernels through numba (issue 28, item 3).
 
 Numba 0.68 still ships ``numba.pycc`` (deprecated since 0.57 without a replacement); should it
 go, the build fails with that message and the kernels stay just-in-time.

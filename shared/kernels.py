@@ -200,6 +200,9 @@ class Kernel:
     def jit(self) -> Callable[..., Any]:
         """Numba's dispatcher of the kernel (imports numba on first use)."""
         if self._jit is None:
+            preloading = _preloading
+            if preloading is not None and preloading is not threading.current_thread():
+                preloading.join()  # numba's set-up there, without SciPy (shared.numba_start)
             self._jit = dispatcher(self.name)
         return self._jit
 
@@ -214,6 +217,12 @@ class Kernel:
 
 
 _COMPILED = load_compiled()
+
+
+def compiled_module() -> ModuleType | None:
+    """The compiled module this process loaded, if any (:mod:`shared.kernel_background`)."""
+    return _COMPILED
+
 
 chains_windows = Kernel("_chains_windows", _COMPILED)
 chains_general = Kernel("_chains_general", _COMPILED)
@@ -261,9 +270,12 @@ def jit_ready() -> bool:
 
 def _load_jit() -> None:
     """numba's set-up and one kernel's cached code (every later kernel then loads in ms)."""
+    from shared.numba_start import without_scipy
+
     try:
-        one = np.zeros((1, 1), dtype=np.int32)
-        disagreements.jit()(one, one)
+        with without_scipy():  # 0.2 s of CPU for BLAS decisions no kernel needs
+            one = np.zeros((1, 1), dtype=np.int32)
+            disagreements.jit()(one, one)
     except Exception:  # the first real call raises it where it matters
         return
 

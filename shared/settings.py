@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import AliasChoices, Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -210,6 +210,11 @@ class Settings(BaseSettings):
         description="dimod: sampler classes jobs may name besides the built-in list, each with "
         'its parameters\' [low, high] bounds (JSON, e.g. {"my_pkg.MySampler": {"num_reads": '
         "[1, 100]}}); any other class or parameter is refused",
+    )
+    build_kernels: Literal["auto", "never"] = Field(
+        "auto",
+        description="`qhsm match` in a terminal without compiled kernels builds them in the "
+        "background, once (auto; never in CI or without a terminal), or not (never)",
     )
     solver_nice: int = Field(
         10,

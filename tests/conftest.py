@@ -33,6 +33,8 @@ def pytest_configure(config) -> None:
     own inside it (``gw0``, ...): two workers' ``qhsm serve`` or embedding store never share
     a data directory, its lock or its embedded Redis."""
     global _TEMPORARY_DATA_DIR
+    # nor does a `qhsm match` run in a terminal (`pytest -s`) build kernels in the user's cache
+    os.environ.setdefault("QHSM_BUILD_KERNELS", "never")
     worker = os.environ.get(XDIST_WORKER_ENV)
     if worker:
         own = Path(os.environ["QHSM_DATA_DIR"]) / worker

@@ -66,7 +66,8 @@ def test_match_with_exact_imports_neither_dimod_nor_networkx(tmp_path):
 
 def test_match_with_compiled_kernels_imports_no_numba_and_gives_the_same_map(tmp_path):
     """With the kernels built ahead of time (``qhsm build-kernels``) neither numba nor SciPy is
-    imported, and the map is the just-in-time one's, byte for byte."""
+    imported, and the map is the just-in-time one's, byte for byte; without them numba starts
+    without SciPy (:mod:`shared.numba_start`)."""
     from shared.kernel_build import build
 
     views = _write_views(tmp_path, seed=1)
@@ -81,7 +82,7 @@ def test_match_with_compiled_kernels_imports_no_numba_and_gives_the_same_map(tmp
         done = _python(probe, *args, timeout=300, cache=cache)
         assert done.returncode == 0, done.stderr
         maps.append(output.read_bytes())
-        heavy = "HEAVY numba,scipy\n" if cache.name == "none" else "HEAVY \n"
+        heavy = "HEAVY numba\n" if cache.name == "none" else "HEAVY \n"  # numba_start
         assert heavy in done.stdout
     assert maps[0] == maps[1]
 
@@ -103,6 +104,39 @@ print("LOADED", "shared.grid_kernels" in sys.modules, kernels.disagreements._jit
     done = _python(probe, timeout=180, cache=tmp_path)
     assert done.returncode == 0, done.stderr
     assert "LOADED True True" in done.stdout
+
+
+def test_the_preload_imports_no_scipy_and_the_kernels_give_the_same_floats(tmp_path):
+    """numba started by the preload (SciPy refused to its thread) and numba started with SciPy
+    give the same kernel results; SciPy stays importable by the other threads meanwhile."""
+    probe = """
+import sys, threading, hashlib
+import numpy as np
+from shared import kernels, numba_start
+if sys.argv[1] == "preload":
+    kernels.preload()
+    kernels._preloading.join(120)
+    assert "scipy" not in sys.modules, "the preload imported SciPy"
+    with numba_start.without_scipy():
+        other = threading.Thread(target=lambda: __import__("scipy.linalg"))
+        other.start()
+        other.join()
+    assert "scipy.linalg" in sys.modules
+else:
+    import scipy.linalg
+rng = np.random.default_rng(0)
+h, w, k = 6, 9, 5
+args = (
+    rng.random((h, w, k), dtype=np.float32), rng.integers(0, 9, (h, w, k), dtype=np.int32),
+    np.zeros((1, 1), dtype=np.int32), False, rng.random((h, w - 1)), rng.random((h - 1, w)),
+    0.7, 2.5, rng.integers(0, k, (h, w), dtype=np.int32),
+)
+print("ENERGY", hashlib.sha256(kernels.grid_energy.jit()(*args).tobytes()).hexdigest())
+"""
+    done = [_python(probe, how, timeout=180, cache=tmp_path) for how in ("preload", "scipy")]
+    assert all(d.returncode == 0 for d in done), [d.stderr for d in done]
+    energies = [d.stdout.split("ENERGY ")[1] for d in done]
+    assert energies[0] == energies[1]
 
 
 def test_numpy_gets_no_huge_page_hint_unless_the_environment_asks():
