@@ -241,11 +241,11 @@ _preloading: threading.Thread | None = None
 
 def preload() -> None:
     """Load numba and the kernels' cache in a background thread, once per process, when some
-    kernel has no compiled module: numba's import and target set-up (0.7-0.9 s CPU, mostly
-    Python holding the GIL) then overlap the work before the first level's solve (reading the
-    views, their check, the cost volumes: OpenCV and NumPy release the GIL), instead of
-    following it. A kernel called meanwhile waits for the import and numba's compiler lock;
-    a failure here is left to that call to raise."""
+    kernel has no compiled module: numba's import and target set-up (~0.4 s CPU without
+    SciPy, mostly Python holding the GIL) then overlap the work before the first level's
+    solve (reading the views, their check, the cost volumes: OpenCV and NumPy release the
+    GIL), instead of following it. A kernel called meanwhile waits for the preload (a jit
+    kernel joins it: :meth:`Kernel.jit`); a failure here is left to that call to raise."""
     global _preloading
     if _preloading is not None or all(kernel.compiled is not None for kernel in _ALL):
         return
