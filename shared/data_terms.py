@@ -216,8 +216,8 @@ def _census_gradient_inputs(
 def _fused(block: VolumeBlock, view: np.ndarray) -> bool:
     """Whether the block of ``view``'s volume goes to the kernels: a large block, when they run
     without waiting for numba's import (compiled ahead of time, or numba loaded already) or the
-    view's volume is so large (built in blocks, level after level) that numba's import (0.7-0.9
-    s CPU) is worth it; else OpenCV (the same floats)."""
+    view's volume is so large (built in blocks, level after level) that numba's import (~0.4 s
+    of CPU) is worth it; else OpenCV (the same floats)."""
     volume_bytes = (block.max_disparity + 1) * view.shape[1] * 4
     if volume_bytes * block.rows < FUSED_VOLUME_BYTES:
         return False
