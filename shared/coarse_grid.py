@@ -17,6 +17,7 @@ import numpy as np
 from shared.config import DataTerm
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
+from shared.threads import each_beside
 
 #: Most planes :func:`pool` resamples in one call (OpenCV's area resampling takes at most 4
 #: channels when the factor is not an integer, 641 -> 320 columns).
@@ -97,4 +98,5 @@ def pooled_costs(
         float32 (views, bins, h, w).
     """
     level = replace(fine, plan=plan.model_copy(update={"downsample": 1}))
-    return np.stack([pool(costs, shape) for costs in level.level_bin_costs(data_term)])
+    views = [(costs, shape) for costs in level.level_bin_costs(data_term)]
+    return np.stack(each_beside(pool, views))

@@ -121,6 +121,35 @@ class QuickMatch:
         return self.disparity[self.confirmed]
 
 
+def lowest(volume: np.ndarray, outside: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``volume.argmin(axis=0)`` and ``volume.min(axis=0)`` of a (D, h, w) volume, one disparity
+    plane at a time: numpy's reductions over the first axis walk it pixel by pixel (the views'
+    check spent a third of its time in them). With ``outside``, the minimum over the
+    disparities more than 1 from it, +inf where there is none (the index is then meaningless).
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        (D, h, w) costs, no NaN.
+    outside : numpy.ndarray, optional
+        (h, w) disparities whose neighbourhood (+-1) is left out.
+
+    Returns
+    -------
+    index, minimum : numpy.ndarray
+        (h, w): the first disparity reaching the minimum (intp), and the minimum.
+    """
+    minimum = np.full(volume.shape[1:], np.inf, dtype=volume.dtype)
+    index = np.zeros(volume.shape[1:], dtype=np.intp)
+    for disparity, plane in enumerate(volume):
+        lower = plane < minimum
+        if outside is not None:
+            lower &= np.abs(outside - disparity) > 1
+        np.copyto(minimum, plane, where=lower)
+        index[lower] = disparity
+    return index, minimum
+
+
 def quick_match(left: np.ndarray, right: np.ndarray) -> QuickMatch:
     """Dense AD-census match of the pair shrunk to about :data:`TARGET_WIDTH` px, positive
     disparities up to :data:`SEARCH_SHARE` of the width, with its left-right check and
@@ -147,11 +176,9 @@ def quick_match(left: np.ndarray, right: np.ndarray) -> QuickMatch:
     block = VolumeBlock(search, 0, rows)
     volume = ad_census_volume(left, right, block)
     mirrored = ad_census_volume(right[:, ::-1], left[:, ::-1], block)
-    disparity = volume.argmin(axis=0)
-    right_disparity = mirrored.argmin(axis=0)[:, ::-1]
-    best = volume.min(axis=0)
-    near = np.abs(np.arange(search + 1)[:, None, None] - disparity[None]) <= 1
-    runner_up = np.where(near, np.inf, volume).min(axis=0)
+    disparity, best = lowest(volume)
+    right_disparity = lowest(mirrored)[0][:, ::-1]
+    runner_up = lowest(volume, outside=disparity)[1]
     target = np.arange(columns)[None, :] - disparity
     back = right_disparity[np.arange(rows)[:, None], np.clip(target, 0, columns - 1)]
     confirmed = (

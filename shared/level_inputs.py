@@ -25,7 +25,7 @@ from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
 from shared.pyramid import LevelPlan
-from shared.threads import beside
+from shared.threads import each_beside
 
 #: Rows of a cost volume built at once for a bundle of many rows (a grid's whole view): the
 #: block's (D + 1) x rows x w float32 within this.
@@ -310,10 +310,7 @@ class LevelInputs:
 
         blocks = self._volume_blocks(first, last)
         shares = [blocks[i :: max(1, workers)] for i in range(min(max(1, workers), len(blocks)))]
-        later = [beside(fill, share) for share in shares[1:]]
-        fill(shares[0])
-        for done in later:
-            done()
+        each_beside(fill, [(share,) for share in shares])
         return costs
 
     def _scratch(self, data_term: DataTerm, blocks: list[VolumeBlock]) -> np.ndarray | None:
@@ -364,9 +361,8 @@ class LevelInputs:
             assert view is not None  # a view has rows
             return view
 
-        views = self.view_images()  # the other views on the spare core (a block each at a time)
-        later = [beside(binned, left, right) for left, right in views[1:]]
-        return [binned(*views[0]), *(view() for view in later)]
+        # the other views on the spare core (a block each at a time)
+        return each_beside(binned, self.view_images())
 
     def level_bin_costs(self, data_term: DataTerm) -> list[np.ndarray]:
         """Every view's bin costs at this level's width (bins, view_height, w): from the cached
@@ -389,7 +385,7 @@ class LevelInputs:
             return list(self.pooled)
         if self._binned is None and self.volumes is not None and self._cached():
             ratio = self.plan.bin_width // self.volume_bin_width
-            self._binned = [bin_minimum(v, ratio) for v in self.volumes]
+            self._binned = each_beside(bin_minimum, [(v, ratio) for v in self.volumes])
         return self._binned or []
 
     def view_unary(

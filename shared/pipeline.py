@@ -42,7 +42,7 @@ from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.level_report import LevelReport
 from shared.pyramid import LevelPlan
-from shared.threads import beside
+from shared.threads import beside, each_beside
 
 SolveLevel = Callable[..., LevelSolution]
 """``(inputs, config[, progress=shared.inference.BundleProgress]) -> LevelSolution``: one level."""
@@ -481,13 +481,8 @@ def _cached_volumes(
         if bins * height * width * 4 * inputs.views > VOLUME_CACHE_BYTES:
             continue
         if bin_width == 1:  # the full volumes (the sub-pixel fit and the confidence read them)
-            views = inputs.view_images()  # the other views' volumes on the spare core
             whole = VolumeBlock(max_disparity, 0, height)
-            later = [
-                beside(cost_volume, config.data_term, left, right, whole)
-                for left, right in views[1:]
-            ]
-            first = cost_volume(config.data_term, *views[0], whole)
-            return [first, *(volume() for volume in later)], 1
+            views = [(config.data_term, left, right, whole) for left, right in inputs.view_images()]
+            return each_beside(cost_volume, views), 1  # the other views on the spare core
         return inputs.binned_view_volumes(config.data_term, bin_width), bin_width
     return None, 1

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
@@ -177,3 +177,10 @@ def beside(function: Callable[..., T], *args: Any, **kwargs: Any) -> Callable[[]
     future = pool.submit(function, *args, **kwargs)
     pool.shutdown(wait=False)  # the thread ends with the call
     return future.result
+
+
+def each_beside(function: Callable[..., T], arguments: Sequence[Sequence[Any]]) -> list[T]:
+    """``[function(*a) for a in arguments]``: the first call in this thread, the others
+    :func:`beside` it (every view's share of a step on the cores the budget has)."""
+    later = [beside(function, *args) for args in arguments[1:]]
+    return [function(*arguments[0]), *(result() for result in later)]

@@ -19,6 +19,7 @@ from shared.threads import (
     USER_VARIABLE,
     beside,
     cores,
+    each_beside,
     inherited_threads,
     thread_budget,
     thread_environment,
@@ -84,3 +85,19 @@ def test_beside_calls_now_without_a_spare_core(monkeypatch):
     assert beside(_thread_name)() == threading.current_thread().name
     with pytest.raises(ValueError, match="raised in the thread"):
         beside(_thread_name, fail=True)
+
+
+@pytest.mark.parametrize("budget", [1, 2])
+def test_each_beside_answers_in_order_the_first_here(monkeypatch, budget):
+    """Every view's share of a step: the results in the arguments' order, the first computed
+    by the caller's thread, the others on the spare core when there is one."""
+    monkeypatch.setattr(threads_module, "_budget", budget)
+    here = threading.current_thread().name
+
+    def named(index: int) -> tuple[int, str]:
+        return index, threading.current_thread().name
+
+    results = each_beside(named, [(index,) for index in range(3)])
+    assert [index for index, _ in results] == [0, 1, 2]
+    assert results[0][1] == here
+    assert all((name == here) == (budget == 1) for _, name in results[1:])

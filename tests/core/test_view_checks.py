@@ -11,11 +11,30 @@ from hypothesis import strategies as st
 
 from shared.disparity_range import (
     ViewsWarning,
+    lowest,
     quick_match,
     resolve_max_disparity,
     views_warning,
 )
 from shared.ground_truth import CONVENTIONAL_SCALES, ScaleNotInferredError, infer_gt_scale
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    shape=st.tuples(st.integers(1, 9), st.integers(1, 5), st.integers(1, 6)),
+    levels=st.integers(1, 4),
+    seed=st.integers(0, 2**16),
+)
+def test_lowest_is_numpys_first_argmin_and_minimum(shape, levels, seed):
+    """The views' check's reduction over disparities: numpy's argmin (the first of ties: few
+    cost levels make many) and min, and the runner-up outside +-1 of the argmin."""
+    volume = np.random.default_rng(seed).integers(0, levels, shape).astype(np.float32)
+    index, minimum = lowest(volume)
+    assert np.array_equal(index, volume.argmin(axis=0))
+    assert np.array_equal(minimum, volume.min(axis=0))
+    near = np.abs(np.arange(shape[0])[:, None, None] - index[None]) <= 1
+    expected = np.where(near, np.inf, volume).min(axis=0)
+    assert np.array_equal(lowest(volume, outside=index)[1], expected)
 
 
 @pytest.fixture(scope="module")
