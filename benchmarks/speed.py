@@ -22,8 +22,9 @@ Pairs (the range is given, as a user who knows it would):
 ``shared`` first on PYTHONPATH; this file's checkout likewise for the current code) in the same
 alternation, and reports its median, its peak RSS and before / now.
 
-Each repeat runs ``qhsm match LEFT RIGHT -o OUT --max-disparity D`` (the defaults otherwise) and
-the SGBM script, alternating which goes first, each as a fresh process under ``/usr/bin/time -v``
+Each repeat runs ``qhsm match LEFT RIGHT -o OUT --max-disparity D`` (the defaults otherwise; the
+``qhsm`` script beside this interpreter, as the SGBM script runs this interpreter: not a version
+manager's shim that comes first on the PATH) and the SGBM script, alternating which goes first, each as a fresh process under ``/usr/bin/time -v``
 (wall time, peak RSS). The SGBM script is the baseline of ``shared.baselines`` (its
 ``SGBM_PARAMETERS``: colour, 5x5 blocks, P1 = 8*3*25, P2 = 32*3*25, 8 paths (HH); numDisparities
 the next multiple of 16 above the range) in a minimal process: read the views, compute, write
@@ -163,10 +164,18 @@ def timed(command: list[str], checkout: Path | None = None) -> tuple[float, floa
     )
 
 
+def installed_qhsm() -> str | None:
+    """The ``qhsm`` script of this interpreter's environment (beside ``sys.executable``, as the
+    SGBM script runs that interpreter), else the first on the PATH: a version manager's shim
+    first on the PATH (pyenv's: a bash script, ~70 ms a start here) is not qhsm's time."""
+    beside_python = Path(sys.executable).with_name("qhsm")
+    return str(beside_python) if beside_python.exists() else shutil.which("qhsm")
+
+
 def qhsm_command(pair: Pair, out: Path, on_path: bool = True) -> list[str]:
     """``qhsm match`` on the pair with the defaults and the range given (``on_path`` False: the
     CLI of whatever ``shared`` the PYTHONPATH finds first, not the installed script)."""
-    qhsm = shutil.which("qhsm") if on_path else None
+    qhsm = installed_qhsm() if on_path else None
     program = [qhsm] if qhsm else [sys.executable, "-c", "from shared.cli import main; main()"]
     views = [str(pair.left), str(pair.right)]
     return [*program, "match", *views, "-o", str(out), "--max-disparity", str(pair.max_disparity)]

@@ -17,6 +17,7 @@ from shared.energy import mrf_costs, mrf_energy
 from shared.grid import (
     GridMRF,
     boundary_unary,
+    chain_primal,
     dual_decomposition,
     grid_mrf,
     solve_chains,
@@ -107,6 +108,24 @@ def test_the_window_kernel_finds_the_optima_of_the_general_one(seed, along_colum
     expected_labels, expected = solve_chains(general, along_columns)
     np.testing.assert_allclose(energies, expected)
     assert mrf.energy(labels) == pytest.approx(general.energy(expected_labels))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), windows=st.booleans(), vertical=st.booleans())
+def test_neighbour_costs_written_into_a_used_buffer_are_a_fresh_arrays(seed, windows, vertical):
+    """The dual decomposition's primal steps share one buffer: every element is rewritten, so
+    what an earlier step left there (NaN here) never leaks into the next step's labels."""
+    mrf = random_grid(seed, 4, 6, labels=3, windows=windows)
+    labels = np.random.default_rng(seed).integers(0, 3, (4, 6)).astype(np.int32)
+    used = np.full(mrf.unary.shape, np.nan, dtype=np.float32)
+    written = mrf.neighbour_unary(labels, vertical, out=used)
+    assert written is used
+    assert np.array_equal(written, mrf.neighbour_unary(labels, vertical))
+    turned = mrf.transposed(candidates=False)
+    scratch = np.full(mrf.unary.size, np.nan, dtype=np.float32)
+    assert np.array_equal(
+        chain_primal(mrf, turned, labels, scratch), chain_primal(mrf, turned, labels)
+    )
 
 
 @settings(max_examples=25, deadline=None)
