@@ -67,6 +67,15 @@ class VolumeBlock:
         """Rows of the block."""
         return self.stop - self.start
 
+    def within(self, scratch: np.ndarray | None) -> np.ndarray | None:
+        """The block's volume (D + 1, rows, w) in the first elements of ``scratch`` (a buffer for
+        the largest block, or None): contiguous, as the compiled kernels take it (a slice of
+        the rows is not, and sent a shorter last block to numba's import and JIT)."""
+        if scratch is None:
+            return None
+        shape = (scratch.shape[0], self.rows, scratch.shape[-1])
+        return scratch.reshape(-1)[: shape[0] * shape[1] * shape[2]].reshape(shape)
+
 
 class VolumeFunction(Protocol):
     """A data term as a cost volume: ``(left, right, block, out=None)`` -> costs

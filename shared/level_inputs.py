@@ -264,7 +264,7 @@ class LevelInputs:
         may be a view of it."""
         if not self._cached():
             left, right = self.view_images()[view]
-            out = None if scratch is None else scratch[:, : block.rows]
+            out = block.within(scratch)
             return binned_cost_volume(data_term, left, right, block, self.plan.bin_width, out)
         return self.binned_volumes()[view][:, block.start : block.stop]
 
@@ -353,7 +353,7 @@ class LevelInputs:
             blocks = self._volume_blocks(0, self.view_height)
             scratch = self._scratch(data_term, blocks)
             for block in blocks:
-                out = None if scratch is None else scratch[:, : block.rows]
+                out = block.within(scratch)
                 costs = binned_cost_volume(data_term, left, right, block, bin_width, out)
                 if view is None:
                     view = np.empty((len(costs), self.view_height, self.shape[1]), costs.dtype)

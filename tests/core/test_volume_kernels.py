@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import data_terms, level_inputs, pipeline, threads
+from shared import data_terms, kernels, level_inputs, pipeline, threads
 from shared.config import MatchConfig
 from shared.data_terms import (
     VolumeBlock,
@@ -147,6 +147,25 @@ def test_the_gradient_exponent_reads_the_right_view_shifted():
     out = np.empty((3, 2, 6), np.float32)
     gradient_exponents(left, left, right, right, 2, 0, out)
     np.testing.assert_array_equal(out[1], np.float32(-0.1) * (2 * left))
+
+
+@given(
+    rows=st.integers(1, 8),
+    largest=st.integers(8, 10),
+    max_disparity=st.integers(0, 5),
+    width=st.integers(1, 7),
+)
+def test_a_shorter_blocks_volume_in_the_scratch_is_what_the_compiled_kernels_take(
+    rows, largest, max_disparity, width
+):
+    """A view's last block of rows is often shorter than the scratch buffer's: its volume must
+    still be contiguous, or the compiled kernels pass it to numba (its import and JIT)."""
+    scratch = np.empty((max_disparity + 1, largest, width), np.float32)
+    volume = VolumeBlock(max_disparity, 5, 5 + rows).within(scratch)
+    assert volume.shape == (max_disparity + 1, rows, width)
+    assert np.shares_memory(volume, scratch)
+    assert kernels._fits(volume, (np.dtype(np.float32), 3))
+    assert VolumeBlock(max_disparity, 0, rows).within(None) is None
 
 
 @pytest.mark.parametrize(
