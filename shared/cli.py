@@ -319,7 +319,8 @@ def build_parser(only_match: bool = False) -> argparse.ArgumentParser:
     kernels = commands.add_parser(
         "build-kernels",
         help="compile the matcher's kernels ahead of time (once after installing, ~15 s: each "
-        "qhsm match then starts about a second of CPU sooner; needs a C compiler)",
+        "qhsm match then starts about a second of CPU sooner; needs a C compiler), and qhsm's "
+        "byte code",
     )
     kernels.set_defaults(handler=cmd_build_kernels)
 

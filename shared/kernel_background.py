@@ -141,9 +141,12 @@ def start_if_missing() -> subprocess.Popen[bytes] | None:
 
 def build_recording_failure(directory: Path | None = None) -> Path:
     """:func:`shared.kernel_build.build`, leaving the failure marker if it fails (so no
-    background build retries this source) and removing it when it succeeds."""
+    background build retries this source) and removing it when it succeeds; the packages'
+    byte code first (:func:`shared.bytecode.compile_packages`: no compiler needed)."""
+    from shared.bytecode import compile_packages
     from shared.kernel_build import build
 
+    compile_packages()
     directory = directory or kernels.cache_directory()
     directory.mkdir(parents=True, exist_ok=True)
     try:
