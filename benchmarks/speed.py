@@ -24,11 +24,11 @@ alternation, and reports its median, its peak RSS and before / now.
 
 Each repeat runs ``qhsm match LEFT RIGHT -o OUT --max-disparity D`` (the defaults otherwise; the
 ``qhsm`` script beside this interpreter, as the SGBM script runs this interpreter: not a version
-manager's shim that comes first on the PATH) and the SGBM script, alternating which goes first, each as a fresh process under ``/usr/bin/time -v``
-(wall time, peak RSS). The SGBM script is the baseline of ``shared.baselines`` (its
-``SGBM_PARAMETERS``: colour, 5x5 blocks, P1 = 8*3*25, P2 = 32*3*25, 8 paths (HH); numDisparities
-the next multiple of 16 above the range) in a minimal process: read the views, compute, write
-the PFM. Ratios are of medians.
+manager's shim that comes first on the PATH) and the SGBM script, alternating which goes first,
+each as a fresh process under ``/usr/bin/time -v`` (wall time, peak RSS). The SGBM script is the
+baseline of ``shared.baselines`` (its ``SGBM_PARAMETERS``: colour, 5x5 blocks, P1 = 8*3*25,
+P2 = 32*3*25, 8 paths (HH); numDisparities the next multiple of 16 above the range) in a minimal
+process: read the views, compute, write the PFM. Ratios are of medians.
 
 The service part starts what ``qhsm serve`` starts (``workers.supervisor.Stack``: a control
 worker and a CPU worker, the API in a thread) and times the Tsukuba job from the POST to the
