@@ -17,7 +17,14 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from shared.kernels import SIGNATURES, cache_directory, dispatcher, module_name, pycc_signature
+from shared.kernels import (
+    SIGNATURES,
+    cache_directory,
+    dispatcher,
+    module_name,
+    pycc_signature,
+    target_cpu,
+)
 
 
 def _releasing_gil(flags: type) -> type:
@@ -66,6 +73,7 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
         scratch = stack.enter_context(tempfile.TemporaryDirectory(dir=directory))
         cc = CC(name, source_module=shared.grid_kernels)
         cc.output_dir = scratch
+        cc.target_cpu = target_cpu()  # x86-64-v2 where the CPU has it (its POPCNT, SSE4)
         for kernel in names or tuple(SIGNATURES):
             source = dispatcher(kernel).py_func  # type: ignore[attr-defined]
             cc.export(kernel, pycc_signature(kernel))(source)

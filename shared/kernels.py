@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
+import platform
 import sys
 import threading
 from collections.abc import Callable
@@ -101,6 +102,10 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
 MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels", "shared.volume_kernels")
 SOURCES: Final = tuple(Path(__file__).with_name(f"{m.rpartition('.')[2]}.py") for m in MODULES)
 BUILD: Final = Path(__file__).with_name("kernel_build.py")
+#: The x86-64-v2 level's features as Linux's /proc/cpuinfo names them (``pni``: SSE3).
+X86_64_V2_FLAGS: Final = frozenset(
+    ("cx16", "lahf_lm", "popcnt", "pni", "ssse3", "sse4_1", "sse4_2")
+)
 
 
 def pycc_signature(name: str) -> str:
@@ -110,12 +115,29 @@ def pycc_signature(name: str) -> str:
     return f"{result}({', '.join(written)})"
 
 
+def target_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """LLVM's CPU for the compiled module: ``x86-64-v2`` when this x86-64 Linux machine has its
+    features (SSE4.2, POPCNT: the census kernels' bit count in one instruction; Art x3 ran 1.15x
+    faster than with the generic target), else ``""``, the generic target. Part of the module's
+    name: a machine without them never loads a module built for them (a shared home folder)."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return ""
+    try:
+        with cpuinfo.open(encoding="ascii", errors="replace") as lines:
+            found = (line.partition(":")[2] for line in lines if line.startswith("flags"))
+            flags = set(next(found, "").split())
+    except OSError:
+        return ""
+    return "x86-64-v2" if flags >= X86_64_V2_FLAGS else ""
+
+
 def module_name() -> str:
     """The compiled module's name: a digest of what its code depends on (the kernels' source,
-    the build, the signatures, numba's version, Python's), so that a stale module is never
-    loaded."""
+    the build and its target CPU, the signatures, numba's version, Python's), so that a stale
+    module, or one built for a CPU this one is not, is never loaded."""
     digest = hashlib.sha256(b"".join(source.read_bytes() for source in SOURCES))
     digest.update(BUILD.read_bytes())  # how it was compiled
+    digest.update(target_cpu().encode())
     digest.update(repr(SIGNATURES).encode())
     digest.update(sys.version.encode())
     spec = importlib.util.find_spec("numba")

@@ -136,6 +136,34 @@ def test_a_module_of_other_kernels_is_not_loaded(directory, compiled, tmp_path, 
         assert kernels.load_compiled(directory) is None
 
 
+def test_a_module_built_for_another_cpu_level_is_not_loaded(directory, compiled, monkeypatch):
+    """A home folder shared by two machines: one without x86-64-v2 must not load the module
+    the other built for it (an illegal instruction), nor the other way round."""
+    assert compiled is not None
+    other = "" if kernels.target_cpu() else "x86-64-v2"
+    monkeypatch.setattr(kernels, "target_cpu", lambda: other)
+    assert kernels.load_compiled(directory) is None
+
+
+@pytest.mark.parametrize(
+    ("machine", "flags", "target"),
+    [
+        ("x86_64", "fpu cx16 lahf_lm popcnt pni ssse3 sse4_1 sse4_2 avx2", "x86-64-v2"),
+        ("x86_64", "fpu cx16 lahf_lm pni ssse3 sse4_1 sse4_2", ""),  # no POPCNT
+        ("aarch64", "fp asimd cpuid", ""),
+        ("x86_64", None, ""),  # no /proc/cpuinfo
+    ],
+)
+def test_the_target_is_x86_64_v2_only_where_the_cpu_has_it(
+    tmp_path, monkeypatch, machine, flags, target
+):
+    cpuinfo = tmp_path / "cpuinfo"
+    if flags is not None:
+        cpuinfo.write_text(f"processor\t: 0\nflags\t\t: {flags}\n\nprocessor\t: 1\n")
+    monkeypatch.setattr(kernels.platform, "machine", lambda: machine)
+    assert kernels.target_cpu(cpuinfo) == target
+
+
 def test_the_compiled_wrappers_release_the_gil(directory):
     """The two views solve in two threads: the compiled wrappers must release the GIL around a
     kernel, as the jit ones do (``nogil``); pycc's own flags do not (a module built without
