@@ -117,9 +117,10 @@ def pycc_signature(name: str) -> str:
 
 def target_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
     """LLVM's CPU for the compiled module: ``x86-64-v2`` when this x86-64 Linux machine has its
-    features (SSE4.2, POPCNT: the census kernels' bit count in one instruction; Art x3 ran 1.15x
-    faster than with the generic target), else ``""``, the generic target. Part of the module's
-    name: a machine without them never loads a module built for them (a shared home folder)."""
+    features (SSE4.2, POPCNT: the census kernels' bit count in one instruction; Art x3 1.07x
+    faster than with the generic target, docs/benchmarks.md), else ``""``, the generic target.
+    Part of the module's name: a machine without them never loads a module built for them (a
+    shared home folder)."""
     if platform.machine() not in ("x86_64", "AMD64"):
         return ""
     try:
