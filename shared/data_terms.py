@@ -309,15 +309,14 @@ def window_costs(
 ) -> np.ndarray | None:
     """(block rows, w, ``count``) float32 costs of each pixel's bins ``lowest`` ..
     ``lowest + count - 1`` (:func:`gather_window` of :func:`binned_cost_volume`, the same
-    floats) straight from the compiled kernels, which skip the disparities outside every
-    window; None when the kernels do not build this block (the caller gathers)."""
+    floats) straight from the compiled kernels, a tile at a time over the disparities of the
+    tile's windows (:func:`shared.fused_volume.windows`); None when the kernels do not build this block (the caller gathers)."""
     if data_term != "census-gradient" or not _fused(block, left):
         return None
     inputs = _census_gradient_inputs(left, right, block)
     table = _census_table()
-    return fused_volume.build(
-        inputs, block.rows, block.max_disparity, bin_width, table, lowest=lowest, count=count
-    )
+    reach = AGGREGATION_WINDOW // 2
+    return fused_volume.windows(inputs, block.max_disparity, bin_width, table, lowest, count, reach)
 
 
 def _census_and(

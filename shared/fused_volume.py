@@ -5,6 +5,8 @@ the compiled module builds its volumes without importing numba."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import cv2
 import numpy as np
 
@@ -12,42 +14,105 @@ from shared import kernels
 
 #: Disparities whose gradient terms go through OpenCV's exp in one call.
 CHUNK = 8
+#: Rows and columns of the tiles whose window costs are built each over its own disparities
+#: (:func:`windows`): a tile of a smooth map needs a few dozen of a large range's disparities;
+#: smaller tiles recompute more of their aggregation's margins.
+TILE_ROWS = 32
+TILE_COLUMNS = 128
+
+#: The census codes, the right codes shifted, the left and the right (shifted) gradients.
+Inputs = tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]
+#: A census kernel's call on a chunk: its arguments up to the bin width, then its output's.
+Aggregate = Callable[..., None]
+
+
+def _chunks(
+    inputs: Inputs,
+    max_disparity: int,
+    bin_width: int,
+    table: np.ndarray,
+    disparities: range,
+    aggregate: Aggregate,
+) -> None:
+    """``aggregate`` over ``disparities`` :data:`CHUNK` at a time, their gradient terms through
+    OpenCV's exp in one call between the two kernels."""
+    census_left, census_right, gradients_left, gradients_right = inputs
+    rows, width = census_left.shape
+    terms = np.empty((min(CHUNK, max(len(disparities), 1)), rows, width), np.float32)
+    for first in range(disparities.start, disparities.stop, CHUNK):
+        chunk = terms[: min(CHUNK, disparities.stop - first)]
+        kernels.gradient_exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
+        flat = chunk.reshape(-1, width)
+        cv2.exp(flat, dst=flat)
+        aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width)
 
 
 def build(
-    inputs: tuple,
+    inputs: Inputs,
     block_rows: int,
     max_disparity: int,
     bin_width: int,
     table: np.ndarray,
     volume: np.ndarray | None = None,
-    lowest: np.ndarray | None = None,
-    count: int = 0,
 ) -> np.ndarray:
-    """The block's volume binned at ``bin_width`` into ``volume`` (or a new array), or with
-    ``lowest`` (rows, w) the (rows, w, ``count``) costs of each pixel's window of bins only
-    (the disparities outside every window skipped): the kernels :data:`CHUNK` disparities at a
-    time, their exponents through OpenCV's exp in one call between them."""
-    census_left, census_right, gradients_left, gradients_right = inputs
-    rows, width = census_left.shape
-    start, stop = 0, max_disparity + 1
-    if lowest is not None:
-        out = np.empty((*lowest.shape, count), np.float32)
-        start = int(lowest.min()) * bin_width
-        stop = min(stop, (int(lowest.max()) + count) * bin_width)
-    elif volume is None:
-        out = np.empty((max_disparity // bin_width + 1, block_rows, width), np.float32)
-    else:
-        out = volume
-    terms = np.empty((min(CHUNK, max(stop - start, 1)), rows, width), np.float32)
-    for first in range(start, stop, CHUNK):
-        chunk = terms[: min(CHUNK, stop - first)]
-        kernels.gradient_exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
-        flat = chunk.reshape(-1, width)
-        cv2.exp(flat, dst=flat)
-        codes = (census_left, census_right, chunk, table, max_disparity, first, bin_width)
-        if lowest is None:
-            kernels.census_aggregate(*codes, out)
-        else:
-            kernels.census_window(*codes, lowest, out)
+    """The block's volume binned at ``bin_width`` into ``volume`` (or a new array)."""
+    width = inputs[0].shape[1]
+    if volume is None:
+        volume = np.empty((max_disparity // bin_width + 1, block_rows, width), np.float32)
+    out = volume
+
+    def aggregate(*codes: object) -> None:
+        kernels.census_aggregate(*codes, out)
+
+    _chunks(inputs, max_disparity, bin_width, table, range(max_disparity + 1), aggregate)
+    return out
+
+
+def windows(
+    inputs: Inputs,
+    max_disparity: int,
+    bin_width: int,
+    table: np.ndarray,
+    lowest: np.ndarray,
+    count: int,
+    reach: int,
+) -> np.ndarray:
+    """The (rows, w, ``count``) costs of each pixel's window of bins ``lowest`` (rows, w)
+    onwards, a tile at a time, each tile over the disparities of its own windows only: at a
+    fine level of a large range a block's windows span the range, a tile's a few dozen.
+
+    A tile's kernels read ``reach`` (the aggregation's half width) more columns on each side
+    (the box sums are exact integers: the same floats as one pass over the block) and the
+    right view's columns its disparities reach, with a maximum disparity of the tile's own:
+    the right codes are read at ``max_disparity - d + x``."""
+    rows, width = lowest.shape
+    context = inputs[0].shape[0] - rows  # the aggregation's rows above and below
+    out = np.empty((rows, width, count), np.float32)
+    beyond = np.iinfo(np.int32).max  # no window: the margins' pixels are not written
+    for top in range(0, rows, TILE_ROWS):
+        bottom = min(top + TILE_ROWS, rows)
+        for left in range(0, width, TILE_COLUMNS):
+            right = min(left + TILE_COLUMNS, width)
+            start, stop = max(left - reach, 0), min(right + reach, width)
+            here = lowest[top:bottom, left:right]
+            first = int(here.min()) * bin_width
+            last = min(max_disparity, (int(here.max()) + count) * bin_width - 1)
+            # the right view's columns of disparities first .. last at columns start .. stop
+            shifted = slice(max_disparity - last + start, max_disparity - first + stop)
+            band = slice(top, bottom + context)
+            tile = (
+                np.ascontiguousarray(inputs[0][band, start:stop]),
+                np.ascontiguousarray(inputs[1][band, shifted]),
+                [np.ascontiguousarray(g[band, start:stop]) for g in inputs[2]],
+                [np.ascontiguousarray(g[band, shifted]) for g in inputs[3]],
+            )
+            tile_lowest = np.full((bottom - top, stop - start), beyond, np.int32)
+            tile_lowest[:, left - start : right - start] = here
+            costs = np.empty((bottom - top, stop - start, count), np.float32)
+
+            def aggregate(*codes: object) -> None:
+                kernels.census_window(*codes, tile_lowest, costs)  # noqa: B023 - called here
+
+            _chunks(tile, last, bin_width, table, range(first, last + 1), aggregate)
+            out[top:bottom, left:right] = costs[:, left - start : right - start]
     return out

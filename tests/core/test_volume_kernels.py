@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from shared import data_terms, kernels, level_inputs, pipeline, threads
+from shared import data_terms, fused_volume, kernels, level_inputs, pipeline, threads
 from shared.config import MatchConfig
 from shared.data_terms import (
     VolumeBlock,
@@ -118,6 +118,45 @@ def test_the_window_costs_are_the_gathered_bins(seed, max_disparity, bin_width, 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
         patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+        costs = window_costs(
+            "census-gradient", scene.left, scene.right, block, bin_width, lowest, count
+        )
+    assert costs is not None
+    np.testing.assert_array_equal(costs, gather_window(reference, lowest, count, np.float32))
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    max_disparity=st.integers(1, 48),
+    bin_width=st.integers(1, 4),
+    count=st.integers(1, 6),
+    tile=st.tuples(st.integers(1, 9), st.integers(1, 17)),
+    smooth=st.booleans(),
+)
+def test_window_costs_built_tile_by_tile_are_the_blocks(
+    seed, max_disparity, bin_width, count, tile, smooth
+):
+    """Tiles of any size (a single pixel, narrower than the aggregation's reach), each over its
+    own windows' disparities, give the window costs of the whole block: windows that follow a
+    smooth map (tiles with few disparities) or jump anywhere (tiles with all of them)."""
+    scene = make_scene(56, 24, max_disparity=max_disparity, seed=seed)
+    block = VolumeBlock(max_disparity, 3, 19)
+    bins = max_disparity // bin_width + 1
+    count = min(count, bins)
+    rng = np.random.default_rng(seed)
+    shape = (block.rows, scene.left.shape[1])
+    if smooth:  # a slanted plane
+        plane = np.add.outer(np.arange(shape[0]), np.arange(shape[1])) * (bins / sum(shape))
+        lowest = np.minimum(plane.astype(np.int32), bins - count)
+    else:
+        lowest = rng.integers(0, bins - count + 1, shape).astype(np.int32)
+    reference = bin_minimum(both(scene.left, scene.right, block)[0], bin_width)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+        patch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+        patch.setattr(fused_volume, "TILE_ROWS", tile[0])
+        patch.setattr(fused_volume, "TILE_COLUMNS", tile[1])
         costs = window_costs(
             "census-gradient", scene.left, scene.right, block, bin_width, lowest, count
         )
