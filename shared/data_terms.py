@@ -155,12 +155,14 @@ def census(gray: np.ndarray) -> np.ndarray:
     padded = np.pad(gray, ((0, 0), (reach, reach)), mode="edge")
     centre = gray[reach : rows - reach]
     code = np.zeros(centre.shape, dtype=np.uint32)
+    darker = np.empty(centre.shape, dtype=bool)  # in place: no temporary array per neighbour
     for dy in range(-reach, reach + 1):
         for dx in range(-reach, reach + 1):
             if dy == 0 and dx == 0:
                 continue
             neighbour = padded[reach + dy : rows - reach + dy, reach + dx : reach + dx + width]
-            code = (code << np.uint32(1)) | (neighbour < centre)
+            np.left_shift(code, np.uint32(1), out=code)
+            np.bitwise_or(code, np.less(neighbour, centre, out=darker), out=code)
     return code
 
 
@@ -310,7 +312,8 @@ def window_costs(
     """(block rows, w, ``count``) float32 costs of each pixel's bins ``lowest`` ..
     ``lowest + count - 1`` (:func:`gather_window` of :func:`binned_cost_volume`, the same
     floats) straight from the compiled kernels, a tile at a time over the disparities of the
-    tile's windows (:func:`shared.fused_volume.windows`); None when the kernels do not build this block (the caller gathers)."""
+    tile's windows (:func:`shared.fused_volume.windows`); None when the kernels do not build
+    this block (the caller gathers)."""
     if data_term != "census-gradient" or not _fused(block, left):
         return None
     inputs = _census_gradient_inputs(left, right, block)
