@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from shared.config import DataTerm
+from shared.data_terms import bin_minimum
 from shared.level_inputs import LevelInputs
 from shared.pyramid import LevelPlan
 from shared.threads import each_beside
@@ -24,9 +25,11 @@ from shared.threads import each_beside
 POOL_PLANES = 4
 
 
-def pool(costs: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+def pool(costs: np.ndarray, shape: tuple[int, int], ratio: int = 1) -> np.ndarray:
     """(bins, H, W) costs averaged over blocks onto (bins, h, w), float32 (INTER_AREA: exact
-    block means for an integer factor, area weights otherwise).
+    block means for an integer factor, area weights otherwise); with ``ratio`` > 1, of the
+    minima of every ``ratio`` bins (:func:`shared.data_terms.bin_minimum`), taken
+    :data:`POOL_PLANES` at a time: the wider bins of a whole view are never held.
 
     Parameters
     ----------
@@ -34,16 +37,20 @@ def pool(costs: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         One view's bin costs at full resolution.
     shape : tuple of int
         (h, w) of the coarse grid.
+    ratio : int, optional
+        Bins of ``costs`` per pooled bin (the last may hold fewer).
 
     Returns
     -------
     numpy.ndarray
-        (bins, h, w) float32.
+        (ceil(bins / ratio), h, w) float32.
     """
     height, width = shape
-    out = np.empty((costs.shape[0], height, width), dtype=np.float32)
-    for start in range(0, costs.shape[0], POOL_PLANES):
-        planes = costs[start : start + POOL_PLANES].astype(np.float32, copy=False)
+    bins = -(-costs.shape[0] // ratio)
+    out = np.empty((bins, height, width), dtype=np.float32)
+    for start in range(0, bins, POOL_PLANES):
+        wider = bin_minimum(costs[start * ratio : (start + POOL_PLANES) * ratio], ratio)
+        planes = wider.astype(np.float32, copy=False)
         stacked = np.ascontiguousarray(planes.transpose(1, 2, 0))
         resized = cv2.resize(stacked, (width, height), interpolation=cv2.INTER_AREA)
         out[start : start + len(planes)] = resized.reshape(height, width, -1).transpose(2, 0, 1)
@@ -97,6 +104,10 @@ def pooled_costs(
     numpy.ndarray
         float32 (views, bins, h, w).
     """
+    if fine.volumes is not None and plan.bin_width % fine.volume_bin_width == 0:
+        # the run's cache, pooled a few of the level's bins at a time
+        ratio = plan.bin_width // fine.volume_bin_width
+        return np.stack(each_beside(pool, [(v, shape, ratio) for v in fine.volumes]))
     level = replace(fine, plan=plan.model_copy(update={"downsample": 1}))
     views = [(costs, shape) for costs in level.level_bin_costs(data_term)]
     return np.stack(each_beside(pool, views))

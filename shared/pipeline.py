@@ -57,6 +57,12 @@ levels, and the level's :data:`shared.inference.BundleProgress`."""
 #: time -16 to -27 %; a 4 MP / 64 px pair's at width 8 (2 levels of 5; peak RSS 1.56 GB, where
 #: 640 MiB, width 4 for 3 levels, peaked at 2.08 GB).
 VOLUME_CACHE_BYTES = 512 * 2**20
+#: A cache that only coarse-grid levels read may be this large: it is released before the first
+#: full-resolution level, whose dual state makes the run's peak, and the coarse levels pool it
+#: a few bins at a time (:func:`shared.coarse_grid.pooled_costs`). A 4 MP / 256 px pair's bins
+#: of 8 (1007 MiB) serve its four coarse levels, where bins of 32 served two and the bins of 16
+#: and 8 were built again (three passes over every disparity).
+COARSE_VOLUME_CACHE_BYTES = 1024 * 2**20
 
 
 @dataclass
@@ -410,7 +416,11 @@ def run_pipeline(
         assert fine is not None  # set at index 0
         fine.volumes, fine.volume_bin_width = volumes, volume_bin_width
         coarser = inputs if inputs is not None else fine
+        coarser.volumes = volumes  # released by the coarser level too (it lives till prepared)
         inputs = prepare_level(left, right, config, plan, level_map, coarser, fine)
+        if inputs.pooled is not None and not _read_after(plans, plan.index, volume_bin_width):
+            # a coarse level pooled the cache for the last time: released before its solve
+            volumes = fine.volumes = coarser.volumes = None
         inputs.volumes, inputs.volume_bin_width = volumes, volume_bin_width
         if progress is None:
             solution = solve_level(inputs, config)
@@ -462,14 +472,22 @@ def confidence_map(
     return confidence if validity is None else np.where(validity, confidence, 0.0)
 
 
+def _read_after(plans: list[LevelPlan], index: int, bin_width: int) -> bool:
+    """Whether a level after ``index``, or the finish (the full volume's sub-pixel fit and
+    confidence, ``bin_width`` 1), reads a cache binned at ``bin_width``."""
+    later = plans[index + 1 :]
+    return bin_width == 1 or any(plan.bin_width % bin_width == 0 for plan in later)
+
+
 def _cached_volumes(
     inputs: LevelInputs, config: MatchConfig, plans: list[LevelPlan]
 ) -> tuple[list[np.ndarray] | None, int]:
     """Every view's cost volume, built once for the levels of the bin pyramid that read it, and
     its bin width: the full volumes (width 1) when they fit :data:`VOLUME_CACHE_BYTES`, else the
     volumes binned at the finest level width that fits, which every coarser level reads too
-    (finer levels build their costs per block). ``(None, 1)`` when the pyramid does not share a
-    volume between levels or no width below the coarsest fits."""
+    (finer levels build their costs per block); :data:`COARSE_VOLUME_CACHE_BYTES` when only
+    coarse-grid levels read it. ``(None, 1)`` when the pyramid does not share a volume between
+    levels or no width below the coarsest fits."""
     if config.pyramid is not PyramidKind.BINS or config.data_term is DataTerm.SQUARED:
         return None, 1
     height, width = inputs.view_height, inputs.shape[1]
@@ -478,7 +496,10 @@ def _cached_volumes(
         if bin_width > 1 and bin_width >= plans[0].bin_width:
             break  # the coarsest level alone gains nothing
         bins = max_disparity // bin_width + 1
-        if bins * height * width * 4 * inputs.views > VOLUME_CACHE_BYTES:
+        readers = [plan for plan in plans if plan.bin_width % bin_width == 0]
+        coarse = bin_width > 1 and all(plan.downsample > 1 for plan in readers)
+        budget = COARSE_VOLUME_CACHE_BYTES if coarse else VOLUME_CACHE_BYTES
+        if bins * height * width * 4 * inputs.views > budget:
             continue
         if bin_width == 1:  # the full volumes (the sub-pixel fit and the confidence read them)
             whole = VolumeBlock(max_disparity, 0, height)

@@ -152,6 +152,40 @@ def test_the_map_is_the_same_whatever_volume_is_cached(monkeypatch, cache_bytes,
     np.testing.assert_array_equal(disparity, reference)
 
 
+def test_a_cache_only_coarse_grids_read_may_be_larger_and_goes_before_their_last_solve(
+    monkeypatch,
+):
+    """With no room for a cache the finer levels would read, the bins of 8 that only the two
+    coarse-grid levels (16 and 8, on grids of a quarter and a half) read are cached under
+    ``COARSE_VOLUME_CACHE_BYTES`` and released once the last of them has pooled them, before
+    its solve: the map of a run without any cache, bit for bit."""
+    scene = make_scene(40, 240, max_disparity=106, seed=3)
+    config = MatchConfig(max_disparity=106)
+    plans = plan_run(scene.left, scene.right, config)[1]
+    assert [(plan.bin_width, plan.downsample) for plan in plans][:3] == [(16, 4), (8, 2), (4, 1)]
+    monkeypatch.setattr(pipeline, "VOLUME_CACHE_BYTES", 0)
+    monkeypatch.setattr(pipeline, "COARSE_VOLUME_CACHE_BYTES", 0)
+    reference = run_pipeline(scene.left, scene.right, config).disparity
+    monkeypatch.setattr(pipeline, "COARSE_VOLUME_CACHE_BYTES", 2**30)
+    built, held = [], []
+    original = pipeline._cached_volumes
+
+    def recorded(*args):
+        volumes, width = original(*args)
+        built.append(None if volumes is None else width)
+        return volumes, width
+
+    def solve(inputs, config, **options):
+        held.append((inputs.plan.bin_width, inputs.volumes is not None))
+        return solve_level_in_process(inputs, config, **options)
+
+    monkeypatch.setattr(pipeline, "_cached_volumes", recorded)
+    disparity = run_pipeline(scene.left, scene.right, config, solve).disparity
+    assert built == [8]
+    assert held == [(16, True), (8, False), (4, False), (2, False), (1, False)]
+    np.testing.assert_array_equal(disparity, reference)
+
+
 @settings(max_examples=200, deadline=None)
 @given(
     max_disparity=st.integers(1, 300),

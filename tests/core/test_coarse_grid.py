@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from shared import pyramid
 from shared.coarse_grid import pool, pooled_costs
 from shared.config import MatchConfig
+from shared.data_terms import bin_minimum
 from shared.pipeline import fine_views, match_views, plan_run, prepare_level, run_pipeline
 from shared.synthetic import make_scene
 
@@ -53,6 +54,22 @@ def test_pooling_averages_each_block_of_every_bin(bins, factor, cells, seed):
     means = costs.reshape(bins, height, factor, width, factor).mean(axis=(2, 4))
     assert pooled.shape == (bins, height, width) and pooled.dtype == np.float32
     np.testing.assert_allclose(pooled, means, rtol=1e-5, atol=1e-6)
+
+
+@settings_(max_examples=30, deadline=None)
+@given(
+    bins=st.integers(1, 23),
+    ratio=st.integers(1, 8),
+    factor=st.sampled_from([1, 2, 3]),
+    seed=st.integers(0, 2**16),
+)
+def test_pooling_wider_bins_a_few_at_a_time_is_pooling_their_minima(bins, ratio, factor, seed):
+    """:func:`pool` with a ratio (the cache's bins, the level's own never held whole) gives the
+    floats of pooling :func:`bin_minimum` of the whole volume: chunks of
+    :data:`POOL_PLANES` wider bins, a narrower last bin."""
+    costs = np.random.default_rng(seed).random((bins, 3 * factor, 5 * factor), np.float32)
+    expected = pool(bin_minimum(costs, ratio), (3, 5))
+    np.testing.assert_array_equal(pool(costs, (3, 5), ratio), expected)
 
 
 @pytest.fixture(scope="module")
