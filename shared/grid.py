@@ -500,3 +500,56 @@ def chain_primal(
     extra = turned.neighbour_unary(rows, out=scratch.reshape(turned.unary.shape))
     refined, _ = solve_chains(turned, False, extra, transpose=True)
     return refined
+
+
+def chain_sweeps(mrf: GridMRF, turned: GridMRF, labels: np.ndarray, sweeps: int = 1) -> np.ndarray:
+    """Lower a labelling's energy by exact chain solves: the even rows given all other labels,
+    then the odd rows, then the columns likewise (as the rows of ``turned``, the transpose of
+    ``mrf`` with its candidates). No two even rows share an edge, so their chains together are
+    the exact minimum of E over those rows: E never rises. Why: it measures how far a labelling
+    (dual decomposition's) is from the optimum its bound allows (benchmarks/primal_gap.py).
+
+    Parameters
+    ----------
+    mrf : GridMRF
+        The grid.
+    turned : GridMRF
+        ``mrf.transposed()``.
+    labels : numpy.ndarray
+        (h, w) candidate indices to start from (not modified).
+    sweeps : int, optional
+        Rounds of the four half-grids.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w) int32 candidate indices, E at most that of ``labels``.
+    """
+    labels = np.array(labels, dtype=np.int32)
+    for _ in range(sweeps):
+        labels = _alternate_chains(mrf, labels)
+        labels = _alternate_chains(turned, np.ascontiguousarray(labels.T)).T.copy()
+    return labels
+
+
+def _alternate_chains(mrf: GridMRF, labels: np.ndarray) -> np.ndarray:
+    """``labels`` with its even rows, then its odd rows, each set to their chains' optimum given
+    the rows above and below (modified in place and returned)."""
+    for parity in (0, 1):
+        rows = slice(parity, None, 2)
+        extra = mrf.neighbour_unary(labels)[rows]
+        half = GridMRF(
+            unary=np.ascontiguousarray(mrf.unary[rows]),
+            candidates=(
+                mrf.candidates
+                if mrf.first is not None
+                else np.ascontiguousarray(mrf.candidates[rows])
+            ),
+            weight_h=np.ascontiguousarray(mrf.weight_h[rows]),
+            weight_v=np.zeros((0, mrf.shape[1])),  # row chains read no vertical edge
+            slope=mrf.slope,
+            truncation=mrf.truncation,
+            first=None if mrf.first is None else np.ascontiguousarray(mrf.first[rows]),
+        )
+        labels[rows], _ = solve_chains(half, extra=np.ascontiguousarray(extra))
+    return labels

@@ -16,8 +16,10 @@ from shared.encodings import get_codec
 from shared.energy import mrf_costs, mrf_energy
 from shared.grid import (
     GridMRF,
+    _alternate_chains,
     boundary_unary,
     chain_primal,
+    chain_sweeps,
     dual_decomposition,
     grid_mrf,
     solve_chains,
@@ -126,6 +128,39 @@ def test_neighbour_costs_written_into_a_used_buffer_are_a_fresh_arrays(seed, win
     assert np.array_equal(
         chain_primal(mrf, turned, labels, scratch), chain_primal(mrf, turned, labels)
     )
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), windows=st.booleans(), row=st.sampled_from([1, 3]))
+def test_a_half_sweep_sets_rows_to_their_best_labels_given_the_rows_around_them(seed, windows, row):
+    """The odd rows share no edge, so their chains given the even rows are the exact minimum
+    of E over them: after the sweep's row pass (even rows, then odd), no labelling of an odd
+    row, the rest fixed, does better."""
+    mrf = random_grid(seed, 5, 3, labels=3, windows=windows)
+    start = np.random.default_rng(seed).integers(0, 3, (5, 3)).astype(np.int32)
+    after = _alternate_chains(mrf, start.copy())
+    energy = mrf.energy(after)
+    for choice in itertools.product(range(3), repeat=3):
+        other = after.copy()
+        other[row] = choice
+        assert energy <= mrf.energy(other) + 1e-6
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), windows=st.booleans())
+def test_chain_sweeps_never_raise_the_energy_and_reach_the_optimum_of_a_chain(seed, windows):
+    mrf = random_grid(seed, 6, 7, labels=4, windows=windows)
+    turned = mrf.transposed()
+    labels = np.random.default_rng(seed).integers(0, 4, (6, 7)).astype(np.int32)
+    energies = [mrf.energy(labels)]
+    for _ in range(3):
+        labels = chain_sweeps(mrf, turned, labels)
+        energies.append(mrf.energy(labels))
+    assert all(b <= a + 1e-6 for a, b in itertools.pairwise(energies))
+    assert np.array_equal(chain_sweeps(mrf, turned, labels, sweeps=0), labels)
+    row = random_grid(seed, 1, 5, labels=3, windows=windows)  # one chain: one sweep is exact
+    swept = chain_sweeps(row, row.transposed(), np.zeros((1, 5), np.int32))
+    assert row.energy(swept) == pytest.approx(brute_force(row))
 
 
 @settings(max_examples=25, deadline=None)
