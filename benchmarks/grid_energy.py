@@ -20,7 +20,8 @@ import time
 
 from shared.config import MatchConfig
 from shared.datasets import Scene, default_middlebury_dir, load_scene
-from shared.grid import dual_decomposition
+from shared.grid import GridMRF, dual_decomposition
+from shared.inference import solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.metrics import evaluate
 from shared.pipeline import run_pipeline
@@ -55,6 +56,25 @@ def find_scene(name: str) -> Scene:
         candidates = [p for p in (folder.parent / dataset).iterdir() if p.name.lower() == scene]
         return load_scene(candidates[0])
     return load_scene(folder / name)
+
+
+def level_grids(name: str) -> tuple[MatchConfig, list[tuple[int, int, GridMRF]]]:
+    """The default run's grid MRFs of a scene (range given): (bin width, view, grid) for every
+    level and view, as ``exact`` minimised them."""
+    scene = find_scene(name)
+    left, right = scene.load()
+    config = MatchConfig(max_disparity=scene.ground_truth_range())
+    grids: list[tuple[int, int, GridMRF]] = []
+
+    def solve_level(inputs, config, **kwargs):
+        height = inputs.view_height
+        for view in range(inputs.views):
+            grid = inputs.grid(config, view * height, (view + 1) * height)
+            grids.append((inputs.plan.bin_width, view, grid))
+        return solve_level_in_process(inputs, config, **kwargs)
+
+    run_pipeline(left, right, config, solve_level)
+    return config, grids
 
 
 def run(scene: Scene, solver: str, processes: int, certify: bool = True) -> list[str]:

@@ -19,29 +19,8 @@ from __future__ import annotations
 
 import argparse
 
-from benchmarks.grid_energy import find_scene
-from shared.config import MatchConfig
-from shared.grid import GridMRF, chain_sweeps, dual_decomposition
-from shared.inference import solve_level_in_process
-from shared.pipeline import run_pipeline
-
-
-def level_grids(name: str) -> tuple[MatchConfig, list[tuple[int, int, GridMRF]]]:
-    """The default run's grids of a scene: (bin width, view, grid) per level and view."""
-    scene = find_scene(name)
-    left, right = scene.load()
-    config = MatchConfig(max_disparity=scene.ground_truth_range())
-    grids: list[tuple[int, int, GridMRF]] = []
-
-    def solve_level(inputs, config, **kwargs):
-        height = inputs.view_height
-        for view in range(inputs.views):
-            grid = inputs.grid(config, view * height, (view + 1) * height)
-            grids.append((inputs.plan.bin_width, view, grid))
-        return solve_level_in_process(inputs, config, **kwargs)
-
-    run_pipeline(left, right, config, solve_level)
-    return config, grids
+from benchmarks.grid_energy import level_grids
+from shared.grid import chain_sweeps, dual_decomposition
 
 
 def rows(name: str, max_sweeps: int, every: bool) -> list[str]:

@@ -17,12 +17,10 @@ import argparse
 import statistics
 import time
 
-from benchmarks.grid_energy import find_scene
+from benchmarks.grid_energy import level_grids
 from shared.config import MatchConfig
 from shared.grid import DualResult, GridMRF, dual_decomposition
 from shared.grid_inference import trws
-from shared.inference import solve_level_in_process
-from shared.pipeline import run_pipeline
 
 
 def timed(method, grid: GridMRF, config: MatchConfig) -> tuple[float, DualResult]:
@@ -32,18 +30,8 @@ def timed(method, grid: GridMRF, config: MatchConfig) -> tuple[float, DualResult
 
 
 def scene_row(name: str, repeats: int) -> str:
-    scene = find_scene(name)
-    left, right = scene.load()
-    config = MatchConfig(max_disparity=scene.ground_truth_range())
-    grids: list[GridMRF] = []
-
-    def solve_level(inputs, config, **kwargs):
-        height = inputs.view_height
-        for view in range(inputs.views):
-            grids.append(inputs.grid(config, view * height, (view + 1) * height))
-        return solve_level_in_process(inputs, config, **kwargs)
-
-    run_pipeline(left, right, config, solve_level)
+    config, levels = level_grids(name)
+    grids = [grid for _, _, grid in levels]
     seconds: dict[str, list[float]] = {"dd": [], "trws": []}
     results: dict[str, list[DualResult]] = {}
     methods = {"dd": dual_decomposition, "trws": trws}
