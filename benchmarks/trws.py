@@ -1,6 +1,6 @@
 """TRW-S against the subgradient dual decomposition on the very level energies of real scenes.
 
-    python benchmarks/trws.py [--scenes tsukuba,cones,middlebury2006/aloe] [--repeats 3]
+    python -m benchmarks.trws [--scenes tsukuba,cones,middlebury2006/aloe] [--repeats 3]
 
 Runs the default pipeline (``exact``, ``grid_inference=dd``, range given) and, on every level
 and view, minimises the same grid MRF with :func:`shared.grid.dual_decomposition` and
