@@ -130,6 +130,13 @@ class LevelConfig(BaseModel):
         "a bin spans several disparities and the data term is flatter",
     )
     coarse_levels: int = Field(3, ge=0, description="Bin pyramid: levels that take coarse_slope")
+    finest_candidates: int | None = Field(
+        None,
+        ge=2,
+        le=64,
+        description="Bin pyramid: the finest level's window (bin width 1; unset: candidates), "
+        "which only refines the two disparities of its coarser bin",
+    )
 
 
 def paper_levels() -> list[LevelConfig]:
@@ -146,12 +153,14 @@ def paper_levels() -> list[LevelConfig]:
 
 
 def accurate_levels() -> list[LevelConfig]:
-    """The bin pyramid's level template: 6 candidate bins, 0.1 per bin (0.2 on the three
-    coarsest levels) capped at 0.4, times 0.3 across gray steps above 0.06."""
+    """The bin pyramid's level template: 6 candidate bins (4 disparities at the finest level:
+    its coarser bin's two and one either side), 0.1 per bin (0.2 on the three coarsest levels)
+    capped at 0.4, times 0.3 across gray steps above 0.06."""
     return [
         LevelConfig(
             downsample=1,
             candidates=6,
+            finest_candidates=4,
             edge_threshold=0.06,
             slope=0.1,
             truncation=0.4,

@@ -16,7 +16,8 @@ bins (accurate)
     (16-20 px: widths 4, 2, 1; 60 px: 8, 4, 2, 1). The coarsest level takes every bin; a finer
     level takes ``K`` consecutive bins starting ``K/2 - 1`` below the lower child 2b of the
     coarser estimate b (for K = 6: {2b-2, ..., 2b+3}), shifted to stay in range, so both
-    children of the coarser bin are always candidates.
+    children of the coarser bin are always candidates. The finest level (width 1) may take a
+    narrower window (``finest_candidates``; the accurate preset's 4: {2b-1, ..., 2b+2}).
 
 Ground truth is never read here.
 """
@@ -83,7 +84,10 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
     plans = []
     for index, width in enumerate(widths):
         bins = bin_count(max_disparity, width)
-        count = bins if index == 0 else min(template.candidates, bins)
+        window = template.candidates
+        if width == 1 and template.finest_candidates is not None:
+            window = template.finest_candidates
+        count = bins if index == 0 else min(window, bins)
         mrf = template
         if template.coarse_slope is not None and index < template.coarse_levels:
             mrf = template.model_copy(update={"slope": template.coarse_slope})

@@ -99,6 +99,18 @@ def test_finer_bins_follow_the_coarser_bin(scene):
     assert np.all(inputs.initial_labels == 2)  # bin 4 of width 2 = 8..9 px
 
 
+def test_the_finest_level_refines_its_coarser_bin_by_one_disparity_either_side(scene):
+    config = MatchConfig(max_disparity=16)  # bins of 4, 2, 1 px; the accurate preset's windows
+    assert [plan.candidates for plan in plan_run(scene.left, scene.right, config)[1]] == [5, 6, 4]
+    coarse = np.full((2 * 96, 128), 4.0, dtype=np.float32)  # bin 4 of width 2: 8..9 px
+    inputs = _level(scene, config, 2, coarse)
+    np.testing.assert_array_equal(inputs.candidates[0, 0], [7, 8, 9, 10])
+    assert np.all(inputs.initial_labels == 1)  # 8 px, the lower child
+    template = config.levels[0].model_copy(update={"finest_candidates": None})
+    unset = MatchConfig(max_disparity=16, levels=[template])  # every finer level: candidates
+    assert [plan.candidates for plan in plan_run(scene.left, scene.right, unset)[1]] == [5, 6, 6]
+
+
 def test_assemble_refuses_missing_or_doubled_rows(scene):
     config = MatchConfig(max_disparity=16)
     inputs = _level(scene, config, 0)
