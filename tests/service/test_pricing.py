@@ -35,7 +35,9 @@ def no_matcher_here(monkeypatch):
 
 
 def test_a_worker_computes_the_estimate_and_a_repeat_is_cached(client, no_matcher_here):
-    params = {"params": json.dumps({"solver": "qpu-sim", "max_disparity": "auto", "seed": 5})}
+    # every row bundle sent (no certified tiles): QPU time to meter, whatever the host settles
+    job = {"solver": "qpu-sim", "max_disparity": "auto", "seed": 5, "certify_tiles": False}
+    params = {"params": json.dumps(job)}
     asked = client.post("/v1/estimate", files=FILES, data=params)
     assert asked.status_code == 202, asked.text
     assert asked.json()["state"] in ("pending", "running", "done")
