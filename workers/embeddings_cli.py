@@ -15,8 +15,8 @@ import argparse
 
 from shared.cli_options import CommandError, settings_from_args
 
-#: Candidate counts warmed by default: the accurate preset's finer levels take 5 and 6 (4 and 5
-#: per pixel with domain-wall), a coarsest level of a small range 4.
+#: Candidate counts warmed by default: the accurate preset's finer levels take 6 and its finest 4
+#: (5 and 3 variables per pixel with domain-wall), a coarsest level of a small range 4 or 5.
 DEFAULT_CANDIDATES = (4, 5, 6)
 
 
