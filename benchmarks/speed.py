@@ -176,7 +176,9 @@ def qhsm_command(pair: Pair, out: Path, on_path: bool = True) -> list[str]:
     """``qhsm match`` on the pair with the defaults and the range given (``on_path`` False: the
     CLI of whatever ``shared`` the PYTHONPATH finds first, not the installed script)."""
     qhsm = installed_qhsm() if on_path else None
-    program = [qhsm] if qhsm else [sys.executable, "-c", "from shared.cli import main; main()"]
+    # what the script runs (console; main in checkouts from before it)
+    entry = "import shared.cli as c; raise SystemExit(getattr(c, 'console', c.main)())"
+    program = [qhsm] if qhsm else [sys.executable, "-c", entry]
     views = [str(pair.left), str(pair.right)]
     return [*program, "match", *views, "-o", str(out), "--max-disparity", str(pair.max_disparity)]
 

@@ -11,4 +11,5 @@ import os
 # system time in page faults for no user-time gain (docs/benchmarks.md, "Huge pages").
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
+#: qhsm's version, the one place it is written (pyproject.toml reads it at install).
 __version__ = "0.1.0"
