@@ -15,6 +15,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from shared.threads import each_beside
+
 #: Rec. 709 luma weights for (R, G, B).
 REC709 = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 #: 16-bit PNG disparity maps store disparity x this factor.
@@ -234,7 +236,8 @@ def load_pair(left: str | Path, right: str | Path) -> tuple[np.ndarray, np.ndarr
     """Read the rectified stereo pair ``left``, ``right`` as two float32 views of the same size,
     both colour or both gray; a missing or unusable file, or different sizes, are an
     :class:`ImageError`."""
-    left_image, right_image = load_view(left), load_view(right)
+    # the two decodes side by side (OpenCV releases the GIL): Art x3's 1.5 MP PNGs take 50 ms each
+    left_image, right_image = each_beside(load_view, [(left,), (right,)])
     check_pair(left_image, right_image, (str(left), str(right)))
     return as_pair_of_same_kind(left_image, right_image)
 
