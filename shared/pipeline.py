@@ -159,9 +159,10 @@ def _plan_beside(
     left: np.ndarray, right: np.ndarray, config: MatchConfig
 ) -> tuple[Callable[[], RangeEstimate], list[LevelPlan]]:
     """:func:`plan_run`, with the views' check left running in a thread when the range is
-    given (the plans do not depend on it; it costs about as much as the first level's volumes,
-    which it overlaps): a getter of the estimate, which issues the check's
-    :class:`~shared.disparity_range.ViewsWarning` when it has one, and the plans."""
+    given (the plans do not depend on it; it costs about as much as the first level's volumes
+    and inputs, which it overlaps: the run waits for it only before the first solve): a getter
+    of the estimate, which issues the check's :class:`~shared.disparity_range.ViewsWarning`
+    when it has one, and the plans."""
     if not isinstance(config.max_disparity, int):
         estimate, plans = plan_run(left, right, config)
         return lambda: estimate, plans
@@ -408,9 +409,6 @@ def run_pipeline(
         if plan.index == 0:  # the full-resolution views and their volumes, before any level
             fine = fine_views(left, right, config, plan)
             volumes, volume_bin_width = _cached_volumes(fine, config, plans)
-            estimate = checked()  # the views' check, done beside the volumes
-            if estimate.warning and not force:
-                raise ViewsRefusedError(estimate.warning)
         elif plan.bin_width < volume_bin_width:
             volumes = None  # finer than the cached bins: no later level reads them
         assert fine is not None  # set at index 0
@@ -422,6 +420,10 @@ def run_pipeline(
             # a coarse level pooled the cache for the last time: released before its solve
             volumes = fine.volumes = coarser.volumes = None
         inputs.volumes, inputs.volume_bin_width = volumes, volume_bin_width
+        if plan.index == 0:  # the views' check, done beside the volumes and these inputs
+            estimate = checked()
+            if estimate.warning and not force:
+                raise ViewsRefusedError(estimate.warning)
         if progress is None:
             solution = solve_level(inputs, config)
         else:

@@ -62,7 +62,8 @@ def _at_most(work: float, limit: float, problem: str) -> None:
 class SolverParams(BaseModel):
     """Parameters every solver accepts: ``warm_start`` steers the pipeline, not the solver."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    # schemas built at first use: a run validates one solver's at most (qhsm match's start)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, defer_build=True)
 
     warm_start: bool = Field(False, description="Start each bundle from the coarser level")
 

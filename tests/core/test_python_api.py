@@ -96,6 +96,28 @@ def test_version_option():
     assert completed.stdout.strip() == f"qhsm {qhsm.__version__}"
 
 
+def test_the_installed_version_is_the_one_written_in_shared():
+    # pyproject.toml reads shared.__version__ at install: the distribution says the same
+    from importlib.metadata import version
+
+    import shared
+
+    assert version("qhsm") == shared.__version__ == qhsm.__version__
+
+
+def test_the_console_script_returns_mains_status_with_its_objects_frozen(monkeypatch):
+    import gc
+
+    from shared import cli
+
+    monkeypatch.setattr(cli, "main", lambda: 7)
+    try:
+        assert cli.console() == 7
+        assert gc.get_freeze_count() > 0  # the exit's collection skips them
+    finally:
+        gc.unfreeze()
+
+
 def test_validity_and_confidence_maps_are_written_beside_the_disparity(scene_folder, capsys):
     from shared.images import load_disparity, load_mask
 
