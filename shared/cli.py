@@ -458,14 +458,19 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 def _run(argv: Sequence[str] | None) -> int:
     from shared.threads import limit_threads, thread_budget
 
+    arguments = sys.argv[1:] if argv is None else list(argv)
+    only_match = arguments[:1] == ["match"]
+    if only_match:
+        # pydantic looks for plugins at its first model by reading every installed
+        # distribution's entry points (6 ms here, more with more packages); match loads none
+        os.environ.setdefault("PYDANTIC_DISABLE_PLUGINS", "__all__")
     limit_threads(thread_budget())  # one process: every core, once (before numba loads)
     from shared.cli_options import CommandError
     from shared.images import ImageError
     from shared.solvers import SolverError, UnknownSolverError
 
     warnings.showwarning = _show_warning
-    arguments = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(only_match=arguments[:1] == ["match"]).parse_args(arguments)
+    args = build_parser(only_match=only_match).parse_args(arguments)
     try:
         return args.handler(args)
     except (
