@@ -151,3 +151,19 @@ def census_window(
                             costs[row, x, j] = value
                         else:
                             costs[row, x, j] = min(costs[row, x, j], value)
+
+
+@numba.njit(cache=True, nogil=True)
+def lowest_costs(volume, outside, skip_near, index, minimum):  # pragma: no cover - jit
+    """Each pixel's least cost over the disparities of ``volume`` (D, h, w) into ``minimum``
+    and the first disparity reaching it into ``index`` (set beforehand: +inf and 0), leaving
+    out the disparities within 1 of ``outside`` when ``skip_near``: plane after plane, strictly
+    lower replaces, as :func:`shared.disparity_range.lowest`'s NumPy loop (the views' check)."""
+    count, rows, width = volume.shape
+    for d in range(count):
+        for y in range(rows):
+            for x in range(width):
+                value = volume[d, y, x]
+                if value < minimum[y, x] and (not skip_near or abs(outside[y, x] - d) > 1):
+                    minimum[y, x] = value
+                    index[y, x] = d

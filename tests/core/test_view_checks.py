@@ -6,9 +6,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from shared import kernels
 from shared.disparity_range import (
     ViewsWarning,
     lowest,
@@ -19,15 +20,20 @@ from shared.disparity_range import (
 from shared.ground_truth import CONVENTIONAL_SCALES, ScaleNotInferredError, infer_gt_scale
 
 
-@settings(max_examples=60, deadline=None)
+@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(
     shape=st.tuples(st.integers(1, 9), st.integers(1, 5), st.integers(1, 6)),
     levels=st.integers(1, 4),
     seed=st.integers(0, 2**16),
 )
-def test_lowest_is_numpys_first_argmin_and_minimum(shape, levels, seed):
+def test_lowest_is_numpys_first_argmin_and_minimum(monkeypatch, compiled, shape, levels, seed):
     """The views' check's reduction over disparities: numpy's argmin (the first of ties: few
-    cost levels make many) and min, and the runner-up outside +-1 of the argmin."""
+    cost levels make many) and min, and the runner-up outside +-1 of the argmin; by the kernel
+    and by the NumPy loop alike."""
+    monkeypatch.setattr(kernels, "ready", lambda *chosen: compiled)
     volume = np.random.default_rng(seed).integers(0, levels, shape).astype(np.float32)
     index, minimum = lowest(volume)
     assert np.array_equal(index, volume.argmin(axis=0))
