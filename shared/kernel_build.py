@@ -73,7 +73,7 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
         scratch = stack.enter_context(tempfile.TemporaryDirectory(dir=directory))
         cc = CC(name, source_module=shared.grid_kernels)
         cc.output_dir = scratch
-        cc.target_cpu = target_cpu()  # x86-64-v2 where the CPU has it (its POPCNT, SSE4)
+        cc.target_cpu = target_cpu()  # the highest x86-64 level the CPU has (v2: POPCNT, SSE4)
         for kernel in names or tuple(SIGNATURES):
             source = dispatcher(kernel).py_func  # type: ignore[attr-defined]
             cc.export(kernel, pycc_signature(kernel))(source)

@@ -96,15 +96,25 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
             "int64", ("int32", 2), ("float32", 3),
         ),
     ),
+    "lowest_costs": (
+        "none",
+        (("float32", 3), ("int64", 2), "boolean", ("int64", 2), ("float32", 2)),
+    ),
 }  # fmt: skip
 
 #: The modules that define the kernels, in the order :func:`dispatcher` looks them up.
 MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels", "shared.volume_kernels")
 SOURCES: Final = tuple(Path(__file__).with_name(f"{m.rpartition('.')[2]}.py") for m in MODULES)
 BUILD: Final = Path(__file__).with_name("kernel_build.py")
-#: The x86-64-v2 level's features as Linux's /proc/cpuinfo names them (``pni``: SSE3).
-X86_64_V2_FLAGS: Final = frozenset(
-    ("cx16", "lahf_lm", "popcnt", "pni", "ssse3", "sse4_1", "sse4_2")
+#: The x86-64 levels' features as Linux's /proc/cpuinfo names them (``pni``: SSE3; ``abm``:
+#: LZCNT), each level's beyond the one before; the highest the CPU has all of is the target.
+X86_64_LEVELS: Final = (
+    ("x86-64-v2", frozenset(("cx16", "lahf_lm", "popcnt", "pni", "ssse3", "sse4_1", "sse4_2"))),
+    (
+        "x86-64-v3",
+        frozenset(("avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe", "xsave")),
+    ),
+    ("x86-64-v4", frozenset(("avx512f", "avx512bw", "avx512cd", "avx512dq", "avx512vl"))),
 )
 
 
@@ -116,11 +126,13 @@ def pycc_signature(name: str) -> str:
 
 
 def target_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
-    """LLVM's CPU for the compiled module: ``x86-64-v2`` when this x86-64 Linux machine has its
-    features (SSE4.2, POPCNT: the census kernels' bit count in one instruction; Art x3 1.07x
-    faster than with the generic target, docs/benchmarks.md), else ``""``, the generic target.
-    Part of the module's name: a machine without them never loads a module built for them (a
-    shared home folder)."""
+    """LLVM's CPU for the compiled module: the highest x86-64 level (:data:`X86_64_LEVELS`)
+    this x86-64 Linux machine has every feature of, else ``""``, the generic target. v2's
+    POPCNT counts the census bits in one instruction (Art x3 1.07x faster than generic); v4's
+    AVX-512 vectorises the volume kernels wider (Aloe 1.04x, Art x3 1.03x of v2's CPU; the
+    chain kernels are scalar either way). The floats are the same at every level: numba asks
+    LLVM for no fused multiply-adds. Part of the module's name: a machine without a level's
+    features never loads a module built for it (a shared home folder)."""
     if platform.machine() not in ("x86_64", "AMD64"):
         return ""
     try:
@@ -129,7 +141,13 @@ def target_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
             flags = set(next(found, "").split())
     except OSError:
         return ""
-    return "x86-64-v2" if flags >= X86_64_V2_FLAGS else ""
+    target, needed = "", set()
+    for level, features in X86_64_LEVELS:
+        needed |= features
+        if not flags >= needed:
+            break
+        target = level
+    return target
 
 
 def module_name() -> str:
@@ -257,6 +275,7 @@ trws_pass = Kernel("_trws_pass", _COMPILED)
 gradient_exponents = Kernel("gradient_exponents", _COMPILED)
 census_aggregate = Kernel("census_aggregate", _COMPILED)
 census_window = Kernel("census_window", _COMPILED)
+lowest_costs = Kernel("lowest_costs", _COMPILED)
 
 
 _preloading: threading.Thread | None = None
@@ -306,4 +325,5 @@ def _load_jit() -> None:
 _ALL = (
     chains_windows, chains_general, grid_energy, neighbour_costs, disagreements,
     subgradient_step, trws_pass, gradient_exponents, census_aggregate, census_window,
+    lowest_costs,
 )  # fmt: skip

@@ -145,16 +145,25 @@ def test_a_module_built_for_another_cpu_level_is_not_loaded(directory, compiled,
     assert kernels.load_compiled(directory) is None
 
 
+V2 = "cx16 lahf_lm popcnt pni ssse3 sse4_1 sse4_2"
+V3 = "avx avx2 bmi1 bmi2 f16c fma abm movbe xsave"
+V4 = "avx512f avx512bw avx512cd avx512dq avx512vl"
+
+
 @pytest.mark.parametrize(
     ("machine", "flags", "target"),
     [
         ("x86_64", "fpu cx16 lahf_lm popcnt pni ssse3 sse4_1 sse4_2 avx2", "x86-64-v2"),
+        ("x86_64", f"{V2} {V3}", "x86-64-v3"),
+        ("x86_64", f"{V2} {V3} {V4}", "x86-64-v4"),
+        ("x86_64", f"{V2} {V3} {V4}".replace(" abm", ""), "x86-64-v2"),  # no LZCNT: not v3, v4
+        ("x86_64", f"{V2} {V4}", "x86-64-v2"),  # AVX-512 without v3's features
         ("x86_64", "fpu cx16 lahf_lm pni ssse3 sse4_1 sse4_2", ""),  # no POPCNT
         ("aarch64", "fp asimd cpuid", ""),
         ("x86_64", None, ""),  # no /proc/cpuinfo
     ],
 )
-def test_the_target_is_x86_64_v2_only_where_the_cpu_has_it(
+def test_the_target_is_the_highest_x86_64_level_the_cpu_has(
     tmp_path, monkeypatch, machine, flags, target
 ):
     cpuinfo = tmp_path / "cpuinfo"
