@@ -141,7 +141,7 @@ def target_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
             flags = set(next(found, "").split())
     except OSError:
         return ""
-    target, needed = "", set()
+    target, needed = "", set[str]()
     for level, features in X86_64_LEVELS:
         needed |= features
         if not flags >= needed:
