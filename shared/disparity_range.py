@@ -30,8 +30,8 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from shared import kernels
 from shared.data_terms import VolumeBlock, ad_census_volume
+from shared.filters import lowest
 from shared.images import to_gray
 from shared.threads import beside
 
@@ -121,43 +121,6 @@ class QuickMatch:
     def values(self) -> np.ndarray:
         """The confirmed pixels' disparities, full-resolution px (1-D)."""
         return self.disparity[self.confirmed]
-
-
-def lowest(volume: np.ndarray, outside: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``volume.argmin(axis=0)`` and ``volume.min(axis=0)`` of a (D, h, w) volume, one disparity
-    plane at a time: numpy's reductions over the first axis walk it pixel by pixel (the views'
-    check spent a third of its time in them); by the compiled kernel when it runs without
-    numba's import (:func:`shared.kernels.ready`), else by NumPy, the same comparisons in the
-    same order. With ``outside``, the minimum over the
-    disparities more than 1 from it, +inf where there is none (the index is then meaningless).
-
-    Parameters
-    ----------
-    volume : numpy.ndarray
-        (D, h, w) costs, no NaN.
-    outside : numpy.ndarray, optional
-        (h, w) disparities whose neighbourhood (+-1) is left out.
-
-    Returns
-    -------
-    index, minimum : numpy.ndarray
-        (h, w): the first disparity reaching the minimum (intp), and the minimum.
-    """
-    minimum = np.full(volume.shape[1:], np.inf, dtype=volume.dtype)
-    index = np.zeros(volume.shape[1:], dtype=np.intp)
-    if volume.dtype == np.float32 and kernels.ready(kernels.lowest_costs):
-        # the same comparisons in one compiled pass (a NumPy pass per plane and test: 3x slower)
-        near = outside is not None
-        excluded = np.ascontiguousarray(outside, dtype=np.intp) if near else index
-        kernels.lowest_costs(np.ascontiguousarray(volume), excluded, near, index, minimum)
-        return index, minimum
-    for disparity, plane in enumerate(volume):
-        lower = plane < minimum
-        if outside is not None:
-            lower &= np.abs(outside - disparity) > 1
-        np.copyto(minimum, plane, where=lower)
-        index[lower] = disparity
-    return index, minimum
 
 
 def quick_match(left: np.ndarray, right: np.ndarray) -> QuickMatch:

@@ -7,6 +7,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from shared import kernels
+
 
 def median(disparity: np.ndarray, size: int = 7) -> np.ndarray:
     """Median filter with edge replication.
@@ -212,12 +214,50 @@ def cost_confidence(volume: np.ndarray, disparity: np.ndarray) -> np.ndarray:
     top = volume.shape[0] - 1
     chosen = np.clip(np.rint(disparity), 0, top).astype(np.intp)
     own = np.take_along_axis(volume, chosen[None], axis=0)[0]
-    # a disparity plane at a time: a (D + 1, h, w) mask and its int64 differences were 1.3 GB
-    # and 9 s on a 1 MP / 64 px pair
-    others = np.full(chosen.shape, np.inf, dtype=volume.dtype)
-    for label, plane in enumerate(volume):
-        far = np.abs(chosen - label) > 1
-        np.minimum(others, plane, out=others, where=far)
+    # plane after plane: a (D + 1, h, w) mask and its int64 differences were 1.3 GB and 9 s on
+    # a 1 MP / 64 px pair
+    others = lowest(volume, outside=chosen)[1]
     margin = np.where(np.isfinite(others), others - own, 0.0)
     confidence = np.divide(margin, others, out=np.zeros_like(margin), where=others > 0)
     return np.clip(confidence, 0.0, 1.0).astype(np.float32)
+
+
+def lowest(volume: np.ndarray, outside: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``volume.argmin(axis=0)`` and ``volume.min(axis=0)`` of a (D, h, w) volume, one disparity
+    plane at a time: numpy's reductions over the first axis walk it pixel by pixel (the views'
+    check spent a third of its time in them); by the compiled kernel when it runs without
+    numba's import (:func:`shared.kernels.ready`), else by NumPy, the same comparisons in the
+    same order. With ``outside``, the minimum over the
+    disparities more than 1 from it, +inf where there is none (the index is then meaningless).
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        (D, h, w) costs, no NaN.
+    outside : numpy.ndarray, optional
+        (h, w) disparities whose neighbourhood (+-1) is left out.
+
+    Returns
+    -------
+    index, minimum : numpy.ndarray
+        (h, w): the first disparity reaching the minimum (intp), and the minimum.
+    """
+    minimum = np.full(volume.shape[1:], np.inf, dtype=volume.dtype)
+    index = np.zeros(volume.shape[1:], dtype=np.intp)
+    if (
+        volume.dtype == np.float32
+        and volume.flags.c_contiguous
+        and kernels.ready(kernels.lowest_costs)
+    ):
+        # the same comparisons in one compiled pass (a NumPy pass per plane and test: 3-6x slower)
+        near = outside is not None
+        excluded = np.ascontiguousarray(outside, dtype=np.intp) if near else index
+        kernels.lowest_costs(volume, excluded, near, index, minimum)
+        return index, minimum
+    for disparity, plane in enumerate(volume):
+        lower = plane < minimum
+        if outside is not None:
+            lower &= np.abs(outside - disparity) > 1
+        np.copyto(minimum, plane, where=lower)
+        index[lower] = disparity
+    return index, minimum

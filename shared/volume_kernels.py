@@ -158,7 +158,7 @@ def lowest_costs(volume, outside, skip_near, index, minimum):  # pragma: no cove
     """Each pixel's least cost over the disparities of ``volume`` (D, h, w) into ``minimum``
     and the first disparity reaching it into ``index`` (set beforehand: +inf and 0), leaving
     out the disparities within 1 of ``outside`` when ``skip_near``: plane after plane, strictly
-    lower replaces, as :func:`shared.disparity_range.lowest`'s NumPy loop (the views' check)."""
+    lower replaces, as :func:`shared.filters.lowest`'s NumPy loop."""
     count, rows, width = volume.shape
     for d in range(count):
         for y in range(rows):

@@ -8,10 +8,10 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from shared import filters, level_inputs, pipeline, pyramid
+from shared import filters, kernels, level_inputs, pipeline, pyramid
 from shared.config import MatchConfig, Preset
 from shared.data_terms import VolumeBlock, ad_census_volume, bin_minimum, census, window_reach
 from shared.disparity_range import estimate_max_disparity
@@ -337,15 +337,22 @@ def test_subpixel_lowers_the_rmse_on_a_slanted_scene(scene):
     )
 
 
-@settings(max_examples=50, deadline=None)
+@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
+@settings(
+    max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(
     labels=st.integers(1, 12),
     seed=st.integers(0, 2**16),
     scale=st.sampled_from([0.5, 1.0, 4.0]),
 )
-def test_the_cost_confidence_is_the_peak_ratio_over_every_far_disparity(labels, seed, scale):
+def test_the_cost_confidence_is_the_peak_ratio_over_every_far_disparity(
+    monkeypatch, compiled, labels, seed, scale
+):
     """Plane by plane, the confidence is the formula over the whole volume at once: c_alt the
-    least cost more than 1 px from the rounded disparity (ties and zero costs included)."""
+    least cost more than 1 px from the rounded disparity (ties and zero costs included); its
+    reduction by the kernel and by the NumPy loop alike."""
+    monkeypatch.setattr(kernels, "ready", lambda *chosen: compiled)
     rng = np.random.default_rng(seed)
     volume = np.rint(rng.random((labels, 3, 4)) * 4).astype(np.float32)  # ties, zeros
     disparity = (rng.random((3, 4)) * (labels + 2) - 1) * scale

@@ -12,11 +12,11 @@ from hypothesis import strategies as st
 from shared import kernels
 from shared.disparity_range import (
     ViewsWarning,
-    lowest,
     quick_match,
     resolve_max_disparity,
     views_warning,
 )
+from shared.filters import lowest
 from shared.ground_truth import CONVENTIONAL_SCALES, ScaleNotInferredError, infer_gt_scale
 
 
