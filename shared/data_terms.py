@@ -470,6 +470,71 @@ def gather_window(
     return _take(per_label, index).astype(dtype, copy=False)
 
 
+def window_minimum(
+    volume: np.ndarray,
+    top: int,
+    lowest: np.ndarray,
+    count: int,
+    bin_width: int,
+    dtype: type = np.float64,
+) -> np.ndarray | None:
+    """:func:`gather_window` of :func:`bin_minimum` of rows ``top`` .. ``top + len(lowest)`` of
+    ``volume``, without the binned volume, by the compiled kernel (the same floats:
+    :func:`shared.volume_kernels.window_minima`); None when the kernel does not take these
+    arrays (the caller bins and gathers).
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        Costs (D + 1, h, w) per disparity (or per bin of a narrower width).
+    top : int
+        The volume's row of ``lowest``'s first row.
+    lowest : numpy.ndarray
+        Each pixel's first bin (rows, w).
+    count : int
+        Bins per window.
+    bin_width : int
+        Planes of ``volume`` per bin.
+    dtype : type, optional
+        Of the result.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Costs (rows, w, count), ``dtype``.
+
+    Raises
+    ------
+    IndexError
+        If a window reaches outside the bins (as :func:`gather_window`).
+    """
+    rows = lowest.shape[0]
+    if not (
+        window_minimum_runs(volume)
+        and lowest.dtype == np.int32
+        and lowest.flags.c_contiguous
+        and 0 <= top <= top + rows <= volume.shape[1]
+    ):
+        return None
+    bins = -(-volume.shape[0] // bin_width)
+    if lowest.size and (lowest.min() < 0 or int(lowest.max()) + count > bins):
+        raise IndexError(f"a window of {count} bins reaches outside the {bins} bins")
+    costs = np.empty((*lowest.shape, count), dtype=np.float32)
+    kernels.window_minima(volume, top, lowest, bin_width, costs)
+    return costs.astype(dtype, copy=False)
+
+
+def window_minimum_runs(volume: np.ndarray) -> bool:
+    """Whether :func:`window_minimum` reads windows from ``volume`` now (float32, C-contiguous,
+    the kernel running without numba's import: :func:`shared.kernels.ready`) given each
+    pixel's first bin as C-contiguous int32 rows."""
+    return (
+        volume.dtype == np.float32
+        and volume.flags.c_contiguous
+        and kernels.ready(kernels.window_minima)
+    )
+
+
 def _take(per_label: np.ndarray, index: np.ndarray) -> np.ndarray:
     """The costs (n, w, K) of the labels ``index`` (n, w, K) intp, which become indices in
     place: the label's cost is ``flat[label * plane + row * row_step + column * column_step]``

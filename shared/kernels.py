@@ -100,6 +100,10 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
         "none",
         (("float32", 3), ("int64", 2), "boolean", ("int64", 2), ("float32", 2)),
     ),
+    "window_minima": (
+        "none",
+        (("float32", 3), "int64", ("int32", 2), "int64", ("float32", 3)),
+    ),
 }  # fmt: skip
 
 #: The modules that define the kernels, in the order :func:`dispatcher` looks them up.
@@ -276,6 +280,7 @@ gradient_exponents = Kernel("gradient_exponents", _COMPILED)
 census_aggregate = Kernel("census_aggregate", _COMPILED)
 census_window = Kernel("census_window", _COMPILED)
 lowest_costs = Kernel("lowest_costs", _COMPILED)
+window_minima = Kernel("window_minima", _COMPILED)
 
 
 _preloading: threading.Thread | None = None
@@ -325,5 +330,5 @@ def _load_jit() -> None:
 _ALL = (
     chains_windows, chains_general, grid_energy, neighbour_costs, disagreements,
     subgradient_step, trws_pass, gradient_exponents, census_aggregate, census_window,
-    lowest_costs,
+    lowest_costs, window_minima,
 )  # fmt: skip

@@ -141,7 +141,7 @@ def prepare(inputs: LevelInputs, config: MatchConfig) -> Residual:
     if "settle" in inputs.prepared:
         return _counts(inputs.prepared["settle"])
     started = time.perf_counter()
-    inputs.binned_volumes()
+    inputs.prepare_costs()
     height = inputs.view_height
     labels = np.empty(inputs.shape, dtype=np.int32)
     tiles: list[list[int]] = []

@@ -167,3 +167,40 @@ def lowest_costs(volume, outside, skip_near, index, minimum):  # pragma: no cove
                 if value < minimum[y, x] and (not skip_near or abs(outside[y, x] - d) > 1):
                     minimum[y, x] = value
                     index[y, x] = d
+
+
+@numba.njit(cache=True, nogil=True)
+def window_minima(volume, top, lowest, bin_width, costs):  # pragma: no cover - jit
+    """``costs[y, x, j]`` (rows, w, K) = the least of ``volume[d, top + y, x]`` over bin
+    ``lowest[y, x] + j``'s disparities (bin b: ``b * bin_width`` up to the volume's last;
+    width 1: the disparity's own cost): :func:`shared.data_terms.gather_window` of
+    :func:`shared.data_terms.bin_minimum` without the binned volume (bins and gather indices:
+    two (bins or K, h, w) arrays and their page faults per view and level). Each row's bins
+    its windows reach are taken in a row buffer, plane rows read in order (vectorised), then
+    gathered from it; the same floats (a minimum is exact). Every window within the bins."""
+    planes = volume.shape[0]
+    rows, width, count = costs.shape
+    bins = (planes + bin_width - 1) // bin_width
+    binned = np.empty((bins, width), np.float32)
+    for y in range(rows):
+        row, windows = top + y, lowest[y]
+        if bin_width == 1:  # the planes are the bins: gather straight from them
+            for x in range(width):
+                for j in range(count):
+                    costs[y, x, j] = volume[windows[x] + j, row, x]
+            continue
+        low, high = windows[0], windows[0]
+        for x in range(width):
+            low, high = min(low, windows[x]), max(high, windows[x])
+        for b in range(low, high + count):
+            start = b * bin_width
+            into, source = binned[b], volume[start, row]
+            for x in range(width):
+                into[x] = source[x]
+            for d in range(start + 1, min(start + bin_width, planes)):
+                source = volume[d, row]
+                for x in range(width):
+                    into[x] = min(into[x], source[x])
+        for x in range(width):
+            for j in range(count):
+                costs[y, x, j] = binned[windows[x] + j, x]

@@ -60,7 +60,7 @@ class GridViews(LevelInference):
         self, inputs: LevelInputs, config: MatchConfig, items: list[Bundle]
     ) -> Iterator[list[BundleResult]]:
         row_ranges = [(b.row_start, b.row_stop) for b in items]
-        inputs.binned_volumes()
+        inputs.prepare_costs()
 
         at_once = grids_at_once(inputs, row_ranges)
         # grids one at a time (2000 x 2000): the other core builds half of each grid's costs

@@ -11,7 +11,7 @@ import shared.volume_kernels
 from shared import kernels
 from shared.kernel_build import build
 
-VOLUME_KERNELS = ("gradient_exponents", "census_aggregate", "census_window")
+VOLUME_KERNELS = ("gradient_exponents", "census_aggregate", "census_window", "window_minima")
 
 
 @pytest.fixture(scope="module")
@@ -74,12 +74,15 @@ def _volume_arguments(seed: int) -> dict[str, tuple]:
     volume = rng.random((top // width_of_bins + 1, rows - 4, width), dtype=np.float32)
     lowest = rng.integers(0, 3, (rows - 4, width), dtype=np.int32)
     window = rng.random((rows - 4, width, 3), dtype=np.float32)
+    planes = rng.random((12, rows - 4, width), dtype=np.float32)
     return {
         "gradient_exponents": (*gradients, top, first, np.zeros((4, rows - 4, width), np.float32)),
         "census_aggregate": (codes, shifted, terms, table, top, first, width_of_bins, volume),
         "census_window": (
             codes, shifted, terms, table, top, first, width_of_bins, lowest, window,
         ),
+        # 3 of 6 bins (2 planes each) per window, from the volume's row 2 on
+        "window_minima": (planes, 2, lowest[:-2].copy(), 2, window[:-2].copy()),
     }  # fmt: skip
 
 

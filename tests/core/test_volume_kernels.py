@@ -16,6 +16,7 @@ from shared.data_terms import (
     census_gradient_volume,
     gather_window,
     window_costs,
+    window_minimum,
 )
 from shared.inference import grid_views
 from shared.pipeline import run_pipeline
@@ -249,3 +250,78 @@ def test_the_map_is_the_same_with_the_kernels_and_the_costs_in_two_threads(monke
     disparity = run_pipeline(scene.left, scene.right, config).disparity
     assert dealt and set(dealt) == {2}
     np.testing.assert_array_equal(disparity, reference)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    planes=st.integers(1, 30),
+    bin_width=st.integers(1, 6),
+    rows=st.integers(1, 5),
+    top=st.integers(0, 3),
+    data=st.data(),
+)
+def test_the_windows_minima_are_the_gathered_bins(planes, bin_width, rows, top, data):
+    """The windows' costs straight from a cached volume are :func:`gather_window` of its
+    :func:`bin_minimum`, bit for bit, for any block of its rows, a narrower last bin and ties
+    (costs in quarters) included."""
+    seed = data.draw(st.integers(0, 2**16))
+    rng = np.random.default_rng(seed)
+    width, bins = 7, -(-planes // bin_width)
+    count = data.draw(st.integers(1, bins))
+    volume = (rng.integers(0, 8, (planes, top + rows + 2, width)) / 4).astype(np.float32)
+    lowest = rng.integers(0, bins - count + 1, (rows, width)).astype(np.int32)
+    expected = gather_window(bin_minimum(volume[:, top : top + rows], bin_width), lowest, count)
+    costs = window_minimum(volume, top, lowest, count, bin_width)
+    assert costs is not None and costs.dtype == np.float64
+    assert costs.tobytes() == expected.tobytes()
+
+
+def test_windows_outside_the_bins_are_refused_and_other_volumes_left_to_the_caller(monkeypatch):
+    volume = np.zeros((9, 4, 5), np.float32)  # 3 bins of 3
+    lowest = np.zeros((4, 5), np.int32)
+    assert window_minimum(volume, 0, lowest, 3, 3) is not None
+    with pytest.raises(IndexError, match="outside the 3 bins"):
+        window_minimum(volume, 0, lowest + 1, 3, 3)
+    with pytest.raises(IndexError):
+        window_minimum(volume, 0, lowest - 1, 1, 3)
+    assert window_minimum(volume.astype(np.float64), 0, lowest, 3, 3) is None
+    assert window_minimum(volume, 1, lowest, 3, 3) is None  # rows beyond the volume's
+    monkeypatch.setattr(kernels, "ready", lambda *chosen: False)
+    assert window_minimum(volume, 0, lowest, 3, 3) is None
+
+
+def test_the_map_is_the_same_with_the_windows_read_straight_from_the_cached_volumes(monkeypatch):
+    """The accurate default keeps the views' volumes (a small pair): its bin levels' costs read
+    straight from them by the kernel (no binned copy, :meth:`LevelInputs.prepare_costs` builds
+    none) give the map of the binned volumes' gathers."""
+    scene = make_scene(40, 64, max_disparity=30, seed=3)
+    config = MatchConfig(max_disparity=30)
+    calls = []
+
+    def recorded(*args):
+        costs = window_minimum(*args)
+        if costs is not None:  # read by the kernel
+            calls.append(args[4])
+        return costs
+
+    monkeypatch.setattr(level_inputs, "window_minimum", recorded)
+    binned = []
+    original = level_inputs.LevelInputs.binned_volumes
+    monkeypatch.setattr(
+        level_inputs.LevelInputs,
+        "binned_volumes",
+        lambda self: binned.append(self.plan.bin_width) or original(self),
+    )
+    direct = run_pipeline(scene.left, scene.right, config)
+    assert {1, 2, 4} <= set(calls)  # the bin levels below the coarse grid read the volumes
+    assert not binned  # and none bins them
+    ready = kernels.ready
+    monkeypatch.setattr(
+        kernels, "ready", lambda *chosen: kernels.window_minima not in chosen and ready(*chosen)
+    )
+    calls.clear()
+    gathered = run_pipeline(scene.left, scene.right, config)
+    assert not calls and binned
+    np.testing.assert_array_equal(direct.disparity, gathered.disparity)
+    for ours, theirs in zip(direct.levels, gathered.levels, strict=True):
+        assert ours.energy == theirs.energy and ours.lower_bound == theirs.lower_bound
