@@ -514,6 +514,7 @@ def window_minimum(
         and lowest.dtype == np.int32
         and lowest.flags.c_contiguous
         and 0 <= top <= top + rows <= volume.shape[1]
+        and lowest.shape[1] == volume.shape[2]
     ):
         return None
     bins = -(-volume.shape[0] // bin_width)

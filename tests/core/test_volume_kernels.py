@@ -286,6 +286,7 @@ def test_windows_outside_the_bins_are_refused_and_other_volumes_left_to_the_call
         window_minimum(volume, 0, lowest - 1, 1, 3)
     assert window_minimum(volume.astype(np.float64), 0, lowest, 3, 3) is None
     assert window_minimum(volume, 1, lowest, 3, 3) is None  # rows beyond the volume's
+    assert window_minimum(volume, 0, lowest[:, :4].copy(), 3, 3) is None  # another width
     monkeypatch.setattr(kernels, "ready", lambda *chosen: False)
     assert window_minimum(volume, 0, lowest, 3, 3) is None
 
