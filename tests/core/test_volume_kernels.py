@@ -264,6 +264,7 @@ def test_the_windows_minima_are_the_gathered_bins(planes, bin_width, rows, top, 
     """The windows' costs straight from a cached volume are :func:`gather_window` of its
     :func:`bin_minimum`, bit for bit, for any block of its rows, a narrower last bin and ties
     (costs in quarters) included."""
+    kernels.window_minima.jit()  # ready without a compiled module too (numba loaded)
     seed = data.draw(st.integers(0, 2**16))
     rng = np.random.default_rng(seed)
     width, bins = 7, -(-planes // bin_width)
@@ -277,6 +278,7 @@ def test_the_windows_minima_are_the_gathered_bins(planes, bin_width, rows, top, 
 
 
 def test_windows_outside_the_bins_are_refused_and_other_volumes_left_to_the_caller(monkeypatch):
+    kernels.window_minima.jit()  # ready without a compiled module too (numba loaded)
     volume = np.zeros((9, 4, 5), np.float32)  # 3 bins of 3
     lowest = np.zeros((4, 5), np.int32)
     assert window_minimum(volume, 0, lowest, 3, 3) is not None
@@ -295,6 +297,7 @@ def test_the_map_is_the_same_with_the_windows_read_straight_from_the_cached_volu
     """The accurate default keeps the views' volumes (a small pair): its bin levels' costs read
     straight from them by the kernel (no binned copy, :meth:`LevelInputs.prepare_costs` builds
     none) give the map of the binned volumes' gathers."""
+    kernels.window_minima.jit()  # ready without a compiled module too (numba loaded)
     scene = make_scene(40, 64, max_disparity=30, seed=3)
     config = MatchConfig(max_disparity=30)
     calls = []
