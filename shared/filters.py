@@ -227,8 +227,8 @@ def lowest(volume: np.ndarray, outside: np.ndarray | None = None) -> tuple[np.nd
     plane at a time: numpy's reductions over the first axis walk it pixel by pixel (the views'
     check spent a third of its time in them); by the compiled kernel when it runs without
     numba's import (:func:`shared.kernels.ready`), else by NumPy, the same comparisons in the
-    same order. With ``outside``, the minimum over the
-    disparities more than 1 from it, +inf where there is none (the index is then meaningless).
+    same order. With ``outside``, the minimum over the disparities more than 1 from it, +inf
+    where there is none (the index is then meaningless).
 
     Parameters
     ----------
