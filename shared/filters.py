@@ -154,13 +154,25 @@ def weighted_median(
         Filtered map (h, w), float32.
     """
     guide8 = np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8)
+    values = np.asarray(disparity, np.float32)
+    lowest = float(values.min()) if values.size else 0.0
+    # Whole disparities at most 255 apart go in as 8 bits above the least: the same medians,
+    # without OpenCV's sort of every pixel (a third of the call). The float path ranks the
+    # distinct values (each its own rank: at most 256 of them) and the 8-bit one takes each
+    # value as its rank: the same order, the same least rank (the median's cut stops there),
+    # and a rank no pixel holds adds nothing as the cut passes it.
+    whole = (
+        bool(values.size)
+        and values.max() - lowest <= 255
+        and np.array_equal(values, np.rint(values))
+    )
+    source = (values - np.float32(lowest)).astype(np.uint8) if whole else values
     # A colour guide is quantised by k-means seeded from OpenCV's global RNG: seed it, or the
     # same pair gives a different map on every call (up to several pixels apart).
     cv2.setRNGSeed(0)
     # sigma by keyword: the fourth positional parameter is ``dst``, which ignored it (always 25.5)
-    return cv2.ximgproc.weightedMedianFilter(
-        guide8, np.asarray(disparity, np.float32), radius, sigma=sigma
-    ).astype(np.float32)
+    median = cv2.ximgproc.weightedMedianFilter(guide8, source, radius, sigma=sigma)
+    return median + np.float32(lowest) if whole else median.astype(np.float32)
 
 
 def subpixel(disparity: np.ndarray, volume: np.ndarray) -> np.ndarray:
@@ -193,11 +205,25 @@ def subpixel(disparity: np.ndarray, volume: np.ndarray) -> np.ndarray:
     return (d + np.clip(offset, -0.5, 0.5)).astype(np.float32)
 
 
-def cost_confidence(volume: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+#: Least costs per pixel that :func:`cost_confidence` needs: one of any four disparities lies
+#: more than 1 px from the chosen one.
+RIVALS = 4
+
+
+def cost_confidence(
+    volume: np.ndarray,
+    disparity: np.ndarray,
+    least: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """How clearly the cost volume prefers each pixel's disparity over every distinct one, in
     [0, 1]: (c_alt - c_d) / c_alt, c_d the cost at the rounded disparity and c_alt the least
     cost more than 1 px away (a peak-ratio measure: 0 where another disparity is as cheap,
     1 where the chosen one costs nothing and every other something).
+
+    c_alt is the least of the :data:`RIVALS` least costs (:func:`least_costs`) more than 1 px
+    away: of the three disparities around the chosen one at most three are among them, and a
+    cheaper far one would be among them too. They do not depend on the map, so a caller can
+    take them beforehand (``least``), beside the filters that make the map.
 
     Parameters
     ----------
@@ -205,6 +231,8 @@ def cost_confidence(volume: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         Costs (D + 1, h, w), lower is better, non-negative.
     disparity : numpy.ndarray
         The map (h, w), px.
+    least : tuple of numpy.ndarray, optional
+        The volume's :func:`least_costs` (computed here when not given).
 
     Returns
     -------
@@ -214,12 +242,49 @@ def cost_confidence(volume: np.ndarray, disparity: np.ndarray) -> np.ndarray:
     top = volume.shape[0] - 1
     chosen = np.clip(np.rint(disparity), 0, top).astype(np.intp)
     own = np.take_along_axis(volume, chosen[None], axis=0)[0]
-    # plane after plane: a (D + 1, h, w) mask and its int64 differences were 1.3 GB and 9 s on
-    # a 1 MP / 64 px pair
-    others = lowest(volume, outside=chosen)[1]
+    indices, values = least_costs(volume) if least is None else least
+    others = np.where(np.abs(indices - chosen) > 1, values, np.inf).min(axis=0)
     margin = np.where(np.isfinite(others), others - own, 0.0)
     confidence = np.divide(margin, others, out=np.zeros_like(margin), where=others > 0)
     return np.clip(confidence, 0.0, 1.0).astype(np.float32)
+
+
+def least_costs(volume: np.ndarray, count: int = RIVALS) -> tuple[np.ndarray, np.ndarray]:
+    """Each pixel's ``count`` least costs of a (D, h, w) volume, ascending, and their
+    disparities (of equal costs the lower first; +inf and 0 where D < ``count``): one pass plane
+    after plane (:func:`lowest`'s reason), by the compiled kernel when it runs without numba's
+    import, else by NumPy, the same comparisons in the same order.
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        (D, h, w) costs, no NaN.
+    count : int, optional
+        Costs kept per pixel.
+
+    Returns
+    -------
+    indices, values : numpy.ndarray
+        (count, h, w): the disparities (int32) and their costs (the volume's dtype).
+    """
+    values = np.full((count, *volume.shape[1:]), np.inf, dtype=volume.dtype)
+    indices = np.zeros(values.shape, dtype=np.int32)
+    if (
+        volume.dtype == np.float32
+        and volume.flags.c_contiguous
+        and kernels.ready(kernels.least_costs)
+    ):
+        kernels.least_costs(volume, values, indices)
+        return indices, values
+    for disparity, plane in enumerate(volume):  # each plane's cost goes in after its equals
+        place = (values <= plane).sum(axis=0)
+        for slot in range(count - 1, -1, -1):
+            values[slot] = np.where(place == slot, plane, values[slot])
+            indices[slot] = np.where(place == slot, disparity, indices[slot])
+            if slot:  # the slots from the new cost on move down one
+                values[slot] = np.where(place < slot, values[slot - 1], values[slot])
+                indices[slot] = np.where(place < slot, indices[slot - 1], indices[slot])
+    return indices, values
 
 
 def lowest(volume: np.ndarray, outside: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

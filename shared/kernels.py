@@ -104,6 +104,7 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
         "none",
         (("float32", 3), "int64", ("int32", 2), "int64", ("float32", 3)),
     ),
+    "least_costs": ("none", (("float32", 3), ("float32", 3), ("int32", 3))),
 }  # fmt: skip
 
 #: The modules that define the kernels, in the order :func:`dispatcher` looks them up.
@@ -281,6 +282,7 @@ census_aggregate = Kernel("census_aggregate", _COMPILED)
 census_window = Kernel("census_window", _COMPILED)
 lowest_costs = Kernel("lowest_costs", _COMPILED)
 window_minima = Kernel("window_minima", _COMPILED)
+least_costs = Kernel("least_costs", _COMPILED)
 
 
 _preloading: threading.Thread | None = None
@@ -330,5 +332,5 @@ def _load_jit() -> None:
 _ALL = (
     chains_windows, chains_general, grid_energy, neighbour_costs, disagreements,
     subgradient_step, trws_pass, gradient_exponents, census_aggregate, census_window,
-    lowest_costs, window_minima,
+    lowest_costs, window_minima, least_costs,
 )  # fmt: skip

@@ -438,8 +438,15 @@ def run_pipeline(
     # plan() gives at least one level, the first index 0
     assert level_map is not None and inputs is not None and estimate is not None
     left_volume = volumes[0] if volumes and volume_bin_width == 1 else None
+    # the confidence's least costs do not depend on the map: taken beside the finish, whose
+    # weighted median runs on one core
+    at_hand = left_volume is not None and left_volume.shape[1:] == left.shape[:2]
+    least = beside(filters.least_costs, left_volume) if at_hand else lambda: None
     disparity, validity, provenance = finish_maps(
         level_map, left, right, config, plans[-1], inputs.views, left_volume, stages
+    )
+    confidence = confidence_map(
+        disparity, validity, left, right, config, plans[-1], left_volume, least()
     )
     return MatchResult(
         disparity=disparity,
@@ -447,7 +454,7 @@ def run_pipeline(
         seconds=time.perf_counter() - started,
         disparity_range=estimate,
         validity=validity,
-        confidence=confidence_map(disparity, validity, left, right, config, plans[-1], left_volume),
+        confidence=confidence,
         provenance_map=provenance,
     )
 
@@ -460,17 +467,19 @@ def confidence_map(
     config: MatchConfig,
     last: LevelPlan,
     left_volume: np.ndarray | None,
+    least: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray | None:
     """The final map's :func:`shared.filters.cost_confidence` under the run's data term, 0
     where the left-right check failed; None when the full cost volume would exceed
-    :data:`VOLUME_CACHE_BYTES` and is not already at hand."""
+    :data:`VOLUME_CACHE_BYTES` and is not already at hand. ``least``: the :func:`least_costs
+    <shared.filters.least_costs>` of ``left_volume``, when taken beforehand."""
     height, width = disparity.shape
     if left_volume is None or left_volume.shape[1:] != (height, width):
         if (last.max_disparity + 1) * height * width * 4 > VOLUME_CACHE_BYTES:
             return None
         block = VolumeBlock(last.max_disparity, 0, height)
-        left_volume = cost_volume(config.data_term, left, right, block)
-    confidence = filters.cost_confidence(left_volume, disparity)
+        left_volume, least = cost_volume(config.data_term, left, right, block), None
+    confidence = filters.cost_confidence(left_volume, disparity, least)
     return confidence if validity is None else np.where(validity, confidence, 0.0)
 
 

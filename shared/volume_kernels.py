@@ -170,6 +170,29 @@ def lowest_costs(volume, outside, skip_near, index, minimum):  # pragma: no cove
 
 
 @numba.njit(cache=True, nogil=True)
+def least_costs(volume, values, indices):  # pragma: no cover - jit
+    """Each pixel's ``values.shape[0]`` least costs over the disparities of ``volume`` (D, h, w)
+    into ``values`` (set beforehand: +inf), ascending, and their disparities into ``indices``:
+    disparity after disparity, a cost goes in before the first strictly greater one (of equal
+    costs the earlier disparity first), as :func:`shared.filters.least_costs`'s NumPy loop. Row
+    by row: a row's kept costs stay in the cache while its planes' rows stream past."""
+    count, rows, width = volume.shape
+    last = values.shape[0] - 1
+    for y in range(rows):
+        for d in range(count):
+            for x in range(width):
+                value = volume[d, y, x]
+                if value < values[last, y, x]:
+                    slot = last
+                    while slot > 0 and value < values[slot - 1, y, x]:
+                        values[slot, y, x] = values[slot - 1, y, x]
+                        indices[slot, y, x] = indices[slot - 1, y, x]
+                        slot -= 1
+                    values[slot, y, x] = value
+                    indices[slot, y, x] = d
+
+
+@numba.njit(cache=True, nogil=True)
 def window_minima(volume, top, lowest, bin_width, costs):  # pragma: no cover - jit
     """``costs[y, x, j]`` (rows, w, K) = the least of ``volume[d, top + y, x]`` over bin
     ``lowest[y, x] + j``'s disparities (bin b: ``b * bin_width`` up to the volume's last;

@@ -6,9 +6,10 @@ from __future__ import annotations
 import hashlib
 import itertools
 
+import cv2
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from shared import filters, kernels, level_inputs, pipeline, pyramid
@@ -302,6 +303,61 @@ def test_the_weighted_median_uses_its_sigma():
     assert not np.array_equal(filters.weighted_median(disparity, guide, 9, 5.0), wide)
 
 
+@settings(max_examples=150, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    height=st.integers(1, 40),
+    width=st.integers(1, 40),
+    values=st.sampled_from(["few", "many", "every"]),
+    offset=st.sampled_from([0, 37, -120]),
+    colour=st.booleans(),
+    levels=st.sampled_from([2, 4, 256]),
+    radius=st.integers(1, 12),
+    sigma=st.sampled_from([1.0, 5.0, 25.5, 100.0]),
+)
+@example(  # an exact tie: the 8-bit path without the shift to the least value gave 143, not 238
+    seed=0, height=3, width=1, values="fixed", offset=0, colour=False, levels=2, radius=2,
+    sigma=25.5,
+)  # fmt: skip
+def test_whole_disparities_take_opencvs_float_weighted_median(
+    seed, height, width, values, offset, colour, levels, radius, sigma
+):
+    """Whole maps go to OpenCV as 8 bits above their least value: the very medians of its float
+    path, ties (a cut that stops at the least rank), unused values and far-apart colours (zero
+    weights) included."""
+    rng = np.random.default_rng(seed)
+    shape = (height, width)
+    if values == "fixed":
+        disparity = np.array([[242.0], [238.0], [143.0]], np.float32)
+        guide = np.array([[0.0], [1.0], [1.0]], np.float32)
+    else:
+        if values == "few":
+            disparity = rng.choice(rng.integers(0, 256, 3), shape)
+        elif values == "many":
+            disparity = rng.integers(0, 256, shape)
+        else:  # all 256 (when they fit)
+            disparity = rng.permutation(np.resize(np.arange(256), height * width)).reshape(shape)
+        disparity = (disparity + offset).astype(np.float32)
+        guide_shape = (*shape, 3) if colour else shape
+        guide = (rng.integers(0, levels, guide_shape) / (levels - 1)).astype(np.float32)
+    guide8 = np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8)
+    cv2.setRNGSeed(0)
+    floats = cv2.ximgproc.weightedMedianFilter(guide8, disparity, radius, sigma=sigma)
+    np.testing.assert_array_equal(filters.weighted_median(disparity, guide, radius, sigma), floats)
+
+
+def test_fractional_or_wide_disparities_keep_the_float_weighted_median():
+    rng = np.random.default_rng(1)
+    guide = rng.random((30, 40, 3)).astype(np.float32)
+    for disparity in (rng.random((30, 40)) * 20, rng.integers(0, 300, (30, 40)).astype(float)):
+        disparity = disparity.astype(np.float32)
+        cv2.setRNGSeed(0)
+        floats = cv2.ximgproc.weightedMedianFilter(
+            np.clip(np.rint(guide * 255.0), 0, 255).astype(np.uint8), disparity, 9, sigma=25.5
+        )
+        np.testing.assert_array_equal(filters.weighted_median(disparity, guide, 9, 25.5), floats)
+
+
 def test_the_squared_difference_volume_matches_it_at_the_candidates():
     from shared.data_terms import squared_difference, squared_volume
 
@@ -362,6 +418,47 @@ def test_the_cost_confidence_is_the_peak_ratio_over_every_far_disparity(
     others = np.where(far, volume, np.inf).min(axis=0)
     margin = np.where(np.isfinite(others), others - own, 0.0)
     expected = np.divide(margin, others, out=np.zeros_like(margin), where=others > 0)
-    np.testing.assert_array_equal(
-        filters.cost_confidence(volume, disparity), np.clip(expected, 0, 1).astype(np.float32)
+    expected = np.clip(expected, 0, 1).astype(np.float32)
+    np.testing.assert_array_equal(filters.cost_confidence(volume, disparity), expected)
+    least = filters.least_costs(volume)  # taken beforehand, as the pipeline does
+    np.testing.assert_array_equal(filters.cost_confidence(volume, disparity, least), expected)
+
+
+@pytest.mark.parametrize("compiled", [True, False], ids=["kernel", "numpy"])
+@settings(
+    max_examples=50, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    planes=st.integers(1, 12),
+    count=st.integers(1, 6),
+    seed=st.integers(0, 2**16),
+    dtype=st.sampled_from([np.float32, np.float64]),
+)
+def test_the_least_costs_are_a_stable_sort_s_first(
+    monkeypatch, compiled, planes, count, seed, dtype
+):
+    """Each pixel's least costs ascending, of equal costs the lower disparity first (a stable
+    sort's first ``count``), +inf past the volume's depth; kernel and NumPy loop alike."""
+    monkeypatch.setattr(kernels, "ready", lambda *chosen: compiled)
+    rng = np.random.default_rng(seed)
+    volume = np.rint(rng.random((planes, 3, 4)) * 3).astype(dtype)  # many ties
+    indices, values = filters.least_costs(volume, count)
+    assert values.dtype == dtype and indices.shape == values.shape == (count, 3, 4)
+    order = np.argsort(volume, axis=0, kind="stable")[:count]
+    kept = min(count, planes)
+    np.testing.assert_array_equal(indices[:kept], order)
+    np.testing.assert_array_equal(values[:kept], np.take_along_axis(volume, order, axis=0))
+    assert np.all(np.isinf(values[kept:]))
+
+
+def test_the_runs_confidence_is_the_final_maps(scene):
+    """The least costs taken beside the finish give the confidence computed afterwards."""
+    config = MatchConfig(max_disparity=16)
+    left, right = match_views(scene.left, scene.right, config)
+    result = run_pipeline(scene.left, scene.right, config)
+    assert result.confidence is not None and result.confidence.max() > 0
+    plans = plan_run(left, right, config)[1]
+    afresh = pipeline.confidence_map(
+        result.disparity, result.validity, left, right, config, plans[-1], None
     )
+    np.testing.assert_array_equal(result.confidence, afresh)

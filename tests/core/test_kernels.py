@@ -11,7 +11,9 @@ import shared.volume_kernels
 from shared import kernels
 from shared.kernel_build import build
 
-VOLUME_KERNELS = ("gradient_exponents", "census_aggregate", "census_window", "window_minima")
+VOLUME_KERNELS = (
+    "gradient_exponents", "census_aggregate", "census_window", "window_minima", "least_costs",
+)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +85,11 @@ def _volume_arguments(seed: int) -> dict[str, tuple]:
         ),
         # 3 of 6 bins (2 planes each) per window, from the volume's row 2 on
         "window_minima": (planes, 2, lowest[:-2].copy(), 2, window[:-2].copy()),
+        # ties among 4 cost levels; the last argument: the least four's disparities
+        "least_costs": (
+            np.rint(planes * 3), np.full((4, rows - 4, width), np.inf, np.float32),
+            np.zeros((4, rows - 4, width), np.int32),
+        ),
     }  # fmt: skip
 
 
