@@ -31,7 +31,9 @@ the next step reads, with no transpose copies).
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -44,6 +46,7 @@ from shared.kernels import (
     neighbour_costs,
     subgradient_step,
 )
+from shared.threads import both, spare_core
 
 #: :meth:`GridMRF.edges`: candidates, first, windowed, weight_h, weight_v, slope, truncation.
 EdgeArguments = tuple[np.ndarray, np.ndarray, bool, np.ndarray, np.ndarray, float, float]
@@ -450,33 +453,42 @@ def dual_decomposition(mrf: GridMRF, iterations: int, gap: float = 0.0) -> DualR
     # the primal steps' neighbour costs (fresh arrays: 2.3 of Art x3's 5.3 GiB of page faults)
     scratch = np.empty(mrf.unary.size, dtype=np.float32)
 
-    def consider(labels: np.ndarray) -> None:
+    def consider(labels: np.ndarray, energy: float | None = None) -> None:
         nonlocal best_labels, best_energy
-        energy = mrf.energy(labels)
+        energy = mrf.energy(labels) if energy is None else energy
         if energy < best_energy:
             best_labels, best_energy = labels, energy
 
-    for done in range(1, iterations + 1):
-        row_labels, row_energies = solve_chains(mrf, False, multipliers, 1.0, scale=0.5)
-        column_labels, column_energies = solve_chains(
-            turned, False, multipliers_turned, -1.0, scale=0.5, transpose=True
-        )
-        current = float(row_energies.sum() + column_energies.sum())
-        consider(row_labels)
-        consider(column_labels)
-        if done % PRIMAL_EVERY == 0:
-            consider(chain_primal(mrf, turned, column_labels, scratch))
-        disagreeing = disagreements(row_labels, column_labels)
-        if current > bound:
-            bound, stalled = current, 0
-        else:
-            stalled += 1
-            if stalled >= STALL_ITERATIONS:
-                gamma, stalled = gamma / 2.0, 0
-        if disagreeing == 0 or best_energy - bound <= gap * abs(best_energy):
-            break
-        step = np.float32(gamma * max(best_energy - current, 0.0) / (2 * disagreeing))
-        subgradient_step(multipliers, multipliers_turned, row_labels, column_labels, step)
+    # a core no other grid holds (threads.spare_core) takes the column chains and their energy
+    with ThreadPoolExecutor(1, thread_name_prefix="qhsm-dual") as spare:
+        for done in range(1, iterations + 1):
+            helper = spare if spare_core() else None
+            (row_labels, row_energies), (column_labels, column_energies) = both(
+                partial(solve_chains, mrf, False, multipliers, 1.0, scale=0.5),
+                partial(
+                    solve_chains, turned, False, multipliers_turned, -1.0, scale=0.5, transpose=True
+                ),
+                helper,
+            )
+            current = float(row_energies.sum() + column_energies.sum())
+            row_energy, column_energy = both(
+                partial(mrf.energy, row_labels), partial(mrf.energy, column_labels), helper
+            )
+            consider(row_labels, row_energy)  # in this order, as one after the other
+            consider(column_labels, column_energy)
+            if done % PRIMAL_EVERY == 0:
+                consider(chain_primal(mrf, turned, column_labels, scratch))
+            disagreeing = disagreements(row_labels, column_labels)
+            if current > bound:
+                bound, stalled = current, 0
+            else:
+                stalled += 1
+                if stalled >= STALL_ITERATIONS:
+                    gamma, stalled = gamma / 2.0, 0
+            if disagreeing == 0 or best_energy - bound <= gap * abs(best_energy):
+                break
+            step = np.float32(gamma * max(best_energy - current, 0.0) / (2 * disagreeing))
+            subgradient_step(multipliers, multipliers_turned, row_labels, column_labels, step)
     return DualResult(
         labels=best_labels,
         energy=float(best_energy),

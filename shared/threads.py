@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import Executor, ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 #: The environment variables the native thread pools read when they start.
@@ -34,8 +36,12 @@ THREAD_VARIABLES = (
 USER_VARIABLE = "QHSM_USER_THREADS"
 
 T = TypeVar("T")
+U = TypeVar("U")
 
 _budget: int | None = None
+#: Cores of the budget held by :func:`holding_core` tasks now.
+_held = 0
+_held_lock = threading.Lock()
 
 
 def cores() -> int:
@@ -184,3 +190,33 @@ def each_beside(function: Callable[..., T], arguments: Sequence[Sequence[Any]]) 
     :func:`beside` it (every view's share of a step on the cores the budget has)."""
     later = [beside(function, *args) for args in arguments[1:]]
     return [function(*arguments[0]), *(result() for result in later)]
+
+
+@contextmanager
+def holding_core() -> Iterator[None]:
+    """Count the calling thread's task on one of the budget's cores while the block runs (the
+    views' grids minimised side by side), for :func:`spare_core`."""
+    global _held
+    with _held_lock:
+        _held += 1
+    try:
+        yield
+    finally:
+        with _held_lock:
+            _held -= 1
+
+
+def spare_core() -> bool:
+    """Whether the budget has a core that no :func:`holding_core` task holds: a grid
+    minimised alone (a 2000 x 2000 pair's views one at a time), or the last of the views still
+    running, may then split its work over a second thread."""
+    return _held < threads()
+
+
+def both(first: Callable[[], T], second: Callable[[], U], helper: Executor | None) -> tuple[T, U]:
+    """``(first(), second())``, the second on ``helper``'s thread meanwhile when there is one
+    (independent steps: the same results either way)."""
+    if helper is None:
+        return first(), second()
+    later = helper.submit(second)
+    return first(), later.result()

@@ -24,7 +24,7 @@ from shared.inference.base import (
 from shared.level_inputs import LevelInputs
 from shared.provenance_map import Stage, filled
 from shared.solvers.resolved import ResolvedSolver
-from shared.threads import threads
+from shared.threads import holding_core, threads
 
 #: Grids (whole views) minimised at the same time hold at most about this much dual
 #: decomposition state between them; a larger view's grid waits for the other's to finish (the
@@ -69,7 +69,8 @@ class GridViews(LevelInference):
         def solve(rows: tuple[int, int]) -> BundleResult:
             started = time.perf_counter()
             grid = inputs.grid(config, *rows, workers=workers)
-            outcome = self.minimise(grid, config.dual_iterations, config.dual_gap)
+            with holding_core():  # a core this view's grid holds (threads.spare_core)
+                outcome = self.minimise(grid, config.dual_iterations, config.dual_gap)
             return BundleResult(
                 row_start=rows[0],
                 row_stop=rows[1],

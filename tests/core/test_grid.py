@@ -69,6 +69,57 @@ def test_the_bound_never_exceeds_any_labelling_and_is_the_optimum_when_chains_ag
         assert result.energy == pytest.approx(optimum, abs=1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 2**31),
+    shape=st.sampled_from([(1, 1), (1, 6), (5, 1), (7, 9), (12, 16)]),
+    labels=st.integers(1, 5),
+    windows=st.booleans(),
+    gap=st.sampled_from([0.0, 0.01]),
+)
+def test_a_spare_cores_column_chains_give_the_same_decomposition(seed, shape, labels, windows, gap):
+    """With a core to spare the column chains and their energy run on a helper thread: every
+    labelling, energy, bound and iteration count as on one thread."""
+    import shared.grid as grid_module
+
+    mrf = random_grid(seed, *shape, labels=labels, windows=windows)
+    outcomes = {}
+    for spare in (False, True):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(grid_module, "spare_core", lambda spare=spare: spare)
+            outcomes[spare] = dual_decomposition(mrf, iterations=25, gap=gap)
+    alone, helped = outcomes[False], outcomes[True]
+    np.testing.assert_array_equal(helped.labels, alone.labels)
+    np.testing.assert_array_equal(helped.unsettled, alone.unsettled)
+    assert (helped.energy, helped.lower_bound, helped.iterations, helped.disagreeing) == (
+        alone.energy, alone.lower_bound, alone.iterations, alone.disagreeing,
+    )  # fmt: skip
+
+
+def test_the_last_view_running_lends_its_decomposition_the_other_core(monkeypatch):
+    """Each view's grid holds a core while it is minimised; a grid alone (the views one at a
+    time) finds the other core spare at every iteration; the map is the same either way."""
+    import shared.grid as grid_module
+    import shared.inference.grid_views as solve
+    import shared.threads as threads_module
+
+    held: list[int] = []
+    spare_core = threads_module.spare_core
+    monkeypatch.setattr(threads_module, "_budget", 2)
+    monkeypatch.setattr(
+        grid_module, "spare_core", lambda: held.append(threads_module._held) or spare_core()
+    )
+    scene = make_scene(24, 40, max_disparity=8, seed=2)
+    config = MatchConfig(max_disparity=8)
+    monkeypatch.setattr(solve, "GRID_STATE_BYTES", 0)  # one grid at a time
+    alone = run_pipeline(scene.left, scene.right, config).disparity
+    assert held and set(held) == {1}
+    held.clear()
+    monkeypatch.setattr(solve, "GRID_STATE_BYTES", 2**40)  # side by side
+    np.testing.assert_array_equal(run_pipeline(scene.left, scene.right, config).disparity, alone)
+    assert held and set(held) <= {1, 2}
+
+
 @settings(max_examples=20, deadline=None)
 @given(seed=st.integers(0, 2**31), tolerance=st.sampled_from([0.005, 0.02, 0.1]))
 def test_a_gap_tolerance_stops_early_only_with_its_certificate(seed, tolerance):

@@ -18,9 +18,12 @@ from shared.threads import (
     THREAD_VARIABLES,
     USER_VARIABLE,
     beside,
+    both,
     cores,
     each_beside,
+    holding_core,
     inherited_threads,
+    spare_core,
     thread_budget,
     thread_environment,
 )
@@ -101,3 +104,29 @@ def test_each_beside_answers_in_order_the_first_here(monkeypatch, budget):
     assert [index for index, _ in results] == [0, 1, 2]
     assert results[0][1] == here
     assert all((name == here) == (budget == 1) for _, name in results[1:])
+
+
+@pytest.mark.parametrize("budget", [1, 2, 3])
+def test_a_core_is_spare_while_fewer_tasks_hold_one_than_the_budget_has(monkeypatch, budget):
+    monkeypatch.setattr(threads_module, "_budget", budget)
+    assert spare_core()
+    with holding_core():
+        assert spare_core() == (budget > 1)
+        with holding_core():
+            assert spare_core() == (budget > 2)
+        assert spare_core() == (budget > 1)
+    with pytest.raises(RuntimeError), holding_core():
+        raise RuntimeError("a task that fails lets its core go")
+    assert spare_core()
+
+
+def test_both_runs_the_second_on_the_helper_and_answers_in_order():
+    from concurrent.futures import ThreadPoolExecutor
+
+    here = threading.current_thread().name
+    assert both(_thread_name, _thread_name, None) == (here, here)
+    with ThreadPoolExecutor(1) as helper:
+        first, second = both(_thread_name, _thread_name, helper)
+        assert first == here and second != here
+        with pytest.raises(ValueError, match="raised in the thread"):
+            both(_thread_name, lambda: _thread_name(fail=True), helper)
