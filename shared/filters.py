@@ -220,10 +220,10 @@ def cost_confidence(
     cost more than 1 px away (a peak-ratio measure: 0 where another disparity is as cheap,
     1 where the chosen one costs nothing and every other something).
 
-    c_alt is the least of the :data:`RIVALS` least costs (:func:`least_costs`) more than 1 px
-    away: of the three disparities around the chosen one at most three are among them, and a
-    cheaper far one would be among them too. They do not depend on the map, so a caller can
-    take them beforehand (``least``), beside the filters that make the map.
+    c_alt is the least of the pixel's :data:`RIVALS` least costs (:func:`least_costs`) that lie
+    more than 1 px away: at most three of them lie within 1 px, and a cheaper far cost would be
+    among them. They do not depend on the map, so a caller can take them beforehand
+    (``least``), beside the filters that make the map.
 
     Parameters
     ----------
