@@ -240,7 +240,8 @@ def prepare_level(
         downsampling (every level of a bin pyramid: the stacked views are built once).
     fine : LevelInputs, optional
         The full-resolution views (:func:`shared.coarse_grid.fine_inputs`) with the run's
-        cached volumes: a coarse-grid level's costs are pooled from them (built here if None).
+        cached volumes: a coarse-grid level's costs are pooled from them (built here if None),
+        and a full-resolution level's stacked views are theirs.
 
     Returns
     -------
@@ -249,6 +250,9 @@ def prepare_level(
     """
     if coarser is not None and coarser.plan.downsample == plan.downsample:
         left_k, right_k, views = coarser.left, coarser.right, coarser.views
+    elif fine is not None and fine.plan.downsample == plan.downsample:
+        # the first full-resolution level: the run's stacked views, not a second copy of them
+        left_k, right_k, views = fine.left, fine.right, fine.views
     else:
         left_k, right_k, views = level_views(left, right, config, plan)
     shape = left_k.shape[:2]

@@ -108,6 +108,25 @@ def test_the_pooled_costs_are_the_same_from_cached_volumes(scene):
     np.testing.assert_array_equal(pooled_costs(fine, plans[0], config.data_term, (20, 30)), built)
 
 
+def test_the_first_full_resolution_level_takes_the_runs_stacked_views(scene):
+    """Below a coarse grid the first full-resolution level's images are the run's own stacked
+    views (no second copy of them), the very values :func:`level_views` builds."""
+    from shared.pipeline import level_views
+
+    config = MatchConfig(max_disparity=40, coarse_grid=2)
+    left, right = match_views(scene.left, scene.right, config)
+    plans = plan_run(left, right, config)[1]
+    fine = fine_views(left, right, config, plans[0])
+    coarse = prepare_level(left, right, config, plans[0], fine=fine)
+    assert coarse.plan.downsample > 1 and plans[1].downsample == 1
+    coarse_map = np.zeros(coarse.shape, np.float32)
+    finer = prepare_level(left, right, config, plans[1], coarse_map, coarse, fine)
+    assert finer.left is fine.left and finer.right is fine.right and finer.views == fine.views
+    built = level_views(left, right, config, plans[1])
+    np.testing.assert_array_equal(finer.left, built[0])
+    np.testing.assert_array_equal(finer.right, built[1])
+
+
 def test_the_coarse_labels_centre_the_finer_windows_view_by_view(scene):
     config = MatchConfig(max_disparity=40, coarse_grid=2)
     left, right = match_views(scene.left, scene.right, config)
