@@ -13,11 +13,9 @@ failed (a marker named after :func:`shared.kernels.module_name`: an upgrade trie
 from __future__ import annotations
 
 import os
-import shlex
 import shutil
 import subprocess
 import sys
-import sysconfig
 import traceback
 from collections.abc import Mapping
 from pathlib import Path
@@ -44,7 +42,9 @@ def built(directory: Path) -> bool:
 def c_compiler(environ: Mapping[str, str] = os.environ) -> str | None:
     """The C compiler ``numba.pycc`` would call, if it is on the PATH: setuptools' Unix compiler
     takes ``$CC``, else Python's own build ``CC`` (sysconfig)."""
-    command = shlex.split(environ.get("CC") or sysconfig.get_config_var("CC") or "")
+    from shared.kernel_build import compiler_command
+
+    command = compiler_command(environ)
     return shutil.which(command[0]) if command else None
 
 

@@ -1,9 +1,10 @@
 """Compile the kernels of :mod:`shared.grid_kernels`, :mod:`shared.trws_kernels` and
 :mod:`shared.volume_kernels` ahead of time (numba's ``pycc``) into the module
-:mod:`shared.kernels` loads: ``qhsm build-kernels`` once after installing or upgrading (about
-15 s of CPU here; needs a C compiler), or ``qhsm match`` in a terminal in the background
-(:mod:`shared.kernel_background`). Without it everything works, each process then compiles or
-loads the kernels through numba (issue 28, item 3).
+:mod:`shared.kernels` loads, and the C chain kernel beside it (:mod:`shared.chains_native`):
+``qhsm build-kernels`` once after installing or upgrading (about 15 s of CPU here; needs a C
+compiler), or ``qhsm match`` in a terminal in the background (:mod:`shared.kernel_background`).
+Without it everything works, each process then compiles or loads the kernels through numba
+(issue 28, item 3).
 
 Numba 0.68 still ships ``numba.pycc`` (deprecated since 0.57 without a replacement); should it
 go, the build fails with that message and the kernels stay just-in-time.
@@ -13,18 +14,30 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shlex
+import sysconfig
 import tempfile
 import warnings
+from collections.abc import Mapping
 from pathlib import Path
 
+from shared import chains_native
 from shared.kernels import (
     SIGNATURES,
     cache_directory,
     dispatcher,
     module_name,
+    native_library_path,
     pycc_signature,
     target_cpu,
 )
+
+
+def compiler_command(environ: Mapping[str, str] = os.environ) -> list[str]:
+    """The C compiler's command ``numba.pycc`` calls (setuptools' Unix compiler: ``$CC``, else
+    Python's own build ``CC``), which the C chain kernel is built with too; [] when none is
+    named."""
+    return shlex.split(environ.get("CC") or sysconfig.get_config_var("CC") or "")
 
 
 def _releasing_gil(flags: type) -> type:
@@ -52,7 +65,8 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
     Returns
     -------
     pathlib.Path
-        The compiled module's file.
+        The compiled module's file. With ``_chains_windows`` among ``names`` (or all) the C
+        chain kernel is built beside it (:func:`build_native`).
     """
     with warnings.catch_warnings():  # pycc's deprecation notice: said in the module doc
         warnings.simplefilter("ignore")
@@ -81,4 +95,17 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
         built = next(Path(scratch).glob(f"{name}.*"))
         target = directory / built.name
         os.replace(built, target)  # atomic: a process loading it sees all or nothing
+    if names is None or "_chains_windows" in names:
+        build_native(directory)
     return target
+
+
+def build_native(directory: Path) -> Path | None:
+    """The C chain kernel (:mod:`shared.chains_native`) into ``directory``, or None with a
+    warning saying why it was not built (numba's chain kernel then runs: the same results)."""
+    try:
+        command = compiler_command() or ["cc"]
+        return chains_native.compile_library(command, native_library_path(directory), target_cpu())
+    except (OSError, RuntimeError) as error:
+        warnings.warn(f"the C chain kernel was not built: {error}", stacklevel=2)
+        return None

@@ -31,6 +31,8 @@ from typing import Any, Final
 
 import numpy as np
 
+from shared import chains_native
+
 #: An argument: ``(dtype, ndim)`` for a C-contiguous, writeable array, else a scalar type name.
 Argument = tuple[str, int] | str
 
@@ -111,6 +113,8 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
 MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels", "shared.volume_kernels")
 SOURCES: Final = tuple(Path(__file__).with_name(f"{m.rpartition('.')[2]}.py") for m in MODULES)
 BUILD: Final = Path(__file__).with_name("kernel_build.py")
+#: The chain kernel in C (:mod:`shared.chains_native`), built with the compiled module.
+NATIVE_SOURCE: Final = Path(__file__).with_name("chains_native.c")
 #: The x86-64 levels' features as Linux's /proc/cpuinfo names them (``pni``: SSE3; ``abm``:
 #: LZCNT), each level's beyond the one before; the highest the CPU has all of is the target.
 X86_64_LEVELS: Final = (
@@ -161,6 +165,7 @@ def module_name() -> str:
     module, or one built for a CPU this one is not, is never loaded."""
     digest = hashlib.sha256(b"".join(source.read_bytes() for source in SOURCES))
     digest.update(BUILD.read_bytes())  # how it was compiled
+    digest.update(NATIVE_SOURCE.read_bytes())
     digest.update(target_cpu().encode())
     digest.update(repr(SIGNATURES).encode())
     digest.update(sys.version.encode())
@@ -202,6 +207,12 @@ def load_compiled(directory: Path | None = None) -> ModuleType | None:
     return module
 
 
+def native_library_path(directory: Path | None = None) -> Path:
+    """Where the C chain kernel built for this source is (:mod:`shared.chains_native`): beside
+    the compiled module, named after it (not matched by its ``name.*`` pattern)."""
+    return (directory or cache_directory()) / f"{module_name()}_chains.so"
+
+
 def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
     """Whether ``value`` is what the compiled code reads for ``argument`` (an array's dtype
     object, not its name: ``dtype.name`` is computed in Python at every call)."""
@@ -233,10 +244,18 @@ def dispatcher(name: str) -> Callable[..., Any]:
 
 
 class Kernel:
-    """One kernel: compiled when the call fits its signature, else numba's dispatcher."""
+    """One kernel: compiled when the call fits its signature, else numba's dispatcher; a
+    ``native`` implementation (C, the same results) first when there is one and the call fits
+    (it returns None for a call it leaves to the others)."""
 
-    def __init__(self, name: str, compiled: ModuleType | None) -> None:
+    def __init__(
+        self,
+        name: str,
+        compiled: ModuleType | None,
+        native: Callable[..., Any] | None = None,
+    ) -> None:
         self.name = name
+        self.native = native
         self.arguments = [
             (np.dtype(a[0]), a[1]) if isinstance(a, tuple) else a for a in SIGNATURES[name][1]
         ]
@@ -253,16 +272,22 @@ class Kernel:
         return self._jit
 
     def __call__(self, *args: Any) -> Any:
-        if (
-            self.compiled is not None
+        fits = (
+            (self.native is not None or self.compiled is not None)
             and len(args) == len(self.arguments)
             and all(_fits(a, kind) for a, kind in zip(args, self.arguments, strict=True))
-        ):
+        )
+        if fits and self.native is not None:
+            result = self.native(*args)
+            if result is not None:
+                return result
+        if fits and self.compiled is not None:
             return self.compiled(*args)
         return self.jit()(*args)
 
 
 _COMPILED = load_compiled()
+_NATIVE_CHAINS = chains_native.load(native_library_path())
 
 
 def compiled_module() -> ModuleType | None:
@@ -270,7 +295,7 @@ def compiled_module() -> ModuleType | None:
     return _COMPILED
 
 
-chains_windows = Kernel("_chains_windows", _COMPILED)
+chains_windows = Kernel("_chains_windows", _COMPILED, _NATIVE_CHAINS)
 chains_general = Kernel("_chains_general", _COMPILED)
 grid_energy = Kernel("_grid_energy", _COMPILED)
 neighbour_costs = Kernel("_neighbour_costs", _COMPILED)

@@ -8,7 +8,7 @@ import pytest
 
 import shared.grid_kernels
 import shared.volume_kernels
-from shared import kernels
+from shared import chains_native, kernel_build, kernels
 from shared.kernel_build import build
 
 VOLUME_KERNELS = (
@@ -19,7 +19,7 @@ VOLUME_KERNELS = (
 @pytest.fixture(scope="module")
 def directory(tmp_path_factory):
     built = tmp_path_factory.mktemp("kernels")
-    build(built, names=("_disagreements", "_grid_energy", *VOLUME_KERNELS))
+    build(built, names=("_disagreements", "_grid_energy", "_chains_windows", *VOLUME_KERNELS))
     return built
 
 
@@ -187,8 +187,32 @@ def test_the_compiled_wrappers_release_the_gil(directory):
     """The two views solve in two threads: the compiled wrappers must release the GIL around a
     kernel, as the jit ones do (``nogil``); pycc's own flags do not (a module built without
     :func:`shared.kernel_build._releasing_gil` calls no ``PyEval_SaveThread``)."""
-    (built,) = directory.glob("_qhsm_kernels_*")
+    (built,) = directory.glob(f"{kernels.module_name()}.*")  # not the C chain kernel
     assert b"PyEval_SaveThread" in built.read_bytes()
+
+
+def test_the_build_puts_the_c_chain_kernel_beside_the_module(directory):
+    """``qhsm build-kernels`` builds the C chain kernel too (:mod:`shared.chains_native`); a
+    ``.so`` named after the module that ``load_compiled``'s pattern does not take."""
+    native = chains_native.load(kernels.native_library_path(directory))
+    assert native is not None
+    assert kernels.load_compiled(directory) is not None
+    kernel = kernels.Kernel("_chains_windows", kernels.load_compiled(directory), native)
+    rng = np.random.default_rng(5)
+    base, extra = rng.random((2, 7, 9, 3), dtype=np.float32)
+    first = rng.integers(0, 4, (7, 9), dtype=np.int32)
+    arguments = (base, 0.5, extra, -1.0, first, rng.random((7, 8)), 0.2, 0.5)
+    ours, numbas = np.zeros((7, 9), np.int32), np.zeros((7, 9), np.int32)
+    energies = kernel(*arguments, ours, False)
+    assert np.array_equal(energies, shared.grid_kernels._chains_windows(*arguments, numbas, False))
+    assert np.array_equal(ours, numbas)
+
+
+def test_without_a_compiler_the_c_kernel_build_warns(tmp_path, monkeypatch):
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    with pytest.warns(UserWarning, match="C chain kernel was not built"):
+        kernel_build.build_native(tmp_path)
+    assert not kernels.native_library_path(tmp_path).exists()
 
 
 def test_a_damaged_module_is_left_to_numba(tmp_path):

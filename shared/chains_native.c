@@ -1,0 +1,220 @@
+/* The chain kernel of dual decomposition and the chain primal step, in C with vectors:
+ * shared/grid_kernels.py's _chains_windows, the same floats (compiled with -ffp-contract=off:
+ * no fused multiply-adds), twelve chains at a time in the lanes of three 4-double vectors.
+ *
+ * Why C: the kernel's messages run along a chain, each position's a dependent sequence of
+ * additions and minima, so one chain leaves most of a core idle; numba keeps lanes of several
+ * chains scalar (docs/benchmarks.md, "8 chains in lanes"). GCC's and Clang's vector extensions
+ * put the lanes in SIMD registers (SSE2 pairs on a generic x86-64, AVX2 at -march=x86-64-v3).
+ * shared/kernels.py calls it through ctypes when shared/kernel_build.py built it for this
+ * source; the numba kernel stays the reference (tests/core/test_kernels.py: equal bit for bit).
+ *
+ * Every operation is _chains_windows' in the same order: min(a, b) is numba's (b if b < a
+ * else a), the unary (min + scale * base) + sign * extra in float64, the read-back's first of
+ * equal values, the penalty |d| * slope capped at truncation as _regulariser computes it.
+ */
+#include <stdint.h>
+#include <stdlib.h>
+#include <math.h>
+
+typedef double vdouble __attribute__((vector_size(32), aligned(8)));
+typedef int64_t vlong __attribute__((vector_size(32), aligned(8)));
+
+#define LANES 4                 /* chains in one vector */
+#define GROUPS 3                /* vectors in flight: independent work while one waits */
+#define CHAINS (LANES * GROUPS) /* chains a step solves */
+#define MAX_COUNT 64            /* candidates the envelope buffer holds */
+
+/* numba's min(x, y): y where y < x, else x (NaN-free inputs: the same as a minimum) */
+static inline vdouble vmin(vdouble x, vdouble y)
+{
+    vlong less = y < x;
+    return (vdouble)((less & (vlong)y) | (~less & (vlong)x));
+}
+
+static inline vdouble vselect(vlong mask, vdouble yes, vdouble no)
+{
+    return (vdouble)((mask & (vlong)yes) | (~mask & (vlong)no));
+}
+
+static inline double smin(double x, double y) { return y < x ? y : x; }
+
+/* One step's chains: messages[(x * count + k) * CHAINS + n] for chain a + n (the last chain
+ * repeats itself in the lanes past the end; nothing of those lanes is written out). */
+static void solve_step(
+    const float *base, double scale, const float *extra, double sign, const int32_t *first,
+    const double *weight, double slope, double truncation, int32_t *labels, int turned,
+    int64_t chains, int64_t length, int64_t count, double *energies, int64_t a,
+    double *messages)
+{
+    double envelope_buffer[MAX_COUNT * CHAINS] __attribute__((aligned(32)));
+    vdouble *envelope = (vdouble *)envelope_buffer;
+    int64_t chain[CHAINS];
+    const float *base_of[CHAINS], *extra_of[CHAINS];
+    for (int n = 0; n < CHAINS; n++) {
+        chain[n] = a + n < chains ? a + n : chains - 1;
+        base_of[n] = base + chain[n] * length * count;
+        extra_of[n] = extra + chain[n] * length * count;
+    }
+    for (int64_t k = 0; k < count; k++)
+        for (int n = 0; n < CHAINS; n++)
+            messages[k * CHAINS + n] =
+                scale * (double)base_of[n][k] + sign * (double)extra_of[n][k];
+
+    for (int64_t x = 1; x < length; x++) {
+        vdouble w[GROUPS], step[GROUPS], lowest[GROUPS], running[GROUPS], ceiling[GROUPS];
+        int64_t shift[CHAINS];
+        int same = 1;
+        for (int g = 0; g < GROUPS; g++)
+            for (int i = 0; i < LANES; i++) {
+                int64_t c = chain[g * LANES + i];
+                w[g][i] = weight[c * (length - 1) + x - 1];
+                shift[g * LANES + i] = first[c * length + x] - first[c * length + x - 1];
+                same &= shift[g * LANES + i] == 0;
+            }
+        const vdouble *previous = (const vdouble *)(messages + (x - 1) * count * CHAINS);
+        vdouble *current = (vdouble *)(messages + x * count * CHAINS);
+        /* the lower envelope of the cones s w |j - t| over the previous messages */
+        for (int g = 0; g < GROUPS; g++) {
+            step[g] = w[g] * slope;
+            lowest[g] = previous[g];
+            running[g] = lowest[g];
+            envelope[g] = running[g];
+        }
+        for (int64_t j = 1; j < count; j++)
+            for (int g = 0; g < GROUPS; g++) {
+                vdouble value = previous[j * GROUPS + g];
+                lowest[g] = vmin(lowest[g], value);
+                running[g] = vmin(value, running[g] + step[g]);
+                envelope[j * GROUPS + g] = running[g];
+            }
+        for (int64_t j = count - 2; j >= 0; j--)
+            for (int g = 0; g < GROUPS; g++) {
+                running[g] = vmin(envelope[j * GROUPS + g], running[g] + step[g]);
+                envelope[j * GROUPS + g] = running[g];
+            }
+        for (int g = 0; g < GROUPS; g++)
+            ceiling[g] = lowest[g] + w[g] * truncation;
+        if (same) { /* every chain keeps its window (most positions) */
+            for (int64_t k = 0; k < count; k++)
+                for (int g = 0; g < GROUPS; g++) {
+                    vdouble unary, added;
+                    for (int i = 0; i < LANES; i++) {
+                        unary[i] = (double)base_of[g * LANES + i][x * count + k];
+                        added[i] = (double)extra_of[g * LANES + i][x * count + k];
+                    }
+                    current[k * GROUPS + g] =
+                        (vmin(envelope[k * GROUPS + g], ceiling[g]) + scale * unary) +
+                        sign * added;
+                }
+            continue;
+        }
+        /* a window moved: each chain's message at t = k + shift, below, inside or beyond */
+        for (int n = 0; n < CHAINS; n++) {
+            int64_t moved = shift[n];
+            int64_t low = -moved > 0 ? -moved : 0;
+            if (low > count)
+                low = count;
+            int64_t high = count - moved < count ? count - moved : count;
+            if (high < low)
+                high = low;
+            double slope_here = step[n / LANES][n % LANES];
+            double cap = ceiling[n / LANES][n % LANES];
+            const float *unary = base_of[n] + x * count, *added = extra_of[n] + x * count;
+            for (int64_t k = 0; k < count; k++) {
+                double value;
+                if (k < low)
+                    value = envelope_buffer[n] - slope_here * (double)(k + moved);
+                else if (k < high)
+                    value = envelope_buffer[(k + moved) * CHAINS + n];
+                else
+                    value = envelope_buffer[(count - 1) * CHAINS + n] +
+                            slope_here * (double)(k + moved - count + 1);
+                messages[(x * count + k) * CHAINS + n] =
+                    (smin(value, cap) + scale * (double)unary[k]) + sign * (double)added[k];
+            }
+        }
+    }
+
+    /* the read-back: the best last label, then each position's predecessor that gave the
+     * message its value (the first of equal values) */
+    vlong arg[GROUPS];
+    vdouble best[GROUPS];
+    const vdouble *last = (const vdouble *)(messages + (length - 1) * count * CHAINS);
+    for (int g = 0; g < GROUPS; g++) {
+        arg[g] = (vlong){0, 0, 0, 0};
+        best[g] = last[g];
+    }
+    for (int64_t k = 1; k < count; k++)
+        for (int g = 0; g < GROUPS; g++) {
+            vlong better = last[k * GROUPS + g] < best[g];
+            best[g] = vselect(better, last[k * GROUPS + g], best[g]);
+            arg[g] = (better & ((vlong){0, 0, 0, 0} + k)) | (~better & arg[g]);
+        }
+    for (int n = 0; n < CHAINS && a + n < chains; n++) {
+        int32_t label = (int32_t)arg[n / LANES][n % LANES];
+        energies[a + n] = best[n / LANES][n % LANES];
+        if (turned)
+            labels[(length - 1) * chains + a + n] = label;
+        else
+            labels[(a + n) * length + length - 1] = label;
+    }
+    const vdouble infinite = {INFINITY, INFINITY, INFINITY, INFINITY};
+    const vdouble cap = {truncation, truncation, truncation, truncation};
+    for (int64_t x = length - 1; x > 0; x--) {
+        vdouble w[GROUPS], smallest[GROUPS];
+        vlong difference[GROUPS]; /* label difference at j = 0: first[x - 1] - (first[x] + arg) */
+        for (int g = 0; g < GROUPS; g++) {
+            for (int i = 0; i < LANES; i++) {
+                int64_t c = chain[g * LANES + i];
+                w[g][i] = weight[c * (length - 1) + x - 1];
+                difference[g][i] = (int64_t)first[c * length + x - 1] - first[c * length + x];
+            }
+            difference[g] -= arg[g];
+            smallest[g] = infinite;
+        }
+        const vdouble *previous = (const vdouble *)(messages + (x - 1) * count * CHAINS);
+        for (int64_t j = 0; j < count; j++)
+            for (int g = 0; g < GROUPS; g++) {
+                vlong distance = difference[g] + j;
+                vlong negative = distance < 0;
+                distance = (negative & -distance) | (~negative & distance);
+                vdouble penalty = __builtin_convertvector(distance, vdouble) * slope;
+                penalty = vselect(penalty > cap, cap, penalty);
+                vdouble value = previous[j * GROUPS + g] + w[g] * penalty;
+                vlong better = value < smallest[g];
+                smallest[g] = vselect(better, value, smallest[g]);
+                arg[g] = (better & ((vlong){0, 0, 0, 0} + j)) | (~better & arg[g]);
+            }
+        for (int n = 0; n < CHAINS && a + n < chains; n++) {
+            int32_t label = (int32_t)arg[n / LANES][n % LANES];
+            if (turned)
+                labels[(x - 1) * chains + a + n] = label;
+            else
+                labels[(a + n) * length + x - 1] = label;
+        }
+    }
+}
+
+/* _chains_windows over C-contiguous arrays: base and extra (chains, length, count) float32,
+ * first (chains, length) int32, weight (chains, length - 1) float64, labels (chains, length)
+ * int32, or (length, chains) when turned; each chain's optimum into energies (chains).
+ * Returns 0, or 1 when count exceeds MAX_COUNT, 2 when out of memory (nothing solved). */
+int qhsm_chains_windows(
+    const float *base, double scale, const float *extra, double sign, const int32_t *first,
+    const double *weight, double slope, double truncation, int32_t *labels, int turned,
+    int64_t chains, int64_t length, int64_t count, double *energies)
+{
+    if (count > MAX_COUNT || count < 1)
+        return 1;
+    if (chains < 1 || length < 1)
+        return 0;
+    double *messages = malloc(sizeof(double) * (size_t)(length * count * CHAINS));
+    if (messages == NULL)
+        return 2;
+    for (int64_t a = 0; a < chains; a += CHAINS)
+        solve_step(base, scale, extra, sign, first, weight, slope, truncation, labels, turned,
+                   chains, length, count, energies, a, messages);
+    free(messages);
+    return 0;
+}

@@ -1,0 +1,122 @@
+"""The chain kernel in C (``shared/chains_native.c``, issue 28): numba's ``_chains_windows``
+labels and energies bit for bit, on every target it is built for, and the calls it cannot take
+left to numba."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+import shared.grid_kernels
+from shared import chains_native, kernels
+from shared.kernel_build import compiler_command
+
+COMPILER = compiler_command() or ["cc"]
+pytestmark = pytest.mark.skipif(
+    shutil.which(COMPILER[0]) is None, reason=f"no C compiler ({COMPILER[0]}) to build it with"
+)
+
+
+@pytest.fixture(scope="module", params=["native", "generic"])
+def library(request, tmp_path_factory):
+    """Built for this CPU's x86-64 level, and for the generic target (no ``-march``)."""
+    cpu = kernels.target_cpu() if request.param == "native" else ""
+    path = tmp_path_factory.mktemp("chains") / "chains.so"
+    loaded = chains_native.load(chains_native.compile_library(COMPILER, path, cpu))
+    assert loaded is not None
+    return loaded
+
+
+def _arguments(seed: int, chains: int, length: int, count: int, turned: bool, ties: bool):
+    """A windowed chain problem as dual decomposition passes it: half unaries plus signed
+    multipliers, windows that move by any amount, edge weights of zero or more."""
+    rng = np.random.default_rng(seed)
+    base = rng.random((chains, length, count), dtype=np.float32)
+    extra = rng.normal(0, 0.3, (chains, length, count)).astype(np.float32)
+    if ties:  # a few values only: equal messages, where the first of equal labels must win
+        base, extra = np.round(base * 2) / 2, np.round(extra * 2) / 2
+    steps = rng.choice([0, 0, 0, 1, -1, 2, -3, count + 1], (chains, length))
+    first = np.cumsum(steps, axis=1).astype(np.int32)
+    first -= min(int(first.min()), 0)
+    weight = rng.choice([0.0, 0.3, 1.0, 1.7], (chains, max(length - 1, 0)))
+    labels = np.zeros((length, chains) if turned else (chains, length), dtype=np.int32)
+    scale, sign = rng.choice([0.5, 1.0]), rng.choice([1.0, -1.0, 0.0])
+    slope, truncation = float(rng.choice([0.1, 0.25, 1.0])), float(rng.choice([0.2, 0.4, 3.0]))
+    return base, float(scale), extra, float(sign), first, weight, slope, truncation, labels, turned
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    chains=st.integers(1, 27),  # twelve chains a step: whole steps and a step's tail
+    length=st.integers(1, 24),
+    count=st.integers(1, 9),
+    turned=st.booleans(),
+    ties=st.booleans(),
+)
+@example(seed=0, chains=13, length=9, count=6, turned=True, ties=True)
+def test_the_c_kernel_gives_numbas_labels_and_energies(
+    library, seed, chains, length, count, turned, ties
+):
+    ours = _arguments(seed, chains, length, count, turned, ties)
+    numbas = _arguments(seed, chains, length, count, turned, ties)
+    energies = library(*ours)
+    assert energies is not None
+    assert np.array_equal(energies, shared.grid_kernels._chains_windows(*numbas))
+    assert np.array_equal(ours[8], numbas[8])  # the labels, in the layout asked for
+
+
+def test_a_window_wider_than_its_buffer_is_left_to_numba(library):
+    assert library(*_arguments(1, 3, 5, 65, False, False)) is None
+
+
+def test_arrays_whose_shapes_disagree_are_left_to_numba(library):
+    arguments = list(_arguments(2, 4, 6, 3, False, False))
+    arguments[8] = np.zeros((6, 4), dtype=np.int32)  # the turned layout, not asked for
+    assert library(*arguments) is None
+    arguments = list(_arguments(2, 4, 6, 3, False, False))
+    arguments[5] = arguments[5][:, :-1].copy()  # one edge weight short
+    assert library(*arguments) is None
+
+
+def test_the_kernel_takes_the_c_kernel_first_and_numba_for_what_does_not_fit(library):
+    taken = []
+
+    def native(*arguments):
+        taken.append("native")
+        return library(*arguments)
+
+    kernel = kernels.Kernel("_chains_windows", None, native)
+    kernel._jit = lambda *arguments: (
+        taken.append("jit") or shared.grid_kernels._chains_windows(*arguments)
+    )
+    fitting = _arguments(3, 5, 7, 4, False, False)
+    kernel(*fitting)
+    strided = list(_arguments(3, 5, 7, 4, False, False))
+    strided[0] = np.asfortranarray(strided[0])
+    kernel(*strided)
+    wide = _arguments(3, 2, 3, 70, False, False)
+    kernel(*wide)  # the C kernel declines: numba
+    assert taken == ["native", "jit", "native", "jit"]
+
+
+def test_a_compiler_without_the_cpu_level_builds_the_generic_target(tmp_path):
+    built = chains_native.compile_library(COMPILER, tmp_path / "chains.so", "x86-64-v99")
+    assert chains_native.load(built) is not None
+
+
+def test_a_failed_compile_says_why_and_leaves_nothing(tmp_path):
+    failing = shutil.which("false") or "false"
+    with pytest.raises(RuntimeError, match="failed"):
+        chains_native.compile_library([failing], tmp_path / "chains.so", "x86-64-v2")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_damaged_library_is_not_loaded(tmp_path):
+    (tmp_path / "chains.so").write_bytes(b"not a library")
+    assert chains_native.load(tmp_path / "chains.so") is None
+    assert chains_native.load(tmp_path / "missing.so") is None
