@@ -1,8 +1,9 @@
 """The chain kernel in C with vectors (``chains_native.c``): built beside the compiled module by
 ``qhsm build-kernels`` (:mod:`shared.kernel_build`, :func:`compile_library`), loaded by
 :mod:`shared.kernels` (:func:`load`), which calls it in place of ``_chains_windows`` when the
-arguments fit. The same labels and energies bit for bit, 1.5-1.6x faster on Aloe's and
-Tsukuba's grids (docs/benchmarks.md). Without a C compiler nothing changes: numba's kernel runs.
+arguments fit. The same labels and energies bit for bit, about 2x faster on Aloe's grids
+(docs/benchmarks.md, "The chain kernel in C"). Without a C compiler nothing changes: numba's
+kernel runs.
 """
 
 from __future__ import annotations
