@@ -1,13 +1,16 @@
 /* The chain kernel of dual decomposition and the chain primal step, in C with vectors:
  * shared/grid_kernels.py's _chains_windows, the same floats (compiled with -ffp-contract=off:
- * no fused multiply-adds), twelve chains at a time in the lanes of three 4-double vectors.
+ * no fused multiply-adds), the chains in the lanes of three vectors at a time (twelve chains
+ * with AVX's 4 doubles, six with SSE2's or NEON's 2).
  *
  * Why C: the kernel's messages run along a chain, each position's a dependent sequence of
  * additions and minima, so one chain leaves most of a core idle; numba keeps lanes of several
  * chains scalar (docs/benchmarks.md, "8 chains in lanes"). GCC's and Clang's vector extensions
- * put the lanes in SIMD registers (SSE2 pairs on a generic x86-64, AVX2 at -march=x86-64-v3).
- * shared/kernels.py calls it through ctypes when shared/kernel_build.py built it for this
- * source; the numba kernel stays the reference (tests/core/test_kernels.py: equal bit for bit).
+ * put the lanes in SIMD registers. The read-back keeps labels and label differences as doubles
+ * (small integers, exact): 64-bit integer lanes have no absolute value or conversion to
+ * double before AVX-512 (nor a compare before SSE4.2), and cost the kernel 2x with AVX2. shared/kernels.py calls it through ctypes
+ * when shared/kernel_build.py built it for this source; the numba kernel stays the reference
+ * (tests/core/test_chains_native.py: equal bit for bit).
  *
  * Every operation is _chains_windows' in the same order: min(a, b) is numba's (b if b < a
  * else a), the unary (min + scale * base) + sign * extra in float64, the read-back's first of
@@ -17,10 +20,16 @@
 #include <stdlib.h>
 #include <math.h>
 
-typedef double vdouble __attribute__((vector_size(32), aligned(8)));
-typedef int64_t vlong __attribute__((vector_size(32), aligned(8)));
+/* vectors as wide as the target's registers: 4 doubles with AVX, else 2 (SSE2, NEON); wider
+ * than the registers, the compiler lowers them through memory (4-5x slower than numba) */
+#if defined(__AVX__)
+#define LANES 4 /* chains in one vector */
+#else
+#define LANES 2
+#endif
+typedef double vdouble __attribute__((vector_size(LANES * 8), aligned(8)));
+typedef int64_t vlong __attribute__((vector_size(LANES * 8), aligned(8)));
 
-#define LANES 4                 /* chains in one vector */
 #define GROUPS 3                /* vectors in flight: independent work while one waits */
 #define CHAINS (LANES * GROUPS) /* chains a step solves */
 #define MAX_COUNT 64            /* candidates the envelope buffer holds */
@@ -62,20 +71,20 @@ static void solve_step(
                 scale * (double)base_of[n][k] + sign * (double)extra_of[n][k];
 
     for (int64_t x = 1; x < length; x++) {
-        vdouble w[GROUPS], step[GROUPS], lowest[GROUPS], running[GROUPS], ceiling[GROUPS];
+        double weights[CHAINS];
         int64_t shift[CHAINS];
         int same = 1;
-        for (int g = 0; g < GROUPS; g++)
-            for (int i = 0; i < LANES; i++) {
-                int64_t c = chain[g * LANES + i];
-                w[g][i] = weight[c * (length - 1) + x - 1];
-                shift[g * LANES + i] = first[c * length + x] - first[c * length + x - 1];
-                same &= shift[g * LANES + i] == 0;
-            }
+        for (int n = 0; n < CHAINS; n++) {
+            weights[n] = weight[chain[n] * (length - 1) + x - 1];
+            shift[n] = first[chain[n] * length + x] - first[chain[n] * length + x - 1];
+            same &= shift[n] == 0;
+        }
+        vdouble w[GROUPS], step[GROUPS], lowest[GROUPS], running[GROUPS], ceiling[GROUPS];
         const vdouble *previous = (const vdouble *)(messages + (x - 1) * count * CHAINS);
         vdouble *current = (vdouble *)(messages + x * count * CHAINS);
         /* the lower envelope of the cones s w |j - t| over the previous messages */
         for (int g = 0; g < GROUPS; g++) {
+            w[g] = *(const vdouble *)(weights + g * LANES);
             step[g] = w[g] * slope;
             lowest[g] = previous[g];
             running[g] = lowest[g];
@@ -98,11 +107,12 @@ static void solve_step(
         if (same) { /* every chain keeps its window (most positions) */
             for (int64_t k = 0; k < count; k++)
                 for (int g = 0; g < GROUPS; g++) {
-                    vdouble unary, added;
+                    double unaries[LANES], addeds[LANES];
                     for (int i = 0; i < LANES; i++) {
-                        unary[i] = (double)base_of[g * LANES + i][x * count + k];
-                        added[i] = (double)extra_of[g * LANES + i][x * count + k];
+                        unaries[i] = (double)base_of[g * LANES + i][x * count + k];
+                        addeds[i] = (double)extra_of[g * LANES + i][x * count + k];
                     }
+                    vdouble unary = *(const vdouble *)unaries, added = *(const vdouble *)addeds;
                     current[k * GROUPS + g] =
                         (vmin(envelope[k * GROUPS + g], ceiling[g]) + scale * unary) +
                         sign * added;
@@ -137,19 +147,19 @@ static void solve_step(
     }
 
     /* the read-back: the best last label, then each position's predecessor that gave the
-     * message its value (the first of equal values) */
-    vlong arg[GROUPS];
-    vdouble best[GROUPS];
+     * message its value (the first of equal values); labels and label differences as doubles
+     * (small integers, exact), so that every step stays in the double lanes */
+    vdouble arg[GROUPS], best[GROUPS];
     const vdouble *last = (const vdouble *)(messages + (length - 1) * count * CHAINS);
     for (int g = 0; g < GROUPS; g++) {
-        arg[g] = (vlong){0, 0, 0, 0};
+        arg[g] = (vdouble){0};
         best[g] = last[g];
     }
     for (int64_t k = 1; k < count; k++)
         for (int g = 0; g < GROUPS; g++) {
             vlong better = last[k * GROUPS + g] < best[g];
             best[g] = vselect(better, last[k * GROUPS + g], best[g]);
-            arg[g] = (better & ((vlong){0, 0, 0, 0} + k)) | (~better & arg[g]);
+            arg[g] = vselect(better, (vdouble){0} + (double)k, arg[g]);
         }
     for (int n = 0; n < CHAINS && a + n < chains; n++) {
         int32_t label = (int32_t)arg[n / LANES][n % LANES];
@@ -159,32 +169,32 @@ static void solve_step(
         else
             labels[(a + n) * length + length - 1] = label;
     }
-    const vdouble infinite = {INFINITY, INFINITY, INFINITY, INFINITY};
-    const vdouble cap = {truncation, truncation, truncation, truncation};
+    const vdouble infinite = (vdouble){0} + INFINITY;
+    const vdouble cap = (vdouble){0} + truncation;
+    const vlong magnitude = (vlong){0} + INT64_MAX; /* all bits but the sign: |d| */
     for (int64_t x = length - 1; x > 0; x--) {
+        double weights[CHAINS], moves[CHAINS];
+        for (int n = 0; n < CHAINS; n++) {
+            weights[n] = weight[chain[n] * (length - 1) + x - 1];
+            moves[n] = (double)(first[chain[n] * length + x - 1] - first[chain[n] * length + x]);
+        }
         vdouble w[GROUPS], smallest[GROUPS];
-        vlong difference[GROUPS]; /* label difference at j = 0: first[x - 1] - (first[x] + arg) */
+        vdouble difference[GROUPS]; /* label difference at j = 0: first[x-1] - (first[x] + arg) */
         for (int g = 0; g < GROUPS; g++) {
-            for (int i = 0; i < LANES; i++) {
-                int64_t c = chain[g * LANES + i];
-                w[g][i] = weight[c * (length - 1) + x - 1];
-                difference[g][i] = (int64_t)first[c * length + x - 1] - first[c * length + x];
-            }
-            difference[g] -= arg[g];
+            w[g] = *(const vdouble *)(weights + g * LANES);
+            difference[g] = *(const vdouble *)(moves + g * LANES) - arg[g];
             smallest[g] = infinite;
         }
         const vdouble *previous = (const vdouble *)(messages + (x - 1) * count * CHAINS);
         for (int64_t j = 0; j < count; j++)
             for (int g = 0; g < GROUPS; g++) {
-                vlong distance = difference[g] + j;
-                vlong negative = distance < 0;
-                distance = (negative & -distance) | (~negative & distance);
-                vdouble penalty = __builtin_convertvector(distance, vdouble) * slope;
+                vdouble distance = (vdouble)((vlong)(difference[g] + (double)j) & magnitude);
+                vdouble penalty = distance * slope;
                 penalty = vselect(penalty > cap, cap, penalty);
                 vdouble value = previous[j * GROUPS + g] + w[g] * penalty;
                 vlong better = value < smallest[g];
                 smallest[g] = vselect(better, value, smallest[g]);
-                arg[g] = (better & ((vlong){0, 0, 0, 0} + j)) | (~better & arg[g]);
+                arg[g] = vselect(better, (vdouble){0} + (double)j, arg[g]);
             }
         for (int n = 0; n < CHAINS && a + n < chains; n++) {
             int32_t label = (int32_t)arg[n / LANES][n % LANES];

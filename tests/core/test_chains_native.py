@@ -52,7 +52,7 @@ def _arguments(seed: int, chains: int, length: int, count: int, turned: bool, ti
 @settings(max_examples=60, deadline=None)
 @given(
     seed=st.integers(0, 2**32 - 1),
-    chains=st.integers(1, 27),  # twelve chains a step: whole steps and a step's tail
+    chains=st.integers(1, 27),  # 12 (or 6) chains a step: whole steps and a step's tail
     length=st.integers(1, 24),
     count=st.integers(1, 9),
     turned=st.booleans(),
