@@ -209,15 +209,16 @@ static void solve_step(
 /* _chains_windows over C-contiguous arrays: base and extra (chains, length, count) float32,
  * first (chains, length) int32, weight (chains, length - 1) float64, labels (chains, length)
  * int32, or (length, chains) when turned; each chain's optimum into energies (chains).
- * Returns 0, or 1 when count exceeds MAX_COUNT, 2 when out of memory (nothing solved). */
+ * Returns 0, or 1 for a window wider than MAX_COUNT or empty chains (left to numba), 2 when
+ * out of memory (nothing solved). */
 int qhsm_chains_windows(
     const float *base, double scale, const float *extra, double sign, const int32_t *first,
     const double *weight, double slope, double truncation, int32_t *labels, int turned,
     int64_t chains, int64_t length, int64_t count, double *energies)
 {
-    if (count > MAX_COUNT || count < 1)
+    if (count > MAX_COUNT || count < 1 || length < 1)
         return 1;
-    if (chains < 1 || length < 1)
+    if (chains < 1)
         return 0;
     double *messages = malloc(sizeof(double) * (size_t)(length * count * CHAINS));
     if (messages == NULL)

@@ -74,6 +74,21 @@ def test_a_window_wider_than_its_buffer_is_left_to_numba(library):
     assert library(*_arguments(1, 3, 5, 65, False, False)) is None
 
 
+def _empty(chains: int, length: int) -> tuple:
+    costs = np.zeros((chains, length, 4), np.float32)
+    return (
+        costs, 1.0, costs.copy(), 1.0, np.zeros((chains, length), np.int32),
+        np.zeros((chains, max(length - 1, 0))), 0.1, 0.4, np.zeros((chains, length), np.int32),
+        False,
+    )  # fmt: skip
+
+
+def test_empty_chains_are_left_to_numba_and_no_chains_give_no_energies(library):
+    assert library(*_empty(3, 0)) is None
+    energies = library(*_empty(0, 5))
+    assert energies is not None and energies.shape == (0,)
+
+
 def test_arrays_whose_shapes_disagree_are_left_to_numba(library):
     arguments = list(_arguments(2, 4, 6, 3, False, False))
     arguments[8] = np.zeros((6, 4), dtype=np.int32)  # the turned layout, not asked for
