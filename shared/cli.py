@@ -129,7 +129,7 @@ def cmd_build_kernels(args: argparse.Namespace) -> int:
     from shared.kernels import native_library_path
 
     print(f"wrote {build_recording_failure()}")
-    if native_library_path().exists():  # the C chain kernel (its failure is a warning)
+    if native_library_path().exists():  # the C kernels (their failure is a warning)
         print(f"wrote {native_library_path()}")
     return 0
 

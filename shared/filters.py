@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from shared import kernels
+from shared.threads import threads
 
 
 def median(disparity: np.ndarray, size: int = 7) -> np.ndarray:
@@ -167,6 +168,9 @@ def weighted_median(
         and np.array_equal(values, np.rint(values))
     )
     source = (values - np.float32(lowest)).astype(np.uint8) if whole else values
+    if whole and kernels.native_median is not None:  # the same medians on every core
+        median = kernels.native_median(source, guide8, radius, sigma, threads())
+        return median + np.float32(lowest)
     # A colour guide is quantised by k-means seeded from OpenCV's global RNG: seed it, or the
     # same pair gives a different map on every call (up to several pixels apart).
     cv2.setRNGSeed(0)

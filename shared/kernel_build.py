@@ -1,6 +1,6 @@
 """Compile the kernels of :mod:`shared.grid_kernels`, :mod:`shared.trws_kernels` and
 :mod:`shared.volume_kernels` ahead of time (numba's ``pycc``) into the module
-:mod:`shared.kernels` loads, and the C chain kernel beside it (:mod:`shared.chains_native`):
+:mod:`shared.kernels` loads, and the C kernels' library beside it (:mod:`shared.native`):
 ``qhsm build-kernels`` once after installing or upgrading (about 15 s of CPU here; needs a C
 compiler), or ``qhsm match`` in a terminal in the background (:mod:`shared.kernel_background`).
 Without it everything works, each process then compiles or loads the kernels through numba
@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
-from shared import chains_native
+from shared import native
 from shared.kernels import (
     SIGNATURES,
     cache_directory,
@@ -35,7 +35,7 @@ from shared.kernels import (
 
 def compiler_command(environ: Mapping[str, str] = os.environ) -> list[str]:
     """The C compiler's command ``numba.pycc`` calls (setuptools' Unix compiler: ``$CC``, else
-    Python's own build ``CC``), which the C chain kernel is built with too; [] when none is
+    Python's own build ``CC``), which the C kernels are built with too; [] when none is
     named."""
     return shlex.split(environ.get("CC") or sysconfig.get_config_var("CC") or "")
 
@@ -66,7 +66,7 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
     -------
     pathlib.Path
         The compiled module's file. With ``_chains_windows`` among ``names`` (or all) the C
-        chain kernel is built beside it (:func:`build_native`).
+        kernels are built beside it (:func:`build_native`).
     """
     with warnings.catch_warnings():  # pycc's deprecation notice: said in the module doc
         warnings.simplefilter("ignore")
@@ -101,11 +101,12 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
 
 
 def build_native(directory: Path) -> Path | None:
-    """The C chain kernel (:mod:`shared.chains_native`) into ``directory``, or None with a
-    warning saying why it was not built (numba's chain kernel then runs: the same results)."""
+    """The C kernels' library (:mod:`shared.native`) into ``directory``, or None with a
+    warning saying why it was not built (numba's chain kernel and OpenCV's median then run: the
+    same results)."""
     try:
         command = compiler_command() or ["cc"]
-        return chains_native.compile_library(command, native_library_path(directory), target_cpu())
+        return native.compile_library(command, native_library_path(directory), target_cpu())
     except (OSError, RuntimeError) as error:
-        warnings.warn(f"the C chain kernel was not built: {error}", stacklevel=2)
+        warnings.warn(f"the C kernels were not built: {error}", stacklevel=2)
         return None

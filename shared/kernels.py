@@ -31,7 +31,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from shared import chains_native
+from shared import chains_native, median_native, native
 
 #: An argument: ``(dtype, ndim)`` for a C-contiguous, writeable array, else a scalar type name.
 Argument = tuple[str, int] | str
@@ -113,8 +113,6 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
 MODULES: Final = ("shared.grid_kernels", "shared.trws_kernels", "shared.volume_kernels")
 SOURCES: Final = tuple(Path(__file__).with_name(f"{m.rpartition('.')[2]}.py") for m in MODULES)
 BUILD: Final = Path(__file__).with_name("kernel_build.py")
-#: The chain kernel in C (:mod:`shared.chains_native`), built with the compiled module.
-NATIVE_SOURCE: Final = Path(__file__).with_name("chains_native.c")
 #: The x86-64 levels' features as Linux's /proc/cpuinfo names them (``pni``: SSE3; ``abm``:
 #: LZCNT), each level's beyond the one before; the highest the CPU has all of is the target.
 X86_64_LEVELS: Final = (
@@ -165,7 +163,7 @@ def module_name() -> str:
     module, or one built for a CPU this one is not, is never loaded."""
     digest = hashlib.sha256(b"".join(source.read_bytes() for source in SOURCES))
     digest.update(BUILD.read_bytes())  # how it was compiled
-    digest.update(NATIVE_SOURCE.read_bytes())
+    digest.update(b"".join(source.read_bytes() for source in native.SOURCES))
     digest.update(target_cpu().encode())
     digest.update(repr(SIGNATURES).encode())
     digest.update(sys.version.encode())
@@ -208,9 +206,9 @@ def load_compiled(directory: Path | None = None) -> ModuleType | None:
 
 
 def native_library_path(directory: Path | None = None) -> Path:
-    """Where the C chain kernel built for this source is (:mod:`shared.chains_native`): beside
+    """Where the C kernels' library built for this source is (:mod:`shared.native`): beside
     the compiled module, named after it (not matched by its ``name.*`` pattern)."""
-    return (directory or cache_directory()) / f"{module_name()}_chains.so"
+    return (directory or cache_directory()) / f"{module_name()}_native.so"
 
 
 def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
@@ -287,7 +285,10 @@ class Kernel:
 
 
 _COMPILED = load_compiled()
-_NATIVE_CHAINS = chains_native.load(native_library_path())
+_NATIVE = native.load(native_library_path())
+_NATIVE_CHAINS = chains_native.NativeChains(_NATIVE) if _NATIVE is not None else None
+#: OpenCV's weighted median in C on every core (:mod:`shared.median_native`), when built.
+native_median = median_native.NativeMedian(_NATIVE) if _NATIVE is not None else None
 
 
 def compiled_module() -> ModuleType | None:

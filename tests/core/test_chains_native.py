@@ -12,7 +12,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import shared.grid_kernels
-from shared import chains_native, kernels
+from shared import kernels, native
+from shared.chains_native import NativeChains
 from shared.kernel_build import compiler_command
 
 COMPILER = compiler_command() or ["cc"]
@@ -25,10 +26,10 @@ pytestmark = pytest.mark.skipif(
 def library(request, tmp_path_factory):
     """Built for this CPU's x86-64 level, and for the generic target (no ``-march``)."""
     cpu = kernels.target_cpu() if request.param == "native" else ""
-    path = tmp_path_factory.mktemp("chains") / "chains.so"
-    loaded = chains_native.load(chains_native.compile_library(COMPILER, path, cpu))
+    path = tmp_path_factory.mktemp("native") / "native.so"
+    loaded = native.load(native.compile_library(COMPILER, path, cpu))
     assert loaded is not None
-    return loaded
+    return NativeChains(loaded)
 
 
 def _arguments(seed: int, chains: int, length: int, count: int, turned: bool, ties: bool):
@@ -101,11 +102,11 @@ def test_arrays_whose_shapes_disagree_are_left_to_numba(library):
 def test_the_kernel_takes_the_c_kernel_first_and_numba_for_what_does_not_fit(library):
     taken = []
 
-    def native(*arguments):
+    def c_kernel(*arguments):
         taken.append("native")
         return library(*arguments)
 
-    kernel = kernels.Kernel("_chains_windows", None, native)
+    kernel = kernels.Kernel("_chains_windows", None, c_kernel)
     kernel._jit = lambda *arguments: (
         taken.append("jit") or shared.grid_kernels._chains_windows(*arguments)
     )
@@ -120,18 +121,29 @@ def test_the_kernel_takes_the_c_kernel_first_and_numba_for_what_does_not_fit(lib
 
 
 def test_a_compiler_without_the_cpu_level_builds_the_generic_target(tmp_path):
-    built = chains_native.compile_library(COMPILER, tmp_path / "chains.so", "x86-64-v99")
-    assert chains_native.load(built) is not None
+    built = native.compile_library(COMPILER, tmp_path / "native.so", "x86-64-v99")
+    assert native.load(built) is not None
 
 
 def test_a_failed_compile_says_why_and_leaves_nothing(tmp_path):
     failing = shutil.which("false") or "false"
     with pytest.raises(RuntimeError, match="failed"):
-        chains_native.compile_library([failing], tmp_path / "chains.so", "x86-64-v2")
+        native.compile_library([failing], tmp_path / "native.so", "x86-64-v2")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_a_damaged_library_is_not_loaded(tmp_path):
-    (tmp_path / "chains.so").write_bytes(b"not a library")
-    assert chains_native.load(tmp_path / "chains.so") is None
-    assert chains_native.load(tmp_path / "missing.so") is None
+    (tmp_path / "native.so").write_bytes(b"not a library")
+    assert native.load(tmp_path / "native.so") is None
+    assert native.load(tmp_path / "missing.so") is None
+
+
+def test_a_library_without_every_kernel_is_not_loaded(tmp_path):
+    """One built from older sources (the chain kernel alone) is left: the median would be
+    missing."""
+    import subprocess
+
+    chains_only = tmp_path / "chains.so"
+    command = [*COMPILER, *native.FLAGS, str(native.SOURCES[0]), "-o", str(chains_only)]
+    subprocess.run(command, check=True)
+    assert native.load(chains_only) is None

@@ -8,7 +8,8 @@ import pytest
 
 import shared.grid_kernels
 import shared.volume_kernels
-from shared import chains_native, kernel_build, kernels
+from shared import kernel_build, kernels, native
+from shared.chains_native import NativeChains
 from shared.kernel_build import build
 
 VOLUME_KERNELS = (
@@ -191,13 +192,14 @@ def test_the_compiled_wrappers_release_the_gil(directory):
     assert b"PyEval_SaveThread" in built.read_bytes()
 
 
-def test_the_build_puts_the_c_chain_kernel_beside_the_module(directory):
-    """``qhsm build-kernels`` builds the C chain kernel too (:mod:`shared.chains_native`); a
-    ``.so`` named after the module that ``load_compiled``'s pattern does not take."""
-    native = chains_native.load(kernels.native_library_path(directory))
-    assert native is not None
+def test_the_build_puts_the_c_kernels_beside_the_module(directory):
+    """``qhsm build-kernels`` builds the C kernels too (:mod:`shared.native`); a ``.so`` named
+    after the module that ``load_compiled``'s pattern does not take."""
+    library = native.load(kernels.native_library_path(directory))
+    assert library is not None
     assert kernels.load_compiled(directory) is not None
-    kernel = kernels.Kernel("_chains_windows", kernels.load_compiled(directory), native)
+    chains = NativeChains(library)
+    kernel = kernels.Kernel("_chains_windows", kernels.load_compiled(directory), chains)
     rng = np.random.default_rng(5)
     base, extra = rng.random((2, 7, 9, 3), dtype=np.float32)
     first = rng.integers(0, 4, (7, 9), dtype=np.int32)
@@ -210,7 +212,7 @@ def test_the_build_puts_the_c_chain_kernel_beside_the_module(directory):
 
 def test_without_a_compiler_the_c_kernel_build_warns(tmp_path, monkeypatch):
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
-    with pytest.warns(UserWarning, match="C chain kernel was not built"):
+    with pytest.warns(UserWarning, match="C kernels were not built"):
         kernel_build.build_native(tmp_path)
     assert not kernels.native_library_path(tmp_path).exists()
 
