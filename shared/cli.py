@@ -42,6 +42,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     unsupported output suffix is a ``CommandError``."""
     from shared import kernel_background, kernels
     from shared.activity import reporting
+    from shared.allocator import keep_freed_memory
     from shared.cli_options import CommandError, config_from_args
     from shared.config import Inference
     from shared.images import PNG_MAX_DISPARITY as PNG_MAX
@@ -54,6 +55,7 @@ def cmd_match(args: argparse.Namespace) -> int:
     from shared.solvers.registry import resolve
 
     config = config_from_args(args)
+    keep_freed_memory()  # one pair, then the process ends: freed arrays are reused, not faulted
     if config.inference is Inference.GRID:
         kernels.preload()  # numba's start beside reading the views and the first level's work
     solver = resolve(config)
