@@ -39,9 +39,10 @@ class NativeChains:
         truncation: float,
         labels: np.ndarray,
         turned: bool,
-    ) -> np.ndarray | None:
-        """Each chain's optimum (its labels into ``labels``), or None when the arrays' shapes
-        do not agree or the window is wider than the library's buffer (numba's kernel then)."""
+    ) -> object:
+        """Each chain's optimum (its labels into ``labels``) as an array of energies, or
+        NotImplemented when the arrays' shapes do not agree or the window is wider than the
+        library's buffer (numba's kernel then)."""
         chains, length, count = base.shape
         if (
             extra.shape != base.shape
@@ -49,7 +50,7 @@ class NativeChains:
             or weight.shape != (chains, max(length - 1, 0))
             or labels.shape != ((length, chains) if turned else (chains, length))
         ):
-            return None
+            return NotImplemented
         energies = np.empty(chains)
         status = self.function(
             base.ctypes.data, scale, extra.ctypes.data, sign, first.ctypes.data,
@@ -58,4 +59,4 @@ class NativeChains:
         )  # fmt: skip
         if status == 2:
             raise MemoryError("no memory for the chain kernel's messages")
-        return energies if status == 0 else None
+        return energies if status == 0 else NotImplemented

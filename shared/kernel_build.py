@@ -65,8 +65,8 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
     Returns
     -------
     pathlib.Path
-        The compiled module's file. With ``_chains_windows`` among ``names`` (or all) the C
-        kernels are built beside it (:func:`build_native`).
+        The compiled module's file. With a kernel of :data:`shared.native.KERNELS` among
+        ``names`` (or all) the C kernels are built beside it (:func:`build_native`).
     """
     with warnings.catch_warnings():  # pycc's deprecation notice: said in the module doc
         warnings.simplefilter("ignore")
@@ -95,7 +95,7 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
         built = next(Path(scratch).glob(f"{name}.*"))
         target = directory / built.name
         os.replace(built, target)  # atomic: a process loading it sees all or nothing
-    if names is None or "_chains_windows" in names:
+    if names is None or set(names) & set(native.KERNELS):
         build_native(directory)
     return target
 

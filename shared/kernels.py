@@ -31,7 +31,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from shared import chains_native, median_native, native
+from shared import chains_native, median_native, native, volume_native
 
 #: An argument: ``(dtype, ndim)`` for a C-contiguous, writeable array, else a scalar type name.
 Argument = tuple[str, int] | str
@@ -244,7 +244,7 @@ def dispatcher(name: str) -> Callable[..., Any]:
 class Kernel:
     """One kernel: compiled when the call fits its signature, else numba's dispatcher; a
     ``native`` implementation (C, the same results) first when there is one and the call fits
-    (it returns None for a call it leaves to the others)."""
+    (it returns NotImplemented for a call it leaves to the others)."""
 
     def __init__(
         self,
@@ -277,7 +277,7 @@ class Kernel:
         )
         if fits and self.native is not None:
             result = self.native(*args)
-            if result is not None:
+            if result is not NotImplemented:
                 return result
         if fits and self.compiled is not None:
             return self.compiled(*args)
@@ -289,6 +289,7 @@ _NATIVE = native.load(native_library_path())
 _NATIVE_CHAINS = chains_native.NativeChains(_NATIVE) if _NATIVE is not None else None
 #: OpenCV's weighted median in C on every core (:mod:`shared.median_native`), when built.
 native_median = median_native.NativeMedian(_NATIVE) if _NATIVE is not None else None
+_NATIVE_LEAST = volume_native.NativeLeastCosts(_NATIVE) if _NATIVE is not None else None
 
 
 def compiled_module() -> ModuleType | None:
@@ -308,7 +309,7 @@ census_aggregate = Kernel("census_aggregate", _COMPILED)
 census_window = Kernel("census_window", _COMPILED)
 lowest_costs = Kernel("lowest_costs", _COMPILED)
 window_minima = Kernel("window_minima", _COMPILED)
-least_costs = Kernel("least_costs", _COMPILED)
+least_costs = Kernel("least_costs", _COMPILED, _NATIVE_LEAST)
 
 
 _preloading: threading.Thread | None = None

@@ -1,9 +1,10 @@
-"""The kernels written in C (``chains_native.c``, ``median_native.c``): one shared library
-built beside the compiled module by ``qhsm build-kernels`` (:mod:`shared.kernel_build`,
-:func:`compile_library`) and loaded by :mod:`shared.kernels` (:func:`load`), whose bindings
-(:mod:`shared.chains_native`, :mod:`shared.median_native`) call it in place of numba's chain
-kernel and OpenCV's weighted median, with the same results bit for bit. Without a C compiler
-nothing changes: numba's kernel and OpenCV's filter run.
+"""The kernels written in C (``chains_native.c``, ``median_native.c``, ``volume_native.c``): one
+shared library built beside the compiled module by ``qhsm build-kernels``
+(:mod:`shared.kernel_build`, :func:`compile_library`) and loaded by :mod:`shared.kernels`
+(:func:`load`), whose bindings (:mod:`shared.chains_native`, :mod:`shared.median_native`,
+:mod:`shared.volume_native`) call it in place of numba's chain and least-cost kernels and
+OpenCV's weighted median, with the same results bit for bit. Without a C compiler nothing
+changes: numba's kernels and OpenCV's filter run.
 """
 
 from __future__ import annotations
@@ -14,11 +15,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Final
 
-SOURCES: Final = tuple(Path(__file__).with_name(f"{n}_native.c") for n in ("chains", "median"))
+SOURCES: Final = tuple(
+    Path(__file__).with_name(f"{name}_native.c") for name in ("chains", "median", "volume")
+)
 #: No fused multiply-adds (numba's and OpenCV's floats); GNU C for the vector extensions.
 FLAGS: Final = ("-O3", "-std=gnu11", "-ffp-contract=off", "-fPIC", "-shared", "-Wno-psabi")
+#: The numba kernels it stands in for (a build of either builds it).
+KERNELS: Final = ("_chains_windows", "least_costs")
 #: What a library must define to be loaded (one built from older sources lacks some).
-SYMBOLS: Final = ("qhsm_chains_windows", "qhsm_median_weights", "qhsm_weighted_median")
+SYMBOLS: Final = (
+    "qhsm_chains_windows", "qhsm_median_weights", "qhsm_weighted_median", "qhsm_least_costs",
+)  # fmt: skip
 
 
 def compile_library(compiler: Sequence[str], target: Path, cpu: str) -> Path:
