@@ -1,4 +1,4 @@
-"""The chain kernel in C with vectors (``chains_native.c``, in the library of
+"""The chain kernel in C with vectors (``chains_native.c``, built and loaded by
 :mod:`shared.native`): :mod:`shared.kernels` calls it in place of ``_chains_windows`` when the
 arguments fit. The same labels and energies bit for bit, about 2x faster on Aloe's grids
 (docs/benchmarks.md, "The chain kernel in C"). Without a C compiler nothing changes: numba's

@@ -129,10 +129,12 @@ def save_result(disparity, output: str) -> str:
 def cmd_build_kernels(args: argparse.Namespace) -> int:
     from shared.kernel_background import build_recording_failure
     from shared.kernels import native_library_path
+    from shared.native import LIBRARIES
 
     print(f"wrote {build_recording_failure()}")
-    if native_library_path().exists():  # the C kernels (their failure is a warning)
-        print(f"wrote {native_library_path()}")
+    for name in LIBRARIES:  # the C kernels (their failure is a warning)
+        if native_library_path(name).exists():
+            print(f"wrote {native_library_path(name)}")
     return 0
 
 

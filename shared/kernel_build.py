@@ -1,6 +1,6 @@
 """Compile the kernels of :mod:`shared.grid_kernels`, :mod:`shared.trws_kernels` and
 :mod:`shared.volume_kernels` ahead of time (numba's ``pycc``) into the module
-:mod:`shared.kernels` loads, and the C kernels' library beside it (:mod:`shared.native`):
+:mod:`shared.kernels` loads, and the C kernels' libraries beside it (:mod:`shared.native`):
 ``qhsm build-kernels`` once after installing or upgrading (about 15 s of CPU here; needs a C
 compiler), or ``qhsm match`` in a terminal in the background (:mod:`shared.kernel_background`).
 Without it everything works, each process then compiles or loads the kernels through numba
@@ -100,13 +100,16 @@ def build(directory: Path | None = None, names: tuple[str, ...] | None = None) -
     return target
 
 
-def build_native(directory: Path) -> Path | None:
-    """The C kernels' library (:mod:`shared.native`) into ``directory``, or None with a
-    warning saying why it was not built (numba's chain kernel and OpenCV's median then run: the
-    same results)."""
-    try:
-        command = compiler_command() or ["cc"]
-        return native.compile_library(command, native_library_path(directory), target_cpu())
-    except (OSError, RuntimeError) as error:
-        warnings.warn(f"the C kernels were not built: {error}", stacklevel=2)
-        return None
+def build_native(directory: Path) -> list[Path]:
+    """The C kernels' libraries (:data:`shared.native.LIBRARIES`) into ``directory``; one that
+    cannot be built is left out with a warning saying why (numba's kernel or OpenCV's filter
+    then runs: the same results)."""
+    command = compiler_command() or ["cc"]
+    built = []
+    for name in native.LIBRARIES:
+        try:
+            target = native_library_path(name, directory)
+            built.append(native.compile_library(command, target, target_cpu(), name))
+        except (OSError, RuntimeError) as error:
+            warnings.warn(f"the C kernels ({name}) were not built: {error}", stacklevel=2)
+    return built

@@ -163,7 +163,8 @@ def module_name() -> str:
     module, or one built for a CPU this one is not, is never loaded."""
     digest = hashlib.sha256(b"".join(source.read_bytes() for source in SOURCES))
     digest.update(BUILD.read_bytes())  # how it was compiled
-    digest.update(b"".join(source.read_bytes() for source in native.SOURCES))
+    digest.update(b"".join(library.source.read_bytes() for library in native.LIBRARIES.values()))
+    digest.update(Path(native.__file__).read_bytes())  # the C kernels' flags
     digest.update(target_cpu().encode())
     digest.update(repr(SIGNATURES).encode())
     digest.update(sys.version.encode())
@@ -205,10 +206,10 @@ def load_compiled(directory: Path | None = None) -> ModuleType | None:
     return module
 
 
-def native_library_path(directory: Path | None = None) -> Path:
-    """Where the C kernels' library built for this source is (:mod:`shared.native`): beside
-    the compiled module, named after it (not matched by its ``name.*`` pattern)."""
-    return (directory or cache_directory()) / f"{module_name()}_native.so"
+def native_library_path(name: str, directory: Path | None = None) -> Path:
+    """Where C library ``name`` (:data:`shared.native.LIBRARIES`) built for this source is:
+    beside the compiled module, named after it (not matched by its ``name.*`` pattern)."""
+    return (directory or cache_directory()) / f"{module_name()}_{name}.so"
 
 
 def _fits(value: Any, argument: tuple[np.dtype, int] | str) -> bool:
@@ -285,11 +286,11 @@ class Kernel:
 
 
 _COMPILED = load_compiled()
-_NATIVE = native.load(native_library_path())
-_NATIVE_CHAINS = chains_native.NativeChains(_NATIVE) if _NATIVE is not None else None
+_NATIVE = {name: native.load(native_library_path(name), name) for name in native.LIBRARIES}
+_NATIVE_CHAINS = chains_native.NativeChains(_NATIVE["chains"]) if _NATIVE["chains"] else None
 #: OpenCV's weighted median in C on every core (:mod:`shared.median_native`), when built.
-native_median = median_native.NativeMedian(_NATIVE) if _NATIVE is not None else None
-_NATIVE_LEAST = volume_native.NativeLeastCosts(_NATIVE) if _NATIVE is not None else None
+native_median = median_native.NativeMedian(_NATIVE["median"]) if _NATIVE["median"] else None
+_NATIVE_LEAST = volume_native.NativeLeastCosts(_NATIVE["volume"]) if _NATIVE["volume"] else None
 
 
 def compiled_module() -> ModuleType | None:

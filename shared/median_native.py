@@ -1,5 +1,5 @@
 """OpenCV's colour-weighted median (``cv2.ximgproc.weightedMedianFilter``) in C
-(``median_native.c``, in the library of :mod:`shared.native`), on strips of columns at once:
+(``median_native.c``, built and loaded by :mod:`shared.native`), on strips of columns at once:
 :func:`shared.filters.weighted_median` calls it for whole maps when the library is built. The
 same medians bit for bit; Aloe's median 0.19 -> 0.12 s on two cores (docs/benchmarks.md, "The
 weighted median on every core").

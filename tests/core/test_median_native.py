@@ -27,8 +27,8 @@ pytestmark = pytest.mark.skipif(
 def median(request, tmp_path_factory) -> NativeMedian:
     """Built for this CPU's x86-64 level, and for the generic target (no ``-march``)."""
     cpu = kernels.target_cpu() if request.param == "native" else ""
-    path = tmp_path_factory.mktemp("native") / "native.so"
-    library = native.load(native.compile_library(COMPILER, path, cpu))
+    path = tmp_path_factory.mktemp("native") / "median.so"
+    library = native.load(native.compile_library(COMPILER, path, cpu, "median"), "median")
     assert library is not None
     return NativeMedian(library)
 

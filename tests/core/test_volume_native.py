@@ -27,8 +27,8 @@ def least(request, tmp_path_factory) -> NativeLeastCosts:
     """Built for this CPU's x86-64 level (8 pixels a vector with AVX), and for the generic
     target (4)."""
     cpu = kernels.target_cpu() if request.param == "native" else ""
-    path = tmp_path_factory.mktemp("native") / "native.so"
-    library = native.load(native.compile_library(COMPILER, path, cpu))
+    path = tmp_path_factory.mktemp("native") / "volume.so"
+    library = native.load(native.compile_library(COMPILER, path, cpu, "volume"), "volume")
     assert library is not None
     return NativeLeastCosts(library)
 
