@@ -6,11 +6,12 @@ from 128 KiB up, a threshold it raises as such blocks are freed) or when it ends
 run allocates and frees arrays of a level's size at every iteration of dual decomposition: on
 Aloe, ``qhsm match`` took 240 000 page faults and 0.7 s of system time, and with freed blocks
 under 32 MiB kept for reuse 170 000 and 0.55 s, 2.11 -> 2.00 s wall (medians of 6 alternated
-runs; peak RSS 615 -> 645 MiB; docs/benchmarks.md, "Freed memory kept for the next arrays").
+runs; peak RSS 615 -> 645 MiB; docs/benchmarks.md, "The weighted median on every core, ...,
+freed memory kept").
 Blocks of 32 MiB and more (a cost volume) are still mapped on their own and returned.
 
-Only for processes that run one pair and exit (``qhsm match``, ``qhsm batch``): a service worker
-would keep its largest job's memory between jobs.
+Only for a process that runs one pair and exits (``qhsm match``): a service worker would keep
+its largest job's memory between jobs.
 """
 
 from __future__ import annotations

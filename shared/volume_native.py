@@ -1,7 +1,8 @@
 """A cost volume's least costs per pixel in C with vectors (``volume_native.c``, built and
-loaded by :mod:`shared.native`): :mod:`shared.kernels` calls it in place of numba's ``least_costs``
-when the arguments fit. The same values and disparities bit for bit, 3.6x faster on Aloe's
-volume with AVX2 (docs/benchmarks.md, "The confidence's least costs in vectors").
+loaded by :mod:`shared.native`): :mod:`shared.kernels` calls it in place of numba's
+``least_costs`` when the arguments fit. The same values and disparities bit for bit, 3.6x
+faster on Aloe's volume with AVX2 (docs/benchmarks.md, "The weighted median on every core, the
+confidence's least costs in vectors, ...").
 """
 
 from __future__ import annotations
