@@ -168,7 +168,8 @@ def weighted_median(
         and np.array_equal(values, np.rint(values))
     )
     source = (values - np.float32(lowest)).astype(np.uint8) if whole else values
-    if whole and kernels.native_median is not None:  # the same medians on every core
+    grey_or_colour = guide8.ndim == 2 or guide8.shape[2] == 3  # what OpenCV's filter takes
+    if whole and grey_or_colour and kernels.native_median is not None:  # on every core
         median = kernels.native_median(source, guide8, radius, sigma, threads())
         return median + np.float32(lowest)
     # A colour guide is quantised by k-means seeded from OpenCV's global RNG: seed it, or the

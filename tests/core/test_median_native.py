@@ -113,3 +113,10 @@ def test_the_filter_takes_opencvs_path_without_the_library(monkeypatch):
     built = filters.weighted_median(disparity, guide, 9, 25.5)
     monkeypatch.setattr(kernels, "native_median", None)
     np.testing.assert_array_equal(filters.weighted_median(disparity, guide, 9, 25.5), built)
+
+
+def test_a_guide_opencv_refuses_is_refused_as_before():
+    """Four channels: OpenCV's error, not a filter of three of them."""
+    guide = np.random.default_rng(4).random((10, 12, 4)).astype(np.float32)
+    with pytest.raises(cv2.error):
+        filters.weighted_median(np.ones((10, 12), np.float32), guide, 3, 25.5)
