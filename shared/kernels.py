@@ -287,10 +287,16 @@ class Kernel:
 
 _COMPILED = load_compiled()
 _NATIVE = {name: native.load(native_library_path(name), name) for name in native.LIBRARIES}
-_NATIVE_CHAINS = chains_native.NativeChains(_NATIVE["chains"]) if _NATIVE["chains"] else None
+_NATIVE_CHAINS = (
+    chains_native.NativeChains(_NATIVE["chains"]) if _NATIVE["chains"] is not None else None
+)
 #: OpenCV's weighted median in C on every core (:mod:`shared.median_native`), when built.
-native_median = median_native.NativeMedian(_NATIVE["median"]) if _NATIVE["median"] else None
-_NATIVE_LEAST = volume_native.NativeLeastCosts(_NATIVE["volume"]) if _NATIVE["volume"] else None
+native_median = (
+    median_native.NativeMedian(_NATIVE["median"]) if _NATIVE["median"] is not None else None
+)
+_NATIVE_LEAST = (
+    volume_native.NativeLeastCosts(_NATIVE["volume"]) if _NATIVE["volume"] is not None else None
+)
 
 
 def compiled_module() -> ModuleType | None:
