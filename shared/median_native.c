@@ -89,6 +89,35 @@ static inline void leave(int32_t *histogram, int32_t *next, int32_t *previous, i
     }
 }
 
+/* A column's scan state: the joint histogram (value x feature counts, each value's linked list
+ * of the features it holds) and the balance counts (per feature: pixels below the cut minus
+ * those above, with their linked list). */
+typedef struct {
+    int32_t *histogram, *next, *previous;
+    int32_t *balance, *balance_next, *balance_previous;
+    int64_t features;
+} Scan;
+
+/* The pixels of image row `row` in columns left..right enter the window (entering) or leave
+ * it: counted in, or out of, the histogram and the balance (+1 below the cut, -1 above). */
+static void move_row(Scan *scan, const uint8_t *values, const uint8_t *features_of, int64_t cols,
+                     int64_t row, int64_t left, int64_t right, int32_t median, int entering)
+{
+    for (int64_t j = left; j <= right; j++) {
+        int32_t value = values[row * cols + j], feature = features_of[row * cols + j];
+        int64_t at = value * scan->features;
+        int32_t side = ((value <= median) << 1) - 1;
+        if (entering) {
+            enter(scan->histogram + at, scan->next + at, scan->previous + at, feature);
+        } else {
+            leave(scan->histogram + at, scan->next + at, scan->previous + at, feature);
+            side = -side;
+        }
+        update_balance(&scan->balance[feature], scan->balance_next, scan->balance_previous,
+                       feature, side);
+    }
+}
+
 /* Columns first..last-1 of out (rows x cols, 8 bits): each pixel's median of values in its
  * (2 radius + 1)^2 window, weighted by weights[feature of the pixel][feature of each]. 0, or 2
  * without memory. */
@@ -108,6 +137,7 @@ int qhsm_weighted_median(
         status = 2;
         goto done;
     }
+    Scan scan = {histogram, next, previous, balance, balance_next, balance_previous, features};
     for (int64_t x = first; x < last; x++) {
         memset(balance, 0, sizeof(int32_t) * (size_t)features);
         memset(histogram, 0, sizeof(int32_t) * cells);
@@ -118,13 +148,8 @@ int qhsm_weighted_median(
         int64_t left = x - radius < 0 ? 0 : x - radius;
         int64_t right = x + radius > cols - 1 ? cols - 1 : x + radius;
         int64_t top = rows - 1 < radius ? rows - 1 : radius;
-        for (int64_t y = 0; y <= top; y++)
-            for (int64_t j = left; j <= right; j++) {
-                int32_t value = values[y * cols + j], feature = features_of[y * cols + j];
-                int64_t row = value * features;
-                enter(histogram + row, next + row, previous + row, feature);
-                update_balance(&balance[feature], balance_next, balance_previous, feature, -1);
-            }
+        for (int64_t y = 0; y <= top; y++) /* every pixel above the cut at -1 */
+            move_row(&scan, values, features_of, cols, y, left, right, median, 1);
         for (int64_t y = 0; y < rows; y++) {
             float total = 0;
             const float *weight = weights + (int64_t)features_of[y * cols + x] * features;
@@ -166,26 +191,10 @@ int qhsm_weighted_median(
                 out[y * cols + x] = (uint8_t)(total < 0 ? median + 1 : median);
             else
                 out[y * cols + x] = values[y * cols + x];
-            int64_t entering = y + radius + 1;
-            if (entering < rows)
-                for (int64_t j = left; j <= right; j++) {
-                    int32_t value = values[entering * cols + j];
-                    int32_t feature = features_of[entering * cols + j];
-                    int64_t row = value * features;
-                    enter(histogram + row, next + row, previous + row, feature);
-                    update_balance(&balance[feature], balance_next, balance_previous, feature,
-                                   ((value <= median) << 1) - 1);
-                }
-            int64_t leaving = y - radius;
-            if (leaving >= 0)
-                for (int64_t j = left; j <= right; j++) {
-                    int32_t value = values[leaving * cols + j];
-                    int32_t feature = features_of[leaving * cols + j];
-                    int64_t row = value * features;
-                    leave(histogram + row, next + row, previous + row, feature);
-                    update_balance(&balance[feature], balance_next, balance_previous, feature,
-                                   -((value <= median) << 1) + 1);
-                }
+            if (y + radius + 1 < rows)
+                move_row(&scan, values, features_of, cols, y + radius + 1, left, right, median, 1);
+            if (y - radius >= 0)
+                move_row(&scan, values, features_of, cols, y - radius, left, right, median, 0);
         }
     }
 done:
