@@ -51,7 +51,7 @@ def qubo_sizes(left, right, config: MatchConfig) -> list[str]:
     cells = []
     for plan in plans:
         inputs = prepare_level(left, right, config, plan)  # candidates as on the coarsest level
-        if plan.index > 0:  # finer levels: a window of plan.candidates labels
+        if plan.index > 0 and inputs.candidates is not None:  # finer levels: a window of K
             inputs.candidates = inputs.candidates[:, :, : plan.candidates]
         costs = inputs.costs(config, 0, config.bundle_height)
         sizes = []

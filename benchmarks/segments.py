@@ -188,7 +188,7 @@ def gaps(args: argparse.Namespace) -> None:
                             found.extend(row_gaps(row_costs, labels, optimum[r]))
                         seconds = (time.perf_counter() - started) / len(rows)
                         print(
-                            f"| {name} | {inputs.plan.index} | {inputs.candidates.shape[2]} | "
+                            f"| {name} | {inputs.plan.index} | {inputs.count} | "
                             f"{solver} | {encoding.value} | {width or 'whole row'} | "
                             f"{100 * statistics.median(found):.2f} | {100 * max(found):.2f} | "
                             f"{seconds:.2f} |",

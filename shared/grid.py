@@ -51,6 +51,11 @@ from shared.threads import both, spare_core
 #: :meth:`GridMRF.edges`: candidates, first, windowed, weight_h, weight_v, slope, truncation.
 EdgeArguments = tuple[np.ndarray, np.ndarray, bool, np.ndarray, np.ndarray, float, float]
 
+#: What the grid kernels read for a window grid's candidates and a general grid's ``first``
+#: (:meth:`GridMRF.edges`): placeholders, never indexed.
+_NO_CANDIDATES = np.zeros((1, 1, 1), dtype=np.int32)
+_NO_FIRST = np.zeros((1, 1), dtype=np.int32)
+
 #: The primal heuristic runs every this many dual iterations.
 PRIMAL_EVERY = 5
 #: Iterations without a higher bound after which the step factor gamma is halved.
@@ -65,20 +70,35 @@ class GridMRF:
     Shapes: unary (h, w, K) float32, candidates (h, w, K) int32, weight_h (h, w - 1) and
     weight_v (h - 1, w) float64 (0 where there is no edge). ``first`` (h, w) int32 is each
     pixel's first candidate when its candidates are consecutive labels (the bin pyramid's
-    windows: the chains then take the O(K) kernel), else ``None``.
+    windows: the chains then take the O(K) kernel), else ``None``; with ``first`` the
+    candidates may be None (not kept: :meth:`candidate_labels` builds them when asked).
     """
 
     unary: np.ndarray
-    candidates: np.ndarray
+    candidates: np.ndarray | None
     weight_h: np.ndarray
     weight_v: np.ndarray
     slope: float
     truncation: float
     first: np.ndarray | None = None
 
+    def __post_init__(self) -> None:
+        if self.candidates is None and self.first is None:
+            raise ValueError("a grid without candidates needs first (its windows' starts)")
+
     @property
     def shape(self) -> tuple[int, int]:
         return self.unary.shape[0], self.unary.shape[1]
+
+    def candidate_labels(
+        self, rows: slice = slice(None), columns: slice = slice(None)
+    ) -> np.ndarray:
+        """The labels (rows, columns, K) int32 the pixels' candidates stand for:
+        ``candidates``, or a window grid's built from ``first``."""
+        if self.candidates is not None:
+            return self.candidates[rows, columns]
+        assert self.first is not None  # __post_init__
+        return self.first[rows, columns, None] + np.arange(self.unary.shape[2], dtype=np.int32)
 
     def transposed(self, candidates: bool = True) -> GridMRF:
         """The same MRF with rows and columns swapped (columns become rows, contiguous).
@@ -86,21 +106,17 @@ class GridMRF:
         Parameters
         ----------
         candidates : bool, optional
-            Copy the candidates too; without, a window MRF's transpose holds a (1, 1, K)
-            placeholder (its chains and neighbour costs read ``first``; saves memory).
+            Copy the candidates too; without, a window MRF's transpose holds none (its chains
+            and neighbour costs read ``first``; saves memory).
 
         Returns
         -------
         GridMRF
         """
-        skip = not candidates and self.first is not None
+        kept = self.candidates if candidates or self.first is None else None
         return GridMRF(
             unary=np.ascontiguousarray(self.unary.transpose(1, 0, 2)),
-            candidates=(
-                np.ascontiguousarray(self.candidates[:1, :1])
-                if skip
-                else np.ascontiguousarray(self.candidates.transpose(1, 0, 2))
-            ),
+            candidates=None if kept is None else np.ascontiguousarray(kept.transpose(1, 0, 2)),
             weight_h=np.ascontiguousarray(self.weight_v.T),
             weight_v=np.ascontiguousarray(self.weight_h.T),
             slope=self.slope,
@@ -157,9 +173,8 @@ class GridMRF:
         """
         if self.first is not None:  # a window: no gather over the (h, w, K) candidates
             return self.first + labels.astype(np.int32, copy=False)
-        return np.take_along_axis(self.candidates, labels[:, :, None].astype(np.intp), axis=2)[
-            :, :, 0
-        ]
+        indices = labels[:, :, None].astype(np.intp)
+        return np.take_along_axis(self.candidate_labels(), indices, axis=2)[:, :, 0]
 
     def tile(self, rows: slice, columns: slice, extra: np.ndarray | None = None) -> GridMRF:
         """The sub-grid of a tile (its own edges only), with ``extra`` added to its unary: e.g.
@@ -182,7 +197,11 @@ class GridMRF:
             unary = unary + extra
         return GridMRF(
             unary=np.ascontiguousarray(unary, dtype=np.float32),
-            candidates=np.ascontiguousarray(self.candidates[rows, columns]),
+            candidates=(
+                None
+                if self.candidates is None
+                else np.ascontiguousarray(self.candidates[rows, columns])
+            ),
             weight_h=np.ascontiguousarray(self.weight_h[rows, columns.start : columns.stop - 1]),
             weight_v=np.ascontiguousarray(self.weight_v[rows.start : rows.stop - 1, columns]),
             slope=self.slope,
@@ -194,9 +213,9 @@ class GridMRF:
         """The grid's edges as every grid kernel takes them, in one place: candidates, ``first``
         (a placeholder when the candidates are not consecutive windows), whether they are
         windows, the weights, slope and truncation."""
-        first = self.first if self.first is not None else np.zeros((1, 1), dtype=np.int32)
+        first = self.first if self.first is not None else _NO_FIRST
         return (
-            self.candidates,
+            self.candidates if self.candidates is not None else _NO_CANDIDATES,
             first,
             self.first is not None,
             self.weight_h,
@@ -254,7 +273,7 @@ def boundary_unary(mrf: GridMRF, labels: np.ndarray, rows: slice, columns: slice
     height, width = mrf.shape
     top, bottom, left, right = rows.start, rows.stop, columns.start, columns.stop
     picked = mrf.picked(labels)
-    cands = mrf.candidates[rows, columns]
+    cands = mrf.candidate_labels(rows, columns)
     extra = np.zeros(cands.shape, dtype=np.float64)
     if top > 0:
         extra[0] += mrf.weight_v[top - 1, columns, None] * mrf.pair_cost(
@@ -277,7 +296,7 @@ def boundary_unary(mrf: GridMRF, labels: np.ndarray, rows: slice, columns: slice
 
 def grid_mrf(
     unary: np.ndarray,
-    candidates: np.ndarray,
+    candidates: np.ndarray | None,
     guide: np.ndarray,
     level: LevelConfig,
     regularizer: Regularizer,
@@ -290,8 +309,8 @@ def grid_mrf(
     ----------
     unary : numpy.ndarray
         Data costs (h, w, K).
-    candidates : numpy.ndarray
-        Labels (h, w, K) the candidates stand for.
+    candidates : numpy.ndarray or None
+        Labels (h, w, K) the candidates stand for; None with ``first`` (windows).
     guide : numpy.ndarray
         Gray view (h, w) in [0, 1].
     level : LevelConfig
@@ -316,9 +335,10 @@ def grid_mrf(
         weight_h, weight_v = np.ones(step_h.shape), np.ones(step_v.shape)
         truncation = math.inf
         slope = 0.0 if regularizer is Regularizer.NONE else slope
-    candidates = np.ascontiguousarray(candidates, dtype=np.int32)
-    if first is None and consecutive(candidates):
-        first = candidates[:, :, 0]
+    if candidates is not None:
+        candidates = np.ascontiguousarray(candidates, dtype=np.int32)
+        if first is None and consecutive(candidates):
+            first = candidates[:, :, 0]
     return GridMRF(
         unary=np.ascontiguousarray(unary, dtype=np.float32),
         candidates=candidates,
@@ -553,9 +573,7 @@ def _alternate_chains(mrf: GridMRF, labels: np.ndarray) -> np.ndarray:
         half = GridMRF(
             unary=np.ascontiguousarray(mrf.unary[rows]),
             candidates=(
-                mrf.candidates
-                if mrf.first is not None
-                else np.ascontiguousarray(mrf.candidates[rows])
+                None if mrf.first is not None else np.ascontiguousarray(mrf.candidate_labels(rows))
             ),
             weight_h=np.ascontiguousarray(mrf.weight_h[rows]),
             weight_v=np.zeros((0, mrf.shape[1])),  # row chains read no vertical edge

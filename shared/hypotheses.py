@@ -84,10 +84,11 @@ def with_second_bins(
     height = inputs.view_height
     if coarse is None:
         coarse = inputs.binned_view_volumes(data_term, 2 * inputs.plan.bin_width)
-    extra = np.empty((*inputs.candidates.shape[:2], 2), dtype=np.int32)
+    window = inputs.candidate_labels()
+    extra = np.empty((*window.shape[:2], 2), dtype=np.int32)
     for view, costs in enumerate(coarse):
         rows = slice(view * height, (view + 1) * height)
         chosen = np.rint(previous[rows]).astype(np.int32)
         children = 2 * second_bins(costs, chosen, radius)[:, :, None] + np.arange(2)
         extra[rows] = np.minimum(children, inputs.plan.max_label)
-    return np.concatenate([inputs.candidates, extra], axis=2)
+    return np.concatenate([window, extra], axis=2)

@@ -265,12 +265,14 @@ def prepare_level(
     if previous is not None and config.pyramid is PyramidKind.BINS:
         previous = pyramid.upsample_labels(previous, views, (shape[0] // views, shape[1]))
     first = None
+    candidates: np.ndarray | None
     if previous is None:
         candidates = pyramid.initial_candidates(shape, plan.candidates, plan.max_label)
         initial = None
         values = candidates[0, 0]  # the same at every pixel; consecutive when bins <= K
         if np.all(np.diff(values) == 1):
             first = np.full(shape, values[0], dtype=np.int32)
+            candidates = None  # the window: first + arange(K)
     else:
         if config.pyramid is PyramidKind.IMAGE:
             candidates = pyramid.refined_candidates(
@@ -280,7 +282,7 @@ def prepare_level(
             initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
         else:
             first = pyramid.window_starts(previous, plan.candidates, plan.max_label)
-            candidates = first[:, :, None] + np.arange(plan.candidates, dtype=np.int32)
+            candidates = None  # the windows: first + arange(K), not kept
             # the lower child of the coarser bin, among consecutive candidates
             initial = pyramid.nearest_in_window(2.0 * previous, first, plan.candidates)
     inputs = LevelInputs(

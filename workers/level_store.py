@@ -57,7 +57,9 @@ class LevelStorage(StoreBase):
         }
         # a bin level's windows travel as each pixel's first candidate (K times smaller)
         arrays = (
-            {"candidates": inputs.candidates} if inputs.first is None else {"first": inputs.first}
+            {"first": inputs.first}
+            if inputs.first is not None
+            else {"candidates": inputs.candidate_labels()}
         )
         if inputs.initial_labels is not None:
             arrays["initial_labels"] = inputs.initial_labels
@@ -99,11 +101,7 @@ class LevelStorage(StoreBase):
             views=int(fields[b"views"]),
             left=left,
             right=right,
-            candidates=(
-                array_from(fields, "candidates")
-                if first is None
-                else first[:, :, None] + np.arange(plan.candidates, dtype=np.int32)
-            ),
+            candidates=array_from(fields, "candidates") if first is None else None,
             first=first,
             initial_labels=(
                 array_from(fields, "initial_labels") if b"initial_labels" in fields else None

@@ -110,7 +110,7 @@ def grids_at_once(inputs: LevelInputs, row_ranges: Sequence[tuple[int, int]]) ->
     """Grids to minimise side by side: one per core, as many as :data:`GRID_STATE_BYTES`
     holds (at least one)."""
     rows = max(stop - start for start, stop in row_ranges)
-    grid_bytes = 4 * GRID_STATE_ARRAYS * rows * inputs.candidates[0].size
+    grid_bytes = 4 * GRID_STATE_ARRAYS * rows * inputs.shape[1] * inputs.count
     return max(1, min(len(row_ranges), threads(), GRID_STATE_BYTES // max(grid_bytes, 1)))
 
 

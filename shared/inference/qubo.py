@@ -93,7 +93,7 @@ class QuboStrategy(LevelInference):
         if width == AUTO:
             return self.sampler.widest_bundle(
                 encoding=config.encoding,
-                candidates=inputs.candidates.shape[2],
+                candidates=inputs.count,
                 height=config.bundle_height,
                 row_width=inputs.shape[1],
                 margin=config.bundle_margin,
@@ -115,7 +115,7 @@ class QuboStrategy(LevelInference):
         inputs.prepared = {"bundle_width": width, "bundle_height": height}
         if isinstance(solver, ShapePlanner):
             shapes = sorted({bundle.shape for bundle in bundles})
-            labels = inputs.candidates.shape[2]
+            labels = inputs.count
             solver.embed_shapes(encoding=config.encoding, candidates=labels, shapes=shapes)
             inputs.prepared = {
                 "bundle_width": bundles[0].shape[1],

@@ -55,7 +55,7 @@ class ResidualTiles(QuboTiles):
             )  # fmt: skip
             solver.embed_shapes(
                 encoding=config.encoding,
-                candidates=inputs.candidates.shape[2],
+                candidates=inputs.count,
                 shapes=sorted({bundle.shape for bundle in bundles}),
             )
             inputs.prepared.update(

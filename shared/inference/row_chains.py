@@ -54,7 +54,7 @@ class RowChains(LevelInference):
         self, inputs: LevelInputs, config: MatchConfig, items: list[Bundle]
     ) -> Iterator[list[BundleResult]]:
         row_ranges = [(b.row_start, b.row_stop) for b in items]
-        width, labels = inputs.candidates.shape[1], inputs.candidates.shape[2]
+        width, labels = inputs.shape[1], inputs.count
         rows = max(config.bundle_height, COST_BLOCK_BYTES // (2 * 8 * width * labels * labels))
         blocks = _blocks(sorted(row_ranges), rows, inputs.view_height)
         inputs.binned_volumes()

@@ -223,7 +223,7 @@ def test_second_bins_on_a_coarse_grid_read_the_pooled_coarser_bins():
     window = level.candidates[:, :, :-2]
     plain = prepare_level(left, right, config.model_copy(update={"second_bins": 0}), plans[1],
                           previous, coarse)  # fmt: skip
-    assert (window == plain.candidates).all()
+    assert (window == plain.candidate_labels()).all()
     upsampled = pyramid.upsample_labels(previous, 2, (level.view_height, level.shape[1]))
     expected = with_second_bins(plain, upsampled, config.data_term, 2, pooled)
     np.testing.assert_array_equal(level.candidates, expected)

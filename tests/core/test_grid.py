@@ -259,6 +259,48 @@ def test_a_tile_bqm_is_the_grid_energy_restricted_to_the_tile_plus_its_boundary(
     assert bqm_change == pytest.approx(grid_change, abs=1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), shape=st.sampled_from([(1, 5), (4, 1), (6, 7), (9, 12)]))
+def test_a_window_grid_without_its_candidates_is_the_same_grid(seed, shape):
+    """A window grid need not keep its (h, w, K) candidates (they are ``first`` + 0..K-1): its
+    energy, labels, tiles, boundary costs and dual decomposition are those of the grid that
+    keeps them."""
+    kept = random_grid(seed, *shape, labels=3)
+    assert kept.first is not None and kept.candidates is not None
+    bare = replace(kept, candidates=None)
+    rng = np.random.default_rng(seed)
+    labels = rng.integers(0, 3, shape).astype(np.int32)
+    assert bare.energy(labels) == kept.energy(labels)
+    np.testing.assert_array_equal(bare.picked(labels), kept.picked(labels))
+    np.testing.assert_array_equal(bare.candidate_labels(), kept.candidates)
+    rows, columns = slice(0, max(1, shape[0] // 2)), slice(min(1, shape[1] - 1), shape[1])
+    np.testing.assert_array_equal(
+        boundary_unary(bare, labels, rows, columns), boundary_unary(kept, labels, rows, columns)
+    )
+    np.testing.assert_array_equal(
+        bare.tile(rows, columns).candidate_labels(), kept.tile(rows, columns).candidates
+    )
+    np.testing.assert_array_equal(chain_sweeps(bare, bare.transposed(), labels),
+                                  chain_sweeps(kept, kept.transposed(), labels))  # fmt: skip
+    plain, compact = dual_decomposition(kept, 10), dual_decomposition(bare, 10)
+    np.testing.assert_array_equal(compact.labels, plain.labels)
+    assert (compact.energy, compact.lower_bound) == (plain.energy, plain.lower_bound)
+
+
+def test_a_grid_or_level_needs_its_candidates_or_their_windows():
+    kept = random_grid(0, 3, 4, labels=2, windows=False)
+    assert kept.first is None
+    with pytest.raises(ValueError, match="first"):
+        replace(kept, candidates=None)
+    scene = make_scene(20, 32, max_disparity=6, seed=3)
+    config = MatchConfig(max_disparity=6)
+    _, plans = plan_run(scene.left, scene.right, config)
+    inputs = prepare_level(scene.left, scene.right, config, plans[0])
+    assert inputs.candidates is None and inputs.first is not None  # the coarsest window
+    with pytest.raises(ValueError, match="first"):
+        replace(inputs, first=None)
+
+
 def textureless_band_scene():
     """A slanted plane whose middle rows carry no texture in either view: a row alone cannot
     tell their disparity; the rows above and below can, through the vertical edges."""
@@ -324,7 +366,7 @@ def test_views_whose_dual_state_exceeds_the_budget_are_minimised_one_after_the_o
     views = [(v * inputs.view_height, (v + 1) * inputs.view_height) for v in range(2)]
     monkeypatch.setattr(solve, "threads", lambda: 2)
     assert solve.grids_at_once(inputs, views) == 2
-    one_grid = 4 * solve.GRID_STATE_ARRAYS * inputs.view_height * inputs.candidates[0].size
+    one_grid = 4 * solve.GRID_STATE_ARRAYS * inputs.view_height * inputs.shape[1] * inputs.count
     monkeypatch.setattr(solve, "GRID_STATE_BYTES", 2 * one_grid - 1)
     assert solve.grids_at_once(inputs, views) == 1
     monkeypatch.setattr(solve, "GRID_STATE_BYTES", 0)

@@ -46,9 +46,10 @@ def test_a_wrong_coarse_bin_leaves_the_true_bins_among_the_finer_candidates():
         left, right, config.model_copy(update={"second_bins": 0}), fine, previous
     )
     both = prepare_level(left, right, config, fine, previous)
-    assert both.candidates.shape[2] == window.candidates.shape[2] + 2
-    assert (both.candidates[:, :, :-2] == window.candidates).all()
+    assert window.candidates is None  # a window level keeps its first candidates only
+    assert both.count == window.count + 2
+    assert (both.candidate_labels()[:, :, :-2] == window.candidate_labels()).all()
     inner = (slice(8, -8), slice(32, -8))  # away from the borders and the left edge's occlusion
-    holds = (both.candidates[inner] == truth // fine.bin_width).any(axis=2)
-    assert not (window.candidates[inner] == truth // fine.bin_width).any()
+    holds = (both.candidate_labels()[inner] == truth // fine.bin_width).any(axis=2)
+    assert not (window.candidate_labels()[inner] == truth // fine.bin_width).any()
     assert holds.mean() > 0.9

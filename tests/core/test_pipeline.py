@@ -87,7 +87,7 @@ def test_finer_level_candidates_follow_the_coarser_estimate(scene):
     config = MatchConfig(max_disparity=16, preset=Preset.PAPER)
     coarse = np.full((24, 32), 3.0, dtype=np.float32)
     inputs = _level(scene, config, 1, coarse)
-    np.testing.assert_array_equal(inputs.candidates[0, 0], [4, 5, 6, 7])
+    np.testing.assert_array_equal(inputs.candidate_labels()[0, 0], [4, 5, 6, 7])
     assert np.all(inputs.initial_labels == 2)  # candidate 6 = 2 * 3
 
 
@@ -95,7 +95,7 @@ def test_finer_bins_follow_the_coarser_bin(scene):
     config = MatchConfig(max_disparity=16)  # bins of 4, 2, 1 px
     coarse = np.full((2 * 96, 128), 2.0, dtype=np.float32)  # bin 2 of width 4: 8..11 px
     inputs = _level(scene, config, 1, coarse)
-    np.testing.assert_array_equal(inputs.candidates[0, 0], [2, 3, 4, 5, 6, 7])
+    np.testing.assert_array_equal(inputs.candidate_labels()[0, 0], [2, 3, 4, 5, 6, 7])
     assert np.all(inputs.initial_labels == 2)  # bin 4 of width 2 = 8..9 px
 
 
@@ -104,7 +104,7 @@ def test_the_finest_level_refines_its_coarser_bin_by_one_disparity_either_side(s
     assert [plan.candidates for plan in plan_run(scene.left, scene.right, config)[1]] == [5, 6, 4]
     coarse = np.full((2 * 96, 128), 4.0, dtype=np.float32)  # bin 4 of width 2: 8..9 px
     inputs = _level(scene, config, 2, coarse)
-    np.testing.assert_array_equal(inputs.candidates[0, 0], [7, 8, 9, 10])
+    np.testing.assert_array_equal(inputs.candidate_labels()[0, 0], [7, 8, 9, 10])
     assert np.all(inputs.initial_labels == 1)  # 8 px, the lower child
     template = config.levels[0].model_copy(update={"finest_candidates": None})
     unset = MatchConfig(max_disparity=16, levels=[template])  # every finer level: candidates

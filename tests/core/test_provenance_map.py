@@ -130,7 +130,7 @@ def test_the_solver_code_is_exactly_where_a_tiles_answer_was_kept(pair, monkeypa
         inputs.initial_labels[b.row_start : b.row_stop, b.col_start : b.col_stop]
         for b in bundles[1:]
     ]
-    fake = Answers(answers, cfg.encoding, inputs.candidates.shape[2])
+    fake = Answers(answers, cfg.encoding, inputs.count)
     monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: fake)
     solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     assert solution.residual["tiles_improved"] == 1

@@ -93,7 +93,7 @@ def test_each_bundle_is_charged_what_its_sample_set_reports(fake, level, meter):
 
 def test_estimate_of_a_bundle_is_the_model_for_its_size(level):
     inputs, config = level
-    width, labels = inputs.shape[1], inputs.candidates.shape[2]
+    width, labels = inputs.shape[1], inputs.count
     expected = qpu_time.bundle_seconds("qpu-sim", 2 * width * (labels - 1), {"num_reads": 10})
     assert bundle_estimate(inputs, config, 0, 2, solver=resolve(config)) == expected
 
@@ -139,7 +139,7 @@ def test_a_bundle_estimate_uses_the_embedding_once_a_worker_found_it(level, tmp_
     inputs, config = level
     cache = EmbeddingCache(DirectoryStore(tmp_path))
     monkeypatch.setattr(embedding_cache, "_default_cache", cache)
-    width, labels = inputs.shape[1], inputs.candidates.shape[2]
+    width, labels = inputs.shape[1], inputs.count
     assumed = bundle_estimate(inputs, config, 0, 1, solver=resolve(config))
     digest = qpu_time.bundle_digest(config.encoding, 1, width, labels)
     size = EmbeddingSize(qubits=7, chains=width * (labels - 1), longest_chain=1)

@@ -335,7 +335,7 @@ def _call_basis(
     meter = meter_for(config.solver)
     if meter is None:
         return None
-    labels = inputs.candidates.shape[2]
+    labels = inputs.count
     per_pixel = get_codec(config.encoding).variables_per_pixel(labels)
     warm = solver.warm_start
     return meter, labels, per_pixel, sampler_params(config.solver_params, warm)
@@ -372,7 +372,7 @@ def bundle_estimate(
     if basis is None:
         return 0.0
     meter, labels, per_pixel, params = basis
-    width = inputs.candidates.shape[1] if columns is None else columns
+    width = inputs.shape[1] if columns is None else columns
     variables = (stop - start) * width * per_pixel
     if not meter.embeds:
         return bundle_seconds(config.solver, variables, params)
