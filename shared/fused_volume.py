@@ -79,7 +79,9 @@ def windows(
 ) -> np.ndarray:
     """The (rows, w, ``count``) costs of each pixel's window of bins ``lowest`` (rows, w)
     onwards, a tile at a time, each tile over the disparities of its own windows only: at a
-    fine level of a large range a block's windows span the range, a tile's a few dozen.
+    fine level of a large range a block's windows span the range, a tile's a few dozen, and a
+    tile across a depth edge skips the disparities between its two surfaces' windows
+    (:func:`needed_runs`; every disparity's costs are built on their own, the same floats).
 
     A tile's kernels read ``reach`` (the aggregation's half width) more columns on each side
     (the box sums are exact integers: the same floats as one pass over the block) and the
@@ -95,8 +97,8 @@ def windows(
             right = min(left + TILE_COLUMNS, width)
             start, stop = max(left - reach, 0), min(right + reach, width)
             here = lowest[top:bottom, left:right]
-            first = int(here.min()) * bin_width
-            last = min(max_disparity, (int(here.max()) + count) * bin_width - 1)
+            runs = needed_runs(here, count, bin_width, max_disparity)
+            first, last = runs[0][0], runs[-1][1]
             # the right view's columns of disparities first .. last at columns start .. stop
             shifted = slice(max_disparity - last + start, max_disparity - first + stop)
             band = slice(top, bottom + context)
@@ -113,6 +115,45 @@ def windows(
             def aggregate(*codes: object) -> None:
                 kernels.census_window(*codes, tile_lowest, costs)  # noqa: B023 - called here
 
-            _chunks(tile, last, bin_width, table, range(first, last + 1), aggregate)
+            for run_first, run_last in runs:
+                _chunks(tile, last, bin_width, table, range(run_first, run_last + 1), aggregate)
             out[top:bottom, left:right] = costs[:, left - start : right - start]
     return out
+
+
+def needed_runs(
+    lowest: np.ndarray, count: int, bin_width: int, max_disparity: int
+) -> list[tuple[int, int]]:
+    """The disparities of the bins ``lowest`` .. ``lowest + count - 1`` of a tile's pixels, as
+    runs ``(first, last)`` of whole bins, ascending (up to ``max_disparity``): the union of
+    the windows, with the gaps between them left out.
+
+    Parameters
+    ----------
+    lowest : numpy.ndarray
+        Each pixel's first bin (non-empty, non-negative).
+    count : int
+        Bins per window.
+    bin_width : int
+        Disparities per bin.
+    max_disparity : int
+        The range's last disparity (the last bin may be narrower).
+
+    Returns
+    -------
+    list of tuple of int
+    """
+    base = int(lowest.min())
+    present = np.bincount((lowest - base).ravel()) > 0
+    # bin b is needed where a window starts at one of b - count + 1 .. b
+    starts = np.concatenate([[0], np.cumsum(present)])
+    span = np.arange(len(present) + count - 1)
+    needed = starts[np.minimum(span + 1, len(present))] > starts[np.maximum(span - count + 1, 0)]
+    edges = np.flatnonzero(np.diff(np.concatenate([[False], needed, [False]]).astype(np.int8)))
+    last_bin = max_disparity // bin_width
+    runs = []
+    for run_start, run_stop in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        first, stop = base + run_start, min(base + run_stop, last_bin + 1)
+        if first < stop:
+            runs.append((first * bin_width, min(max_disparity, stop * bin_width - 1)))
+    return runs

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -163,6 +165,55 @@ def test_window_costs_built_tile_by_tile_are_the_blocks(
         )
     assert costs is not None
     np.testing.assert_array_equal(costs, gather_window(reference, lowest, count, np.float32))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    starts=st.lists(st.integers(0, 40), min_size=1, max_size=12),
+    count=st.integers(1, 6),
+    bin_width=st.integers(1, 4),
+    max_disparity=st.integers(0, 200),
+)
+def test_a_tiles_disparities_are_the_union_of_its_windows(starts, count, bin_width, max_disparity):
+    """The runs a tile's kernels go over hold every disparity of every pixel's window (up to the
+    range's end) and no other, as ascending runs of whole bins with gaps between them."""
+    last_bin = max_disparity // bin_width
+    lowest = np.minimum(np.array(starts), max(0, last_bin - count + 1))
+    runs = fused_volume.needed_runs(lowest.reshape(1, -1), count, bin_width, max_disparity)
+    expected = {
+        d
+        for start in lowest.tolist()
+        for b in range(start, start + count)
+        for d in range(b * bin_width, (b + 1) * bin_width)
+        if d <= max_disparity
+    }
+    covered = [d for first, last in runs for d in range(first, last + 1)]
+    assert covered == sorted(expected)  # each once, ascending
+    assert all(later[0] > earlier[1] + 1 for earlier, later in itertools.pairwise(runs))
+    assert all(first % bin_width == 0 for first, _ in runs)
+
+
+def test_a_tile_across_a_depth_edge_skips_the_disparities_between_its_surfaces(monkeypatch):
+    """Windows near 2 and near 30 (a foreground edge in the tile): the kernels build the
+    windows' disparities only, and the costs are the gathered bins all the same."""
+    scene = make_scene(40, 48, max_disparity=40, seed=5)
+    block = VolumeBlock(40, 2, 14)
+    lowest = np.where(np.arange(48) < 20, 2, 30)[None].repeat(block.rows, 0).astype(np.int32)
+    built: list[int] = []
+    census_window = kernels.census_window
+
+    def recorded(left, right, terms, table, max_disparity, first, *rest):
+        built.extend(range(first, first + terms.shape[0]))
+        return census_window(left, right, terms, table, max_disparity, first, *rest)
+
+    reference = bin_minimum(both(scene.left, scene.right, block)[0], 1)
+    monkeypatch.setattr(data_terms, "FUSED_VOLUME_BYTES", 0)
+    monkeypatch.setattr(data_terms, "FUSED_VIEW_BYTES", 0)
+    monkeypatch.setattr(kernels, "census_window", recorded)
+    costs = window_costs("census-gradient", scene.left, scene.right, block, 1, lowest, 4)
+    assert costs is not None
+    np.testing.assert_array_equal(costs, gather_window(reference, lowest, 4, np.float32))
+    assert sorted(set(built)) == [2, 3, 4, 5, 30, 31, 32, 33]
 
 
 def test_the_hamming_distance_is_the_count_of_differing_bits():
