@@ -38,7 +38,7 @@ from shared.disparity_range import (
 )
 from shared.finishing import finish_level, finish_maps, level_stages
 from shared.images import as_pair_of_same_kind, check_pair, to_gray
-from shared.inference import solve_level_in_process
+from shared.inference import reads_initial_labels, solve_level_in_process
 from shared.level_inputs import LevelInputs
 from shared.level_report import LevelReport
 from shared.pyramid import LevelPlan
@@ -246,7 +246,8 @@ def prepare_level(
     Returns
     -------
     LevelInputs
-        Images, candidates and warm-start labels (``None`` at the coarsest level) of the level.
+        Images, candidates and warm-start labels (``None`` at the coarsest level, and for an
+        inference that reads none: :func:`shared.inference.reads_initial_labels`) of the level.
     """
     if coarser is not None and coarser.plan.downsample == plan.downsample:
         left_k, right_k, views = coarser.left, coarser.right, coarser.views
@@ -264,27 +265,30 @@ def prepare_level(
         pooled = coarse_grid.pooled_costs(fine, plan, config.data_term, view_shape)
     if previous is not None and config.pyramid is PyramidKind.BINS:
         previous = pyramid.upsample_labels(previous, views, (shape[0] // views, shape[1]))
-    first = None
+    first: np.ndarray | None = None
+    initial: np.ndarray | None = None
     candidates: np.ndarray | None
     if previous is None:
         candidates = pyramid.initial_candidates(shape, plan.candidates, plan.max_label)
-        initial = None
         values = candidates[0, 0]  # the same at every pixel; consecutive when bins <= K
         if np.all(np.diff(values) == 1):
             first = np.full(shape, values[0], dtype=np.int32)
             candidates = None  # the window: first + arange(K)
     else:
+        warm = reads_initial_labels(config)  # a grid or a row chain solved whole reads none
         if config.pyramid is PyramidKind.IMAGE:
             candidates = pyramid.refined_candidates(
                 previous, shape, plan.candidates, plan.max_label
             )
-            target = pyramid.upsample_disparity(previous, shape)
-            initial = np.abs(candidates - target[:, :, None]).argmin(axis=2).astype(np.int32)
+            if warm:
+                target = pyramid.upsample_disparity(previous, shape)
+                initial = np.abs(candidates - target[:, :, None]).argmin(axis=2)
+                initial = initial.astype(np.int32)
         else:
             first = pyramid.window_starts(previous, plan.candidates, plan.max_label)
             candidates = None  # the windows: first + arange(K), not kept
-            # the lower child of the coarser bin, among consecutive candidates
-            initial = pyramid.nearest_in_window(2.0 * previous, first, plan.candidates)
+            if warm:  # the lower child of the coarser bin, among consecutive candidates
+                initial = pyramid.nearest_in_window(2.0 * previous, first, plan.candidates)
     inputs = LevelInputs(
         plan=plan,
         left=left_k,

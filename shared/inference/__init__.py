@@ -21,7 +21,7 @@ from shared.inference.level import (
     solve_bundles,
     solve_level_in_process,
 )
-from shared.inference.table import inference_for, settles
+from shared.inference.table import inference_for, reads_initial_labels, settles
 
 __all__ = [
     "BundleProgress",
@@ -29,6 +29,7 @@ __all__ = [
     "Termination",
     "inference_for",
     "level_bundles",
+    "reads_initial_labels",
     "settles",
     "solve_bundles",
     "solve_level_in_process",

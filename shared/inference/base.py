@@ -42,6 +42,9 @@ class LevelInference:
     splits = False
     #: Its bundles are whole rows (a row solver's chains or grids): a row segment is refused.
     whole_rows = False
+    #: It reads the coarser level's labels (``LevelInputs.initial_labels``: warm starts, a
+    #: tile's fixed neighbours); the pipeline builds them only for a strategy that does.
+    reads_initial_labels = True
     #: ``LevelSolution.termination`` of the level (:class:`Termination`).
     termination: str | None = None
 

@@ -41,6 +41,7 @@ class GridViews(LevelInference):
     the compiled chain kernels release the GIL)."""
 
     whole_rows = True
+    reads_initial_labels = False  # each view's grid is minimised from scratch
 
     def __init__(self, name: str, minimise: Minimiser, solver: ResolvedSolver) -> None:
         self.name = name

@@ -30,6 +30,7 @@ class ResidualTiles(QuboTiles):
     """The host's settlement, then the tiles it leaves."""
 
     name = "qubo-residual"
+    reads_initial_labels = False  # the host's settlement gives the tiles' labels
 
     def prepare(self, inputs: LevelInputs, config: MatchConfig) -> str | None:
         report("settling the level on the host (dual decomposition of each view)")

@@ -37,6 +37,7 @@ class RowChains(LevelInference):
 
     name = "row-chains"
     whole_rows = True
+    reads_initial_labels = False  # each row's chain is solved exactly
     termination = Termination.OPTIMAL
 
     def __init__(self, solver: ResolvedSolver) -> None:

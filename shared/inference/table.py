@@ -111,6 +111,13 @@ def inference_for(config: MatchConfig | ResolvedSolver) -> LevelInference:
     return row_of(solver).make(solver)
 
 
+def reads_initial_labels(config: MatchConfig | ResolvedSolver) -> bool:
+    """Whether a level's inference reads the coarser level's labels
+    (:attr:`~.base.LevelInference.reads_initial_labels`): the pipeline builds them only then."""
+    strategy: type[LevelInference] = row_of(config).strategy
+    return strategy.reads_initial_labels
+
+
 def settles(config: MatchConfig | ResolvedSolver) -> bool:
     """Whether a level is settled on the host first (the residual design, :mod:`shared.settle`):
     its bundles are the tiles the host leaves, estimated as such before the job runs. The

@@ -84,7 +84,7 @@ def test_level_energies_are_the_exact_row_optima(scene, preset):
 
 
 def test_finer_level_candidates_follow_the_coarser_estimate(scene):
-    config = MatchConfig(max_disparity=16, preset=Preset.PAPER)
+    config = MatchConfig(max_disparity=16, preset=Preset.PAPER, solver="sa")  # warm starts
     coarse = np.full((24, 32), 3.0, dtype=np.float32)
     inputs = _level(scene, config, 1, coarse)
     np.testing.assert_array_equal(inputs.candidate_labels()[0, 0], [4, 5, 6, 7])
@@ -92,15 +92,31 @@ def test_finer_level_candidates_follow_the_coarser_estimate(scene):
 
 
 def test_finer_bins_follow_the_coarser_bin(scene):
-    config = MatchConfig(max_disparity=16)  # bins of 4, 2, 1 px
+    # bins of 4, 2, 1 px; tiles sent whole read the coarser labels around them
+    config = MatchConfig(max_disparity=16, solver="sa", certify_tiles=False)
     coarse = np.full((2 * 96, 128), 2.0, dtype=np.float32)  # bin 2 of width 4: 8..11 px
     inputs = _level(scene, config, 1, coarse)
     np.testing.assert_array_equal(inputs.candidate_labels()[0, 0], [2, 3, 4, 5, 6, 7])
     assert np.all(inputs.initial_labels == 2)  # bin 4 of width 2 = 8..9 px
 
 
+@pytest.mark.parametrize(
+    "settings",
+    [{}, {"preset": Preset.PAPER}, {"solver": "sa"}],  # grids, row chains, the host's settling
+)
+def test_a_level_whose_inference_reads_no_coarser_labels_gets_none(scene, settings):
+    """Exact grids and row chains are solved from scratch and the residual design's tiles take
+    the host's labels: their levels are prepared without the coarser level's labels."""
+    config = MatchConfig(max_disparity=16, **settings)
+    coarse = np.full((2 * 96 if config.lr_check else 96, 128), 2.0, dtype=np.float32)
+    if config.preset is Preset.PAPER:
+        coarse = np.full((24, 32), 3.0, dtype=np.float32)
+    assert _level(scene, config, 1, coarse).initial_labels is None
+
+
 def test_the_finest_level_refines_its_coarser_bin_by_one_disparity_either_side(scene):
-    config = MatchConfig(max_disparity=16)  # bins of 4, 2, 1 px; the accurate preset's windows
+    # bins of 4, 2, 1 px; the accurate preset's windows; QUBO rows warm-started
+    config = MatchConfig(max_disparity=16, solver="sa", inference="rows")
     assert [plan.candidates for plan in plan_run(scene.left, scene.right, config)[1]] == [5, 6, 4]
     coarse = np.full((2 * 96, 128), 4.0, dtype=np.float32)  # bin 4 of width 2: 8..9 px
     inputs = _level(scene, config, 2, coarse)
