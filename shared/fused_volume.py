@@ -1,7 +1,8 @@
 """The census + gradient volume of a block by the kernels of :mod:`shared.volume_kernels`,
 :data:`CHUNK` disparities at a time with OpenCV's ``exp`` between them: called through
 :mod:`shared.kernels` (the compiled module when one is built, else numba), so that a process with
-the compiled module builds its volumes without importing numba."""
+the compiled module builds its volumes without importing numba. The AD-census volume takes the
+same census kernel with OpenCV's colour differences as its other term (:func:`build`)."""
 
 from __future__ import annotations
 
@@ -24,47 +25,63 @@ TILE_COLUMNS = 128
 Inputs = tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]
 #: A census kernel's call on a chunk: its arguments up to the bin width, then its output's.
 Aggregate = Callable[..., None]
+#: ``fill(chunk, first)``: the other term's exponents (before OpenCV's exp) of disparities
+#: ``first``, ``first + 1``, ... into ``chunk`` (count, rows, w).
+Fill = Callable[[np.ndarray, int], None]
+
+
+def gradients(inputs: Inputs, max_disparity: int) -> Fill:
+    """The census + gradient cost's :data:`Fill`: the gradient kernel."""
+    _, _, gradients_left, gradients_right = inputs
+
+    def fill(chunk: np.ndarray, first: int) -> None:
+        kernels.gradient_exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
+
+    return fill
 
 
 def _chunks(
-    inputs: Inputs,
+    codes: tuple[np.ndarray, np.ndarray],
+    fill: Fill,
     max_disparity: int,
     bin_width: int,
     table: np.ndarray,
     disparities: range,
     aggregate: Aggregate,
 ) -> None:
-    """``aggregate`` over ``disparities`` :data:`CHUNK` at a time, their gradient terms through
-    OpenCV's exp in one call between the two kernels."""
-    census_left, census_right, gradients_left, gradients_right = inputs
+    """``aggregate`` over ``disparities`` :data:`CHUNK` at a time, their other terms filled in
+    and put through OpenCV's exp in one call between the two."""
+    census_left, census_right = codes
     rows, width = census_left.shape
     terms = np.empty((min(CHUNK, max(len(disparities), 1)), rows, width), np.float32)
     for first in range(disparities.start, disparities.stop, CHUNK):
         chunk = terms[: min(CHUNK, disparities.stop - first)]
-        kernels.gradient_exponents(*gradients_left, *gradients_right, max_disparity, first, chunk)
+        fill(chunk, first)
         flat = chunk.reshape(-1, width)
         cv2.exp(flat, dst=flat)
         aggregate(census_left, census_right, chunk, table, max_disparity, first, bin_width)
 
 
 def build(
-    inputs: Inputs,
+    codes: tuple[np.ndarray, np.ndarray],
+    fill: Fill,
     block_rows: int,
     max_disparity: int,
     bin_width: int,
     table: np.ndarray,
     volume: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The block's volume binned at ``bin_width`` into ``volume`` (or a new array)."""
-    width = inputs[0].shape[1]
+    """The block's volume of census codes ``codes`` (left, right shifted) and the other term
+    ``fill`` gives, binned at ``bin_width``, into ``volume`` (or a new array)."""
+    width = codes[0].shape[1]
     if volume is None:
         volume = np.empty((max_disparity // bin_width + 1, block_rows, width), np.float32)
     out = volume
 
-    def aggregate(*codes: object) -> None:
-        kernels.census_aggregate(*codes, out)
+    def aggregate(*arguments: object) -> None:
+        kernels.census_aggregate(*arguments, out)
 
-    _chunks(inputs, max_disparity, bin_width, table, range(max_disparity + 1), aggregate)
+    _chunks(codes, fill, max_disparity, bin_width, table, range(max_disparity + 1), aggregate)
     return out
 
 
@@ -115,8 +132,10 @@ def windows(
             def aggregate(*codes: object) -> None:
                 kernels.census_window(*codes, tile_lowest, costs)  # noqa: B023 - called here
 
+            fill = gradients(tile, last)
             for run_first, run_last in runs:
-                _chunks(tile, last, bin_width, table, range(run_first, run_last + 1), aggregate)
+                disparities = range(run_first, run_last + 1)
+                _chunks(tile[:2], fill, last, bin_width, table, disparities, aggregate)
             out[top:bottom, left:right] = costs[:, left - start : right - start]
     return out
 

@@ -13,6 +13,7 @@ from shared import data_terms, fused_volume, kernels, level_inputs, pipeline, th
 from shared.config import MatchConfig
 from shared.data_terms import (
     VolumeBlock,
+    ad_census_volume,
     bin_minimum,
     binned_cost_volume,
     census_gradient_volume,
@@ -36,29 +37,51 @@ def both(left, right, block, out=None):
         return reference, census_gradient_volume(left, right, block, out)
 
 
-@settings(max_examples=25, deadline=None)
-@given(
-    seed=st.integers(0, 2**16),
-    height=st.integers(6, 40),
-    width=st.integers(8, 60),
-    max_disparity=st.integers(0, 20),
-    colour=st.booleans(),
-    levels=st.sampled_from([2, 5, 256]),
-    data=st.data(),
-)
-def test_the_compiled_volume_is_opencvs_bit_for_bit(
-    seed, height, width, max_disparity, colour, levels, data
-):
-    """Random views (few grey levels too: many equal costs, zero gradients), any block of
-    rows, colour or grey."""
+@st.composite
+def views_and_block(draw):
+    """Random views (few grey levels too: many equal costs, zero gradients), colour or grey,
+    and any block of their rows."""
+    seed, levels = draw(st.integers(0, 2**16)), draw(st.sampled_from([2, 5, 256]))
+    height, width = draw(st.integers(6, 40)), draw(st.integers(8, 60))
+    shape = (height, width, 3) if draw(st.booleans()) else (height, width)
     rng = np.random.default_rng(seed)
-    shape = (height, width, 3) if colour else (height, width)
     left = (rng.integers(0, levels, shape) / (levels - 1)).astype(np.float32)
     right = (rng.integers(0, levels, shape) / (levels - 1)).astype(np.float32)
-    start = data.draw(st.integers(0, height - 1))
-    stop = data.draw(st.integers(start + 1, height))
-    reference, fused = both(left, right, VolumeBlock(max_disparity, start, stop))
+    start = draw(st.integers(0, height - 1))
+    stop = draw(st.integers(start + 1, height))
+    return left, right, VolumeBlock(draw(st.integers(0, 20)), start, stop)
+
+
+@settings(max_examples=25, deadline=None)
+@given(views=views_and_block())
+def test_the_compiled_volume_is_opencvs_bit_for_bit(views):
+    reference, fused = both(*views)
     assert fused.dtype == np.float32
+    np.testing.assert_array_equal(fused, reference)
+
+
+@settings(max_examples=25, deadline=None)
+@given(views=views_and_block())
+def test_the_compiled_ad_census_volume_is_opencvs_bit_for_bit(views):
+    """The AD-census volume (the views' check, ``--data-term ad-census``) by the census kernel
+    with OpenCV's colour differences as its other term: OpenCV's volume, into a buffer too."""
+    left, right, block = views
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(kernels, "ready", lambda *chosen: False)
+        reference = ad_census_volume(left, right, block)
+    built = []
+    census_aggregate = kernels.census_aggregate
+
+    def recorded(*arguments):
+        built.append(arguments[5])  # the chunk's first disparity
+        return census_aggregate(*arguments)
+
+    buffer = np.full((block.max_disparity + 1, block.rows + 3, left.shape[1]), np.nan, np.float32)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(kernels, "ready", lambda *chosen: True)
+        patch.setattr(kernels, "census_aggregate", recorded)
+        fused = ad_census_volume(left, right, block, buffer[:, : block.rows])
+    assert built and np.shares_memory(fused, buffer)
     np.testing.assert_array_equal(fused, reference)
 
 
