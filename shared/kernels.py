@@ -107,6 +107,7 @@ SIGNATURES: Final[dict[str, tuple[str, tuple[Argument, ...]]]] = {
         (("float32", 3), "int64", ("int32", 2), "int64", ("float32", 3)),
     ),
     "least_costs": ("none", (("float32", 3), ("float32", 3), ("int32", 3))),
+    "census_codes": ("none", (("float32", 2), ("uint32", 2))),
 }  # fmt: skip
 
 #: The modules that define the kernels, in the order :func:`dispatcher` looks them up.
@@ -317,6 +318,7 @@ census_window = Kernel("census_window", _COMPILED)
 lowest_costs = Kernel("lowest_costs", _COMPILED)
 window_minima = Kernel("window_minima", _COMPILED)
 least_costs = Kernel("least_costs", _COMPILED, _NATIVE_LEAST)
+census_codes = Kernel("census_codes", _COMPILED)
 
 
 _preloading: threading.Thread | None = None
@@ -366,5 +368,5 @@ def _load_jit() -> None:
 _ALL = (
     chains_windows, chains_general, grid_energy, neighbour_costs, disagreements,
     subgradient_step, trws_pass, gradient_exponents, census_aggregate, census_window,
-    lowest_costs, window_minima, least_costs,
+    lowest_costs, window_minima, least_costs, census_codes,
 )  # fmt: skip

@@ -48,6 +48,36 @@ def gradient_exponents(
                 row[x] = (abs(here_x[x] - there_x[x]) + abs(here_y[x] - there_y[x])) * scale
 
 
+@numba.njit(cache=True, nogil=True)
+def census_codes(gray, codes):  # pragma: no cover - jit
+    """:func:`shared.data_terms.census` of ``gray`` (n, w) into ``codes`` (n - 4, w): each
+    neighbour's bit in NumPy's order (rows, then columns, -2..2, the centre left out), set where
+    the neighbour is darker, the columns beyond the edges replicated. Row by row, a pass over
+    the code row per neighbour (vectorised; the row stays in cache), the edges' few columns
+    with the edge column."""
+    width = gray.shape[1]
+    one = np.uint32(1)
+    for y in range(codes.shape[0]):
+        centre, code = gray[y + 2], codes[y]
+        for x in range(width):
+            code[x] = 0
+        for dy in range(5):
+            row = gray[y + dy]
+            for dx in range(-2, 3):
+                if dy == 2 and dx == 0:
+                    continue
+                low, high = max(0, -dx), min(width, width - dx)  # x + dx inside the row
+                for x in range(min(low, width)):
+                    code[x] = (code[x] << one) | np.uint32(row[0] < centre[x])
+                # slices first: indices from 0 vectorise (``x + dx`` kept them scalar)
+                inside = max(high - low, 0)
+                here, there, bits = centre[low:high], row[low + dx : high + dx], code[low:high]
+                for i in range(inside):
+                    bits[i] = (bits[i] << one) | np.uint32(there[i] < here[i])
+                for x in range(max(high, 0), width):
+                    code[x] = (code[x] << one) | np.uint32(row[width - 1] < centre[x])
+
+
 @intrinsic
 def _bits(typingctx, code):  # pragma: no cover - compiled
     """Set bits of a 32-bit code: LLVM's ``ctpop`` (a shift-and-mask count is 2.5x slower and

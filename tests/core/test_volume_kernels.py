@@ -85,6 +85,27 @@ def test_the_compiled_ad_census_volume_is_opencvs_bit_for_bit(views):
     np.testing.assert_array_equal(fused, reference)
 
 
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**16),
+    height=st.integers(5, 20),
+    width=st.integers(1, 40),
+    levels=st.sampled_from([2, 3, 256]),
+)
+def test_the_compiled_census_codes_are_numpys(seed, height, width, levels):
+    """Every neighbour's bit in NumPy's order, ties (few grey levels) and rows narrower than
+    the window (edge columns replicated) included."""
+    rng = np.random.default_rng(seed)
+    gray = (rng.integers(0, levels, (height, width)) * (255 / (levels - 1))).astype(np.float32)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(kernels, "ready", lambda *chosen: True)  # the kernel (compiled or jit)
+        codes = data_terms.census(gray)
+        patch.setattr(kernels, "ready", lambda *chosen: False)
+        reference = data_terms.census(gray)
+    assert codes.dtype == reference.dtype == np.uint32
+    np.testing.assert_array_equal(codes, reference)
+
+
 def test_the_compiled_volume_of_a_scene_fills_a_strided_buffer():
     """A scene, written into a block of a larger scratch buffer (as the blocks of a view are)."""
     scene = make_scene(160, 90, max_disparity=24, seed=5)
