@@ -54,8 +54,11 @@ static void solve_step(
     const float *base, double scale, const float *extra, double sign, const int32_t *first,
     const double *weight, double slope, double truncation, int32_t *labels, int turned,
     int64_t chains, int64_t length, int64_t count, double *energies, int64_t a,
-    double *messages)
+    double *messages, double *edges)
 {
+    /* the forward pass keeps each position's weights and window moves (first[x - 1] -
+     * first[x], as doubles) in edges[x * 2 * CHAINS ...] for the read-back: gathering them
+     * from the chains' rows again was a tenth of the kernel's time */
     double envelope_buffer[MAX_COUNT * CHAINS] __attribute__((aligned(32)));
     vdouble *envelope = (vdouble *)envelope_buffer;
     int64_t chain[CHAINS];
@@ -83,8 +86,11 @@ static void solve_step(
         const vdouble *previous = (const vdouble *)(messages + (x - 1) * count * CHAINS);
         vdouble *current = (vdouble *)(messages + x * count * CHAINS);
         /* the lower envelope of the cones s w |j - t| over the previous messages */
+        vdouble *kept = (vdouble *)(edges + x * 2 * CHAINS);
         for (int g = 0; g < GROUPS; g++) {
             w[g] = *(const vdouble *)(weights + g * LANES);
+            kept[g] = w[g];
+            kept[GROUPS + g] = __builtin_convertvector(-*(const vlong *)(shift + g * LANES), vdouble);
             step[g] = w[g] * slope;
             lowest[g] = previous[g];
             running[g] = lowest[g];
@@ -173,16 +179,12 @@ static void solve_step(
     const vdouble cap = (vdouble){0} + truncation;
     const vlong magnitude = (vlong){0} + INT64_MAX; /* all bits but the sign: |d| */
     for (int64_t x = length - 1; x > 0; x--) {
-        double weights[CHAINS], moves[CHAINS];
-        for (int n = 0; n < CHAINS; n++) {
-            weights[n] = weight[chain[n] * (length - 1) + x - 1];
-            moves[n] = (double)(first[chain[n] * length + x - 1] - first[chain[n] * length + x]);
-        }
+        const vdouble *kept = (const vdouble *)(edges + x * 2 * CHAINS);
         vdouble w[GROUPS], smallest[GROUPS];
         vdouble difference[GROUPS]; /* label difference at j = 0: first[x-1] - (first[x] + arg) */
         for (int g = 0; g < GROUPS; g++) {
-            w[g] = *(const vdouble *)(weights + g * LANES);
-            difference[g] = *(const vdouble *)(moves + g * LANES) - arg[g];
+            w[g] = kept[g];
+            difference[g] = kept[GROUPS + g] - arg[g];
             smallest[g] = infinite;
         }
         const vdouble *previous = (const vdouble *)(messages + (x - 1) * count * CHAINS);
@@ -190,7 +192,7 @@ static void solve_step(
             for (int g = 0; g < GROUPS; g++) {
                 vdouble distance = (vdouble)((vlong)(difference[g] + (double)j) & magnitude);
                 vdouble penalty = distance * slope;
-                penalty = vselect(penalty > cap, cap, penalty);
+                penalty = vmin(penalty, cap); /* cap where penalty > cap: one minimum */
                 vdouble value = previous[j * GROUPS + g] + w[g] * penalty;
                 vlong better = value < smallest[g];
                 smallest[g] = vselect(better, value, smallest[g]);
@@ -220,12 +222,13 @@ int qhsm_chains_windows(
         return 1;
     if (chains < 1)
         return 0;
-    double *messages = malloc(sizeof(double) * (size_t)(length * count * CHAINS));
+    double *messages = malloc(sizeof(double) * (size_t)(length * (count + 2) * CHAINS));
     if (messages == NULL)
         return 2;
+    double *edges = messages + length * count * CHAINS;
     for (int64_t a = 0; a < chains; a += CHAINS)
         solve_step(base, scale, extra, sign, first, weight, slope, truncation, labels, turned,
-                   chains, length, count, energies, a, messages);
+                   chains, length, count, energies, a, messages, edges);
     free(messages);
     return 0;
 }
