@@ -291,6 +291,9 @@ _NATIVE = {name: native.load(native_library_path(name), name) for name in native
 _NATIVE_CHAINS = (
     chains_native.NativeChains(_NATIVE["chains"]) if _NATIVE["chains"] is not None else None
 )
+_NATIVE_NEIGHBOURS = (
+    chains_native.NativeNeighbourCosts(_NATIVE["chains"]) if _NATIVE["chains"] is not None else None
+)
 #: OpenCV's weighted median in C on every core (:mod:`shared.median_native`), when built.
 native_median = (
     median_native.NativeMedian(_NATIVE["median"]) if _NATIVE["median"] is not None else None
@@ -308,7 +311,7 @@ def compiled_module() -> ModuleType | None:
 chains_windows = Kernel("_chains_windows", _COMPILED, _NATIVE_CHAINS)
 chains_general = Kernel("_chains_general", _COMPILED)
 grid_energy = Kernel("_grid_energy", _COMPILED)
-neighbour_costs = Kernel("_neighbour_costs", _COMPILED)
+neighbour_costs = Kernel("_neighbour_costs", _COMPILED, _NATIVE_NEIGHBOURS)
 disagreements = Kernel("_disagreements", _COMPILED)
 subgradient_step = Kernel("_subgradient_step", _COMPILED)
 trws_pass = Kernel("_trws_pass", _COMPILED)

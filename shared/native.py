@@ -2,9 +2,9 @@
 built into a shared library beside the compiled module by ``qhsm build-kernels``
 (:mod:`shared.kernel_build`, :func:`compile_library`) and loaded by :mod:`shared.kernels`
 (:func:`load`), whose bindings (:mod:`shared.chains_native`, :mod:`shared.median_native`,
-:mod:`shared.volume_native`) call them in place of numba's chain and least-cost kernels and
-OpenCV's weighted median, with the same results bit for bit. Without a C compiler nothing
-changes: numba's kernels and OpenCV's filter run.
+:mod:`shared.volume_native`) call them in place of numba's chain, neighbour-cost and
+least-cost kernels and OpenCV's weighted median, with the same results bit for bit. Without a
+C compiler nothing changes: numba's kernels and OpenCV's filter run.
 """
 
 from __future__ import annotations
@@ -34,14 +34,16 @@ def _source(name: str) -> Path:
 #: its real calls took 3-10 % longer (docs/benchmarks.md, "The weighted median on every core");
 #: alone, its library is the very file measured before.
 LIBRARIES: Final = {
-    "chains": Library(_source("chains"), (), ("qhsm_chains_windows",)),
+    "chains": Library(
+        _source("chains"), (), ("qhsm_chains_windows", "qhsm_neighbour_costs_windows")
+    ),
     "median": Library(_source("median"), ("-lm",), ("qhsm_median_weights", "qhsm_weighted_median")),
     "volume": Library(_source("volume"), (), ("qhsm_least_costs",)),
 }
 #: No fused multiply-adds (numba's and OpenCV's floats); GNU C for the vector extensions.
 FLAGS: Final = ("-O3", "-std=gnu11", "-ffp-contract=off", "-fPIC", "-shared", "-Wno-psabi")
 #: The numba kernels they stand in for (a build of either builds them).
-KERNELS: Final = ("_chains_windows", "least_costs")
+KERNELS: Final = ("_chains_windows", "_neighbour_costs", "least_costs")
 
 
 def compile_library(compiler: Sequence[str], target: Path, cpu: str, name: str) -> Path:
