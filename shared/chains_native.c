@@ -8,9 +8,10 @@
  * chains scalar (docs/benchmarks.md, "8 chains in lanes"). GCC's and Clang's vector extensions
  * put the lanes in SIMD registers. The read-back keeps labels and label differences as doubles
  * (small integers, exact): 64-bit integer lanes have no absolute value or conversion to
- * double before AVX-512 (nor a compare before SSE4.2), and cost the kernel 2x with AVX2. shared/kernels.py calls it through ctypes
- * when shared/kernel_build.py built it for this source; the numba kernel stays the reference
- * (tests/core/test_chains_native.py: equal bit for bit).
+ * double before AVX-512 (nor a compare before SSE4.2), and cost the kernel 2x with AVX2.
+ * shared/kernels.py calls it through ctypes when shared/kernel_build.py built it for this
+ * source; the numba kernel stays the reference (tests/core/test_chains_native.py: equal bit for
+ * bit).
  *
  * Every operation is _chains_windows' in the same order: min(a, b) is numba's (b if b < a
  * else a), the unary (min + scale * base) + sign * extra in float64, the read-back's first of
@@ -51,9 +52,9 @@ static inline vdouble vselect(vlong mask, vdouble yes, vdouble no)
 static inline double smin(double x, double y) { return y < x ? y : x; }
 
 /* One step's chains: messages[(x * count + k) * CHAINS + n] for chain a + n (the last chain
- * repeats itself in the lanes past the end; nothing of those lanes is written out). */
-/* inlined into each window width it is called with (constant counts: loops unrolled, the envelope in
- * registers: 4-5 % faster at the accurate preset's 4 and 6) */
+ * repeats itself in the lanes past the end; nothing of those lanes is written out). Inlined
+ * into each call below, so that the preset's window widths (4 and 6) are constants there: its
+ * candidate loops unrolled, 4-5 % faster. */
 static inline __attribute__((always_inline)) void solve_step(
     const float *base, double scale, const float *extra, double sign, const int32_t *first,
     const double *weight, double slope, double truncation, int32_t *labels, int turned,
@@ -94,7 +95,8 @@ static inline __attribute__((always_inline)) void solve_step(
         for (int g = 0; g < GROUPS; g++) {
             w[g] = *(const vdouble *)(weights + g * LANES);
             kept[g] = w[g];
-            kept[GROUPS + g] = __builtin_convertvector(-*(const vlong *)(shift + g * LANES), vdouble);
+            vlong moves = -*(const vlong *)(shift + g * LANES); /* first[x - 1] - first[x] */
+            kept[GROUPS + g] = __builtin_convertvector(moves, vdouble);
             step[g] = w[g] * slope;
             lowest[g] = previous[g];
             running[g] = lowest[g];
