@@ -10,6 +10,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from shared.synthetic import make_scene
 
@@ -156,3 +157,31 @@ def test_numpy_gets_no_huge_page_hint_unless_the_environment_asks():
         )
         assert done.returncode == 0, done.stderr
         assert done.stdout.strip() == expected
+
+
+def _threads_after_numpy(extra: dict[str, str]) -> int:
+    """Threads of a fresh process that imported ``shared``, then numpy (OpenBLAS starts its own
+    at load), with ``extra`` in an environment that sets no thread count."""
+    names = ("GOTO_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "QHSM_USER_THREADS")
+    env = {k: v for k, v in os.environ.items() if k not in names}
+    probe = "import os, shared, numpy; print(len(os.listdir('/proc/self/task')))"
+    done = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**env, **extra, "PYTHONPATH": str(ROOT)},
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    return int(done.stdout)
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc (Linux)")
+def test_numpy_blas_runs_on_one_thread_unless_the_environment_asks():
+    """``shared`` precedes numpy's import with GOTO_NUM_THREADS=1: OpenBLAS starts no thread of
+    its own (it spun on the run's other core after each luma product); a user's
+    OPENBLAS_NUM_THREADS wins."""
+    assert _threads_after_numpy({}) == 1
+    if (os.cpu_count() or 1) >= 2:
+        assert _threads_after_numpy({"OPENBLAS_NUM_THREADS": "2"}) == 2
