@@ -129,7 +129,17 @@ class LevelConfig(BaseModel):
         description="Bin pyramid: s on the coarse_levels coarsest levels (unset: slope), where "
         "a bin spans several disparities and the data term is flatter",
     )
-    coarse_levels: int = Field(3, ge=0, description="Bin pyramid: levels that take coarse_slope")
+    coarse_levels: int = Field(
+        3, ge=0, description="Bin pyramid: levels that take coarse_slope and coarse_prior"
+    )
+    coarse_prior: float = Field(
+        0.0,
+        ge=0,
+        description="Bin pyramid: on the coarse_levels coarsest levels, this per bin a label lies "
+        "outside its coarser level's bin (that bin's two children cost nothing), so that a large "
+        "flat region keeps the bin the coarser level gave it unless its data disagree by more "
+        "(0: none)",
+    )
     finest_candidates: int | None = Field(
         None,
         ge=2,
@@ -155,7 +165,8 @@ def paper_levels() -> list[LevelConfig]:
 def accurate_levels() -> list[LevelConfig]:
     """The bin pyramid's level template: 6 candidate bins (4 disparities at the finest level:
     its coarser bin's two and one either side), 0.1 per bin (0.2 on the three coarsest levels)
-    capped at 0.4, times 0.3 across gray steps above 0.06."""
+    capped at 0.4, times 0.3 across gray steps above 0.06; on the three coarsest levels 0.01 per
+    bin outside the coarser level's bin (docs/benchmarks.md, "The coarse-to-fine prior")."""
     return [
         LevelConfig(
             downsample=1,
@@ -167,6 +178,7 @@ def accurate_levels() -> list[LevelConfig]:
             edge_factor=0.3,
             coarse_slope=0.2,
             coarse_levels=3,
+            coarse_prior=0.01,
         )
     ]
 

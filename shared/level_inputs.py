@@ -26,7 +26,7 @@ from shared.data_terms import (
 from shared.energy import Costs, mrf_costs
 from shared.grid import GridMRF, grid_mrf
 from shared.images import to_gray
-from shared.pyramid import LevelPlan
+from shared.pyramid import LevelPlan, outside_coarse_bin
 from shared.threads import each_beside
 
 #: Rows of a cost volume built at once for a bundle of many rows (a grid's whole view): the
@@ -74,6 +74,9 @@ class LevelInputs:
     #: A coarse grid's bin costs (views, bins, view_height, w): the full-resolution ones
     #: averaged over each block (:mod:`shared.coarse_grid`); they replace the level's own.
     pooled: np.ndarray | None = None
+    #: (rows, w) int32: the coarser level's bin of each pixel, on a level whose MRF has a
+    #: ``coarse_prior`` (:meth:`view_unary` adds it), else None.
+    coarse_bins: np.ndarray | None = None
     #: What planning the bundles did (``LevelInference.plan``): segment width, embeddings.
     prepared: dict = field(default_factory=dict)
     _binned: list[np.ndarray] | None = field(default=None, init=False, repr=False)
@@ -461,7 +464,8 @@ class LevelInputs:
         dtype: type = np.float64,
         workers: int = 1,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The data term of rows [first, last) of one view at its candidates.
+        """The data term of rows [first, last) of one view at its candidates, with the level's
+        coarse-to-fine prior (:meth:`_add_coarse_prior`).
 
         Parameters
         ----------
@@ -491,7 +495,24 @@ class LevelInputs:
             unary = squared_difference(guide, to_gray(right[first:last]), candidates)
         else:
             unary = self._candidate_costs(config.data_term, view, first, last, dtype, workers)
+            self._add_coarse_prior(unary, view, first, last)
         return unary, guide
+
+    def _add_coarse_prior(self, unary: np.ndarray, view: int, first: int, last: int) -> None:
+        """Add to ``unary`` (rows [first, last) of one view, a fresh array) the level's
+        ``coarse_prior`` per bin each candidate lies outside its coarser bin
+        (:func:`shared.pyramid.outside_coarse_bin`): on the coarse levels a wall's data term
+        is flat, and over a large wall a small, consistent bias of it can outweigh the few
+        edges that hold the wall at the coarser level's bin (docs/benchmarks.md, "The
+        coarse-to-fine prior")."""
+        weight = self.plan.mrf.coarse_prior
+        if not weight or self.coarse_bins is None:
+            return
+        start, stop = self._rows(view, first, last)
+        outside = outside_coarse_bin(
+            self.candidate_labels(start, stop), self.coarse_bins[start:stop]
+        )
+        unary += outside.astype(unary.dtype) * unary.dtype.type(weight)
 
     def grid(self, config: MatchConfig, start: int, stop: int, workers: int = 1) -> GridMRF:
         """The grid MRF of rows [start, stop) of one view (``grid`` inference).

@@ -299,6 +299,8 @@ def prepare_level(
         first=first,
         pooled=pooled,
     )
+    if previous is not None and config.pyramid is PyramidKind.BINS and plan.mrf.coarse_prior:
+        inputs.coarse_bins = pyramid.prior_bins(previous, views)
     if (
         previous is not None
         and config.pyramid is PyramidKind.BINS

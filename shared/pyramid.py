@@ -91,6 +91,8 @@ def plan(config: MatchConfig, max_disparity: int) -> list[LevelPlan]:
         mrf = template
         if template.coarse_slope is not None and index < template.coarse_levels:
             mrf = template.model_copy(update={"slope": template.coarse_slope})
+        if index >= template.coarse_levels and template.coarse_prior:
+            mrf = mrf.model_copy(update={"coarse_prior": 0.0})  # the finer levels take none
         factor = grid_factor(width, config.coarse_grid)
         if factor > 1:  # a block's mean cost against its f boundary pairs: the fine energy / f^2
             mrf = mrf.model_copy(
@@ -234,6 +236,61 @@ def window_starts(coarse_bins: np.ndarray, count: int, max_bin: int) -> np.ndarr
     of a bin level in one label per pixel (``LevelInputs.first``)."""
     start = 2 * np.rint(coarse_bins).astype(np.int32) - (count // 2 - 1)
     return np.clip(start, 0, max(0, max_bin + 1 - count))
+
+
+#: Pixels within this many pixels of a change of the coarser level's bin take no coarse prior
+#: (:func:`prior_bins`): the coarser map is blocky there (a coarse grid's cells are 2 px), and
+#: an object's edge may need bins beyond the coarser one. Books at 2005's third size: 9.71 %
+#: bad with the prior everywhere, 9.54 % with it off within 2 px (8.93 % without a prior).
+PRIOR_EDGE_RADIUS = 2
+
+
+def prior_bins(coarse_map: np.ndarray, views: int) -> np.ndarray:
+    """Each pixel's coarser bin for the coarse-to-fine prior (``LevelConfig.coarse_prior``),
+    -1 (no prior) within :data:`PRIOR_EDGE_RADIUS` px of a change of bin, view by view.
+
+    Parameters
+    ----------
+    coarse_map : numpy.ndarray
+        The coarser level's map on this level's grid (views * h, w), bins.
+    views : int
+        1 or 2 (stacked top to bottom).
+
+    Returns
+    -------
+    numpy.ndarray
+        (views * h, w) int32.
+    """
+    bins = np.rint(coarse_map).astype(np.int32)
+    size = 2 * PRIOR_EDGE_RADIUS + 1
+    kernel = np.ones((size, size), dtype=np.uint8)
+    for view in np.split(bins, views):  # views of ``bins``: written in place
+        values = view.astype(np.float32)
+        view[cv2.dilate(values, kernel) != cv2.erode(values, kernel)] = -1
+    return bins
+
+
+def outside_coarse_bin(labels: np.ndarray, coarse_bins: np.ndarray) -> np.ndarray:
+    """How many bins each candidate label lies outside its coarser bin: 0 for the bin's two
+    children (2c and 2c + 1), 1 for the labels next to them, and so on; 0 where the coarser bin
+    is -1 (:func:`prior_bins`). The level's ``coarse_prior`` is paid per bin of it.
+
+    Parameters
+    ----------
+    labels : numpy.ndarray
+        (h, w, K) candidate bins of a level.
+    coarse_bins : numpy.ndarray
+        (h, w) the coarser level's bin of each pixel (integers), or -1.
+
+    Returns
+    -------
+    numpy.ndarray
+        (h, w, K) int32, at least 0.
+    """
+    coarse = coarse_bins.astype(np.int32)[:, :, None]
+    low = 2 * coarse
+    outside = np.maximum(np.maximum(low - labels, labels - (low + 1)), 0)
+    return np.where(coarse < 0, 0, outside).astype(np.int32)
 
 
 def nearest_in_window(target: np.ndarray, start: np.ndarray, count: int) -> np.ndarray:

@@ -65,6 +65,8 @@ class LevelStorage(StoreBase):
             arrays["initial_labels"] = inputs.initial_labels
         if inputs.pooled is not None:  # a coarse grid's costs (shared.coarse_grid)
             arrays["pooled"] = inputs.pooled
+        if inputs.coarse_bins is not None:  # what the level's coarse-to-fine prior reads
+            arrays["coarse_bins"] = inputs.coarse_bins
         for name, array in arrays.items():
             fields.update(array_fields(name, array, piece=piece))
         key = self.key("job", job_id, "level", inputs.plan.index)
@@ -108,6 +110,7 @@ class LevelStorage(StoreBase):
             ),
             prepared=json.loads(fields.get(b"prepared", b"{}")),
             pooled=array_from(fields, "pooled") if b"pooled" in fields else None,
+            coarse_bins=array_from(fields, "coarse_bins") if b"coarse_bins" in fields else None,
         )
         return inputs, float(fields[b"started"])
 

@@ -3,6 +3,7 @@ disparity range, and the paper preset left exactly as it was."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import itertools
 
@@ -12,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from shared import filters, kernels, level_inputs, pipeline, pyramid
+from shared import filters, grid, kernels, level_inputs, pipeline, pyramid
 from shared.config import MatchConfig, Preset
 from shared.data_terms import VolumeBlock, ad_census_volume, bin_minimum, census, window_reach
 from shared.disparity_range import estimate_max_disparity
@@ -206,6 +207,66 @@ def test_the_finer_window_holds_the_truth_when_the_coarser_bin_does(
         window = pyramid.refined_bins(np.array([[truth // coarse]]), count, max_bin)[0, 0]
         assert truth // fine in window
         assert window.min() >= 0 and window.max() <= max_bin
+
+
+def test_the_coarse_levels_costs_carry_the_prior_towards_the_coarser_bin():
+    """On the coarse levels (``coarse_levels``) a pixel's costs are the data term plus
+    ``coarse_prior`` per bin outside its coarser bin, on every path that reads them (the
+    grid's and the bundles'); the finer levels keep the data term alone."""
+    scene = make_scene(24, 40, max_disparity=60, seed=4)
+    config = MatchConfig(max_disparity=60)
+    left, right = match_views(scene.left, scene.right, config)
+    plans = pyramid.plan(config, 60)
+    template = config.levels[0]
+    assert len(plans) > template.coarse_levels
+    level_map = None
+    for plan in plans:
+        inputs = prepare_level(left, right, config, plan, level_map)
+        if level_map is None or plan.index >= template.coarse_levels:
+            assert inputs.coarse_bins is None
+        else:
+            upsampled = pyramid.upsample_labels(level_map, inputs.views, (inputs.view_height, 40))
+            held = inputs.coarse_bins >= 0  # away from the coarser map's edges (prior_bins)
+            assert held.any()
+            np.testing.assert_array_equal(inputs.coarse_bins[held], np.rint(upsampled)[held])
+            without = dataclasses.replace(inputs, coarse_bins=None)
+            rows = slice(0, inputs.view_height)
+            outside = pyramid.outside_coarse_bin(
+                inputs.candidate_labels()[rows], inputs.coarse_bins[rows]
+            )
+            assert outside.max() > 0  # the windows reach beyond the coarser bins
+            prior = outside.astype(np.float32) * np.float32(template.coarse_prior)
+            grid = inputs.grid(config, 0, inputs.view_height)
+            plain = without.grid(config, 0, inputs.view_height)
+            np.testing.assert_array_equal(grid.unary, plain.unary + prior)
+            bundle = inputs.costs(config, 0, inputs.view_height).unary
+            plain_bundle = without.costs(config, 0, inputs.view_height).unary
+            np.testing.assert_allclose(
+                bundle - plain_bundle, prior.reshape(bundle.shape), atol=1e-12
+            )
+        solution = solve_level_in_process(inputs, config)
+        level_map = finish_level(inputs, solution, config)
+
+
+def test_a_flat_wall_keeps_its_coarser_bin_against_a_small_bias():
+    """Why the prior: on a textureless wall every pixel's costs are flat but may share a small
+    bias towards a wrong bin; summed over the wall that bias decides the optimum, which the
+    level's minimiser finds (the smoothness is 0 inside a wall of one label). With the coarse
+    prior, labels outside the coarser bin pay more than the bias, and the wall stays."""
+    height, width, count = 12, 16, 6
+    coarse_bins = np.full((height, width), 5, dtype=np.int32)
+    first = pyramid.window_starts(coarse_bins, count, 40)  # labels 8 .. 13, children 10, 11
+    unary = np.full((height, width, count), 0.2, dtype=np.float32)
+    unary[:, :, 5] -= 0.005  # label 13: two bins outside, slightly cheaper everywhere
+    level = MatchConfig().levels[0]
+    guide = np.full((height, width), 0.5, dtype=np.float32)
+    labels = first[:, :, None] + np.arange(count, dtype=np.int32)
+    prior = pyramid.outside_coarse_bin(labels, coarse_bins).astype(np.float32)
+    for weight, expected in ((0.0, {13}), (level.coarse_prior, {10, 11})):
+        costs = unary + np.float32(weight) * prior
+        mrf = grid.grid_mrf(costs, None, guide, level, MatchConfig().regularizer, first)
+        result = grid.dual_decomposition(mrf, 40, 0.0)
+        assert set(np.unique(first + result.labels)) <= expected
 
 
 def test_occluded_strip_takes_the_background_disparity():

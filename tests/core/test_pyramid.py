@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from shared import pyramid
+from shared.config import MatchConfig, Preset
 
 
 def test_coarsest_candidates_are_0_to_5_with_the_paper_defaults():
@@ -78,3 +79,58 @@ def test_the_nearest_in_a_window_is_the_argmin_of_the_distances(targets, starts,
     candidates = start[:, :, None] + np.arange(count, dtype=np.int32)
     expected = np.abs(candidates - target[:, :, None]).argmin(axis=2)
     np.testing.assert_array_equal(pyramid.nearest_in_window(target, start, count), expected)
+
+
+@given(
+    coarse=st.lists(st.integers(0, 20), min_size=1, max_size=6),
+    offsets=st.lists(st.integers(-6, 8), min_size=6, max_size=6),
+)
+@settings(max_examples=100, deadline=None)
+def test_outside_the_coarse_bin_is_the_distance_to_its_nearer_child(coarse, offsets):
+    """The coarse-to-fine prior's count: 0 on the coarser bin's two children (2c, 2c + 1),
+    else the bins to the nearer of them."""
+    coarse_bins = np.array([coarse], dtype=np.int32)
+    labels = 2 * coarse_bins[:, :, None] + np.array(offsets, dtype=np.int32)
+    expected = [
+        [
+            [min(abs(label - 2 * c), abs(label - 2 * c - 1)) for label in row]
+            for c, row in zip(coarse, pixel, strict=True)
+        ]
+        for pixel in labels
+    ]
+    outside = pyramid.outside_coarse_bin(labels, coarse_bins)
+    assert outside.dtype == np.int32
+    np.testing.assert_array_equal(outside, expected)
+
+
+def test_only_the_accurate_presets_coarse_levels_take_the_coarse_prior():
+    """The prior is the bin pyramid's, on the coarse_levels coarsest levels (as coarse_slope);
+    the finer levels and the paper's image pyramid take none."""
+    config = MatchConfig()  # accurate
+    plans = pyramid.plan(config, 106)
+    template = config.levels[0]
+    assert template.coarse_prior > 0 and len(plans) > template.coarse_levels
+    for plan in plans:
+        expected = template.coarse_prior if plan.index < template.coarse_levels else 0.0
+        assert plan.mrf.coarse_prior == expected
+    paper = MatchConfig(preset=Preset.PAPER)
+    assert all(plan.mrf.coarse_prior == 0.0 for plan in pyramid.plan(paper, 15))
+
+
+def test_the_prior_holds_nothing_near_a_change_of_the_coarser_bin():
+    """prior_bins: the coarser bins, -1 within PRIOR_EDGE_RADIUS px of a change of bin (the
+    coarser map is blocky there); each view on its own, so the seam of the stacked views is no
+    edge."""
+    radius = pyramid.PRIOR_EDGE_RADIUS
+    view = np.full((12, 16), 3.0, dtype=np.float32)
+    view[:, 8:] = 5.0  # a depth edge between columns 7 and 8
+    other = np.full((12, 16), 7.0, dtype=np.float32)  # the other view: flat, another bin
+    bins = pyramid.prior_bins(np.concatenate([view, other]), 2)
+    near = np.zeros((12, 16), dtype=bool)
+    near[:, 8 - radius : 8 + radius] = True
+    np.testing.assert_array_equal(bins[:12][near], -1)
+    np.testing.assert_array_equal(bins[:12][~near], np.rint(view[~near]))
+    np.testing.assert_array_equal(bins[12:], 7)  # no edge at the seam
+    labels = np.arange(20, dtype=np.int32)[None, None, :].repeat(12, 0).repeat(16, 1)
+    outside = pyramid.outside_coarse_bin(labels, bins[:12])
+    assert not outside[near].any() and outside[~near].any()

@@ -145,7 +145,9 @@ def test_estimate_asks_the_service_and_agrees_with_the_local_model(api_url, tmp_
 
     from shared.solvers.meters import qpu_time
 
-    scene = make_scene(24, 32, max_disparity=8, seed=9)
+    # a scene whose bundles roof duality does not all solve on the host (seed 9's it does, with
+    # the coarse levels' prior): some QPU time to estimate
+    scene = make_scene(24, 32, max_disparity=8, seed=1)
     left, right = tmp_path / "left.png", tmp_path / "right.png"
     left.write_bytes(harness.png(scene.left))
     right.write_bytes(harness.png(scene.right))

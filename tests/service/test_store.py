@@ -81,8 +81,11 @@ def test_level_inputs_round_trip_and_expire_with_the_level(store, pair_arrays):
     store.save_level(record.id, fine, started=123.0)
     loaded, started = store.load_level(record.id, 1)
     assert started == 123.0 and loaded.plan == fine.plan and loaded.views == fine.views == 2
-    for name in ("left", "right", "candidates", "initial_labels", "first"):
+    for name in ("left", "right", "candidates", "initial_labels", "first", "coarse_bins"):
         assert np.array_equal(getattr(loaded, name), getattr(fine, name))
+    # the coarse-to-fine prior travels with the level: a worker's costs are the pipeline's
+    assert fine.coarse_bins is not None and fine.plan.mrf.coarse_prior > 0
+    assert np.array_equal(loaded.costs(config).unary, fine.costs(config).unary)
     # a bin level's windows are stored as each pixel's first candidate, not (rows, w, K)
     stored = store.redis.hkeys(store.key("job", record.id, "level", 1))
     assert b"first" in stored and b"candidates" not in stored
