@@ -140,31 +140,10 @@ print("ENERGY", hashlib.sha256(kernels.grid_energy.jit()(*args).tobytes()).hexdi
     assert energies[0] == energies[1]
 
 
-def test_numpy_gets_no_huge_page_hint_unless_the_environment_asks():
-    """``shared`` precedes numpy's import with NUMPY_MADVISE_HUGEPAGE=0 (the page faults of
-    MADV_HUGEPAGE arrays cost Aloe seconds of system time); a value already set wins."""
-    probe = "import shared, numpy; print(numpy._core.multiarray._get_madvise_hugepage())"
-    env = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
-    for given, expected in ((None, "False"), ("1", "True")):
-        extra = {} if given is None else {"NUMPY_MADVISE_HUGEPAGE": given}
-        done = subprocess.run(
-            [sys.executable, "-c", probe],
-            capture_output=True,
-            text=True,
-            cwd=ROOT,
-            env={**env, **extra, "PYTHONPATH": str(ROOT)},
-            timeout=60,
-        )
-        assert done.returncode == 0, done.stderr
-        assert done.stdout.strip() == expected
-
-
-def _threads_after_numpy(extra: dict[str, str]) -> int:
-    """Threads of a fresh process that imported ``shared``, then numpy (OpenBLAS starts its own
-    at load), with ``extra`` in an environment that sets no thread count."""
-    names = ("GOTO_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "QHSM_USER_THREADS")
-    env = {k: v for k, v in os.environ.items() if k not in names}
-    probe = "import os, shared, numpy; print(len(os.listdir('/proc/self/task')))"
+def _fresh_import(probe: str, unset: tuple[str, ...], extra: dict[str, str]) -> str:
+    """What ``probe`` prints in a fresh interpreter, run with this checkout on the path, the
+    variables ``unset`` removed from this environment and ``extra`` added."""
+    env = {k: v for k, v in os.environ.items() if k not in unset}
     done = subprocess.run(
         [sys.executable, "-c", probe],
         capture_output=True,
@@ -174,7 +153,24 @@ def _threads_after_numpy(extra: dict[str, str]) -> int:
         timeout=60,
     )
     assert done.returncode == 0, done.stderr
-    return int(done.stdout)
+    return done.stdout.strip()
+
+
+def test_numpy_gets_no_huge_page_hint_unless_the_environment_asks():
+    """``shared`` precedes numpy's import with NUMPY_MADVISE_HUGEPAGE=0 (the page faults of
+    MADV_HUGEPAGE arrays cost Aloe seconds of system time); a value already set wins."""
+    probe = "import shared, numpy; print(numpy._core.multiarray._get_madvise_hugepage())"
+    for given, expected in ((None, "False"), ("1", "True")):
+        extra = {} if given is None else {"NUMPY_MADVISE_HUGEPAGE": given}
+        assert _fresh_import(probe, ("NUMPY_MADVISE_HUGEPAGE",), extra) == expected
+
+
+def _threads_after_numpy(extra: dict[str, str]) -> int:
+    """Threads of a fresh process that imported ``shared``, then numpy (OpenBLAS starts its own
+    at load), with ``extra`` in an environment that sets no thread count."""
+    names = ("GOTO_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "QHSM_USER_THREADS")
+    probe = "import os, shared, numpy; print(len(os.listdir('/proc/self/task')))"
+    return int(_fresh_import(probe, names, extra))
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc (Linux)")
