@@ -348,8 +348,8 @@ def format_estimate(result: dict) -> str:
         "(the host's settling, roof duality), the rest sent"
     ]
     for level in result["levels"]:
-        qubits = ""
-        if level["qubits_per_bundle"] is not None:
+        qubits = ""  # none for a level that sends nothing (every bundle solved on the host)
+        if level["qubits_per_bundle"] is not None and level.get("bundles_sent", 1):
             source = "embedding" if level["embedding_known"] else "assumed"
             qubits = f", {level['qubits_per_bundle']} qubits ({source})"
         settled = ""

@@ -252,7 +252,7 @@ class MatchConfig(BaseModel):
         "to the same bound), its labels polished by the chain primal step",
     )
     dual_iterations: int = Field(
-        40,
+        60,
         ge=1,
         le=1000,
         description="grid inference with exact: most dual-decomposition iterations per level "

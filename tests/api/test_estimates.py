@@ -302,3 +302,25 @@ def test_pricing_reports_the_share_of_levels_priced_while_it_runs(api, api_setti
     assert seen == [(pricing.SURVEY, 1 / 3), (pricing.SURVEY, 2 / 3), (pricing.SURVEY, 1.0)]
     assert job_now() == (None, None)  # queued
     api.delete(f"/v1/jobs/{job}")
+
+
+def test_the_estimates_text_names_qubits_only_for_levels_that_send_bundles():
+    """``qhsm estimate``'s lines: a level whose every bundle the host solved embeds nothing,
+    so its line names no qubits; a level that sends bundles names them and their source."""
+    from api.cli import format_estimate
+
+    def level(index: int, sent: int) -> dict:
+        return {
+            "index": index, "height": 4, "width": 8, "bundles": 10, "variables_per_bundle": 6,
+            "bundles_sent": sent, "variables_share": 0.5, "qubits_per_bundle": 12,
+            "embedding_known": False, "seconds": 0.01 * sent,
+        }  # fmt: skip
+
+    result = {
+        "solver": "qpu", "metered": True, "seconds": 0.02, "bundles": 20, "bundles_sent": 2,
+        "max_disparity": 8,
+        "levels": [level(0, 0), level(1, 2)],
+    }  # fmt: skip
+    first, second = format_estimate(result).splitlines()[1:3]
+    assert "qubits" not in first and "0 sent" in first
+    assert "12 qubits (assumed)" in second and "2 sent" in second

@@ -54,7 +54,7 @@ CASES = {
     "qubo-residual": (
         {"solver": "sa", "inference": "grid", "solver_params": {"num_reads": 2}},
         ResidualTiles,
-        "0d5701a7626a8400",
+        "de115474fece605a",
     ),
 }
 

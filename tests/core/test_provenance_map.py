@@ -134,9 +134,10 @@ def test_the_solver_code_is_exactly_where_a_tiles_answer_was_kept(pair, monkeypa
     monkeypatch.setattr("shared.solvers.registry.get_solver", lambda name: fake)
     solution = inference_for(cfg).assemble(inputs, solve_bundles(inputs, cfg, bundles), cfg)
     assert solution.residual["tiles_improved"] == 1
+    # the answer differs from the labels at that pixel only: the one pixel the tile decided (the
+    # tile's other unsettled pixels, answered with the labels they had, stay the host's)
     expected = before.copy()
-    kept = expected[rows, columns]
-    kept[kept == Stage.HOST] = Stage.SOLVER
+    expected[row, column] = Stage.SOLVER
     assert np.array_equal(solution.stages, expected)
     assert Stage.SOLVER in codes(solution.stages)
 
